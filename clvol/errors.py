@@ -1,0 +1,29 @@
+"""Exception types.
+
+Every error a user can cause (bad scene, bad file, bad option) is a ``ClvolError``;
+the CLI turns it into a one-line message and exit status 2. Anything else is a bug.
+"""
+
+
+class ClvolError(Exception):
+    """A problem with the user's input: a scene, a file, an option."""
+
+
+class SceneError(ClvolError):
+    """A scene file is malformed; the message starts with the file and the dotted field."""
+
+
+class VolumeError(ClvolError):
+    """A volume file or grid is malformed or holds values we refuse (NaN, Inf, < 0)."""
+
+
+class ImageError(ClvolError):
+    """An image file cannot be read or written."""
+
+
+class DeviceError(ClvolError):
+    """No OpenCL device matches the request, or none is installed."""
+
+
+class BuildError(ClvolError):
+    """An OpenCL program failed to compile; the message carries the file and compiler log."""

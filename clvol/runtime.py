@@ -1,0 +1,337 @@
+"""OpenCL runtime: device choice, program building from ``cl/``, kernel launches.
+
+One ``Runtime`` holds a context and an in-order queue on one device. Kernel host
+wrappers (``clvol/kernels/<stem>.py``) get it from ``get_runtime()`` and do::
+
+    rt = get_runtime()
+    prog = rt.program("raymarch", defines={"GREY": 1})
+    k = prog.kernel("raymarch", [None, None, np.int32, np.float32])   # built once, reused
+    rt.launch(k, n_items, (buf_in, buf_out, np.int32(n), np.float32(step)))
+
+Device choice (first that applies): the ``device`` argument, ``$CLVOL_DEVICE``,
+``$PYOPENCL_CTX``, the first GPU, the first CPU, any device. A spec is
+``"P"`` or ``"P:D"`` (platform and device indices, as ``clvol info`` lists them),
+``"gpu"``/``"cpu"``/``"accelerator"``, or a case-insensitive substring of
+"platform name / device name".
+
+Programs are built with ``-I cl/include``, the caller's ``-D`` defines and a hash of
+every source they could include, so no driver-side cache can serve a stale header.
+They are cached in-process on (source hash, options, device).
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.resources
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+
+from .errors import BuildError, DeviceError
+
+# PoCL runs a NULL-local-size launch with a prime global size on one core
+# (DESIGN.md), so global sizes are padded to a multiple of this by default.
+DEFAULT_PAD = 64
+
+
+def cl_source_dir() -> Path:
+    """Folder holding the ``.cl`` sources (``cl/`` in a checkout, ``clvol/_cl`` installed)."""
+    return Path(str(importlib.resources.files("clvol._cl")))
+
+
+def include_dir() -> Path:
+    return cl_source_dir() / "include"
+
+
+def padded(n: int, multiple: int = DEFAULT_PAD) -> int:
+    """Smallest multiple of ``multiple`` that is >= n (and >= multiple)."""
+    n = max(int(n), 1)
+    return ((n + multiple - 1) // multiple) * multiple
+
+
+# --------------------------------------------------------------------------- devices
+
+@dataclass(frozen=True)
+class DeviceEntry:
+    platform_index: int
+    device_index: int
+    platform: "cl.Platform"
+    device: "cl.Device"
+
+    @property
+    def spec(self) -> str:
+        return f"{self.platform_index}:{self.device_index}"
+
+    @property
+    def kind(self) -> str:
+        t = self.device.type
+        if t & cl.device_type.GPU:
+            return "gpu"
+        if t & cl.device_type.CPU:
+            return "cpu"
+        if t & cl.device_type.ACCELERATOR:
+            return "accelerator"
+        return "other"
+
+    @property
+    def label(self) -> str:
+        return f"{self.platform.name.strip()} / {self.device.name.strip()}"
+
+
+def list_devices() -> list[DeviceEntry]:
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error:  # the ICD loader reports "no platforms" as an error
+        platforms = []
+    out = []
+    for pi, p in enumerate(platforms):
+        try:
+            devices = p.get_devices()
+        except cl.Error:
+            devices = []
+        for di, d in enumerate(devices):
+            out.append(DeviceEntry(pi, di, p, d))
+    return out
+
+
+def _match(spec: str, entries: list[DeviceEntry], origin: str) -> DeviceEntry:
+    s = spec.strip()
+    parts = s.split(":")
+    if all(p.strip().isdigit() for p in parts) and 1 <= len(parts) <= 2:
+        pi = int(parts[0])
+        di = int(parts[1]) if len(parts) == 2 else 0
+        for e in entries:
+            if e.platform_index == pi and e.device_index == di:
+                return e
+    elif s.lower() in ("gpu", "cpu", "accelerator"):
+        for e in entries:
+            if e.kind == s.lower():
+                return e
+    else:
+        for e in entries:
+            if s.lower() in e.label.lower():
+                return e
+    have = "; ".join(f"{e.spec} = {e.label} ({e.kind})" for e in entries) or "none"
+    raise DeviceError(
+        f"{origin}={spec!r} matches no OpenCL device; use 'P:D', 'gpu', 'cpu' or a name "
+        f"substring. Devices: {have}")
+
+
+def choose_device(device: str | None = None) -> tuple[DeviceEntry, str]:
+    """Return the chosen device and the reason it was chosen."""
+    entries = list_devices()
+    if not entries:
+        raise DeviceError(
+            "no OpenCL platform found; on Debian/Ubuntu install the CPU runtime with "
+            "'apt-get install pocl-opencl-icd' (scripts/setup.sh does this)")
+    for origin, spec in (("--device", device),
+                         ("CLVOL_DEVICE", os.environ.get("CLVOL_DEVICE")),
+                         ("PYOPENCL_CTX", os.environ.get("PYOPENCL_CTX"))):
+        if spec:
+            return _match(spec, entries, origin), f"{origin}={spec}"
+    for kind in ("gpu", "cpu"):
+        for e in entries:
+            if e.kind == kind:
+                return e, f"default: first {kind.upper()}"
+    return entries[0], "default: first device"
+
+
+def describe_devices(device: str | None = None) -> str:
+    """Human-readable listing for ``clvol info``."""
+    entries = list_devices()
+    lines = []
+    try:
+        chosen, why = choose_device(device)
+    except DeviceError as exc:
+        chosen, why = None, str(exc)
+    last_p = None
+    for e in entries:
+        if e.platform_index != last_p:
+            lines.append(f"platform {e.platform_index}: {e.platform.name.strip()} "
+                         f"({e.platform.version.strip()})")
+            last_p = e.platform_index
+        mark = "*" if chosen is not None and e.spec == chosen.spec else " "
+        d = e.device
+        lines.append(
+            f" {mark} {e.spec}  {e.kind:<4} {d.name.strip()}  "
+            f"{d.max_compute_units} CUs, {d.global_mem_size / 2**30:.1f} GiB, "
+            f"OpenCL C {d.opencl_c_version.strip()}")
+    if not entries:
+        lines.append("no OpenCL platforms found")
+    lines.append(f"chosen: {chosen.spec + ' ' + chosen.label if chosen else 'none'} ({why})")
+    lines.append("select with --device P:D|gpu|cpu|NAME, or $CLVOL_DEVICE / $PYOPENCL_CTX")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- programs
+
+class Program:
+    """A built program; hands out Kernel objects that are created once and reused."""
+
+    def __init__(self, runtime: "Runtime", stem: str, program: "cl.Program", options: tuple):
+        self.runtime = runtime
+        self.stem = stem
+        self.options = options
+        self._program = program
+        self._kernels: dict[str, cl.Kernel] = {}
+
+    def kernel(self, name: str, scalar_dtypes: list | None = None) -> "cl.Kernel":
+        """The kernel ``name``; ``scalar_dtypes`` as for ``Kernel.set_scalar_arg_dtypes``
+        (None for buffers, a NumPy dtype for scalars) is applied on first use."""
+        k = self._kernels.get(name)
+        if k is None:
+            try:
+                k = cl.Kernel(self._program, name)
+            except cl.Error as exc:
+                raise BuildError(f"{self.stem}.cl has no kernel {name!r}: {exc}") from exc
+            if scalar_dtypes is not None:
+                k.set_scalar_arg_dtypes(scalar_dtypes)
+            self._kernels[name] = k
+        return k
+
+
+def _sources_hash(stem_path: Path) -> str:
+    h = hashlib.sha256(stem_path.read_bytes())
+    for hdr in sorted(include_dir().glob("*.h")):
+        h.update(hdr.name.encode())
+        h.update(hdr.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _define_flags(defines: dict | None) -> list[str]:
+    flags = []
+    for key, value in sorted((defines or {}).items()):
+        if value is None or value is False:
+            continue
+        if value is True:
+            flags.append(f"-D{key}=1")
+        elif isinstance(value, float):
+            flags.append(f"-D{key}={value!r}f")
+        else:
+            flags.append(f"-D{key}={value}")
+    return flags
+
+
+class Runtime:
+    """A context and an in-order queue on one device, plus the program cache."""
+
+    def __init__(self, device: str | None = None, profiling: bool = False):
+        entry, why = choose_device(device)
+        self.entry = entry
+        self.device = entry.device
+        self.reason = why
+        self.profiling = profiling
+        self.context = cl.Context([self.device])
+        props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
+        self.queue = cl.CommandQueue(self.context, properties=props)
+        self._programs: dict[tuple, Program] = {}
+        self._events: list[tuple[str, cl.Event]] = []
+        self.kernel_seconds: dict[str, float] = {}
+        self.kernel_launches: dict[str, int] = {}
+
+    @property
+    def is_pocl(self) -> bool:
+        return "portable computing language" in self.entry.platform.name.lower()
+
+    # -- programs
+    def program(self, stem: str, defines: dict | None = None,
+                extra_options: tuple[str, ...] = ()) -> Program:
+        """Build (or fetch from cache) ``cl/<stem>.cl`` with the given ``-D`` defines."""
+        path = cl_source_dir() / f"{stem}.cl"
+        if not path.is_file():
+            raise BuildError(f"no OpenCL source {path}")
+        src_hash = _sources_hash(path)
+        options = tuple(["-I", str(include_dir()), f"-DCLVOL_SOURCES_HASH=0x{src_hash}"]
+                        + _define_flags(defines) + list(extra_options))
+        key = (src_hash, options, self.entry.spec)
+        prog = self._programs.get(key)
+        if prog is None:
+            program = cl.Program(self.context, path.read_text())
+            try:
+                program.build(options=list(options), devices=[self.device])
+            except cl.Error as exc:
+                try:
+                    log = program.get_build_info(self.device, cl.program_build_info.LOG)
+                except cl.Error:
+                    log = str(exc)
+                raise BuildError(
+                    f"{path.name} failed to build on {self.entry.label} with options "
+                    f"{' '.join(options)}:\n{(log or str(exc)).strip()}") from None
+            prog = Program(self, stem, program, options)
+            self._programs[key] = prog
+        return prog
+
+    # -- buffers
+    def to_device(self, array: np.ndarray, writable: bool = False) -> "cl.Buffer":
+        """Copy a host array into a new buffer (C-contiguous; at least 1 byte)."""
+        a = np.ascontiguousarray(array)
+        flags = (cl.mem_flags.READ_WRITE if writable else cl.mem_flags.READ_ONLY)
+        if a.nbytes == 0:  # zero-size buffers are invalid in OpenCL
+            return cl.Buffer(self.context, flags, size=max(a.itemsize, 4))
+        return cl.Buffer(self.context, flags | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
+
+    def empty(self, shape, dtype=np.float32) -> "cl.Buffer":
+        nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=max(nbytes, 4))
+
+    def from_device(self, buf: "cl.Buffer", shape, dtype=np.float32,
+                    wait_for=None) -> np.ndarray:
+        out = np.empty(shape, dtype=dtype)
+        if out.nbytes:
+            cl.enqueue_copy(self.queue, out, buf, wait_for=wait_for)
+        return out
+
+    # -- launches
+    def launch(self, kernel: "cl.Kernel", global_size, args, local_size=None,
+               pad: int = DEFAULT_PAD, wait_for=None) -> "cl.Event":
+        """Enqueue ``kernel``. The first global dimension is padded to a multiple of
+        ``pad`` (kernels guard with their own element count); others are used as given."""
+        gs = (global_size,) if np.isscalar(global_size) else tuple(global_size)
+        gs = (padded(gs[0], pad),) + tuple(max(int(g), 1) for g in gs[1:])
+        evt = kernel(self.queue, gs, local_size, *args, wait_for=wait_for)
+        if self.profiling:
+            self._events.append((kernel.function_name, evt))
+        return evt
+
+    def finish(self) -> None:
+        self.queue.finish()
+        if self.profiling:
+            for name, evt in self._events:
+                secs = (evt.profile.end - evt.profile.start) * 1e-9
+                self.kernel_seconds[name] = self.kernel_seconds.get(name, 0.0) + secs
+                self.kernel_launches[name] = self.kernel_launches.get(name, 0) + 1
+            self._events.clear()
+
+    def timing_report(self) -> str:
+        """Per-kernel device time collected with ``profiling=True``."""
+        self.finish()
+        rows = [f"{n:<32} {self.kernel_launches[n]:>6} launches {s * 1e3:10.3f} ms"
+                for n, s in sorted(self.kernel_seconds.items(), key=lambda kv: -kv[1])]
+        return "\n".join(rows) if rows else "(no profiled launches)"
+
+
+_RUNTIMES: dict[tuple, Runtime] = {}
+
+
+def get_runtime(device: str | None = None, profiling: bool = False) -> Runtime:
+    """The process-wide runtime for a device spec (resolved as ``choose_device`` does)."""
+    entry, _ = choose_device(device)
+    key = (entry.spec, profiling)
+    rt = _RUNTIMES.get(key)
+    if rt is None:
+        rt = _RUNTIMES[key] = Runtime(device, profiling)
+    return rt
+
+
+class Stopwatch:
+    """Wall-clock timing of host-side steps (``with Stopwatch() as sw: ...; sw.seconds``)."""
+
+    def __enter__(self):
+        self._t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc):
+        self.seconds = time.perf_counter() - self._t0
