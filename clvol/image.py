@@ -1,0 +1,322 @@
+"""Image files: linear float32 EXR for results, tonemapped 8-bit PNG for previews.
+
+EXR layout (one scanline part, ZIP compression, lossless, every channel FLOAT)
+-----------------------------------------------------------------------------
+``write_exr(path, layers)`` takes a dict ``layer name -> array``:
+
+* ``""`` or ``"total"`` (H, W, 3): the beauty image, written as the plain ``R``, ``G``, ``B``
+  channels so every viewer shows it.
+* any other name with an (H, W, 3) array: channels ``name.R``, ``name.G``, ``name.B``
+  (the OpenEXR layer convention; viewers list it as layer ``name``).
+* any name with an (H, W) array (``alpha``, ``depth``, ...): one channel named ``name`` exactly
+  (no ``.Y`` suffix, so tools show ``depth`` rather than a luminance layer).
+
+``read_exr`` inverts this: ``R``, ``G``, ``B`` -> layer ``"total"``; ``name.R/G/B`` -> (H, W, 3)
+layer ``name``; every other channel -> an (H, W) layer under its full channel name. HALF and UINT
+channels of foreign files are converted to float32.
+
+Layer names are letters, digits, ``_`` and ``-`` (no ``.``, which would make ``a.b.R`` ambiguous).
+
+Metadata: ``header`` values (str, int or float) are stored as *string* attributes named
+``clvol.<key>``; floats are written with ``repr`` so they read back exactly (a typed float
+attribute would be rounded to float32). ``read_exr(...).header`` returns our keys without the
+prefix, values as strings. Other attributes of the file are not returned.
+
+Writes are atomic: the file is written under a temporary name in the destination folder and
+moved into place with ``os.replace``, so a crash never leaves a half-written result.
+
+sRGB
+----
+``linear_to_srgb`` is the piecewise IEC 61966-2-1 curve; ``to_srgb8`` clamps to [0, 1], applies it
+and rounds half up (``floor(255 v + 0.5)``) to uint8. It is the only sRGB code in clvol: the PNG
+preview and the MRPNN metric (``clvol.metrics``) both use it.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+import secrets
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ImageError
+
+HEADER_PREFIX = "clvol."
+_TOTAL_NAMES = ("", "total")
+_LAYER_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
+_HEADER_KEY = re.compile(r"^[A-Za-z0-9_\-.]+$")
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+# --------------------------------------------------------------------------- sRGB
+
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 transfer curve on values in [0, 1] (float64 out).
+
+    ``12.92 x`` for ``x <= 0.0031308``, else ``1.055 x^(1/2.4) - 0.055``. The two pieces meet
+    at the threshold to within 1e-7 (the standard's rounded constants). No clamping here.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    # np.maximum keeps the power away from negative inputs in the branch not taken.
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1.0 / 2.4) - 0.055)
+
+
+def to_srgb8(rgb: np.ndarray) -> np.ndarray:
+    """Linear values (any shape) -> uint8 sRGB codes: clamp to [0, 1], sRGB curve, round half up.
+
+    Clamping is the tonemap (a preview/metric shows [0, 1] of the scaled image); NaN or Inf
+    cannot be clamped meaningfully and raise ImageError.
+    """
+    a = np.asarray(rgb, dtype=np.float64)
+    bad = int(np.count_nonzero(~np.isfinite(a)))
+    if bad:
+        raise ImageError(f"cannot convert to sRGB: {bad} non-finite value(s) (NaN/Inf) in the image")
+    v = linear_to_srgb(np.clip(a, 0.0, 1.0))
+    # Round half up: floor(255 v + 0.5). v <= 1 so the result is <= 255.
+    return np.floor(v * 255.0 + 0.5).astype(np.uint8)
+
+
+# --------------------------------------------------------------------------- atomic writes
+
+def _temp_path_for(path: Path) -> Path:
+    """A fresh temporary name next to ``path`` (same folder, so os.replace is atomic)."""
+    folder = path.parent
+    if not folder.is_dir():
+        raise ImageError(f"{path}: cannot write, folder {folder} does not exist")
+    return folder / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+
+
+def _finish_atomic(tmp: Path, path: Path) -> None:
+    try:
+        os.replace(tmp, path)
+    except OSError as e:
+        _remove_quietly(tmp)
+        raise ImageError(f"{path}: cannot write ({e.strerror or e})") from e
+
+
+def _remove_quietly(p: Path) -> None:
+    try:
+        p.unlink()
+    except FileNotFoundError:
+        pass
+
+
+# --------------------------------------------------------------------------- EXR
+
+@dataclass
+class ExrImage:
+    """An EXR read back: ``layers`` as float32 arrays, ``header`` our ``clvol.*`` metadata as strings."""
+
+    path: Path
+    layers: dict[str, np.ndarray]
+    header: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def rgb(self) -> np.ndarray:
+        """The total (beauty) layer, (H, W, 3) float32."""
+        if "total" not in self.layers:
+            raise ImageError(
+                f"{self.path}: no plain R, G, B channels (layers found: {sorted(self.layers)})")
+        return self.layers["total"]
+
+
+def _layer_float32(name: str, arr) -> np.ndarray:
+    label = "total" if name in _TOTAL_NAMES else name
+    a = np.asarray(arr)
+    if not np.issubdtype(a.dtype, np.floating):
+        raise ImageError(f"layer '{label}': dtype {a.dtype} is not a float type")
+    if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] != 3):
+        raise ImageError(f"layer '{label}': shape {a.shape}, expected (H, W, 3) RGB or (H, W)")
+    if a.shape[0] == 0 or a.shape[1] == 0:
+        raise ImageError(f"layer '{label}': empty image of shape {a.shape}")
+    with np.errstate(over="ignore"):  # overflow is reported below as a non-finite count
+        a32 = a.astype(np.float32)
+    bad = int(np.count_nonzero(~np.isfinite(a32)))
+    if bad:
+        # A renderer bug must not be saved silently; float64 values beyond the float32 range
+        # land here too.
+        raise ImageError(
+            f"layer '{label}': {bad} non-finite value(s) (NaN/Inf, or beyond the float32 range) "
+            f"of {a32.size}; refusing to write")
+    return a32
+
+
+def _header_attributes(header) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for key, value in (header or {}).items():
+        if not isinstance(key, str) or not _HEADER_KEY.match(key):
+            raise ImageError(
+                f"header key {key!r}: use letters, digits, '_', '-' or '.'")
+        if isinstance(value, str):
+            text = value
+        elif isinstance(value, (bool, np.bool_)):
+            text = str(bool(value))
+        elif isinstance(value, (int, np.integer)):
+            text = str(int(value))
+        elif isinstance(value, (float, np.floating)):
+            if not math.isfinite(float(value)):
+                raise ImageError(f"header [{key}]: value {value!r} is not finite")
+            text = repr(float(value))  # repr round-trips a float64 exactly
+        else:
+            raise ImageError(
+                f"header [{key}]: value of type {type(value).__name__}, expected str, int or float")
+        out[HEADER_PREFIX + key] = text
+    return out
+
+
+def write_exr(path, layers: dict[str, np.ndarray],
+              header: dict[str, str | int | float] | None = None) -> None:
+    """Write ``layers`` as a linear float32 EXR (layout in the module docstring), atomically.
+
+    Raises ImageError for NaN/Inf (naming the layer and the count), mismatched layer sizes,
+    bad names, a missing folder, or a failed write.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    if not layers:
+        raise ImageError(f"{path}: no layers to write")
+    if all(n in layers for n in _TOTAL_NAMES):
+        raise ImageError(f"{path}: layers '' and 'total' are the same layer; give only one")
+
+    channels: dict[str, np.ndarray] = {}
+    size = None
+    for name, arr in layers.items():
+        if not isinstance(name, str) or (name not in _TOTAL_NAMES and not _LAYER_NAME.match(name)):
+            raise ImageError(
+                f"{path}: layer name {name!r}: use letters, digits, '_' or '-' (or '' / 'total')")
+        a = _layer_float32(name, arr)
+        label = "total" if name in _TOTAL_NAMES else name
+        if size is None:
+            size = (label, a.shape[:2])
+        elif a.shape[:2] != size[1]:
+            raise ImageError(
+                f"{path}: layer '{label}' is {a.shape[0]}x{a.shape[1]} (HxW) but layer "
+                f"'{size[0]}' is {size[1][0]}x{size[1][1]}; all layers must share one size")
+        if a.ndim == 2:
+            if name in _TOTAL_NAMES:
+                raise ImageError(f"{path}: layer 'total' must be (H, W, 3) RGB, got shape {a.shape}")
+            if name in ("R", "G", "B"):
+                raise ImageError(
+                    f"{path}: single-channel layer {name!r} would collide with the total layer's channels")
+            names = [name]
+        else:
+            names = ["R", "G", "B"] if name in _TOTAL_NAMES else [f"{name}.{c}" for c in "RGB"]
+        for i, ch in enumerate(names):
+            # OpenEXR's binding ignores numpy strides: every channel must be C-contiguous.
+            channels[ch] = np.ascontiguousarray(a if a.ndim == 2 else a[:, :, i])
+
+    attrs = _header_attributes(header)
+    exr_header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    exr_header.update(attrs)
+
+    tmp = _temp_path_for(path)
+    try:
+        OpenEXR.File(exr_header, channels).write(str(tmp))
+    except Exception as e:  # the binding raises RuntimeError/TypeError with its own text
+        _remove_quietly(tmp)
+        raise ImageError(f"{path}: cannot write EXR ({e})") from e
+    _finish_atomic(tmp, path)
+
+
+def read_exr(path) -> ExrImage:
+    """Read an EXR written by ``write_exr`` (or any single-part scanline/tiled float EXR).
+
+    Only the first part of a multi-part file is read. Raises ImageError naming the file when
+    it is missing, not an EXR, damaged, or has sub-sampled channels.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise ImageError(f"{path}: no such file")
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(4)
+    except OSError as e:
+        raise ImageError(f"{path}: cannot read ({e.strerror or e})") from e
+    # Checked here so a wrong file gets a clear message (the library only says "unable to open").
+    if magic != _EXR_MAGIC:
+        raise ImageError(f"{path}: not an OpenEXR file (first bytes {magic!r}, expected {_EXR_MAGIC!r})")
+    try:
+        f = OpenEXR.File(str(path), separate_channels=True)
+        hdr = f.header()
+        chans = f.channels()
+    except Exception as e:
+        raise ImageError(f"{path}: cannot read EXR, damaged or truncated? ({e})") from e
+
+    planes: dict[str, np.ndarray] = {}
+    for name, ch in chans.items():
+        if ch.xSampling != 1 or ch.ySampling != 1:
+            raise ImageError(f"{path}: channel {name!r} is sub-sampled; not supported")
+        planes[name] = np.asarray(ch.pixels).astype(np.float32, copy=False)
+
+    layers: dict[str, np.ndarray] = {}
+    used: set[str] = set()
+    groups = {n.rpartition(".")[0] for n in planes}
+    for prefix in sorted(groups):
+        rgb = [f"{prefix}.{c}" if prefix else c for c in "RGB"]
+        if all(c in planes for c in rgb):
+            layers["total" if prefix == "" else prefix] = np.stack([planes[c] for c in rgb], axis=-1)
+            used.update(rgb)
+    for name in sorted(set(planes) - used):
+        if name in layers:
+            raise ImageError(f"{path}: channel {name!r} collides with the RGB layer of the same name")
+        layers[name] = planes[name]
+
+    header = {k[len(HEADER_PREFIX):]: (v if isinstance(v, str) else str(v))
+              for k, v in hdr.items() if k.startswith(HEADER_PREFIX)}
+    return ExrImage(path=path, layers=layers, header=header)
+
+
+# --------------------------------------------------------------------------- PNG
+
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    # Length, type, data, CRC-32 over type + data (PNG spec 5.3).
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+
+def encode_png_rgb8(pixels: np.ndarray) -> bytes:
+    """(H, W, 3) uint8 -> PNG bytes: 8-bit RGB, no interlace, filter type 0 on every row."""
+    p = np.asarray(pixels)
+    if p.dtype != np.uint8 or p.ndim != 3 or p.shape[2] != 3 or p.shape[0] == 0 or p.shape[1] == 0:
+        raise ImageError(f"PNG pixels must be (H, W, 3) uint8, got {p.shape} {p.dtype}")
+    h, w = p.shape[:2]
+    # Every scanline starts with its filter-type byte (0 = None).
+    raw = np.concatenate([np.zeros((h, 1), np.uint8), np.ascontiguousarray(p).reshape(h, 3 * w)], axis=1)
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)  # depth 8, colour type 2 (RGB)
+    return (_PNG_SIGNATURE
+            + _png_chunk(b"IHDR", ihdr)
+            + _png_chunk(b"sRGB", b"\x00")  # the data is sRGB-encoded (perceptual intent)
+            + _png_chunk(b"IDAT", zlib.compress(raw.tobytes(), 6))
+            + _png_chunk(b"IEND", b""))
+
+
+def write_png_preview(path, rgb: np.ndarray, exposure: float = 0.0) -> None:
+    """Tonemapped 8-bit sRGB preview of a linear (H, W, 3) image, written atomically.
+
+    Pixel = ``to_srgb8(rgb * 2**exposure)`` (clamp to [0, 1], sRGB curve, round half up).
+    """
+    path = Path(path)
+    a = np.asarray(rgb)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise ImageError(f"{path}: preview image must be (H, W, 3) RGB, got shape {a.shape}")
+    if not math.isfinite(float(exposure)):
+        raise ImageError(f"{path}: exposure {exposure!r} is not finite")
+    bad = int(np.count_nonzero(~np.isfinite(a)))
+    if bad:
+        raise ImageError(f"{path}: {bad} non-finite value(s) (NaN/Inf) in the image; refusing to write")
+    data = encode_png_rgb8(to_srgb8(a.astype(np.float64) * 2.0 ** float(exposure)))
+    tmp = _temp_path_for(path)
+    try:
+        tmp.write_bytes(data)
+    except OSError as e:
+        _remove_quietly(tmp)
+        raise ImageError(f"{path}: cannot write ({e.strerror or e})") from e
+    _finish_atomic(tmp, path)
