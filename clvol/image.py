@@ -218,6 +218,7 @@ def write_exr(path, layers: dict[str, np.ndarray],
 
     tmp = _temp_path_for(path)
     try:
+        # The binding replaces the dict's arrays by Channel objects: pass only our own dicts.
         OpenEXR.File(exr_header, channels).write(str(tmp))
     except Exception as e:  # the binding raises RuntimeError/TypeError with its own text
         _remove_quietly(tmp)
