@@ -1,0 +1,56 @@
+"""Render-method registry shared by the CLI and Python callers.
+
+A render method lives in its own module and exposes:
+
+- ``add_arguments(group)``: its own ``argparse`` options (names must not clash with the
+  common ones defined in ``clvol.cli``);
+- ``render(scene, args) -> RenderResult``: the image and what was simulated.
+
+Methods are imported lazily so that ``clvol info`` or ``clvol compare`` never build kernels.
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ClvolError
+
+# name -> (module, one-line description)
+METHODS: dict[str, tuple[str, str]] = {
+    "pathtrace": ("clvol.pathtrace", "reference volumetric path tracer (ground truth, noisy, slow)"),
+    "raymarch": ("clvol.raymarch", "real-time ray marcher: exact single scattering + analytic multiple scattering"),
+}
+
+
+@dataclass
+class RenderResult:
+    """``layers``: "total" (H, W, 3) plus AOVs; ``header``: metadata for the EXR header,
+    including which effects were simulated and which were skipped."""
+    layers: dict[str, np.ndarray]
+    header: dict[str, str | int | float] = field(default_factory=dict)
+
+
+def method_module(name: str):
+    """Import the module of a render method, or say clearly that it is not available."""
+    if name not in METHODS:
+        raise ClvolError(f"unknown render method {name!r}; choose one of {sorted(METHODS)}")
+    modname = METHODS[name][0]
+    try:
+        return importlib.import_module(modname)
+    except ModuleNotFoundError as exc:
+        if exc.name != modname:
+            raise
+        raise ClvolError(f"render method {name!r} is not implemented in this version of clvol")
+
+
+def available_methods() -> dict[str, object]:
+    """The methods whose modules import, by name."""
+    out = {}
+    for name in METHODS:
+        try:
+            out[name] = method_module(name)
+        except ClvolError:
+            pass
+    return out
