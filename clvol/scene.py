@@ -418,16 +418,10 @@ def _describe_params(params: dict) -> str:
 
 
 def _range_text(p) -> str:
-    lo, hi = getattr(p, "lo", None), getattr(p, "hi", None)
     if isinstance(p.default, bool):
         return "(true or false)"
-    if lo is not None and hi is not None:
-        return f"in [{_fmt(lo)}, {_fmt(hi)}]"
-    if lo is not None:
-        return f">= {_fmt(lo)}"
-    if hi is not None:
-        return f"<= {_fmt(hi)}"
-    return "(any number)"
+    rng = _range(getattr(p, "lo", None), getattr(p, "hi", None), False, False)
+    return "(any finite number)" if rng == "finite" else rng
 
 
 def _check_param(ctx: "_Ctx", fld: str, value, p):
@@ -483,7 +477,7 @@ def _parse_phase(ctx: "_Ctx", t) -> Phase:
     if kind not in _PHASE_KEYS:
         raise ctx.error("medium.phase.type", kind, "unknown phase; allowed: "
                         + ", ".join(_PHASE_KEYS))
-    _check_keys(ctx, "medium.phase", t, _PHASE_KEYS[kind], hint=f'(for type = "{kind}")')
+    _check_keys(ctx, "medium.phase", t, _PHASE_KEYS[kind], allowed_for=f' for type = "{kind}"')
     if kind == "isotropic":
         return Phase.isotropic()
     if kind == "hg":
@@ -581,13 +575,13 @@ class _Ctx:
 
 
 def _check_keys(ctx: _Ctx, prefix: str, t: dict, allowed, kind: str = "key",
-                hint: str | None = None) -> None:
+                hint: str | None = None, allowed_for: str = "") -> None:
     for key in t:
         if key in allowed:
             continue
         fld = f"{prefix}.{key}" if prefix else key
         value = None if isinstance(t[key], dict) and kind == "table" else t[key]
-        msg = f"unknown {kind}; allowed: " + ", ".join(allowed)
+        msg = f"unknown {kind}; allowed{allowed_for}: " + ", ".join(allowed)
         close = difflib.get_close_matches(key, allowed, n=1)
         if close:
             msg += f" (did you mean {close[0]}?)"
@@ -600,13 +594,18 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
+def _bound(x) -> str:
+    """A range bound for messages: 0 not 0.0, 180 not 180.0."""
+    return f"{x:g}" if isinstance(x, float) else str(x)
+
+
 def _range(lo, hi, lo_open, hi_open) -> str:
     if lo is not None and hi is not None:
-        return f"in {'(' if lo_open else '['}{_fmt(lo)}, {_fmt(hi)}{')' if hi_open else ']'}"
+        return f"in {'(' if lo_open else '['}{_bound(lo)}, {_bound(hi)}{')' if hi_open else ']'}"
     if lo is not None:
-        return f"{'>' if lo_open else '>='} {_fmt(lo)}"
+        return f"{'>' if lo_open else '>='} {_bound(lo)}"
     if hi is not None:
-        return f"{'<' if hi_open else '<='} {_fmt(hi)}"
+        return f"{'<' if hi_open else '<='} {_bound(hi)}"
     return "finite"
 
 
