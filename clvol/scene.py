@@ -405,8 +405,10 @@ def _parse_generator(ctx: "_Ctx", t: dict):
     for key, value in raw.items():
         fld = f"volume.params.{key}"
         if key not in allowed:
-            raise ctx.error(fld, value, f"unknown parameter of generator \"{name}\"; allowed: "
-                            + _describe_params(allowed))
+            close = difflib.get_close_matches(key, allowed, n=1)
+            guess = f" (did you mean {close[0]}?)" if close else ""
+            raise ctx.error(fld, value, f"unknown parameter of generator \"{name}\"{guess}; "
+                            "allowed: " + _describe_params(allowed))
         params[key] = _check_param(ctx, fld, value, allowed[key])
     return name, seed, res, params
 

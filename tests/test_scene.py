@@ -626,3 +626,13 @@ def test_translucent_examples_are_optically_thick(name):
     nz, ny, nx = grid.density.shape
     tau = float(grid.density[nz // 2, ny // 2, :].sum()) * grid.cell_size[0] * s.medium.density_scale
     assert 10.0 <= tau <= 100.0, tau
+
+
+@pytest.mark.parametrize("path", EXAMPLE_FILES, ids=[p.stem for p in EXAMPLE_FILES])
+def test_example_round_trips(tmp_path, path):
+    s1 = load_scene(path)
+    out = tmp_path / path.name
+    out.write_text(dumps_scene(s1, relative_to=tmp_path))
+    s2 = load_scene(out)
+    assert (s2.volume, s2.medium, s2.light, s2.camera) == (s1.volume, s1.medium, s1.light,
+                                                         s1.camera)
