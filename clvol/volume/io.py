@@ -1,0 +1,196 @@
+"""Reading and writing density grids: Mitsuba ``.vol``, NumPy ``.npy`` and ``.npz``.
+
+Formats (docs/volumes.md has the full description):
+
+``.vol`` (Mitsuba grid volume, little-endian), a 48-byte header then the data::
+
+    offset  size  field
+    0       3     magic b"VOL"
+    3       1     version, must be 3
+    4       4     int32 encoding, must be 1 (float32)
+    8       12    int32 xres, yres, zres (each >= 1)
+    20      4     int32 channels, must be 1 (a scalar density)
+    24      24    float32 bbox xmin, ymin, zmin, xmax, ymax, zmax
+    48      4*n   float32 data, x fastest, then y, then z (n = xres*yres*zres)
+
+``.npy``: one 3-D float array indexed [z][y][x]; the box is the default [-0.5, 0.5]^3.
+``.npz``: key ``density`` (as .npy) and optionally both ``bbox_min`` and ``bbox_max`` (3 numbers).
+
+Every malformed input raises ``VolumeError`` whose message starts with the file name and
+quotes what was found. Nothing is clipped; float64 data is rounded to float32 only when
+every value is finite and fits.
+"""
+from __future__ import annotations
+
+import os
+import struct
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import VolumeError
+from .grid import DEFAULT_BBOX_MAX, DEFAULT_BBOX_MIN, Grid, check_bbox, density_to_float32
+
+VOL_MAGIC = b"VOL"
+VOL_VERSION = 3
+VOL_ENCODING_FLOAT32 = 1
+# Mitsuba's encoding ids, named in the error message when a file uses one we do not read.
+_VOL_ENCODING_NAMES = {1: "float32", 2: "float16", 3: "uint8", 4: "quantized directions"}
+# magic(3s) version(B) encoding(i) xres yres zres(3i) channels(i) bbox(6f), little-endian.
+_VOL_HEADER = struct.Struct("<3sBiiiii6f")
+VOL_HEADER_SIZE = _VOL_HEADER.size  # 48
+
+SUPPORTED_EXTENSIONS = (".vol", ".npy", ".npz")
+_NPZ_KEYS = ("density", "bbox_min", "bbox_max")
+
+
+def _extension(path: Path) -> str:
+    ext = path.suffix.lower()
+    if ext not in SUPPORTED_EXTENSIONS:
+        raise VolumeError(
+            f"{path}: unknown volume file extension {path.suffix!r}; supported: "
+            f"{', '.join(SUPPORTED_EXTENSIONS)}")
+    return ext
+
+
+def read_volume(path: str | os.PathLike) -> Grid:
+    """Read a density grid from a ``.vol``, ``.npy`` or ``.npz`` file (chosen by extension)."""
+    path = Path(path)
+    ext = _extension(path)
+    if not path.is_file():
+        raise VolumeError(f"{path}: no such volume file")
+    if ext == ".vol":
+        return _read_vol(path)
+    if ext == ".npy":
+        return _read_npy(path)
+    return _read_npz(path)
+
+
+def write_volume(path: str | os.PathLike, grid: Grid) -> None:
+    """Write ``grid`` to a ``.vol``, ``.npy`` or ``.npz`` file (chosen by extension).
+
+    ``.npy`` has no room for the box, so a grid whose box is not the default [-0.5, 0.5]^3
+    is refused there rather than silently losing it. ``.vol`` stores the box as float32:
+    each bound is rounded to float32 (about 7 significant digits).
+    """
+    path = Path(path)
+    ext = _extension(path)
+    grid.validate(f"{path} (writing)")
+    if ext == ".vol":
+        _write_vol(path, grid)
+    elif ext == ".npy":
+        if not (np.array_equal(grid.bbox_min, DEFAULT_BBOX_MIN)
+                and np.array_equal(grid.bbox_max, DEFAULT_BBOX_MAX)):
+            raise VolumeError(
+                f"{path}: a .npy file stores no bounding box, and this grid's box "
+                f"{grid.bbox_min.tolist()}..{grid.bbox_max.tolist()} is not the default "
+                f"[-0.5, 0.5]^3; write .npz or .vol instead")
+        with open(path, "wb") as f:   # a file object stops np.save from renaming the file
+            np.save(f, grid.density, allow_pickle=False)
+    else:
+        with open(path, "wb") as f:
+            np.savez_compressed(f, density=grid.density, bbox_min=grid.bbox_min,
+                                bbox_max=grid.bbox_max)
+
+
+# --------------------------------------------------------------------------- .vol
+
+def _read_vol(path: Path) -> Grid:
+    with open(path, "rb") as f:
+        file_size = os.fstat(f.fileno()).st_size
+        header = f.read(VOL_HEADER_SIZE)
+        if len(header) >= 3 and header[:3] != VOL_MAGIC:
+            raise VolumeError(
+                f"{path}: not a Mitsuba .vol file: magic bytes are {header[:3]!r}, expected b'VOL'")
+        if len(header) < VOL_HEADER_SIZE:
+            raise VolumeError(
+                f"{path}: truncated .vol header: file has {file_size} bytes, the header alone "
+                f"needs {VOL_HEADER_SIZE}")
+        _, version, encoding, nx, ny, nz, channels, *bbox = _VOL_HEADER.unpack(header)
+        if version != VOL_VERSION:
+            raise VolumeError(f"{path}: unsupported .vol version {version}; only version 3 is read")
+        if encoding != VOL_ENCODING_FLOAT32:
+            name = _VOL_ENCODING_NAMES.get(encoding, "unknown")
+            raise VolumeError(
+                f"{path}: unsupported .vol encoding {encoding} ({name}); only 1 (float32) is read")
+        if nx <= 0 or ny <= 0 or nz <= 0:
+            raise VolumeError(
+                f"{path}: .vol resolution xres, yres, zres = {nx}, {ny}, {nz}: a grid needs at "
+                f"least one voxel on every axis")
+        if channels != 1:
+            raise VolumeError(
+                f"{path}: .vol has {channels} channels; a density grid needs exactly 1")
+        n = nx * ny * nz  # Python ints: no overflow even for absurd headers
+        expected = VOL_HEADER_SIZE + 4 * n
+        if file_size != expected:
+            what = "truncated" if file_size < expected else "over-long"
+            raise VolumeError(
+                f"{path}: {what} .vol file: header says {nx}x{ny}x{nz} float32 voxels "
+                f"({4 * n} data bytes, {expected} bytes in all), file has {file_size} bytes")
+        data = np.fromfile(f, dtype="<f4", count=n)
+    bbox_min, bbox_max = check_bbox(bbox[:3], bbox[3:], f"{path}: .vol header")
+    density = density_to_float32(data.reshape(nz, ny, nx), str(path))
+    return Grid(density, bbox_min, bbox_max)
+
+
+def _write_vol(path: Path, grid: Grid) -> None:
+    nx, ny, nz = grid.resolution
+    bbox = np.concatenate([grid.bbox_min, grid.bbox_max])
+    f32_max = float(np.finfo(np.float32).max)
+    if np.abs(bbox).max() > f32_max:
+        raise VolumeError(f"{path}: bounding box {bbox.tolist()} does not fit in float32 (.vol)")
+    bbox32 = bbox.astype(np.float32)
+    if not (bbox32[:3] < bbox32[3:]).all():
+        raise VolumeError(
+            f"{path}: bounding box {bbox.tolist()} collapses to min >= max when rounded to "
+            f"float32 for .vol; use .npz")
+    header = _VOL_HEADER.pack(VOL_MAGIC, VOL_VERSION, VOL_ENCODING_FLOAT32, nx, ny, nz, 1,
+                              *(float(v) for v in bbox32))
+    with open(path, "wb") as f:
+        f.write(header)
+        f.write(grid.density.astype("<f4", copy=False).tobytes(order="C"))
+
+
+# --------------------------------------------------------------------------- .npy / .npz
+
+def _read_npy(path: Path) -> Grid:
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as e:
+        raise VolumeError(f"{path}: cannot read as .npy: {e}") from None
+    return Grid(density_to_float32(arr, str(path)), np.array(DEFAULT_BBOX_MIN),
+                np.array(DEFAULT_BBOX_MAX))
+
+
+def _read_npz(path: Path) -> Grid:
+    try:
+        npz = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+        raise VolumeError(f"{path}: cannot read as .npz: {e}") from None
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise VolumeError(f"{path}: not a .npz archive (it holds a bare .npy array); rename it .npy")
+    try:
+        with npz:
+            keys = set(npz.files)
+            unknown = sorted(keys - set(_NPZ_KEYS))
+            if unknown:
+                raise VolumeError(
+                    f"{path}: unknown key(s) {unknown} in .npz; allowed: {', '.join(_NPZ_KEYS)}")
+            if "density" not in keys:
+                raise VolumeError(f"{path}: .npz has no 'density' array (keys: {sorted(keys)})")
+            has_bbox = ("bbox_min" in keys, "bbox_max" in keys)
+            if has_bbox[0] != has_bbox[1]:
+                present = "bbox_min" if has_bbox[0] else "bbox_max"
+                raise VolumeError(
+                    f"{path}: .npz has {present} but not the other; give both bbox_min and "
+                    f"bbox_max or neither (default [-0.5, 0.5]^3)")
+            density = npz["density"]
+            if has_bbox[0]:
+                bbox_min, bbox_max = npz["bbox_min"], npz["bbox_max"]
+            else:
+                bbox_min, bbox_max = DEFAULT_BBOX_MIN, DEFAULT_BBOX_MAX
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as e:
+        raise VolumeError(f"{path}: cannot read as .npz: {e}") from None
+    lo, hi = check_bbox(bbox_min, bbox_max, str(path))
+    return Grid(density_to_float32(density, str(path)), lo, hi)
