@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -82,7 +83,10 @@ def _cmd_compare(args) -> int:
     result = compare_images(test.rgb, ref.rgb)
     result = {"test": str(args.test), "reference": str(args.reference), **result}
     if args.json:
-        print(json.dumps(result, indent=2))
+        # Identical images have PSNR = inf, which strict JSON cannot hold: write null.
+        clean = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                 for k, v in result.items()}
+        print(json.dumps(clean, indent=2, allow_nan=False))
     else:
         for key, value in result.items():
             print(f"{key:>12}: {value:.6g}" if isinstance(value, float) else f"{key:>12}: {value}")

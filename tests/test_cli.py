@@ -1,0 +1,96 @@
+"""The clvol command line: subcommands, exit status 2 with one line for bad input."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from clvol.cli import main
+from clvol.image import write_exr
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_help_runs_as_a_module():
+    proc = subprocess.run([sys.executable, "-m", "clvol", "--help"], capture_output=True, text=True)
+    assert proc.returncode == 0
+    for cmd in ("info", "volume", "render", "compare"):
+        assert cmd in proc.stdout
+
+
+def test_info_lists_the_chosen_device(capsys):
+    code, out, _ = run(capsys, "info")
+    assert code == 0 and "chosen:" in out and "platform 0" in out
+
+
+def test_info_bad_device_is_exit_2_one_line(capsys):
+    code, _, err = run(capsys, "info", "--device", "7:7")
+    # info reports the problem in its listing instead of failing
+    assert code == 0
+    code, _, err = run(capsys, "render", "nonexistent.toml", "-o", "x.exr")
+    assert code == 2 and err.count("\n") == 1 and err.startswith("clvol: error:")
+
+
+def test_volume_generate_info_convert(tmp_path, capsys):
+    vol = tmp_path / "c.vol"
+    code, out, _ = run(capsys, "volume", "generate", "sphere", "--resolution", "9", "11", "13",
+                       "-o", vol, "--seed", "3")
+    assert code == 0 and vol.exists()
+    code, out, _ = run(capsys, "volume", "info", vol, "--density-scale", "10")
+    assert code == 0 and "9" in out and "13" in out
+    npz = tmp_path / "c.npz"
+    code, _, _ = run(capsys, "volume", "convert", vol, npz)
+    assert code == 0
+    from clvol.volume.io import read_volume
+    a, b = read_volume(vol), read_volume(npz)
+    np.testing.assert_array_equal(a.density, b.density)
+    assert a.density.shape == (13, 11, 9)
+
+
+def test_volume_generate_list_and_bad_param(tmp_path, capsys):
+    code, out, _ = run(capsys, "volume", "generate", "--list")
+    assert code == 0 and "cloud" in out and "smoke" in out
+    code, _, err = run(capsys, "volume", "generate", "cloud", "-o", tmp_path / "x.vol",
+                       "--param", "no_such_param=1")
+    assert code == 2 and "no_such_param" in err and err.count("\n") == 1
+
+
+def test_volume_info_rejects_malformed_file(tmp_path, capsys):
+    bad = tmp_path / "bad.vol"
+    bad.write_bytes(b"XYZ" + bytes(60))
+    code, _, err = run(capsys, "volume", "info", bad)
+    assert code == 2 and "bad.vol" in err
+
+
+def test_compare_prints_metrics_and_json(tmp_path, capsys):
+    ref = np.full((4, 6, 3), 0.5, np.float32)
+    test = ref.copy()
+    test[0, 0] = 1.0
+    write_exr(tmp_path / "ref.exr", {"total": ref})
+    write_exr(tmp_path / "test.exr", {"total": test})
+    code, out, _ = run(capsys, "compare", tmp_path / "test.exr", tmp_path / "ref.exr", "--json")
+    assert code == 0
+    result = json.loads(out)
+    # One pixel of 24 off by 0.5 in every channel: RMSE = sqrt(0.25 / 24).
+    assert result["rmse"] == pytest.approx(np.sqrt(0.25 / 24), rel=1e-6)
+    code, out, _ = run(capsys, "compare", tmp_path / "ref.exr", tmp_path / "ref.exr", "--json")
+    assert json.loads(out)["psnr"] is None  # inf is not JSON: written as null
+    code, out, _ = run(capsys, "compare", tmp_path / "test.exr", tmp_path / "ref.exr")
+    assert code == 0 and "mrpnn" in out
+
+
+def test_compare_missing_file_is_exit_2(tmp_path, capsys):
+    code, _, err = run(capsys, "compare", tmp_path / "a.exr", tmp_path / "b.exr")
+    assert code == 2 and "a.exr" in err
+
+
+def test_render_bad_scene_is_exit_2_with_field(tmp_path, capsys):
+    scene = tmp_path / "s.toml"
+    scene.write_text("[volume]\ngenerator = 'sphere'\n[medium]\ndensity_scale = -1\n")
+    code, _, err = run(capsys, "render", scene, "-o", tmp_path / "o.exr")
+    assert code == 2 and "s.toml" in err and err.count("\n") == 1
