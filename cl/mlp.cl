@@ -1,0 +1,237 @@
+/* The network's forward pass, fused: squeeze-and-excitation layer walks of the six modules
+ * {density, transmittance, phase} x {diffuse, highlight}, the per-type merges and the MLP head
+ * in one kernel (seed III.C; architecture in clvol/export.py, twin reference/mlp.py).
+ *
+ * Work split: one work-item evaluates 16 queries, one per lane of a float16; every layer is a
+ * loop over its inputs with 16 (or 8) output accumulators (float16 each) fed by scalar weights. Weights
+ * are shared by all lanes, so every weight load serves 16 queries, no layer width needs padding
+ * to 16, and ReLU/sigmoid/pooling are vector operations. (DESIGN.md: explicit vectors are what
+ * makes PoCL fast; local-memory tiling is slow there.)
+ *
+ * Arguments (inputs first, output last)
+ *   features       float [n][3][N_POINTS]   gather output, types (density, transmittance, phase),
+ *                                           points in layer order (clvol/layout.py)
+ *   config         float [n][9]             g0 g1 g2 w0 w1 w2 g_mean albedo alpha (radians)
+ *   params         float [..]               packed by clvol/kernels/mlp.py: feature_shift[3],
+ *                                           feature_scale[3], config_shift[9], config_scale[9],
+ *                                           then every linear layer in execution order as
+ *                                           W^T [n_in][pad8(n_out)] followed by bias [pad8(n_out)]
+ *                                           (padding rows/columns are 0)
+ *   channel_albedo float4                   MLP_CHANNELS == 3: albedo of channel c (replaces
+ *                                           config's albedo); unused when MLP_CHANNELS == 1
+ *   n              int                      number of queries
+ *   out            float [n][MLP_CHANNELS]  y = log(F / albedo^4 + 1), or with MLP_DECODE
+ *                                           F = albedo^4 * max(exp(y) - 1, 0) (0 for albedo 0)
+ *
+ * Defines (set by the wrapper from the Architecture): N_LAYERS, N_DIFFUSE, LAYER_COUNTS (comma
+ * list), N_POINTS, SE_HIDDEN, MODULE_WIDTH, HEAD_DEPTH, HEAD_WIDTHS (comma list), MAXW (largest
+ * padded width), MLP_CHANNELS (1 or 3), MLP_DECODE (0/1). gamma is 4 (the weight format's).
+ *
+ * Equations (clvol/export.py docstring): squeeze v_k = (mean, max per type over layer k, g_mean,
+ * alpha); excitation w = sigmoid(E2 relu(E1 v)); z = w * [h, c]; u = relu(FC1 z) + x_{k+1};
+ * h = relu(FC2 u) + x_{k+1}; module out relu(OUT z); merge relu(M [diffuse, highlight]);
+ * head on [merged x3, c]. Output per seed eq. 20's normalised log space.
+ */
+
+#define CONFIG_DIM 9
+#define CFG_GMEAN 6
+#define CFG_ALBEDO 7
+#define CFG_ALPHA 8
+#define N_TYPES 3
+#define SQUEEZE 8
+#define PAD8(x) (((x) + 7) & ~7)
+
+typedef float16 V;
+
+__constant int COUNTS[N_LAYERS] = {LAYER_COUNTS};
+__constant int HEADW[HEAD_DEPTH] = {HEAD_WIDTHS};
+
+/* y[0 .. pad8(n_out)) = b + W x over n_in inputs; returns the next layer's parameters.
+ * Outputs go in blocks of 16 accumulators (one x load per 16 FMAs, 16 independent chains to
+ * hide the FMA latency), the last 8 of a width that is not a multiple of 16 in a block of 8. */
+#define ACC8(A, B, C, D, E, F, G, H, OFF) \
+    A = fma(xi, (V)(w[OFF]), A); B = fma(xi, (V)(w[OFF + 1]), B); \
+    C = fma(xi, (V)(w[OFF + 2]), C); D = fma(xi, (V)(w[OFF + 3]), D); \
+    E = fma(xi, (V)(w[OFF + 4]), E); F = fma(xi, (V)(w[OFF + 5]), F); \
+    G = fma(xi, (V)(w[OFF + 6]), G); H = fma(xi, (V)(w[OFF + 7]), H)
+#define INIT8(A, B, C, D, E, F, G, H, OFF) \
+    A = (V)(bias[OFF]); B = (V)(bias[OFF + 1]); C = (V)(bias[OFF + 2]); D = (V)(bias[OFF + 3]); \
+    E = (V)(bias[OFF + 4]); F = (V)(bias[OFF + 5]); G = (V)(bias[OFF + 6]); H = (V)(bias[OFF + 7])
+#define STORE8(A, B, C, D, E, F, G, H, OFF) \
+    if (relu) { A = fmax(A, 0.0f); B = fmax(B, 0.0f); C = fmax(C, 0.0f); D = fmax(D, 0.0f); \
+                E = fmax(E, 0.0f); F = fmax(F, 0.0f); G = fmax(G, 0.0f); H = fmax(H, 0.0f); } \
+    y[OFF] = A; y[OFF + 1] = B; y[OFF + 2] = C; y[OFF + 3] = D; \
+    y[OFF + 4] = E; y[OFF + 5] = F; y[OFF + 6] = G; y[OFF + 7] = H
+
+__attribute__((always_inline))
+static inline __global const float *dense(__global const float *p, const int n_in, const int n_out,
+                                          const V *x, V *y, const int relu) {
+    const int np = PAD8(n_out);
+    __global const float *bias = p + n_in * np;
+    int o = 0;
+    for (; o + 16 <= np; o += 16) {
+        V a0, a1, a2, a3, a4, a5, a6, a7, b0, b1, b2, b3, b4, b5, b6, b7;
+        INIT8(a0, a1, a2, a3, a4, a5, a6, a7, o);
+        INIT8(b0, b1, b2, b3, b4, b5, b6, b7, o + 8);
+        __global const float *w = p + o;
+        for (int i = 0; i < n_in; ++i, w += np) {
+            const V xi = x[i];
+            ACC8(a0, a1, a2, a3, a4, a5, a6, a7, 0);
+            ACC8(b0, b1, b2, b3, b4, b5, b6, b7, 8);
+        }
+        STORE8(a0, a1, a2, a3, a4, a5, a6, a7, o);
+        STORE8(b0, b1, b2, b3, b4, b5, b6, b7, o + 8);
+    }
+    if (o < np) {
+        V a0, a1, a2, a3, a4, a5, a6, a7;
+        INIT8(a0, a1, a2, a3, a4, a5, a6, a7, o);
+        __global const float *w = p + o;
+        for (int i = 0; i < n_in; ++i, w += np) {
+            const V xi = x[i];
+            ACC8(a0, a1, a2, a3, a4, a5, a6, a7, 0);
+        }
+        STORE8(a0, a1, a2, a3, a4, a5, a6, a7, o);
+    }
+    return bias + np;
+}
+
+/* One value per lane: src[off[j] + idx] for the 16 queries (off: lane offsets, clamped to n-1). */
+__attribute__((always_inline))
+static inline V lanes(__global const float *src, const int *off, const int idx) {
+    return (V)(src[off[0] + idx], src[off[1] + idx], src[off[2] + idx], src[off[3] + idx],
+               src[off[4] + idx], src[off[5] + idx], src[off[6] + idx], src[off[7] + idx],
+               src[off[8] + idx], src[off[9] + idx], src[off[10] + idx], src[off[11] + idx],
+               src[off[12] + idx], src[off[13] + idx], src[off[14] + idx], src[off[15] + idx]);
+}
+
+/* Normalised features of one type over one layer: dst[j] for points start..start+count. */
+__attribute__((always_inline))
+static inline void load_layer(__global const float *features, const int *off, const int t,
+                              const int start, const int count, const float shift,
+                              const float scale, V *dst) {
+    for (int j = 0; j < count; ++j)
+        dst[j] = (lanes(features, off, t * N_POINTS + start + j) - shift) * scale;
+}
+
+__kernel void mlp_forward(__global const float *features, __global const float *config,
+                          __global const float *params, const float4 channel_albedo,
+                          const int n, __global float *out) {
+    const int q0 = get_global_id(0) * 16;
+    if (q0 >= n) return;
+
+    int foff[16], coff[16];
+    for (int j = 0; j < 16; ++j) {
+        const int q = min(q0 + j, n - 1);  // tail lanes recompute the last query, never stored
+        foff[j] = q * (N_TYPES * N_POINTS);
+        coff[j] = q * CONFIG_DIM;
+    }
+    __global const float *fshift = params, *fscale = params + 3;
+    __global const float *cshift = params + 6, *cscale = params + 6 + CONFIG_DIM;
+    __global const float *layers = params + 6 + 2 * CONFIG_DIM;
+
+    V cfg[CONFIG_DIM];
+    for (int i = 0; i < CONFIG_DIM; ++i)
+        cfg[i] = (lanes(config, coff, i) - cshift[i]) * cscale[i];
+    const V albedo_cfg = lanes(config, coff, CFG_ALBEDO);
+
+    /* Squeeze vectors of all layers: they do not depend on the channel. */
+    V v[N_LAYERS][SQUEEZE];
+    V buf[MAXW];
+    {
+        int start = 0;
+        for (int k = 0; k < N_LAYERS; ++k) {
+            const int cnt = COUNTS[k];
+            for (int t = 0; t < N_TYPES; ++t) {
+                load_layer(features, foff, t, start, cnt, fshift[t], fscale[t], buf);
+                V s = buf[0], m = buf[0];
+                for (int j = 1; j < cnt; ++j) { s += buf[j]; m = fmax(m, buf[j]); }
+                v[k][t] = s / (float)cnt;
+                v[k][N_TYPES + t] = m;
+            }
+            v[k][6] = cfg[CFG_GMEAN];
+            v[k][7] = cfg[CFG_ALPHA];
+            start += cnt;
+        }
+    }
+
+    float albedos[4] = {channel_albedo.s0, channel_albedo.s1, channel_albedo.s2, 0.0f};
+    V res[MLP_CHANNELS];
+    for (int ch = 0; ch < MLP_CHANNELS; ++ch) {
+#if MLP_CHANNELS == 3
+        /* A channel with the albedo of an earlier one is the same evaluation; albedo 0 has
+         * no multiple scattering to predict (y = 0, F = 0). */
+        int same = -1;
+        for (int e = 0; e < ch; ++e)
+            if (albedos[e] == albedos[ch]) same = e;
+        if (same >= 0) { res[ch] = res[same]; continue; }
+        if (albedos[ch] == 0.0f) { res[ch] = (V)(0.0f); continue; }
+        cfg[CFG_ALBEDO] = (V)((albedos[ch] - cshift[CFG_ALBEDO]) * cscale[CFG_ALBEDO]);
+#endif
+        __global const float *p = layers;
+        V mod[N_TYPES * 2][MODULE_WIDTH];
+        V h[MAXW], a[MAXW], e[MAXW], z[MAXW], u[MAXW], xn[MAXW];
+        for (int t = 0; t < N_TYPES; ++t) {
+            for (int s = 0; s < 2; ++s) {
+                const int k0 = s ? N_DIFFUSE : 0, k1 = s ? N_LAYERS : N_DIFFUSE;
+                int start = 0;
+                for (int k = 0; k < k0; ++k) start += COUNTS[k];
+                load_layer(features, foff, t, start, COUNTS[k0], fshift[t], fscale[t], h);
+                for (int k = k0; k < k1; ++k) {
+                    const int cnt = COUNTS[k], width = cnt + CONFIG_DIM;
+                    for (int i = 0; i < cnt; ++i) a[i] = h[i];
+                    for (int i = 0; i < CONFIG_DIM; ++i) a[cnt + i] = cfg[i];
+                    p = dense(p, SQUEEZE, SE_HIDDEN, v[k], e, 1);
+                    p = dense(p, SE_HIDDEN, width, e, z, 0);
+                    for (int i = 0; i < width; ++i) z[i] = a[i] / (1.0f + exp(-z[i]));
+                    start += cnt;
+                    if (k + 1 < k1) {
+                        const int nxt = COUNTS[k + 1];
+                        load_layer(features, foff, t, start, nxt, fshift[t], fscale[t], xn);
+                        p = dense(p, width, nxt, z, u, 1);
+                        for (int i = 0; i < nxt; ++i) u[i] += xn[i];
+                        p = dense(p, nxt, nxt, u, h, 1);
+                        for (int i = 0; i < nxt; ++i) h[i] += xn[i];
+                    } else {
+                        p = dense(p, width, MODULE_WIDTH, z, mod[2 * t + s], 1);
+                    }
+                }
+            }
+        }
+        /* Merges per type, written straight into the head's input [m_d, m_T, m_p, c]. */
+        for (int t = 0; t < N_TYPES; ++t) {
+            for (int i = 0; i < MODULE_WIDTH; ++i) {
+                a[i] = mod[2 * t][i];
+                a[MODULE_WIDTH + i] = mod[2 * t + 1][i];
+            }
+            p = dense(p, 2 * MODULE_WIDTH, MODULE_WIDTH, a, e, 1);
+            for (int i = 0; i < MODULE_WIDTH; ++i) u[t * MODULE_WIDTH + i] = e[i];
+        }
+        for (int i = 0; i < CONFIG_DIM; ++i) u[N_TYPES * MODULE_WIDTH + i] = cfg[i];
+        int width = N_TYPES * MODULE_WIDTH + CONFIG_DIM;
+        V *src = u, *dst = h;
+        for (int j = 0; j < HEAD_DEPTH; ++j) {
+            p = dense(p, width, HEADW[j], src, dst, 1);
+            width = HEADW[j];
+            V *tmp = src; src = dst; dst = tmp;
+        }
+        p = dense(p, width, 1, src, dst, 0);
+        res[ch] = dst[0];
+    }
+
+    for (int ch = 0; ch < MLP_CHANNELS; ++ch) {
+        V y = res[ch];
+#if MLP_DECODE
+#if MLP_CHANNELS == 3
+        const V alb = (V)(albedos[ch]);
+#else
+        const V alb = albedo_cfg;
+#endif
+        const V a2 = alb * alb;
+        y = (a2 * a2) * fmax(expm1(y), 0.0f);   /* albedo^4: gamma = 4 */
+#endif
+        float r[16];
+        vstore16(y, 0, r);
+        for (int j = 0; j < 16 && q0 + j < n; ++j)
+            out[(q0 + j) * MLP_CHANNELS + ch] = r[j];
+    }
+}

@@ -1,0 +1,122 @@
+"""Host wrapper for cl/mlp.cl: the network's fused forward pass from a weight file.
+
+    net = MlpKernel(load_weights("net.npz"))          # packs the weights once, on the device
+    y = net.forward(features, config)                 # y [N] (config's albedo)
+    F = net.forward(features, config, channel_albedo=(0.9, 0.95, 1.0), decode=True)   # F [N][3]
+    net.enqueue(features_buf, config_buf, n, out_buf, ...)   # gather buffers -> device output
+
+``features``/``config`` are the gather's arrays or buffers (clvol/layout.py). With
+``channel_albedo`` one evaluation per distinct non-zero channel albedo is run in the kernel
+(grey: pass the config's albedo and no channel_albedo, one evaluation); albedo-0 channels give 0.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from ..export import GAMMA, TYPES, MlpWeights
+from ..layout import CONFIG_DIM
+from ..runtime import get_runtime
+
+QUERIES_PER_ITEM = 16   # float16 lanes of one work-item
+
+
+def _pad8(x: int) -> int:
+    return (int(x) + 7) // 8 * 8
+
+
+def pack_params(weights: MlpWeights) -> np.ndarray:
+    """The flat float32 parameter buffer cl/mlp.cl walks: normalisation constants, then each
+    linear layer in execution order as W^T [n_in][pad8(n_out)] and bias [pad8(n_out)]."""
+    p = weights.params
+    parts = [p["feature_shift"], p["feature_scale"], p["config_shift"], p["config_scale"]]
+    for name, n_in, n_out in weights.arch.linear_layers():
+        wt = np.zeros((n_in, _pad8(n_out)), np.float32)
+        wt[:, :n_out] = p[f"{name}.weight"].T
+        b = np.zeros(_pad8(n_out), np.float32)
+        b[:n_out] = p[f"{name}.bias"]
+        parts += [wt.ravel(), b]
+    return np.concatenate([np.asarray(a, np.float32).ravel() for a in parts])
+
+
+def kernel_defines(arch, channels: int, decode: bool) -> dict:
+    maxw = max(max(_pad8(i), _pad8(o)) for _, i, o in arch.linear_layers())
+    return {
+        "N_LAYERS": len(arch.layer_counts), "N_DIFFUSE": arch.n_diffuse_layers,
+        "LAYER_COUNTS": ",".join(str(c) for c in arch.layer_counts),
+        "N_POINTS": arch.n_points, "SE_HIDDEN": arch.se_hidden,
+        "MODULE_WIDTH": arch.module_width, "HEAD_DEPTH": len(arch.head_widths),
+        "HEAD_WIDTHS": ",".join(str(w) for w in arch.head_widths),
+        "MAXW": maxw, "MLP_CHANNELS": channels, "MLP_DECODE": int(bool(decode)),
+    }
+
+
+class MlpKernel:
+    """A weight file on one device, ready to evaluate gather buffers."""
+
+    def __init__(self, weights: MlpWeights, runtime=None):
+        if GAMMA != 4.0:  # the kernel's decode hard-codes albedo^4
+            raise ValueError("cl/mlp.cl decodes with gamma = 4")
+        self.weights = weights
+        self.arch = weights.arch
+        self.rt = runtime or get_runtime()
+        self.params = pack_params(weights)
+        self.params_buf = self.rt.to_device(self.params)
+        self._kernels = {}
+
+    def kernel(self, channels: int, decode: bool):
+        key = (channels, bool(decode))
+        k = self._kernels.get(key)
+        if k is None:
+            prog = self.rt.program("mlp", defines=kernel_defines(self.arch, channels, decode))
+            k = self._kernels[key] = prog.kernel(
+                "mlp_forward", [None, None, None, None, np.int32, None])
+        return k
+
+    def enqueue(self, features, config, n: int, out, channel_albedo=None, decode: bool = False,
+                wait_for=None):
+        """Launch on device buffers: features [n][3][P], config [n][9] -> out [n][C] float32,
+        C = 3 with channel_albedo, else 1. Returns the event."""
+        channels = 1 if channel_albedo is None else 3
+        alb = np.zeros(4, np.float32)
+        if channel_albedo is not None:
+            alb[:3] = _channel_albedo(channel_albedo)
+        items = -(-int(n) // QUERIES_PER_ITEM)
+        return self.rt.launch(self.kernel(channels, decode), items,
+                              (features, config, self.params_buf, alb, np.int32(n), out),
+                              wait_for=wait_for)
+
+    def forward(self, features, config, channel_albedo=None, decode: bool = False,
+                n: int | None = None) -> np.ndarray:
+        """y (or F with ``decode``) as [N] (config's albedo) or [N][3] (``channel_albedo``).
+        ``features``/``config`` are arrays (checked against the layout) or device buffers
+        (then pass ``n``)."""
+        rt = self.rt
+        if isinstance(features, cl.Buffer) or isinstance(config, cl.Buffer):
+            if n is None:
+                raise ValueError("pass n with device buffers")
+            fb, cb = features, config
+        else:
+            features = np.asarray(features)
+            config = np.asarray(config)
+            n = len(features)
+            want_f = (n, len(TYPES), self.arch.n_points)
+            if features.shape != want_f or config.shape != (n, CONFIG_DIM):
+                raise ValueError(f"features {features.shape} / config {config.shape}: expected "
+                                 f"{want_f} / {(n, CONFIG_DIM)} (clvol/layout.py)")
+            fb = rt.to_device(np.ascontiguousarray(features, np.float32))
+            cb = rt.to_device(np.ascontiguousarray(config, np.float32))
+        channels = 1 if channel_albedo is None else 3
+        if n == 0:
+            return np.zeros((0,) if channels == 1 else (0, 3), np.float32)
+        out = rt.empty((n, channels))
+        evt = self.enqueue(fb, cb, n, out, channel_albedo, decode)
+        y = rt.from_device(out, (n, channels), wait_for=[evt])
+        return y[:, 0] if channels == 1 else y
+
+
+def _channel_albedo(a) -> np.ndarray:
+    a = np.asarray(a, np.float32).ravel()
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a < 0) or np.any(a > 1):
+        raise ValueError(f"channel_albedo must be 3 values in [0, 1], got {a.tolist()}")
+    return a

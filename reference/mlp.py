@@ -1,0 +1,144 @@
+"""NumPy twin of cl/mlp.cl and of clvol.model.Model: the network's forward pass.
+
+Inputs follow clvol/layout.py: features float32 [N][3][P] (density, transmittance, phase; P = 266
+template points, diffuse layers then highlight layers), config float32 [N][9]
+(g0 g1 g2 w0 w1 w2 g_mean albedo alpha). In training, ``levels`` [N][L][P] replaces the
+transmittance feature by sum_l level_weights[l] * levels[:, l] + level_bias (the seed's 3D-CNN);
+at render time the gather has already done that sum with the exported weights.
+
+The architecture (seed III.C with DESIGN.md's FC-ReLU-FC-sigmoid excitation) is written out in
+clvol/export.py's docstring; this file is its executable statement, in float64 by default so it can
+serve as the yardstick for the float32 torch and OpenCL versions.
+
+Output y = log(F / albedo^4 + 1) per query (seed eq. 20's normalised log space); ``decode`` turns
+it into F = albedo^4 * max(exp(y) - 1, 0). ``radiance`` evaluates per colour channel with that
+channel's albedo (one evaluation for a grey medium, three for a chromatic one; albedo 0 -> F = 0
+without evaluating).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from clvol import layout
+from clvol.export import GAMMA, TEMPLATES, TYPES, Architecture
+
+G_MEAN = layout.CONFIG_FIELDS.index("g_mean")
+ALBEDO = layout.CONFIG_FIELDS.index("albedo")
+ALPHA = layout.CONFIG_FIELDS.index("alpha")
+
+
+def _relu(x):
+    return np.maximum(x, 0)
+
+
+def _sigmoid(x):
+    # exp of -|x| never overflows; same value as 1 / (1 + exp(-x)).
+    e = np.exp(-np.abs(x))
+    return np.where(x >= 0, 1 / (1 + e), e / (1 + e))
+
+
+class _Net:
+    def __init__(self, params, arch, dtype, trace):
+        self.p = {k: np.asarray(v, dtype) for k, v in params.items()}
+        self.arch, self.dtype, self.trace = arch, dtype, trace
+
+    def linear(self, name, x, relu=True):
+        y = x @ self.p[f"{name}.weight"].T + self.p[f"{name}.bias"]
+        if relu:
+            y = _relu(y)
+            if self.trace is not None:
+                self.trace[name] = float(np.mean(y > 0))
+        return y
+
+
+def combine_levels(params, levels, dtype=np.float64):
+    """sum_l level_weights[l] * levels[:, l, :] + level_bias  ->  [N][P]."""
+    w = np.asarray(params["level_weights"], dtype)
+    b = np.asarray(params["level_bias"], dtype)[0]
+    return np.einsum("nlp,l->np", np.asarray(levels, dtype), w) + b
+
+
+def squeeze(x, c, arch):
+    """The seed's v_k per template layer: [N][n_layers][8] = (mean_d, mean_T, mean_p, max_d,
+    max_T, max_p, g_mean, alpha) of the normalised inputs."""
+    v = []
+    for sl in arch.layer_slices():
+        part = x[:, :, sl]
+        v.append(np.concatenate([part.mean(axis=2), part.max(axis=2),
+                                 c[:, [G_MEAN]], c[:, [ALPHA]]], axis=1))
+    return np.stack(v, axis=1)
+
+
+def forward(params: dict, arch: Architecture, features, config, levels=None,
+            dtype=np.float64, trace: dict | None = None) -> np.ndarray:
+    """y [N] for features [N][3][P], config [N][9] (and optionally levels [N][L][P]).
+    ``trace``, if a dict, receives the fraction of positive outputs of every ReLU layer."""
+    net = _Net(params, arch, dtype, trace)
+    p = net.p
+    x = np.array(features, dtype)
+    if levels is not None:
+        x[:, TYPES.index("transmittance"), :] = combine_levels(params, levels, dtype)
+    c = np.asarray(config, dtype)
+    x = (x - p["feature_shift"][None, :, None]) * p["feature_scale"][None, :, None]
+    c = (c - p["config_shift"]) * p["config_scale"]
+    v = squeeze(x, c, arch)
+    merged = []
+    for ti, t in enumerate(TYPES):
+        outs = []
+        for s in TEMPLATES:
+            pre = f"branches.{t}.{s}"
+            slices = arch.template_layer_slices(s)
+            first = 0 if s == "diffuse" else arch.n_diffuse_layers
+            h = x[:, ti, slices[0]]
+            for k, sl in enumerate(slices):
+                a = np.concatenate([h, c], axis=1)
+                w = _sigmoid(net.linear(f"{pre}.se_b.{k}", net.linear(f"{pre}.se_a.{k}", v[:, first + k]),
+                                        relu=False))
+                z = w * a
+                if k + 1 < len(slices):
+                    nxt = x[:, ti, slices[k + 1]]
+                    u = net.linear(f"{pre}.fc1.{k}", z) + nxt
+                    h = net.linear(f"{pre}.fc2.{k}", u) + nxt
+            outs.append(net.linear(f"{pre}.out", z))
+        merged.append(net.linear(f"merges.{t}", np.concatenate(outs, axis=1)))
+    hid = np.concatenate(merged + [c], axis=1)
+    n_head = len(arch.head_widths) + 1
+    for j in range(n_head):
+        hid = net.linear(f"head.{j}", hid, relu=j + 1 < n_head)
+    return hid[:, 0]
+
+
+def with_albedo(config, albedo):
+    """A copy of config [N][9] with the albedo field replaced (scalar or [N])."""
+    c = np.array(config, copy=True)
+    c[:, ALBEDO] = albedo
+    return c
+
+
+def forward_channels(params, arch, features, config, channel_albedo, dtype=np.float64) -> np.ndarray:
+    """y [N][C]: one evaluation per channel with config's albedo replaced by channel_albedo[c]."""
+    return np.stack([forward(params, arch, features, with_albedo(config, a), dtype=dtype)
+                     for a in np.atleast_1d(channel_albedo)], axis=1)
+
+
+def encode(F, albedo, gamma: float = GAMMA):
+    """y = log(F / albedo^gamma + 1) (seed eq. 20); albedo must be > 0."""
+    F, a = np.asarray(F, np.float64), np.asarray(albedo, np.float64)
+    return np.log1p(F / a ** gamma)
+
+
+def decode(y, albedo, gamma: float = GAMMA):
+    """F = albedo^gamma * max(exp(y) - 1, 0); 0 where albedo is 0."""
+    y, a = np.asarray(y, np.float64), np.asarray(albedo, np.float64)
+    return a ** gamma * np.maximum(np.expm1(y), 0.0)
+
+
+def radiance(params, arch, features, config, channel_albedo, dtype=np.float64) -> np.ndarray:
+    """F [N][3] (orders >= 2, unit irradiance) for an RGB albedo: one evaluation per distinct
+    non-zero channel albedo (grey: one), channels of albedo 0 are 0."""
+    alb = np.asarray(channel_albedo, np.float64).reshape(3)
+    out = np.zeros((len(config), 3))
+    for a in np.unique(alb[alb > 0]):
+        F = decode(forward(params, arch, features, with_albedo(config, a), dtype=dtype), a)
+        out[:, alb == a] = F[:, None]
+    return out
