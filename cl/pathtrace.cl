@@ -1,0 +1,312 @@
+/* Reference volumetric path tracer: images and point queries (ground truth, training labels).
+ *
+ * Estimator (DESIGN.md; seed: the ground truth its network learns, "F(p, omega)")
+ *   pixel = T(cam, exit) L_env + integral T(cam, x) sigma_s(x) [E F(x, omega) + env part] dt
+ * sampled as a random walk:
+ *   - free flight by delta tracking against the majorant grid (majorant.h; a 1-cell grid is
+ *     the global majorant): tentative collisions at rate sigma_maj, real with probability
+ *     sigma_t / sigma_maj; grey sigma_t, chromatic albedo carried as an RGB throughput
+ *     (beta *= albedo at every real collision, no absorption sampling);
+ *   - at every vertex k (k = 1 is the first scattering vertex; order = k): next-event
+ *     estimation toward the sun, beta * E * f(dot(l, w)) * T(x -> sun), T by ratio tracking
+ *     with roulette when T < PT_T_RR; f takes the cosine between propagation directions:
+ *     light travels along -l and leaves along -w, so cos = dot(-l, -w) = dot(l, w);
+ *   - new direction by exact phase sampling (phase.h, weight 1);
+ *   - a path leaving the box collects beta * L_env as order k (order 0: the background
+ *     seen through the medium, attenuated by the true transmittance in expectation).
+ *   - Russian roulette from vertex PT_RR_START on: survive with q = min(1, max_c beta_c),
+ *     beta /= q (unbiased; with albedo ~1, q ~ albedo, so long paths of clouds survive).
+ *   - max_order > 0 stops after the NEE of vertex max_order (0 = unlimited); paths longer
+ *     than PT_MAX_VERTICES are cut and counted (reported, never silent).
+ * Point queries start at p as vertex 1 with beta = 1 and w = -omega (omega toward the
+ * camera): order 1 gives F_1 = f(dot(-l, omega)) T(p -> sun), orders >= 2 give F_>=2.
+ *
+ * Random numbers (rng.h, Philox): one sequential stream per path, key = seed, counter =
+ * (stream = pixel or query index, sample index, block); uniforms are used in order, 4 per
+ * block. Draw order: [render: jitter x, y] then per flight step: u_tau and, at a tentative
+ * collision inside the box, u_real; per NEE ratio-tracking step: u_tau (+ u_roulette when
+ * T < PT_T_RR); per vertex before sampling a direction: u_rr (only if k >= PT_RR_START);
+ * phase sample: 3 uniforms (lobe, polar, azimuth). reference/pathtrace.py draws the same.
+ *
+ * Defines: PHASE_LOBES / PHASE_ISOTROPIC (phase.h); PT_GREY (scalar throughput);
+ * PT_ENV (a constant environment); PT_NO_SUN (no sun); PT_SINGLE_ONLY (stop after vertex
+ * 1); PT_RR_START, PT_MAX_VERTICES; PT_TEST_BIAS (tests only: scales sun NEE by its value).
+ *
+ * Kernels (grid and majorant arguments first, then light, then the per-kernel ones):
+ *   density   float [nz][ny][nx]    raw density; sigma_t = density * scale (1/length)
+ *   maj       float [mz][my][mx]    majorant grid (cl/majorant.cl), raw density
+ *   bmin,bmax float4                the grid's box (world); bsize float4 = coarse cell size
+ *   albedo    float4                RGB single-scattering albedo
+ *   lobe_g, lobe_w float4           phase lobes (phase.h)
+ *   light_dir float4                unit vector toward the sun
+ *   sun       float4                sun irradiance E (RGB, power / area perpendicular to l)
+ *   env       float4                environment radiance (RGB), used with PT_ENV
+ * pt_render: cam_o, cam_f, cam_r, cam_u float4, tan_half, width, height; seed ulong;
+ *   sample0 uint; spl int (samples per launch; work-item g: pixel g % npix, sample
+ *   sample0 + g / npix); max_order int; out float [spl*npix][PT_OUT]:
+ *   (background rgb, order-1 rgb, orders>=2 rgb, vertices, tracking steps, truncated, 0, 0)
+ * pt_query: points, omegas float [nq][3]; nq; seed; sample0; ppl (paths per launch,
+ *   work-item g: query g % nq, path sample0 + g / nq); max_order; out as pt_render with
+ *   background 0 (sun irradiance 1 and no environment are the caller's arguments).
+ */
+#include "rng.h"
+#include "grid.h"
+#include "phase.h"
+#include "majorant.h"
+
+#ifndef PT_RR_START
+#define PT_RR_START 8
+#endif
+#ifndef PT_MAX_VERTICES
+#define PT_MAX_VERTICES 100000
+#endif
+/* Ratio-tracking roulette threshold: below it, T survives with probability T / PT_T_RR. */
+#define PT_T_RR 0.1f
+#define PT_OUT 12
+
+#ifdef PT_GREY
+typedef float spec_t;
+#define SPEC(v4) ((v4).x)
+#define SPEC_MAX(b) (b)
+#define SPEC_RGB(b) ((float3)(b))
+#else
+typedef float3 spec_t;
+#define SPEC(v4) ((v4).xyz)
+#define SPEC_MAX(b) fmax(fmax((b).x, (b).y), (b).z)
+#define SPEC_RGB(b) (b)
+#endif
+
+/* ------------------------------------------------------------------ random stream */
+
+/* Scalar members: Oclgrind's uninitialised-value checker mis-handles vector members
+ * of private structs updated in parts. */
+typedef struct {
+    ulong seed, stream;
+    uint sample, block;
+    float b0, b1, b2, b3;
+    int used;
+} pt_rng;
+
+__attribute__((always_inline))
+void pt_rng_init(pt_rng *r, ulong seed, ulong stream, uint sample) {
+    r->seed = seed;
+    r->stream = stream;
+    r->sample = sample;
+    r->block = 0;
+    r->b0 = r->b1 = r->b2 = r->b3 = 0.0f;
+    r->used = 4;
+}
+
+__attribute__((always_inline))
+float pt_next(pt_rng *r) {
+    if (r->used == 4) {
+        float4 u = rng_uniform4(r->seed, r->stream, r->sample, r->block);
+        r->b0 = u.x; r->b1 = u.y; r->b2 = u.z; r->b3 = u.w;
+        r->block += 1;
+        r->used = 0;
+    }
+    int k = r->used++;
+    return k == 0 ? r->b0 : k == 1 ? r->b1 : k == 2 ? r->b2 : r->b3;
+}
+
+/* ------------------------------------------------------------------ medium */
+
+typedef struct {
+    __global const float *density;
+    __global const float *maj;
+    int nx, ny, nz, mx, my, mz;
+    float3 bmin, bmax, bsize;
+    float scale;
+} pt_medium;
+
+__attribute__((always_inline))
+float pt_sigma(const pt_medium *m, float3 p) {
+    return grid_density(m->density, m->nx, m->ny, m->nz, m->bmin, m->bmax, p) * m->scale;
+}
+
+/* Exponential optical depth from a uniform in [0, 1): 1 - u is in (0, 1], no log(0). */
+__attribute__((always_inline))
+float pt_tau(pt_rng *r) {
+    return -log(1.0f - pt_next(r));
+}
+
+/* Delta tracking from x along unit w. Returns 1 with *hit at a real collision, 0 if the
+ * ray leaves the box first. */
+__attribute__((always_inline))
+int pt_free_flight(const pt_medium *m, float3 x, float3 w, pt_rng *r, float3 *hit,
+                   uint *steps) {
+    maj_dda s;
+    if (!maj_dda_init(&s, x, w, m->bmin, m->bmax, m->bsize, (int3)(m->mx, m->my, m->mz),
+                      0.0f, INFINITY))
+        return 0;
+    for (;;) {
+        float tau = pt_tau(r), t, sm;
+        if (!maj_dda_track(&s, m->maj, m->scale, &tau, &t, &sm)) return 0;
+        *steps += 1;
+        float3 p = x + t * w;
+        /* Real with probability sigma / sigma_maj (u * sm < sigma: no division). */
+        if (pt_next(r) * sm < pt_sigma(m, p)) {
+            *hit = p;
+            return 1;
+        }
+    }
+}
+
+/* Ratio-tracking transmittance from x along unit w to the box exit. */
+__attribute__((always_inline))
+float pt_transmittance(const pt_medium *m, float3 x, float3 w, pt_rng *r, uint *steps) {
+    maj_dda s;
+    if (!maj_dda_init(&s, x, w, m->bmin, m->bmax, m->bsize, (int3)(m->mx, m->my, m->mz),
+                      0.0f, INFINITY))
+        return 1.0f;
+    float T = 1.0f;
+    for (;;) {
+        float tau = pt_tau(r), t, sm;
+        if (!maj_dda_track(&s, m->maj, m->scale, &tau, &t, &sm)) return T;
+        *steps += 1;
+        /* sm > 0 at a tentative collision; rounding can put sigma a hair above sm. */
+        T *= fmax(0.0f, 1.0f - pt_sigma(m, x + t * w) / sm);
+        if (T < PT_T_RR) {
+            if (pt_next(r) * PT_T_RR >= T) return 0.0f;
+            T = PT_T_RR;
+        }
+    }
+}
+
+/* ------------------------------------------------------------------ random walk */
+
+typedef struct {
+    float3 dir;       /* toward the sun */
+    spec_t sun;       /* irradiance */
+    spec_t env;       /* environment radiance */
+    spec_t albedo;
+    float4 lobe_g, lobe_w;
+} pt_light;
+
+/* Continue a path at vertex k (position x, arrival propagation direction w, throughput
+ * beta including the albedo of this vertex). Adds order-1 light to *l1 and higher orders
+ * to *lms. */
+__attribute__((always_inline))
+void pt_walk(const pt_medium *m, const pt_light *L, float3 x, float3 w, spec_t beta, int k,
+             int max_order, pt_rng *r, spec_t *l1, spec_t *lms, uint *vertices, uint *steps,
+             uint *truncated) {
+    for (;;) {
+        if (SPEC_MAX(beta) <= 0.0f) return;  /* albedo 0: nothing can arrive any more */
+        *vertices += 1;
+#ifndef PT_NO_SUN
+        {
+            float f = phase_eval(dot(L->dir, w), L->lobe_g, L->lobe_w);
+            float T = pt_transmittance(m, x, L->dir, r, steps);
+            spec_t c = beta * L->sun * (f * T);
+#ifdef PT_TEST_BIAS
+            c *= PT_TEST_BIAS;
+#endif
+            if (k == 1) *l1 += c; else *lms += c;
+        }
+#endif
+#ifdef PT_SINGLE_ONLY
+        return;
+#else
+        if (k == max_order) return;
+        if (k >= PT_MAX_VERTICES) {
+            *truncated = 1;
+            return;
+        }
+        if (k >= PT_RR_START) {
+            float q = fmin(1.0f, SPEC_MAX(beta));
+            if (pt_next(r) >= q) return;
+            beta /= q;
+        }
+        float3 u;
+        u.x = pt_next(r);
+        u.y = pt_next(r);
+        u.z = pt_next(r);
+        w = phase_sample(w, L->lobe_g, L->lobe_w, u);
+        if (!pt_free_flight(m, x, w, r, &x, steps)) {
+#ifdef PT_ENV
+            if (k == 1) *l1 += beta * L->env; else *lms += beta * L->env;
+#endif
+            return;
+        }
+        beta *= L->albedo;
+        k += 1;
+#endif
+    }
+}
+
+__attribute__((always_inline))
+void pt_store(__global float *out, size_t g, float3 bg, spec_t l1, spec_t lms, uint vertices,
+              uint steps, uint truncated) {
+    __global float *o = out + PT_OUT * g;
+    float3 a = SPEC_RGB(l1), b = SPEC_RGB(lms);
+    o[0] = bg.x; o[1] = bg.y; o[2] = bg.z;
+    o[3] = a.x; o[4] = a.y; o[5] = a.z;
+    o[6] = b.x; o[7] = b.y; o[8] = b.z;
+    o[9] = (float)vertices;
+    o[10] = (float)steps;
+    o[11] = (float)truncated;
+}
+
+#define PT_MEDIUM_ARGS                                                                    \
+    __global const float *density, __global const float *maj, const int nx, const int ny, \
+        const int nz, const int mx, const int my, const int mz, const float4 bmin,       \
+        const float4 bmax, const float4 bsize, const float scale, const float4 albedo,   \
+        const float4 lobe_g, const float4 lobe_w, const float4 light_dir,                \
+        const float4 sun, const float4 env
+
+#define PT_SETUP                                                                          \
+    pt_medium m;                                                                          \
+    m.density = density; m.maj = maj;                                                     \
+    m.nx = nx; m.ny = ny; m.nz = nz; m.mx = mx; m.my = my; m.mz = mz;                     \
+    m.bmin = bmin.xyz; m.bmax = bmax.xyz; m.bsize = bsize.xyz; m.scale = scale;           \
+    pt_light L;                                                                           \
+    L.dir = light_dir.xyz; L.sun = SPEC(sun); L.env = SPEC(env); L.albedo = SPEC(albedo); \
+    L.lobe_g = lobe_g; L.lobe_w = lobe_w;
+
+__kernel void pt_render(PT_MEDIUM_ARGS, const float4 cam_o, const float4 cam_f,
+                        const float4 cam_r, const float4 cam_u, const float tan_half,
+                        const int width, const int height, const ulong seed,
+                        const uint sample0, const int spl, const int max_order,
+                        __global float *out) {
+    int g = get_global_id(0);
+    int npix = width * height;
+    if (g >= npix * spl) return;
+    PT_SETUP
+    int j = g / npix, pix = g - j * npix;
+    int row = pix / width, col = pix - row * width;
+    pt_rng r;
+    pt_rng_init(&r, seed, (ulong)pix, sample0 + (uint)j);
+    float px = (float)col + pt_next(&r), py = (float)row + pt_next(&r);
+    float3 w = camera_ray(cam_f.xyz, cam_r.xyz, cam_u.xyz, tan_half, width, height, px, py);
+    spec_t l1 = 0.0f, lms = 0.0f;
+    float3 bg = 0.0f;
+    uint vertices = 0, steps = 0, truncated = 0;
+    float3 x;
+    if (pt_free_flight(&m, cam_o.xyz, w, &r, &x, &steps)) {
+        pt_walk(&m, &L, x, w, L.albedo, 1, max_order, &r, &l1, &lms, &vertices, &steps,
+                &truncated);
+    } else {
+#ifdef PT_ENV
+        bg = SPEC_RGB(L.env);
+#endif
+    }
+    pt_store(out, (size_t)g, bg, l1, lms, vertices, steps, truncated);
+}
+
+__kernel void pt_query(PT_MEDIUM_ARGS, __global const float *points,
+                       __global const float *omegas, const int nq, const ulong seed,
+                       const uint sample0, const int ppl, const int max_order,
+                       __global float *out) {
+    int g = get_global_id(0);
+    if (g >= nq * ppl) return;
+    PT_SETUP
+    int j = g / nq, q = g - j * nq;
+    pt_rng r;
+    pt_rng_init(&r, seed, (ulong)q, sample0 + (uint)j);
+    spec_t l1 = 0.0f, lms = 0.0f;
+    uint vertices = 0, steps = 0, truncated = 0;
+    spec_t one = 1.0f;
+    pt_walk(&m, &L, vload3(q, points), -vload3(q, omegas), one, 1, max_order, &r, &l1, &lms,
+            &vertices, &steps, &truncated);
+    pt_store(out, (size_t)g, (float3)(0.0f), l1, lms, vertices, steps, truncated);
+}

@@ -1,0 +1,141 @@
+"""Host wrapper for cl/pathtrace.cl: one launch = one batch of independent paths.
+
+``PathTracer`` uploads a medium once (density, majorant grid), picks the ``-D``
+specialisation the scene allows, and runs render or query batches, returning the raw
+per-path rows (layout ``ROW_*`` below) for the caller to average. Rendering policy
+(progress, time budget, images, standard errors) lives in ``clvol/pathtrace.py``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..runtime import get_runtime
+from . import phase as kphase
+from .grid import f4
+from .majorant import build_majorant_buffer, majorant_args
+
+# Per-path output row of the kernels (PT_OUT floats).
+ROW_BG, ROW_L1, ROW_LMS = slice(0, 3), slice(3, 6), slice(6, 9)
+ROW_VERTICES, ROW_STEPS, ROW_TRUNCATED = 9, 10, 11
+PT_OUT = 12
+RR_START = 8            # cl/pathtrace.cl PT_RR_START default
+MAX_VERTICES = 100_000  # cl/pathtrace.cl PT_MAX_VERTICES default
+
+_MEDIUM_DTYPES = [None, None, np.int32, np.int32, np.int32, np.int32, np.int32, np.int32,
+                  None, None, None, np.float32, None, None, None, None, None, None]
+_RENDER_DTYPES = _MEDIUM_DTYPES + [None, None, None, None, np.float32, np.int32, np.int32,
+                                   np.uint64, np.uint32, np.int32, np.int32, None]
+_QUERY_DTYPES = _MEDIUM_DTYPES + [None, None, np.int32, np.uint64, np.uint32, np.int32,
+                                  np.int32, None]
+
+
+@dataclass
+class Medium:
+    """What the kernels simulate. ``lobes``: (g, weight) pairs, empty for isotropic;
+    ``environment`` None for none; ``max_order`` None for unlimited."""
+    density: np.ndarray
+    bbox_min: np.ndarray
+    bbox_max: np.ndarray
+    density_scale: float
+    albedo: tuple
+    lobes: list
+    light_dir: tuple
+    sun: tuple = (1.0, 1.0, 1.0)
+    environment: tuple | None = None
+    max_order: int | None = None
+    extra_defines: dict = field(default_factory=dict)
+
+
+def specialisation(med: Medium, specialise: bool = True) -> tuple[dict, list[str], list[str]]:
+    """(-D defines, simulated effects, skipped effects). With ``specialise=False`` the
+    general kernel is built (three lobes, RGB, environment and sun code all compiled)."""
+    simulated, skipped = [], []
+    grey = med.albedo[0] == med.albedo[1] == med.albedo[2]
+    iso = not med.lobes or all(g == 0.0 for g, _ in med.lobes)
+    env = med.environment is not None and max(med.environment) > 0
+    sun = max(med.sun) > 0
+    single = med.max_order == 1
+    if specialise:
+        defines = kphase.phase_defines([] if iso else med.lobes)
+        if grey:
+            defines["PT_GREY"] = 1
+        if env:
+            defines["PT_ENV"] = 1
+        if not sun:
+            defines["PT_NO_SUN"] = 1
+        if single:
+            defines["PT_SINGLE_ONLY"] = 1
+    else:
+        defines = {"PHASE_LOBES": 3, "PT_ENV": 1}
+    defines.update(med.extra_defines)
+    simulated.append("sun NEE (ratio tracking)" if sun else "no sun")
+    (simulated if env else skipped).append("environment (escaping paths)")
+    simulated.append("isotropic phase" if iso else f"HG phase, {len(med.lobes)} lobe(s)")
+    simulated.append("grey albedo" if grey else "RGB albedo")
+    if single:
+        simulated.append("single scattering")
+        skipped.append("multiple scattering (max order 1)")
+    elif med.max_order:
+        simulated.append(f"scattering orders 1..{med.max_order}")
+    else:
+        simulated.append("all scattering orders")
+    skipped.append("environment NEE")
+    return defines, simulated, skipped
+
+
+class PathTracer:
+    """A medium on the device and the kernels specialised for it."""
+
+    def __init__(self, med: Medium, majorant_block: int = 8, specialise: bool = True,
+                 runtime=None):
+        self.rt = rt = runtime or get_runtime()
+        self.med = med
+        d = np.ascontiguousarray(med.density, np.float32)
+        if d.ndim != 3:
+            raise ValueError(f"density must be 3-D [z][y][x], got shape {d.shape}")
+        self.shape = d.shape
+        block = int(majorant_block) if majorant_block else max(d.shape)  # 0: global majorant
+        self.block = block
+        self._density = rt.to_device(d)
+        self._maj, _ = build_majorant_buffer(self._density, d.shape, block, rt)
+        (self.mres, self.bsize) = majorant_args(d.shape, med.bbox_min, med.bbox_max, block)
+        self.defines, self.simulated, self.skipped = specialisation(med, specialise)
+        self.program = rt.program("pathtrace", self.defines)
+        lobes = med.lobes if med.lobes else [(0.0, 1.0)]
+        self.lobe_g, self.lobe_w = kphase.lobe_vectors(lobes)
+        env = med.environment if med.environment is not None else (0.0, 0.0, 0.0)
+        nz, ny, nx = d.shape
+        mx, my, mz = self.mres
+        self._medium_args = (
+            self._density, self._maj, np.int32(nx), np.int32(ny), np.int32(nz), np.int32(mx),
+            np.int32(my), np.int32(mz), f4(med.bbox_min), f4(med.bbox_max), self.bsize,
+            np.float32(med.density_scale), f4(med.albedo), self.lobe_g, self.lobe_w,
+            f4(med.light_dir), f4(med.sun), f4(env))
+        self.max_order = int(med.max_order or 0)
+
+    def render_batch(self, camera, seed: int, sample0: int, spl: int, wait: bool = True):
+        """Rows (spl, H*W, PT_OUT) for samples sample0..sample0+spl-1 of every pixel."""
+        rt = self.rt
+        fwd, right, up = camera.basis()
+        w, h = camera.width, camera.height
+        n = w * h * spl
+        out = rt.empty((n, PT_OUT))
+        k = self.program.kernel("pt_render", _RENDER_DTYPES)
+        rt.launch(k, n, self._medium_args + (
+            f4(camera.origin), f4(fwd), f4(right), f4(up),
+            np.float32(np.tan(np.radians(camera.fov_y) / 2)), np.int32(w), np.int32(h),
+            np.uint64(seed), np.uint32(sample0), np.int32(spl), np.int32(self.max_order), out))
+        return rt.from_device(out, (spl, w * h, PT_OUT))
+
+    def query_batch(self, points_buf, omegas_buf, nq: int, seed: int, sample0: int, ppl: int):
+        """Rows (ppl, nq, PT_OUT) for paths sample0..sample0+ppl-1 of every query."""
+        rt = self.rt
+        n = nq * ppl
+        out = rt.empty((n, PT_OUT))
+        k = self.program.kernel("pt_query", _QUERY_DTYPES)
+        rt.launch(k, n, self._medium_args + (
+            points_buf, omegas_buf, np.int32(nq), np.uint64(seed), np.uint32(sample0),
+            np.int32(ppl), np.int32(self.max_order), out))
+        return rt.from_device(out, (ppl, nq, PT_OUT))

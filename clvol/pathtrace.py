@@ -1,0 +1,234 @@
+"""Reference volumetric path tracer: the ``pathtrace`` render method and point queries.
+
+Images (``clvol render SCENE --method pathtrace --spp N -o out.exr``): progressive sample
+passes of cl/pathtrace.cl, averaged in float64 on the host. Layers:
+
+- ``total``    background seen through the medium + single + multiple scattering;
+- ``single``   order 1 (paths with one scattering vertex: sun NEE at the first vertex and,
+               with an environment, environment light after one scattering);
+- ``multiple`` orders >= 2;
+- ``total_se`` standard error of ``total`` per pixel and channel (from the sample variance).
+
+The header records spp, seconds, seed, what was simulated and skipped (the kernel is
+specialised with -D defines for what the scene needs), and paths cut at the vertex limit.
+
+Point queries (``point_query``): the training-label API, F(p, omega) of DESIGN.md for a sun
+of irradiance 1 and no environment, split into F_1 and F_>=2, with standard errors.
+
+The estimator, random-number layout and Russian roulette policy are documented at the top
+of cl/pathtrace.cl and in docs/pathtrace.md.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .errors import ClvolError
+from .kernels.pathtrace import (PT_OUT, ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED,
+                                ROW_VERTICES, Medium, PathTracer)
+from .progress import Progress
+from .render import RenderResult
+from .runtime import get_runtime
+
+DEFAULT_SPP = 64
+DEFAULT_BLOCK = 8
+# Paths per launch: enough work-items to fill the device, few enough for a responsive
+# progress bar and a time budget that stops close to its limit.
+PATHS_PER_LAUNCH = 1 << 16
+
+
+def add_arguments(group) -> None:
+    group.add_argument("--spp", type=int, default=None, metavar="N",
+                       help=f"samples per pixel (default {DEFAULT_SPP}, or unlimited with --time)")
+    group.add_argument("--max-order", type=int, default=None, metavar="K",
+                       help="highest scattering order simulated (1 = single scattering only; "
+                            "default: all)")
+    group.add_argument("--time", type=float, default=None, metavar="SECONDS",
+                       help="wall-time budget: stop after the last sample pass that fits")
+    group.add_argument("--majorant-block", type=int, default=DEFAULT_BLOCK, metavar="B",
+                       help=f"voxels per majorant-grid cell for delta tracking (default "
+                            f"{DEFAULT_BLOCK}; 0 = one global majorant)")
+
+
+def _check_int(name: str, value, lo: int, allow_none: bool = True):
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
+        raise ClvolError(f"{name} = {value!r}: must be an integer >= {lo}")
+    return int(value)
+
+
+def _medium(scene, grid, max_order, sun, environment) -> Medium:
+    m = scene.medium
+    lobes = [] if m.phase.is_isotropic else [(l.g, l.weight) for l in m.phase.lobes]
+    return Medium(density=grid.density, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max,
+                  density_scale=m.density_scale, albedo=tuple(m.albedo), lobes=lobes,
+                  light_dir=tuple(scene.light.direction), sun=tuple(sun),
+                  environment=None if environment is None else tuple(environment),
+                  max_order=max_order)
+
+
+def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
+                     max_order: int | None = None, time_budget: float | None = None,
+                     runtime=None, majorant_block: int = DEFAULT_BLOCK, grid=None,
+                     progress: bool = True, specialise: bool = True,
+                     extra_defines: dict | None = None) -> RenderResult:
+    """Path-trace ``scene``: ``spp`` samples per pixel (None = until ``time_budget``).
+
+    With ``time_budget`` (seconds) the render stops before a sample pass that would end
+    after the budget (judged from the passes so far; at least one pass always runs).
+    ``grid`` overrides ``scene.volume.load()``. Same seed, same device: same image, bit
+    for bit, whatever the budget cut (passes are fixed sample-index ranges).
+    """
+    spp = _check_int("--spp", spp, 1)
+    max_order = _check_int("--max-order", max_order, 1)
+    seed = _check_int("--seed", seed, 0, allow_none=False)
+    if time_budget is not None and not (time_budget > 0):
+        raise ClvolError(f"--time = {time_budget!r}: must be > 0 seconds")
+    if spp is None and time_budget is None:
+        spp = DEFAULT_SPP
+    t_start = time.perf_counter()
+    grid = grid if grid is not None else scene.volume.load()
+    light = scene.light
+    med = _medium(scene, grid, max_order, light.irradiance, light.environment)
+    med.extra_defines = dict(extra_defines or {})
+    pt = PathTracer(med, majorant_block, specialise=specialise, runtime=runtime)
+    cam = scene.camera
+    npix = cam.width * cam.height
+    spl_max = max(1, PATHS_PER_LAUNCH // npix)
+
+    sums = np.zeros((npix, 9))
+    sq = np.zeros((npix, 3))
+    vertices = steps = truncated = 0.0
+    done = 0
+    t_sampling = time.perf_counter()
+    launch_seconds = []
+    with Progress(spp if spp is not None else time_budget, label="pathtrace",
+                  unit=" spp" if spp is not None else " s") as bar:
+        bar.enabled = bar.enabled and progress
+        while spp is None or done < spp:
+            spl = spl_max if spp is None else min(spl_max, spp - done)
+            if time_budget is not None and done > 0:
+                per_sample = (time.perf_counter() - t_sampling) / done
+                if time.perf_counter() - t_start + per_sample * spl > time_budget:
+                    # Shrink the last launch to what fits; stop if not even one pass does.
+                    spl = int((time_budget - (time.perf_counter() - t_start)) / per_sample)
+                    if spl < 1:
+                        break
+            t0 = time.perf_counter()
+            rows = pt.render_batch(cam, seed, done, spl)
+            launch_seconds.append(time.perf_counter() - t0)
+            rows64 = rows.astype(np.float64)
+            sums += rows64[..., :9].sum(axis=0)
+            total = rows64[..., ROW_BG] + rows64[..., ROW_L1] + rows64[..., ROW_LMS]
+            sq += (total * total).sum(axis=0)
+            vertices += rows64[..., ROW_VERTICES].sum()
+            steps += rows64[..., ROW_STEPS].sum()
+            truncated += rows64[..., ROW_TRUNCATED].sum()
+            done += spl
+            bar.update(done=done if spp is not None else time.perf_counter() - t_start)
+    seconds = time.perf_counter() - t_start
+    sampling_seconds = time.perf_counter() - t_sampling
+
+    shape = (cam.height, cam.width, 3)
+    mean = sums / done
+    bg, l1, lms = mean[:, 0:3], mean[:, 3:6], mean[:, 6:9]
+    total = bg + l1 + lms
+    var = np.maximum(sq / done - total * total, 0.0) * (done / max(done - 1, 1))
+    layers = {"total": total.reshape(shape).astype(np.float32),
+              "single": l1.reshape(shape).astype(np.float32),
+              "multiple": lms.reshape(shape).astype(np.float32),
+              "total_se": np.sqrt(var / done).reshape(shape).astype(np.float32)}
+    n_paths = done * npix
+    header = {
+        "spp": done, "seconds": round(seconds, 4), "seed": seed,
+        "max_order": max_order if max_order else "all",
+        "simulated": "; ".join(pt.simulated), "skipped": "; ".join(pt.skipped),
+        "majorant_block": pt.block if majorant_block else "global",
+        "defines": " ".join(f"{k}={v}" for k, v in sorted(pt.defines.items())),
+        "samples_per_second": round(n_paths / max(sampling_seconds, 1e-9), 1),
+        "mean_vertices": round(vertices / n_paths, 3),
+        "mean_tracking_steps": round(steps / n_paths, 3),
+        "paths_truncated": int(truncated),
+    }
+    if time_budget is not None:
+        header["time_budget"] = time_budget
+    return RenderResult(layers=layers, header=header)
+
+
+def render(scene, args) -> RenderResult:
+    """The ``clvol render --method pathtrace`` entry point."""
+    rt = get_runtime(getattr(args, "device", None), getattr(args, "profile", False))
+    result = render_pathtrace(scene, spp=args.spp, seed=args.seed, max_order=args.max_order,
+                              time_budget=args.time, runtime=rt,
+                              majorant_block=args.majorant_block)
+    if getattr(args, "profile", False):
+        import sys
+        print(rt.timing_report(), file=sys.stderr)
+    return result
+
+
+def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
+                max_order: int | None = None, grid=None, runtime=None,
+                majorant_block: int = DEFAULT_BLOCK) -> dict:
+    """In-scattered radiance F(p, omega) for a sun of irradiance 1 (DESIGN.md).
+
+    points (N, 3) world positions; omegas (N, 3) unit directions toward the camera.
+    The sun is the scene's light direction with irradiance 1 in every channel; the
+    scene's irradiance and environment are ignored (labels are per unit sun, and the
+    environment is not part of F). Returns float64 (N, 3) arrays:
+      "F1", "F1_se"   order 1: f(dot(-l, omega)) T(p -> sun) (grey; ratio-tracked T),
+      "Fms", "Fms_se" orders >= 2 (RGB: the albedo of later vertices is included, that of
+                      p is not, as F excludes sigma_s(p)),
+    plus "paths" (n_paths) and "truncated" (paths cut at the vertex limit). Points outside
+    the box or where the density is 0 are valid (the walk starts there all the same).
+    Query q's path j uses the random stream (seed, q, j): same inputs, same output.
+    """
+    n_paths = _check_int("n_paths", n_paths, 1, allow_none=False)
+    max_order = _check_int("max_order", max_order, 1)
+    p = np.asarray(points, np.float64)
+    w = np.asarray(omegas, np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or w.shape != p.shape:
+        raise ClvolError(f"point_query: points {p.shape} and omegas {w.shape} must both be (N, 3)")
+    if not (np.isfinite(p).all() and np.isfinite(w).all()):
+        raise ClvolError("point_query: points and omegas must be finite")
+    norm = np.linalg.norm(w, axis=1)
+    if len(w) and np.abs(norm - 1).max() > 1e-4:
+        i = int(np.argmax(np.abs(norm - 1)))
+        raise ClvolError(f"point_query: omegas must be unit vectors; omegas[{i}] has length {norm[i]:.6g}")
+    rt = runtime or get_runtime()
+    grid = grid if grid is not None else scene.volume.load()
+    med = _medium(scene, grid, max_order, (1.0, 1.0, 1.0), None)
+    pt = PathTracer(med, majorant_block, runtime=rt)
+    nq = len(p)
+    out = {k: np.zeros((nq, 3)) for k in ("F1", "F1_se", "Fms", "Fms_se")}
+    out["paths"] = n_paths
+    out["truncated"] = 0
+    if nq == 0:
+        return out
+    pbuf = rt.to_device(p.astype(np.float32))
+    wbuf = rt.to_device(w.astype(np.float32))
+    ppl_max = max(1, PATHS_PER_LAUNCH // nq)
+    s1, q1, sm, qm = (np.zeros((nq, 3)) for _ in range(4))
+    done = 0
+    while done < n_paths:
+        ppl = min(ppl_max, n_paths - done)
+        rows = pt.query_batch(pbuf, wbuf, nq, seed, done, ppl).astype(np.float64)
+        a, b = rows[..., ROW_L1], rows[..., ROW_LMS]
+        s1 += a.sum(axis=0)
+        q1 += (a * a).sum(axis=0)
+        sm += b.sum(axis=0)
+        qm += (b * b).sum(axis=0)
+        out["truncated"] += int(rows[..., ROW_TRUNCATED].sum())
+        done += ppl
+    n = float(n_paths)
+    for key, s, q in (("F1", s1, q1), ("Fms", sm, qm)):
+        mean = s / n
+        var = np.maximum(q / n - mean * mean, 0.0) * (n / max(n - 1.0, 1.0))
+        out[key] = mean
+        out[key + "_se"] = np.sqrt(var / n)
+    return out
+
+
+__all__ = ["add_arguments", "render", "render_pathtrace", "point_query", "PT_OUT"]

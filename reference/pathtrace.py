@@ -1,0 +1,219 @@
+"""NumPy twin of cl/pathtrace.cl: the same estimator, one path at a time, in float64.
+
+Plain on purpose: a path is a Python loop over events; the medium uses one *global*
+majorant (the kernel's majorant grid is an optimisation the tests hold against this).
+Uniforms come from reference.rng.uniform4 in the kernel's order, so with the kernel built
+on a global majorant (majorant block >= grid size) both follow the same path decisions up
+to float rounding (kernel float32, twin float64). See cl/pathtrace.cl for the estimator,
+the conventions (light toward l, omega toward the camera, cosines between propagation
+directions) and the draw order; per-path rows use the kernel's layout:
+
+    (background rgb, order-1 rgb, orders>=2 rgb, vertices, tracking steps, truncated)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from reference.grid import box_intersect, camera_rays, grid_density
+from reference.phase import phase_eval, phase_sample
+from reference.rng import uniform4
+
+RR_START = 8
+MAX_VERTICES = 100_000
+T_RR = 0.1
+PT_OUT = 12
+
+
+@dataclass
+class Params:
+    """The medium and lights as the kernel sees them (``lobes`` empty = isotropic,
+    ``environment`` None = none, ``max_order`` 0 = unlimited)."""
+    density: np.ndarray
+    bbox_min: np.ndarray
+    bbox_max: np.ndarray
+    density_scale: float
+    albedo: tuple
+    lobes: list
+    light_dir: tuple
+    sun: tuple = (1.0, 1.0, 1.0)
+    environment: tuple | None = None
+    max_order: int = 0
+    rr_start: int = RR_START
+    max_vertices: int = MAX_VERTICES
+
+    def __post_init__(self):
+        self.density = np.asarray(self.density, np.float64)
+        self.bbox_min = np.asarray(self.bbox_min, np.float64)
+        self.bbox_max = np.asarray(self.bbox_max, np.float64)
+        self.albedo = np.asarray(self.albedo, np.float64)
+        self.sun = np.asarray(self.sun, np.float64)
+        self.light_dir = np.asarray(self.light_dir, np.float64)
+        self.sigma_maj = float(self.density.max()) * self.density_scale
+        self.lobes = [tuple(l) for l in (self.lobes or [])]
+        self.env = (None if self.environment is None or max(self.environment) <= 0
+                    else np.asarray(self.environment, np.float64))
+
+
+class Stream:
+    """The kernel's pt_rng: uniforms of (seed, stream, sample), 4 per block, in order."""
+    CHUNK = 32  # blocks fetched per uniform4 call (speed only; values are per block)
+
+    def __init__(self, seed: int, stream: int, sample: int):
+        self.seed, self.stream, self.sample = seed, stream, sample
+        self._u = np.empty(0)
+        self._i = 0
+
+    def next(self) -> float:
+        if self._i == len(self._u):
+            first = len(self._u) // 4
+            blocks = np.arange(first, first + self.CHUNK, dtype=np.uint32)
+            new = uniform4(self.seed, self.stream, self.sample, blocks).astype(np.float64)
+            self._u = np.concatenate([self._u, new.ravel()])
+        u = float(self._u[self._i])
+        self._i += 1
+        return u
+
+
+class Counters:
+    def __init__(self):
+        self.vertices = 0
+        self.steps = 0
+        self.truncated = 0
+
+
+def sigma(P: Params, p) -> float:
+    return float(grid_density(P.density, P.bbox_min, P.bbox_max, np.asarray(p)[None])[0]) \
+        * P.density_scale
+
+
+def free_flight(P: Params, x, w, rs: Stream, c: Counters):
+    """Delta tracking with the global majorant: the real collision point or None."""
+    t0, t1 = box_intersect(x[None], w[None], P.bbox_min, P.bbox_max, 0.0)
+    t0, t1 = float(t0[0]), float(t1[0])
+    if not t0 <= t1:
+        return None
+    t, sm = t0, P.sigma_maj
+    while True:
+        tau = -math.log(1.0 - rs.next())
+        if not (sm > 0 and sm * (t1 - t) >= tau):
+            return None
+        t = min(t + tau / sm, t1)
+        c.steps += 1
+        p = x + t * w
+        if rs.next() * sm < sigma(P, p):
+            return p
+
+
+def transmittance(P: Params, x, w, rs: Stream, c: Counters) -> float:
+    """Ratio tracking with roulette below T_RR (survive with probability T / T_RR)."""
+    t0, t1 = box_intersect(x[None], w[None], P.bbox_min, P.bbox_max, 0.0)
+    t0, t1 = float(t0[0]), float(t1[0])
+    if not t0 <= t1:
+        return 1.0
+    t, sm, T = t0, P.sigma_maj, 1.0
+    while True:
+        tau = -math.log(1.0 - rs.next())
+        if not (sm > 0 and sm * (t1 - t) >= tau):
+            return T
+        t = min(t + tau / sm, t1)
+        c.steps += 1
+        T *= max(0.0, 1.0 - sigma(P, x + t * w) / sm)
+        if T < T_RR:
+            if rs.next() * T_RR >= T:
+                return 0.0
+            T = T_RR
+
+
+def walk(P: Params, x, w, beta, k: int, rs: Stream, c: Counters, single_only=False):
+    """Continue a path at vertex k; returns (order-1 rgb, orders>=2 rgb)."""
+    l1, lms = np.zeros(3), np.zeros(3)
+    beta = np.asarray(beta, np.float64)
+    while True:
+        if beta.max() <= 0:
+            break
+        c.vertices += 1
+        if P.sun.max() > 0:
+            f = float(phase_eval(np.array(np.dot(P.light_dir, w)), P.lobes))
+            T = transmittance(P, x, P.light_dir, rs, c)
+            contrib = beta * P.sun * (f * T)
+            if k == 1:
+                l1 += contrib
+            else:
+                lms += contrib
+        if single_only or k == P.max_order:
+            break
+        if k >= P.max_vertices:
+            c.truncated = 1
+            break
+        if k >= P.rr_start:
+            q = min(1.0, beta.max())
+            if rs.next() >= q:
+                break
+            beta = beta / q
+        u = np.array([rs.next(), rs.next(), rs.next()])
+        w = phase_sample(w[None], P.lobes, u[None])[0]
+        hit = free_flight(P, x, w, rs, c)
+        if hit is None:
+            if P.env is not None:
+                if k == 1:
+                    l1 += beta * P.env
+                else:
+                    lms += beta * P.env
+            break
+        x = hit
+        beta = beta * P.albedo
+        k += 1
+    return l1, lms
+
+
+def _row(bg, l1, lms, c: Counters) -> np.ndarray:
+    return np.concatenate([bg, l1, lms, [c.vertices, c.steps, c.truncated]])
+
+
+def render_paths(P: Params, camera, seed: int, samples, pixels=None) -> np.ndarray:
+    """Rows (len(samples), len(pixels), PT_OUT), like PathTracer.render_batch.
+    ``camera`` is a clvol.scene.Camera; ``pixels`` flat indices (default: all)."""
+    w_img, h_img = camera.width, camera.height
+    pixels = np.arange(w_img * h_img) if pixels is None else np.asarray(pixels)
+    fwd, right, up = camera.basis()
+    tan_half = math.tan(math.radians(camera.fov_y) / 2)
+    origin = np.asarray(camera.origin, np.float64)
+    out = np.zeros((len(samples), len(pixels), PT_OUT))
+    for si, s in enumerate(samples):
+        # The first two uniforms of each pixel's stream jitter its ray (kernel: col + u).
+        u = uniform4(seed, np.arange(w_img * h_img, dtype=np.uint64), s, 0).astype(np.float64)
+        jitter = u[:, :2].reshape(h_img, w_img, 2) - 0.5
+        dirs = camera_rays(fwd, right, up, tan_half, w_img, h_img, jitter).reshape(-1, 3)
+        for pi, pix in enumerate(pixels):
+            rs = Stream(seed, int(pix), int(s))
+            rs.next(), rs.next()
+            c = Counters()
+            w = dirs[pix]
+            hit = free_flight(P, origin, w, rs, c)
+            bg = np.zeros(3)
+            l1 = lms = np.zeros(3)
+            if hit is None:
+                if P.env is not None:
+                    bg = P.env.copy()
+            else:
+                l1, lms = walk(P, hit, w, P.albedo, 1, rs, c)
+            out[si, pi] = _row(bg, l1, lms, c)
+    return out
+
+
+def query_paths(P: Params, points, omegas, seed: int, samples) -> np.ndarray:
+    """Rows (len(samples), n_queries, PT_OUT) like PathTracer.query_batch: the walk starts
+    at p as vertex 1 with w = -omega and beta = 1 (F for a sun of irradiance P.sun)."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    omegas = np.asarray(omegas, np.float64).reshape(-1, 3)
+    out = np.zeros((len(samples), len(points), PT_OUT))
+    for si, s in enumerate(samples):
+        for q in range(len(points)):
+            rs = Stream(seed, q, int(s))
+            c = Counters()
+            l1, lms = walk(P, points[q], -omegas[q], np.ones(3), 1, rs, c)
+            out[si, q] = _row(np.zeros(3), l1, lms, c)
+    return out
