@@ -1,0 +1,359 @@
+/* Ray marcher: exact single scattering plus a pluggable multiple-scattering source.
+ *
+ * One work-item marches 16 camera rays (a 4 x 4 pixel tile) as float16 lanes: the explicit
+ * vector style that made ray marching fast on PoCL here (DESIGN.md: ~5x over one scalar ray
+ * per work-item). Twin: reference/raymarch.py (the algorithm is described there in full).
+ *
+ * Pixel equation (DESIGN.md; l toward the light, omega = -d toward the camera):
+ *     L = int T_cam(t) sigma_s(x_t) E (F_1 + F_ms)(x_t, omega) dt + T_cam(exit) L_background
+ * F_1 = f(dot(-l, omega)) T_light(x), with T_light the exact light transmittance field
+ * (lambda = 1: seed eq. 1 at its finest level, built by cl/transmittance.cl). The seed's
+ * rendering step "bring the predicted F into the radiative transfer equation" is this march;
+ * F_ms is the slot the network fills.
+ *
+ * Quadrature (energy-conserving, Hillaire 2016): segments [t0 + k dt, min(t0 + (k+1) dt, t1)]
+ * of the ray's stretch in the box; sigma_t and F at the segment midpoint; each segment adds
+ * T_cam (1 - exp(-tau)) F (tau = sigma_t * length; -expm1 for thin segments) and multiplies
+ * T_cam by exp(-tau). Colour enters once per ray (albedo and E are constant over the medium).
+ *
+ * Specialisation (-D defines, decided from the scene by clvol/raymarch.py):
+ *   PHASE_ISOTROPIC / PHASE_LOBES   phase.h: constant 1/(4 pi) or 1..3 HG lobes
+ *   LIT 0|1          0 when albedo * E = 0: no light lookups, no F_1 and no F_ms
+ *   MS_SOURCE 0|1|2  0 none; 1 Wrenninge octaves sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i);
+ *                    2 trilinear lookup in a precomputed grid of F_ms
+ *   MS_OCTAVES N     octaves of source 1 (N = 1: none beyond F_1); at most 8
+ *   MS_CHANNELS 1|3  planes of the source-2 grid (1 when albedo is grey: F_ms is then grey)
+ *   SKIP_EMPTY 0|1   jump over majorant blocks whose majorant is 0 (exact: such a block and
+ *                    half a voxel around it have density exactly 0; see majorant.h)
+ *
+ * Arguments (float4 holds a 3-vector in xyz; world units throughout):
+ *   density    float [nz][ny][nx]     raw density over bmin..bmax; sigma_t = density * density_scale
+ *   majorant   float [mz][my][mx]     max density per block of `block`^3 voxels (majorant.h)
+ *   light_tau  float [ln][ln][ln]     optical depth toward the light (lambda = 1; T_light =
+ *                                     exp(-tau)) over the cube cube_min .. + cube_size
+ *   ms_grid    float [C][gz][gy][gx]  F_ms (radiance per unit irradiance) over gmin..gmax
+ *   origin, forward, right, up, tan_half, width, height    pinhole camera (grid.h camera_ray)
+ *   light_dir  unit, toward the light; irradiance E (RGB); albedo (RGB); lobe_g, lobe_w (phase.h)
+ *   background RGB radiance seen where rays leave the box (environment radiance, or 0)
+ *   oct_a, oct_b, oct_c  Wrenninge extinction, contribution and eccentricity multipliers
+ *   step       segment length; threshold: a ray stops once T_cam < threshold (the light it
+ *              misses is < threshold * its largest source radiance; reference/raymarch.py)
+ *   total, single, multiple   float [height][width][3] out
+ *   alpha, depth              float [height][width] out: 1 - T_cam(exit) and the mean
+ *              distance of the first extinction event (0 where alpha = 0)
+ * Global size: ceil(width / 4) * ceil(height / 4) work-items (padded; guarded here).
+ */
+#include "grid.h"
+#include "phase.h"
+
+#ifndef LIT
+#define LIT 1
+#endif
+#ifndef MS_SOURCE
+#define MS_SOURCE 1
+#endif
+#ifndef MS_OCTAVES
+#define MS_OCTAVES 3
+#endif
+#ifndef MS_CHANNELS
+#define MS_CHANNELS 3
+#endif
+#ifndef SKIP_EMPTY
+#define SKIP_EMPTY 1
+#endif
+
+#if MS_OCTAVES < 1 || MS_OCTAVES > 8
+#error "MS_OCTAVES must be 1..8"
+#endif
+
+#define TILE 4
+#ifndef SKIP_PASSES
+#define SKIP_PASSES 4
+#endif
+/* Below this optical depth the mean-distance term h(tau) uses its series (the direct form
+ * cancels); truncation error < tau^4/72 relative. */
+#define H_SERIES_BELOW 0.05f
+
+typedef float16 v16;
+typedef int16 i16;
+
+__attribute__((always_inline))
+v16 gather16(__global const float *p, i16 i) {
+    return (v16)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7],
+                 p[i.s8], p[i.s9], p[i.sa], p[i.sb], p[i.sc], p[i.sd], p[i.se], p[i.sf]);
+}
+
+#define LANE_PAIRS(P, I, LO, HI)                                                         \
+    {                                                                                    \
+        const float2 e0 = vload2(0, P + I.s0), e1 = vload2(0, P + I.s1);                  \
+        const float2 e2 = vload2(0, P + I.s2), e3 = vload2(0, P + I.s3);                  \
+        const float2 e4 = vload2(0, P + I.s4), e5 = vload2(0, P + I.s5);                  \
+        const float2 e6 = vload2(0, P + I.s6), e7 = vload2(0, P + I.s7);                  \
+        const float2 e8 = vload2(0, P + I.s8), e9 = vload2(0, P + I.s9);                  \
+        const float2 ea = vload2(0, P + I.sa), eb = vload2(0, P + I.sb);                  \
+        const float2 ec = vload2(0, P + I.sc), ed = vload2(0, P + I.sd);                  \
+        const float2 ee = vload2(0, P + I.se), ef = vload2(0, P + I.sf);                  \
+        LO = (v16)(e0.x, e1.x, e2.x, e3.x, e4.x, e5.x, e6.x, e7.x,                       \
+                   e8.x, e9.x, ea.x, eb.x, ec.x, ed.x, ee.x, ef.x);                       \
+        HI = (v16)(e0.y, e1.y, e2.y, e3.y, e4.y, e5.y, e6.y, e7.y,                       \
+                   e8.y, e9.y, ea.y, eb.y, ec.y, ed.y, ee.y, ef.y);                       \
+    }
+
+/* grid_lookup (grid.h) on 16 lanes: trilinear at continuous voxel coordinates, clamped.
+ * Each row pair (x0, x0 + 1) is one 8-byte load: x0 is clamped to nx - 2 so that x0 + 1
+ * stays in the row, and fx becomes 1 at the last voxel (mix(a, b, 1) = b, the same value
+ * grid.h's clamped x1 gives). Grids one voxel wide (nx = 1) take the plain gathers. */
+__attribute__((always_inline))
+v16 lookup16(__global const float *d, int nx, int ny, int nz, v16 gx, v16 gy, v16 gz) {
+    /* Clamping first makes the casts floors (non-negative); it also keeps every index in
+     * range for any finite coordinate. */
+    v16 x = clamp(gx, 0.0f, (float)(nx - 1));
+    v16 y = clamp(gy, 0.0f, (float)(ny - 1));
+    v16 z = clamp(gz, 0.0f, (float)(nz - 1));
+    i16 x0 = min(convert_int16(x), max(nx - 2, 0));
+    i16 y0 = convert_int16(y), z0 = convert_int16(z);
+    i16 y1 = min(y0 + 1, ny - 1), z1 = min(z0 + 1, nz - 1);
+    v16 fx = x - convert_float16(x0), fy = y - convert_float16(y0), fz = z - convert_float16(z0);
+    i16 r00 = (z0 * ny + y0) * nx + x0, r01 = (z0 * ny + y1) * nx + x0;
+    i16 r10 = (z1 * ny + y0) * nx + x0, r11 = (z1 * ny + y1) * nx + x0;
+    v16 a00, b00, a01, b01, a10, b10, a11, b11;
+    if (nx >= 2) {
+        LANE_PAIRS(d, r00, a00, b00)
+        LANE_PAIRS(d, r01, a01, b01)
+        LANE_PAIRS(d, r10, a10, b10)
+        LANE_PAIRS(d, r11, a11, b11)
+    } else {
+        a00 = b00 = gather16(d, r00);
+        a01 = b01 = gather16(d, r01);
+        a10 = b10 = gather16(d, r10);
+        a11 = b11 = gather16(d, r11);
+    }
+    v16 c00 = mix(a00, b00, fx), c01 = mix(a01, b01, fx);
+    v16 c10 = mix(a10, b10, fx), c11 = mix(a11, b11, fx);
+    return mix(mix(c00, c01, fy), mix(c10, c11, fy), fz);
+}
+
+/* Parameter where the ray o + t d leaves the slab [lo, lo + size] of one axis in the
+ * direction of travel; INFINITY for d = 0 (the ray never leaves it). */
+__attribute__((always_inline))
+v16 slab_exit16(float o, v16 d, v16 lo, float size) {
+    v16 face = lo + select((v16)(0.0f), (v16)(size), d > 0.0f);
+    return select((face - o) / d, (v16)(INFINITY), d == 0.0f);
+}
+
+__attribute__((always_inline))
+void store_lanes(__global float *out, int channels, int ch, v16 v, i16 idx, i16 valid) {
+    float val[16];
+    int id[16], ok[16];
+    vstore16(v, 0, val);
+    vstore16(idx, 0, id);
+    vstore16(valid, 0, ok);
+    for (int j = 0; j < 16; ++j)
+        if (ok[j]) out[(size_t)id[j] * channels + ch] = val[j];
+}
+
+__kernel void raymarch(
+    __global const float *density, const int nx, const int ny, const int nz,
+    const float4 bmin, const float4 bmax, const float density_scale,
+    __global const float *majorant, const int mx, const int my, const int mz, const int block,
+    __global const float *light_tau, const int ln, const float4 cube_min, const float cube_size,
+    __global const float *ms_grid, const int gx, const int gy, const int gz,
+    const float4 gmin, const float4 gmax,
+    const float4 origin, const float4 forward, const float4 right, const float4 up,
+    const float tan_half, const int width, const int height,
+    const float4 light_dir, const float4 irradiance, const float4 albedo,
+    const float4 lobe_g, const float4 lobe_w, const float4 background,
+    const float oct_a, const float oct_b, const float oct_c,
+    const float step, const float threshold,
+    __global float *total, __global float *single, __global float *multiple,
+    __global float *alpha, __global float *depth)
+{
+    const int tiles_x = (width + TILE - 1) / TILE;
+    const int tile = get_global_id(0);
+    if (tile >= tiles_x * ((height + TILE - 1) / TILE)) return;
+    const int ty = tile / tiles_x, tx = tile - ty * tiles_x;
+    const i16 px = tx * TILE + (i16)(0, 1, 2, 3, 0, 1, 2, 3, 0, 1, 2, 3, 0, 1, 2, 3);
+    const i16 py = ty * TILE + (i16)(0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3);
+    const i16 valid = (px < width) & (py < height);
+
+    /* Camera rays: camera_ray of grid.h, lane by lane. */
+    const v16 sx = (2.0f * (convert_float16(px) + 0.5f) / (float)width - 1.0f) * tan_half
+                   * ((float)width / (float)height);
+    const v16 sy = (1.0f - 2.0f * (convert_float16(py) + 0.5f) / (float)height) * tan_half;
+    v16 dx = forward.x + sx * right.x + sy * up.x;
+    v16 dy = forward.y + sx * right.y + sy * up.y;
+    v16 dz = forward.z + sx * right.z + sy * up.z;
+    {
+        const v16 len = sqrt(dx * dx + dy * dy + dz * dz);  /* >= 1: forward is orthogonal */
+        dx /= len; dy /= len; dz /= len;
+    }
+    const float ox = origin.x, oy = origin.y, oz = origin.z;
+
+    /* Box entry and exit (box_intersect of grid.h, lane by lane), from t = 0. */
+    v16 lo = (v16)(0.0f), hi = (v16)(INFINITY);
+    i16 miss = ~valid;
+#define SLAB(D, O, MN, MX)                                                              \
+    {                                                                                   \
+        const i16 zero = D == 0.0f;                                                     \
+        miss |= zero & (i16)((O < MN || O > MX) ? -1 : 0);                              \
+        const v16 inv = 1.0f / D;                                                       \
+        const v16 ta = (MN - O) * inv, tb = (MX - O) * inv;                             \
+        lo = select(fmax(lo, fmin(ta, tb)), lo, zero);                                  \
+        hi = select(fmin(hi, fmax(ta, tb)), hi, zero);                                  \
+    }
+    SLAB(dx, ox, bmin.x, bmax.x)
+    SLAB(dy, oy, bmin.y, bmax.y)
+    SLAB(dz, oz, bmin.z, bmax.z)
+#undef SLAB
+    miss |= lo > hi;
+    /* Missed lanes get the empty interval [0, 0]: finite, never active. */
+    const v16 t0 = select(lo, (v16)(0.0f), miss), t1 = select(hi, (v16)(0.0f), miss);
+    const i16 hit = ~miss;
+
+    /* Per-ray phase values: omega is constant along a camera ray, so the phase function
+     * (and each octave's) is evaluated once per ray, not per step. */
+    const v16 mu = dx * light_dir.x + dy * light_dir.y + dz * light_dir.z;  /* dot(-l, omega) */
+    v16 f0;
+#if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
+    v16 ow[MS_OCTAVES - 1];
+#endif
+    {
+        float m[16], f[16];
+        vstore16(mu, 0, m);
+        for (int j = 0; j < 16; ++j) f[j] = phase_eval(m[j], lobe_g, lobe_w);
+        f0 = vload16(0, f);
+#if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
+        float ci = 1.0f, bi = 1.0f;
+        for (int i = 0; i < MS_OCTAVES - 1; ++i) {
+            ci *= oct_c;
+            bi *= oct_b;
+            for (int j = 0; j < 16; ++j) f[j] = bi * phase_eval(m[j], lobe_g * ci, lobe_w);
+            ow[i] = vload16(0, f);
+        }
+#endif
+    }
+
+    const float3 cell = (bmax.xyz - bmin.xyz) / (float3)((float)nx, (float)ny, (float)nz);
+#if SKIP_EMPTY
+    const float3 bsize = cell * (float)block;
+#endif
+    const float lcell = cube_size / (float)ln;
+#if MS_SOURCE == 2
+    const float3 gcell = (gmax.xyz - gmin.xyz) / (float3)((float)gx, (float)gy, (float)gz);
+    const int plane = gx * gy * gz;
+#endif
+
+    v16 k = (v16)(0.0f), T = (v16)(1.0f), S = (v16)(0.0f), A = (v16)(0.0f), D = (v16)(0.0f);
+#if MS_SOURCE == 1 || (MS_SOURCE == 2 && MS_CHANNELS == 1)
+    v16 M = (v16)(0.0f);
+#elif MS_SOURCE == 2
+    v16 M0 = (v16)(0.0f), M1 = (v16)(0.0f), M2 = (v16)(0.0f);
+#endif
+
+    for (;;) {
+        v16 ta = t0 + k * step;
+        i16 active = hit & (ta < t1) & (T >= threshold);
+        if (!any(active)) break;
+#if SKIP_EMPTY
+        /* A lane whose segment midpoint lies in an empty block jumps to the block's exit;
+         * a few passes let lanes cross several empty blocks before the next lookup. */
+        for (int pass = 0; pass < SKIP_PASSES; ++pass) {
+            /* Untruncated midpoint of the current segment (0 for idle lanes: stays finite). */
+            const v16 tq = select((v16)(0.0f), ta + 0.5f * step, active);
+            const i16 bx = convert_int16(clamp((ox + tq * dx - bmin.x) / bsize.x, 0.0f, (float)(mx - 1)));
+            const i16 by = convert_int16(clamp((oy + tq * dy - bmin.y) / bsize.y, 0.0f, (float)(my - 1)));
+            const i16 bz = convert_int16(clamp((oz + tq * dz - bmin.z) / bsize.z, 0.0f, (float)(mz - 1)));
+            const i16 empty = active & (gather16(majorant, (bz * my + by) * mx + bx) == 0.0f);
+            if (!any(empty)) break;
+            const v16 t_exit = fmin(fmin(
+                slab_exit16(ox, dx, bmin.x + convert_float16(bx) * bsize.x, bsize.x),
+                slab_exit16(oy, dy, bmin.y + convert_float16(by) * bsize.y, bsize.y)),
+                slab_exit16(oz, dz, bmin.z + convert_float16(bz) * bsize.z, bsize.z));
+            /* First segment whose untruncated midpoint is at or past the block's exit;
+             * at least one segment of progress whatever the rounding. */
+            const v16 k_star = ceil((t_exit - t0) / step - 0.5f);
+            k = select(k, fmax(k + 1.0f, k_star), empty);
+            ta = t0 + k * step;
+            active &= ta < t1;
+        }
+#endif
+        const v16 len = select((v16)(0.0f), fmin(ta + step, t1) - ta, active);
+        ta = select((v16)(0.0f), ta, active);
+        const v16 tm = ta + 0.5f * len;
+        const v16 qx = ox + tm * dx, qy = oy + tm * dy, qz = oz + tm * dz;
+        const v16 tau = density_scale * lookup16(density, nx, ny, nz,
+                                                 (qx - bmin.x) / cell.x - 0.5f,
+                                                 (qy - bmin.y) / cell.y - 0.5f,
+                                                 (qz - bmin.z) / cell.z - 0.5f) * len;
+        const v16 a_seg = -expm1(-tau);
+        const v16 w = T * a_seg;
+#if LIT
+        /* Segments where all 16 lanes are empty add nothing: skip the light lookup. */
+        if (any(tau > 0.0f)) {
+            /* Optical depth toward the light, trilinear (exact along the light in homogeneous
+             * media, where trilinear T would not be), then T_light = exp(-tau_l). */
+            const v16 tau_l = lookup16(light_tau, ln, ln, ln,
+                                       (qx - cube_min.x) / lcell - 0.5f,
+                                       (qy - cube_min.y) / lcell - 0.5f,
+                                       (qz - cube_min.z) / lcell - 0.5f);
+            S += w * exp(-tau_l);
+#if MS_SOURCE == 1 && MS_OCTAVES > 1
+            /* T_light^(a^i) = exp(-a^i tau_l). */
+            float ai = 1.0f;
+            v16 f = (v16)(0.0f);
+            for (int i = 0; i < MS_OCTAVES - 1; ++i) {
+                ai *= oct_a;
+                f += ow[i] * exp(-ai * tau_l);
+            }
+            M += w * f;
+#elif MS_SOURCE == 2
+            const v16 ux = (qx - gmin.x) / gcell.x - 0.5f;
+            const v16 uy = (qy - gmin.y) / gcell.y - 0.5f;
+            const v16 uz = (qz - gmin.z) / gcell.z - 0.5f;
+#if MS_CHANNELS == 1
+            M += w * lookup16(ms_grid, gx, gy, gz, ux, uy, uz);
+#else
+            M0 += w * lookup16(ms_grid, gx, gy, gz, ux, uy, uz);
+            M1 += w * lookup16(ms_grid + plane, gx, gy, gz, ux, uy, uz);
+            M2 += w * lookup16(ms_grid + 2 * plane, gx, gy, gz, ux, uy, uz);
+#endif
+#endif
+        }
+#endif
+        A += w;
+        /* Mean-distance term h(tau) = (1 - (1 + tau) e^-tau) / tau (series for thin segments;
+         * the direct form's 0/0 at tau = 0 is never selected). */
+        const v16 e = exp(-tau);
+        const v16 h = select((a_seg - tau * e) / tau,
+                             tau * (0.5f - tau * (1.0f / 3.0f - tau * (0.125f - tau * (1.0f / 30.0f)))),
+                             tau < H_SERIES_BELOW);
+        D += T * (ta * a_seg + len * h);
+        T *= e;
+        k += select((v16)(0.0f), (v16)(1.0f), active);
+    }
+
+    /* Colour, once per ray. */
+    const float3 ae = albedo.xyz * irradiance.xyz;
+    v16 s_r = (v16)(0.0f), s_g = (v16)(0.0f), s_b = (v16)(0.0f);
+    v16 m_r = (v16)(0.0f), m_g = (v16)(0.0f), m_b = (v16)(0.0f);
+#if LIT
+    s_r = ae.x * (f0 * S); s_g = ae.y * (f0 * S); s_b = ae.z * (f0 * S);
+#if MS_SOURCE == 1 || (MS_SOURCE == 2 && MS_CHANNELS == 1)
+    m_r = ae.x * M; m_g = ae.y * M; m_b = ae.z * M;
+#elif MS_SOURCE == 2
+    m_r = ae.x * M0; m_g = ae.y * M1; m_b = ae.z * M2;
+#endif
+#endif
+    const i16 pix = py * width + px;
+    store_lanes(single, 3, 0, s_r, pix, valid);
+    store_lanes(single, 3, 1, s_g, pix, valid);
+    store_lanes(single, 3, 2, s_b, pix, valid);
+    store_lanes(multiple, 3, 0, m_r, pix, valid);
+    store_lanes(multiple, 3, 1, m_g, pix, valid);
+    store_lanes(multiple, 3, 2, m_b, pix, valid);
+    store_lanes(total, 3, 0, s_r + m_r + T * background.x, pix, valid);
+    store_lanes(total, 3, 1, s_g + m_g + T * background.y, pix, valid);
+    store_lanes(total, 3, 2, s_b + m_b + T * background.z, pix, valid);
+    store_lanes(alpha, 1, 0, A, pix, valid);
+    store_lanes(depth, 1, 0, select((v16)(0.0f), D / A, A > 0.0f), pix, valid);
+}

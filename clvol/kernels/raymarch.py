@@ -1,0 +1,137 @@
+"""Host wrapper for cl/raymarch.cl (twin: reference/raymarch.py; same argument names).
+
+Big inputs (``density``, ``majorant``, ``light_tau``, ``ms_grid``) may be NumPy arrays (copied
+to the device on each call: tests) or ``DeviceArray`` handles of buffers already on the device
+(the renderer keeps the volume and the light field resident between frames).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pyopencl as cl
+
+from ..runtime import get_runtime
+from .grid import f4
+from .phase import lobe_vectors, phase_defines
+
+SOURCES = {"none": 0, "wrenninge": 1, "grid": 2}
+MAX_OCTAVES = 8
+TILE = 4  # pixels per side of the tile one work-item marches (16 float16 lanes)
+LOCAL_SIZE = 64  # tiles per work-group
+LAYERS = (("total", 3), ("single", 3), ("multiple", 3), ("alpha", 1), ("depth", 1))
+
+
+@dataclass(frozen=True)
+class DeviceArray:
+    """A float32 C-ordered array living in ``buffer`` on the runtime's device."""
+    buffer: "cl.Buffer"
+    shape: tuple
+
+    @classmethod
+    def upload(cls, array, runtime=None) -> "DeviceArray":
+        rt = runtime or get_runtime()
+        a = np.ascontiguousarray(array, np.float32)
+        return cls(rt.to_device(a), a.shape)
+
+
+def _device(x, rt) -> DeviceArray:
+    if isinstance(x, DeviceArray):
+        return x
+    return DeviceArray.upload(x, rt)
+
+
+def raymarch_defines(lobes, lit: bool, source: str, octaves: int, channels: int,
+                     skip_empty: bool) -> dict:
+    """The -D defines that specialise cl/raymarch.cl (see its header)."""
+    if source not in SOURCES:
+        raise ValueError(f"unknown multiple-scattering source {source!r}; one of {sorted(SOURCES)}")
+    if not 1 <= octaves <= MAX_OCTAVES:
+        raise ValueError(f"octaves must be 1..{MAX_OCTAVES}, got {octaves}")
+    if channels not in (1, 3):
+        raise ValueError(f"ms grid channels must be 1 or 3, got {channels}")
+    d = dict(phase_defines(lobes))
+    d.update(LIT=int(bool(lit)), MS_SOURCE=SOURCES[source], SKIP_EMPTY=int(bool(skip_empty)),
+             MS_OCTAVES=int(octaves) if source == "wrenninge" else 1,
+             MS_CHANNELS=int(channels) if source == "grid" else 1)
+    return d
+
+
+_SCALARS = ([None, np.int32, np.int32, np.int32, None, None, np.float32]       # density
+            + [None, np.int32, np.int32, np.int32, np.int32]                     # majorant
+            + [None, np.int32, None, np.float32]                                 # light field
+            + [None, np.int32, np.int32, np.int32, None, None]                   # ms grid
+            + [None, None, None, None, np.float32, np.int32, np.int32]           # camera
+            + [None] * 6                                                         # light, medium
+            + [np.float32] * 5                                                   # a, b, c, step, thr
+            + [None] * 5)                                                        # outputs
+
+
+def raymarch(density, bbox_min, bbox_max, density_scale,
+             majorant, block,
+             light_tau, cube_min, cube_size,
+             ms_grid, ms_bbox_min, ms_bbox_max,
+             origin, forward, right, up, tan_half, width, height,
+             light_dir, irradiance, albedo, lobes, background,
+             source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
+             step=None, threshold=1e-3, skip_empty=True, lit=True,
+             runtime=None, read_back=True):
+    """Launch the ray marcher. Returns {layer: array} (float32; total/single/multiple
+    (H, W, 3), alpha/depth (H, W)), or with ``read_back=False`` (event, {layer: buffer}).
+
+    ``ms_grid`` is (C, gz, gy, gx) with C = 1 or 3 (source "grid"), else ignored (may be
+    None). ``light_tau`` may be None when ``lit`` is False. Argument meanings: see the twin.
+    """
+    rt = runtime or get_runtime()
+    if step is None or not step > 0:
+        raise ValueError(f"step must be > 0 (world units), got {step}")
+    dens = _device(density, rt)
+    maj = _device(majorant, rt)
+    nz, ny, nx = dens.shape
+    mz, my, mx = maj.shape
+    dummy = None
+    if lit:
+        light = _device(light_tau, rt)
+        ln = light.shape[0]
+        if light.shape != (ln, ln, ln):
+            raise ValueError(f"light_tau must be a cube [n][n][n], got {light.shape}")
+    else:
+        dummy = dummy or rt.empty(1)
+        light, ln = DeviceArray(dummy, (1, 1, 1)), 1
+    if source == "grid":
+        ms = _device(ms_grid, rt)
+        if len(ms.shape) != 4 or ms.shape[0] not in (1, 3):
+            raise ValueError(f"ms_grid must be (C, gz, gy, gx) with C = 1 or 3, got {ms.shape}")
+        channels, (gz, gy, gx) = ms.shape[0], ms.shape[1:]
+        gmin, gmax = ms_bbox_min, ms_bbox_max
+    else:
+        dummy = dummy or rt.empty(1)
+        ms, channels, (gz, gy, gx) = DeviceArray(dummy, (1, 1, 1, 1)), 1, (1, 1, 1)
+        gmin, gmax = (0, 0, 0), (1, 1, 1)
+    prog = rt.program("raymarch", raymarch_defines(lobes, lit, source, octaves, channels,
+                                                   skip_empty))
+    k = prog.kernel("raymarch", _SCALARS)
+    g, w = lobe_vectors(lobes)
+    outs = {name: rt.empty((height * width * ch,)) for name, ch in LAYERS}
+    n_tiles = -(-width // TILE) * -(-height // TILE)
+    args = (dens.buffer, np.int32(nx), np.int32(ny), np.int32(nz), f4(bbox_min), f4(bbox_max),
+            np.float32(density_scale),
+            maj.buffer, np.int32(mx), np.int32(my), np.int32(mz), np.int32(block),
+            light.buffer, np.int32(ln), f4(cube_min), np.float32(cube_size),
+            ms.buffer, np.int32(gx), np.int32(gy), np.int32(gz), f4(gmin), f4(gmax),
+            f4(origin), f4(forward), f4(right), f4(up), np.float32(tan_half),
+            np.int32(width), np.int32(height),
+            f4(light_dir), f4(irradiance), f4(albedo), g, w, f4(background),
+            np.float32(a), np.float32(b), np.float32(c), np.float32(step),
+            np.float32(threshold),
+            outs["total"], outs["single"], outs["multiple"], outs["alpha"], outs["depth"])
+    # An explicit local size: with a NULL one, PoCL 3.1 picked work-groups for 512 x 512
+    # images (16384 tiles) that crashed it (segfault); 64 tiles per group measured fastest.
+    evt = rt.launch(k, n_tiles, args, pad=LOCAL_SIZE, local_size=(LOCAL_SIZE,))
+    if not read_back:
+        return evt, outs
+    result = {}
+    for name, ch in LAYERS:
+        shape = (height, width, 3) if ch == 3 else (height, width)
+        result[name] = rt.from_device(outs[name], shape, wait_for=[evt])
+    return result
