@@ -140,9 +140,8 @@ def _perlin(dom: _Domain, rng: np.random.Generator, period: float) -> np.ndarray
                          b=(((1 - s) * f).astype(np.float32), (s * (f - 1)).astype(np.float32))))
         sizes.append(int(math.floor(dom.extent[a] / period + offset[a])) + 2)
     lx, ly, lz = sizes
-    g = rng.standard_normal((3, lz, ly, lx))
+    g = rng.standard_normal((3, lz, ly, lx), dtype=np.float32)
     g /= np.maximum(np.sqrt((g * g).sum(axis=0)), 1e-12)   # unit gradients
-    g = g.astype(np.float32)
     tx, ty, tz = taps
 
     def ax(arr, t, kind, axis):
@@ -161,13 +160,24 @@ def _perlin(dom: _Domain, rng: np.random.Generator, period: float) -> np.ndarray
     return out
 
 
+# Octaves whose lattice spacing is below this many voxels are skipped: the grid cannot
+# represent them (they would only alias), and their lattices would be huge.
+MIN_PERIOD_VOXELS = 2.0
+
+
 def _fbm(dom: _Domain, seed: int, stream: int, period: float, octaves: int,
          gain: float = 0.5, lacunarity: float = 2.0) -> np.ndarray:
-    """Fractal sum of gradient noise, normalised by the amplitude sum (values within about +-1)."""
+    """Fractal sum of gradient noise, normalised by the amplitude sum (values within about +-1).
+
+    The normalisation counts every requested octave, so skipping octaves too fine for the grid
+    removes detail without changing the amplitude of the rest.
+    """
     total = dom.empty()
     amp, norm = 1.0, 0.0
     for o in range(octaves):
-        total += np.float32(amp) * _perlin(dom, _rng(seed, stream * 64 + o), period / lacunarity ** o)
+        p = period / lacunarity ** o
+        if p >= MIN_PERIOD_VOXELS * dom.voxel:
+            total += np.float32(amp) * _perlin(dom, _rng(seed, stream * 64 + o), p)
         norm += amp
         amp *= gain
     total *= np.float32(1.0 / norm)
@@ -194,7 +204,7 @@ def _worley_f1(dom: _Domain, rng: np.random.Generator, cell: float) -> np.ndarra
     lx, ly, lz = sizes
     # Feature point of cell (i, j, k) at (i, j, k) + jitter; one ring of padding cells so every
     # sample sees its 27 neighbours (array index = cell index + 1).
-    jitter = rng.random((3, lz + 2, ly + 2, lx + 2)).astype(np.float32)
+    jitter = rng.random((3, lz + 2, ly + 2, lx + 2), dtype=np.float32)
     u = [(samples[a] / cell + offset[a]) for a in range(3)]
     ci = [np.floor(u[a]).astype(np.intp) for a in range(3)]
     frac = [(u[a] - ci[a]).astype(np.float32) for a in range(3)]   # position within its cell
@@ -227,8 +237,12 @@ def _worley_fbm(dom: _Domain, seed: int, stream: int, cell: float, octaves: int)
     total = dom.empty()
     amp, norm = 1.0, 0.0
     for o in range(octaves):
-        f1 = _worley_f1(dom, _rng(seed, stream * 64 + o), cell / 2.0 ** o)
-        total += np.float32(amp) * np.clip(1.0 - f1, 0.0, 1.0)
+        c = cell / 2.0 ** o
+        if c >= MIN_PERIOD_VOXELS * dom.voxel:
+            f1 = _worley_f1(dom, _rng(seed, stream * 64 + o), c)
+            total += np.float32(amp) * np.clip(1.0 - f1, 0.0, 1.0)
+        else:
+            total += np.float32(amp * 0.5)   # the mean of a cell layer too fine to resolve
         norm += amp
         amp *= 0.5
     total *= np.float32(1.0 / norm)
@@ -244,14 +258,16 @@ def _smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
 
 
 def _box_taper(dom: _Domain, margin: float = 0.04) -> np.ndarray:
-    """1 inside, falling smoothly to 0 over the outer ``margin`` (fraction) of the box on every face.
+    """1 inside, falling smoothly to 0 over the outer ``margin`` (fraction of the box) on every face.
 
-    Keeps clouds and smoke from ending in a flat wall at the box faces.
+    Keeps clouds and smoke from ending in a flat wall at the box faces: the outermost voxel
+    layer (centre half a voxel from the face) is exactly 0.
     """
     out = np.float32(1.0)
     for a in range(3):
-        t = dom.frac[a]
-        w = _smoothstep(0.0, margin, t) * _smoothstep(1.0, 1.0 - margin, t)
+        dist = np.minimum(dom.rel[a], dom.extent[a] - dom.rel[a])   # to the nearer face
+        lo = 0.5 * dom.voxel + 1e-9 * dom.extent[a]
+        w = _smoothstep(lo, lo + margin * dom.extent[a], dist)
         out = out * dom.axis(w, a)
     return out
 
@@ -386,18 +402,21 @@ def _blob(dom: _Domain, seed: int, *, count, radius, blend, wobble, density, edg
     # Centre the lump's bounding box on the box centre.
     centres -= 0.5 * ((centres - radii[:, None]).min(axis=0) + (centres + radii[:, None]).max(axis=0))
     x, y, z = _centred(dom)
-    dists = []
-    for c, rad in zip(centres, radii):
+
+    def ball_distance(i):
+        c = centres[i]
         dx, dy, dz = x - np.float32(c[0]), y - np.float32(c[1]), z - np.float32(c[2])
-        dists.append(np.sqrt(dx * dx + dy * dy + dz * dz) - np.float32(rad))
+        return np.sqrt(dx * dx + dy * dy + dz * dz) - np.float32(radii[i])
+
     # Smooth union of the balls: -blend * log(sum exp(-d_i / blend)), shifted by the minimum
-    # so no exp underflows to a log(0).
-    dmin = dists[0].copy()
-    for d in dists[1:]:
-        np.minimum(dmin, d, out=dmin)
+    # so no exp underflows to a log(0). Distances are recomputed in the second pass rather
+    # than kept, so memory stays a few grids whatever the ball count.
+    dmin = ball_distance(0)
+    for i in range(1, count):
+        np.minimum(dmin, ball_distance(i), out=dmin)
     acc = dom.empty()
-    for d in dists:
-        acc += np.exp((dmin - d) * np.float32(1.0 / blend))
+    for i in range(count):
+        acc += np.exp((dmin - ball_distance(i)) * np.float32(1.0 / blend))
     sdf = dmin - np.float32(blend) * np.log(acc)             # acc >= 1, so the log is finite
     if wobble > 0:
         # Low-frequency surface perturbation (features about 3 ball radii across).
@@ -406,7 +425,7 @@ def _blob(dom: _Domain, seed: int, *, count, radius, blend, wobble, density, edg
 
 
 _DENSITY = Param(1.0, 1e-3, 1e3, "peak density (extinction = density x density_scale)")
-_EDGE = Param(1.0, 0.25, 16.0, "width of the soft surface in voxels (smoothstep of the signed distance)")
+_EDGE = Param(1.5, 0.25, 16.0, "width of the soft surface in voxels (smoothstep of the signed distance)")
 
 GENERATORS: dict[str, GeneratorInfo] = {g.name: g for g in [
     GeneratorInfo(
