@@ -64,16 +64,16 @@
 #define PT_T_RR 0.1f
 #define PT_OUT 12
 
+/* Throughput and albedo: a scalar when the albedo is grey (PT_GREY), else RGB. Light
+ * (sun, environment) and the accumulated radiance are always RGB. */
 #ifdef PT_GREY
 typedef float spec_t;
 #define SPEC(v4) ((v4).x)
 #define SPEC_MAX(b) (b)
-#define SPEC_RGB(b) ((float3)(b))
 #else
 typedef float3 spec_t;
 #define SPEC(v4) ((v4).xyz)
 #define SPEC_MAX(b) fmax(fmax((b).x, (b).y), (b).z)
-#define SPEC_RGB(b) (b)
 #endif
 
 /* ------------------------------------------------------------------ random stream */
@@ -177,8 +177,8 @@ float pt_transmittance(const pt_medium *m, float3 x, float3 w, pt_rng *r, uint *
 
 typedef struct {
     float3 dir;       /* toward the sun */
-    spec_t sun;       /* irradiance */
-    spec_t env;       /* environment radiance */
+    float3 sun;       /* irradiance */
+    float3 env;       /* environment radiance */
     spec_t albedo;
     float4 lobe_g, lobe_w;
 } pt_light;
@@ -188,16 +188,18 @@ typedef struct {
  * to *lms. */
 __attribute__((always_inline))
 void pt_walk(const pt_medium *m, const pt_light *L, float3 x, float3 w, spec_t beta, int k,
-             int max_order, pt_rng *r, spec_t *l1, spec_t *lms, uint *vertices, uint *steps,
+             int max_order, pt_rng *r, float3 *l1, float3 *lms, uint *vertices, uint *steps,
              uint *truncated) {
     for (;;) {
         if (SPEC_MAX(beta) <= 0.0f) return;  /* albedo 0: nothing can arrive any more */
         *vertices += 1;
 #ifndef PT_NO_SUN
-        {
+        /* Also tested at run time, so the general build of a sunless scene draws the same
+         * random numbers as the PT_NO_SUN build. */
+        if (L->sun.x > 0.0f || L->sun.y > 0.0f || L->sun.z > 0.0f) {
             float f = phase_eval(dot(L->dir, w), L->lobe_g, L->lobe_w);
             float T = pt_transmittance(m, x, L->dir, r, steps);
-            spec_t c = beta * L->sun * (f * T);
+            float3 c = beta * L->sun * (f * T);
 #ifdef PT_TEST_BIAS
             c *= PT_TEST_BIAS;
 #endif
@@ -235,10 +237,9 @@ void pt_walk(const pt_medium *m, const pt_light *L, float3 x, float3 w, spec_t b
 }
 
 __attribute__((always_inline))
-void pt_store(__global float *out, size_t g, float3 bg, spec_t l1, spec_t lms, uint vertices,
+void pt_store(__global float *out, size_t g, float3 bg, float3 a, float3 b, uint vertices,
               uint steps, uint truncated) {
     __global float *o = out + PT_OUT * g;
-    float3 a = SPEC_RGB(l1), b = SPEC_RGB(lms);
     o[0] = bg.x; o[1] = bg.y; o[2] = bg.z;
     o[3] = a.x; o[4] = a.y; o[5] = a.z;
     o[6] = b.x; o[7] = b.y; o[8] = b.z;
@@ -260,7 +261,7 @@ void pt_store(__global float *out, size_t g, float3 bg, spec_t l1, spec_t lms, u
     m.nx = nx; m.ny = ny; m.nz = nz; m.mx = mx; m.my = my; m.mz = mz;                     \
     m.bmin = bmin.xyz; m.bmax = bmax.xyz; m.bsize = bsize.xyz; m.scale = scale;           \
     pt_light L;                                                                           \
-    L.dir = light_dir.xyz; L.sun = SPEC(sun); L.env = SPEC(env); L.albedo = SPEC(albedo); \
+    L.dir = light_dir.xyz; L.sun = sun.xyz; L.env = env.xyz; L.albedo = SPEC(albedo);   \
     L.lobe_g = lobe_g; L.lobe_w = lobe_w;
 
 __kernel void pt_render(PT_MEDIUM_ARGS, const float4 cam_o, const float4 cam_f,
@@ -278,8 +279,7 @@ __kernel void pt_render(PT_MEDIUM_ARGS, const float4 cam_o, const float4 cam_f,
     pt_rng_init(&r, seed, (ulong)pix, sample0 + (uint)j);
     float px = (float)col + pt_next(&r), py = (float)row + pt_next(&r);
     float3 w = camera_ray(cam_f.xyz, cam_r.xyz, cam_u.xyz, tan_half, width, height, px, py);
-    spec_t l1 = 0.0f, lms = 0.0f;
-    float3 bg = 0.0f;
+    float3 l1 = 0.0f, lms = 0.0f, bg = 0.0f;
     uint vertices = 0, steps = 0, truncated = 0;
     float3 x;
     if (pt_free_flight(&m, cam_o.xyz, w, &r, &x, &steps)) {
@@ -287,7 +287,7 @@ __kernel void pt_render(PT_MEDIUM_ARGS, const float4 cam_o, const float4 cam_f,
                 &truncated);
     } else {
 #ifdef PT_ENV
-        bg = SPEC_RGB(L.env);
+        bg = L.env;
 #endif
     }
     pt_store(out, (size_t)g, bg, l1, lms, vertices, steps, truncated);
@@ -303,7 +303,7 @@ __kernel void pt_query(PT_MEDIUM_ARGS, __global const float *points,
     int j = g / nq, q = g - j * nq;
     pt_rng r;
     pt_rng_init(&r, seed, (ulong)q, sample0 + (uint)j);
-    spec_t l1 = 0.0f, lms = 0.0f;
+    float3 l1 = 0.0f, lms = 0.0f;
     uint vertices = 0, steps = 0, truncated = 0;
     spec_t one = 1.0f;
     pt_walk(&m, &L, vload3(q, points), -vload3(q, omegas), one, 1, max_order, &r, &l1, &lms,

@@ -217,3 +217,28 @@ def query_paths(P: Params, points, omegas, seed: int, samples) -> np.ndarray:
             l1, lms = walk(P, points[q], -omegas[q], np.ones(3), 1, rs, c)
             out[si, q] = _row(np.zeros(3), l1, lms, c)
     return out
+
+
+def chandrasekhar_h(albedo: float, mu, n_nodes: int = 256, tol: float = 1e-13):
+    """Chandrasekhar's H function for isotropic scattering with single-scattering albedo a,
+    from  1/H(mu) = sqrt(1 - a) + (a/2) int_0^1 mu' H(mu') / (mu + mu') dmu'  (the form
+    that converges by plain iteration), Gauss-Legendre on [0, 1], evaluated at ``mu`` by
+    the same formula (Nystrom). Theory for tests: a semi-infinite medium lit at incidence
+    cosine mu0 by irradiance E reflects L(mu) = E a mu0 H(mu) H(mu0) / (4 pi (mu + mu0)).
+    0 <= a < 1 (at a = 1 this form has no sqrt(1 - a) anchor and plain iteration stalls).
+    """
+    if not 0.0 <= albedo < 1.0:
+        raise ValueError(f"chandrasekhar_h: albedo {albedo} must be in [0, 1)")
+    x, wq = np.polynomial.legendre.leggauss(n_nodes)
+    x, wq = 0.5 * (x + 1.0), 0.5 * wq
+    h = np.ones_like(x)
+    s = math.sqrt(1.0 - albedo)
+    for _ in range(10_000):
+        new = 1.0 / (s + 0.5 * albedo * ((wq * x * h)[None, :] / (x[:, None] + x[None, :])).sum(1))
+        if np.max(np.abs(new - h)) < tol:
+            h = new
+            break
+        h = new
+    mu = np.atleast_1d(np.asarray(mu, np.float64))
+    hm = 1.0 / (s + 0.5 * albedo * ((wq * x * h)[None, :] / (mu[:, None] + x[None, :])).sum(1))
+    return hm
