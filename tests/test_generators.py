@@ -265,3 +265,13 @@ def test_integral_valued_float_is_accepted_for_an_int_parameter():
     a = generate("cloud", resolution=8, octaves=3.0)
     b = generate("cloud", resolution=8, octaves=3)
     assert np.array_equal(a.density, b.density)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_docs_list_every_parameter_with_its_default_and_range(name):
+    # docs/volumes.md has one section per generator with a row per parameter; keep them in sync.
+    from pathlib import Path
+    text = (Path(__file__).resolve().parents[1] / "docs" / "volumes.md").read_text()
+    section = text.split(f"### `{name}`", 1)[1].split("\n### ", 1)[0]
+    for key, p in GENERATORS[name].parameters.items():
+        assert f"| `{key}` | {p.default} | [{p.lo}, {p.hi}] |" in section, key

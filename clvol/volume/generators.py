@@ -352,7 +352,8 @@ def _smoke(dom: _Domain, seed: int, *, radius, spread, turbulence, scale, octave
     d = profile * (np.float32(radius) / r) ** np.float32(fade)
     d *= _smoothstep(-radius, radius, s)
     # Puffs: modulate by turbulence at the displaced point's neighbourhood.
-    puffs = np.clip(1.0 + (0.5 / 0.11) * _fbm(dom, seed, 4, scale * 0.5, octaves), 0.0, 2.0)
+    # (capped at 1.5 so the peak stays within 1.5 x `density`)
+    puffs = np.clip(1.0 + (0.5 / 0.11) * _fbm(dom, seed, 4, scale * 0.5, octaves), 0.0, 1.5)
     d *= puffs
     d *= _box_taper(dom)
     return (np.float32(density) * d).astype(np.float32)
@@ -458,7 +459,8 @@ GENERATORS: dict[str, GeneratorInfo] = {g.name: g for g in [
             "octaves": Param(4, 1, 8, "octaves of the displacement noise"),
             "fade": Param(1.0, 0.0, 3.0, "density falls as (source radius / radius)^fade; 2 conserves mass"),
             "drift": Param(0.0, -1.0, 1.0, "sideways drift along +x per unit of height (wind)"),
-            "density": _DENSITY,
+            "density": Param(1.0, 1e-3, 1e3, "density on the axis at the source; puffs vary it "
+                             "between 0 and 1.5 x this"),
         },
         _smoke),
     GeneratorInfo(
