@@ -93,20 +93,6 @@ __kernel void transmittance_brute(__global const float *pyr, const int off, cons
     out[out_off + i] = out_depth ? tau : exp(-tau);
 }
 
-/* 1-D interpolation weights of tau_prev at lateral position q in [-0.5, n - 0.5]. */
-__attribute__((always_inline))
-void prev_weights(float q, int n, int *i0, int *i1, float *w0, float *w1) {
-    if (q < 0.0f) {                      /* between the face (tau 0) and centre 0 */
-        *i0 = 0; *i1 = 0; *w0 = fmax(2.0f * (q + 0.5f), 0.0f); *w1 = 0.0f;
-    } else if (q > (float)(n - 1)) {     /* between centre n-1 and the face */
-        *i0 = n - 1; *i1 = n - 1; *w0 = fmax(2.0f * ((float)n - 0.5f - q), 0.0f); *w1 = 0.0f;
-    } else {
-        int k = (int)q;                  /* q >= 0: the cast is a floor */
-        float f = q - (float)k;
-        *i0 = k; *i1 = min(k + 1, n - 1); *w0 = 1.0f - f; *w1 = f;
-    }
-}
-
 /* Element index of voxel (u, v) of slice k (lateral u, v; sweep axis a) in [z][y][x]. */
 __attribute__((always_inline))
 size_t elem_uva(int n, int a, int u, int v, int k) {
@@ -117,48 +103,205 @@ size_t elem_uva(int n, int a, int u, int v, int k) {
     return (size_t)u * s_u + (size_t)v * s_v + (size_t)k * s_a;
 }
 
-/* tau of voxel (u, v) in slice k: the sweep step in its general (scalar) form. */
-__attribute__((always_inline))
-float sweep_voxel(__global const float *d, int n, int a, int sa, int k, int first, float su,
-                  float sv, float inv_la, float scale, __global const float *tau_prev,
-                  int u, int v) {
-    const float seg = first ? 0.5f : 1.0f;   /* distance along a to the previous plane */
-    const float du = su * seg, dv = sv * seg, da = (float)sa * seg;
-    const float fu = (float)u, fv = (float)v, lo = -0.5f, hi = (float)n - 0.5f;
-    float c = 1.0f;                          /* fraction of the segment inside the cube */
-    if (fu + du < lo) c = fmin(c, (lo - fu) / du);
-    if (fu + du > hi) c = fmin(c, (hi - fu) / du);
-    if (fv + dv < lo) c = fmin(c, (lo - fv) / dv);
-    if (fv + dv > hi) c = fmin(c, (hi - fv) / dv);
-    const float r0 = d[elem_uva(n, a, u, v, k)];             /* a voxel centre: no lerp */
-    const float rm = lookup_uva(d, n, a, fu + 0.5f * c * du, fv + 0.5f * c * dv,
-                                (float)k + 0.5f * c * da);
-    const float r1 = lookup_uva(d, n, a, fu + c * du, fv + c * dv, (float)k + c * da);
-    float tau = scale * (seg * inv_la * c) * (r0 + 4.0f * rm + r1) * (1.0f / 6.0f);
-    if (!first && c >= 1.0f) {
-        int u0, u1, v0, v1;
-        float wu0, wu1, wv0, wv1;
-        prev_weights(fu + du, n, &u0, &u1, &wu0, &wu1);
-        prev_weights(fv + dv, n, &v0, &v1, &wv0, &wv1);
-        tau += wv0 * (wu0 * tau_prev[v0 * n + u0] + wu1 * tau_prev[v0 * n + u1])
-             + wv1 * (wu0 * tau_prev[v1 * n + u0] + wu1 * tau_prev[v1 * n + u1]);
-    }
-    return tau;
+/* ---------------------------------------------------------------- column sweep
+ * Built twice: -D SWEEP_WIDTH=16 (explicit float16 across 16 columns / voxels of a row: the
+ * fast path, levels with n >= 16) and -D SWEEP_WIDTH=1 (scalar, small levels).
+ */
+#ifndef SWEEP_WIDTH
+#define SWEEP_WIDTH 1
+#endif
+#if SWEEP_WIDTH == 16
+typedef float16 vecf;
+typedef int16 veci;
+#define VLOAD(p) vload16(0, (p))
+#define VSTORE(v, p) vstore16((v), 0, (p))
+#define LANES ((vecf)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#define VSELECT(a, b, m) select((a), (b), (m))   /* m: int16 mask (-1 = true) */
+#elif SWEEP_WIDTH == 1
+typedef float vecf;
+typedef int veci;
+#define VLOAD(p) (*(p))
+#define VSTORE(v, p) (*(p) = (v))
+#define LANES 0.0f
+#define VSELECT(a, b, m) ((m) ? (b) : (a))
+#else
+#error "SWEEP_WIDTH must be 1 or 16"
+#endif
+
+/* Padded copy of a level for a sweep along axis a ("sweep layout"): S[ka][vv][uu], the
+ * level's voxel (u, v, k) at ka = k + 1, vv = v + SWEEP_PAD, uu = u + SWEEP_PAD, every index
+ * clamped into the level, so a trilinear lookup in S at any lateral position in
+ * [-2, n + 1] and any a-position in [-0.5, n - 0.5] returns the level's clamped field
+ * without bounds tests, and rows are contiguous along u whatever the light's axis.
+ * Plane size (n + 2 PAD)^2, row stride n + 2 PAD; the buffer carries SWEEP_SLACK extra
+ * floats at its end because the last work-item's vector lanes run past the last row. */
+#define SWEEP_PAD 3
+
+__kernel void sweep_layout(__global const float *pyr, const int off, const int n, const int a,
+                           __global float *S, const int s_off) {
+    const int i = get_global_id(0);
+    const int w = n + 2 * SWEEP_PAD;
+    if (i >= (n + 2) * w * w) return;
+    const int uu = i % w, vv = (i / w) % w, ka = i / (w * w);
+    const int u = clamp(uu - SWEEP_PAD, 0, n - 1), v = clamp(vv - SWEEP_PAD, 0, n - 1);
+    const int k = clamp(ka - 1, 0, n - 1);
+    S[s_off + i] = pyr[off + elem_uva(n, a, u, v, k)];
 }
 
-__kernel void transmittance_sweep_slice(__global const float *pyr, const int off, const int n,
-                                        const int a, const int sa, const int k, const int first,
-                                        const float su, const float sv, const float inv_la,
-                                        const float scale, __global const float *tau_prev,
-                                        __global float *tau_cur, const int out_depth,
-                                        __global float *out, const int out_off) {
-    const int i = get_global_id(0);
+/* Bilinear lookup in one plane of S for the lanes' row: row0 points at (vv0, uu of lane 0 +
+ * node offset), i.e. the lower-left node of every lane; gu, gv the (uniform) fractions. */
+__attribute__((always_inline))
+vecf plane_bilinear(__global const float *row0, int rs, float gu, float gv) {
+    vecf r0 = mix(VLOAD(row0), VLOAD(row0 + 1), gu);
+    vecf r1 = mix(VLOAD(row0 + rs), VLOAD(row0 + rs + 1), gu);
+    return mix(r0, r1, gv);
+}
+
+/* The clamped field at lateral positions (w + du, wv + dv) of every lane w = w0 + lane
+ * (window-local column index, equal to the level index offset by the window origin, which
+ * the caller has folded into p0 = &S[plane 0][row of wv][uu of w0]) and a-position pa. */
+__attribute__((always_inline))
+vecf field_at(__global const float *p0, int rs, int ps, float du, float dv, float pa) {
+    const float fu_ = floor(du), fv_ = floor(dv);
+    const float ka = pa + 1.0f;                  /* plane index in S (>= 0.5) */
+    const int p = (int)ka;
+    const float ga = ka - (float)p;
+    __global const float *row = p0 + (size_t)p * (size_t)ps + (int)fv_ * rs + (int)fu_;
+    vecf v0 = plane_bilinear(row, rs, du - fu_, dv - fv_);
+    if (ga == 0.0f) return v0;
+    return mix(v0, plane_bilinear(row + ps, rs, du - fu_, dv - fv_), ga);
+}
+
+/* Parameter interval of a lateral segment b -> b + d inside [-0.5, n - 0.5]. */
+#define INSIDE_T(b, d, n, t0, t1)                                                        \
+    do {                                                                                 \
+        if ((d) != 0.0f) {                                                               \
+            vecf ta_ = (-0.5f - (b)) / (d), tb_ = ((float)(n) - 0.5f - (b)) / (d);       \
+            t0 = fmax(fmin(ta_, tb_), 0.0f);                                             \
+            t1 = fmin(fmax(ta_, tb_), 1.0f);                                             \
+        } else {                                                                         \
+            t0 = (vecf)(0.0f);                                                           \
+            t1 = VSELECT((vecf)(0.0f), (vecf)(1.0f),                                     \
+                         ((b) >= -0.5f) & ((b) <= (float)(n) - 0.5f));                   \
+        }                                                                                \
+    } while (0)
+
+/* One launch per sweep step j of one level (see the header and reference/transmittance.py).
+ * Work-items, in three ranges:
+ *  [0, n_col)             add segment j to the columns of window j (window-local column
+ *                         w = 0..n, row wv = 0..n; lanes beyond n add nothing). Reads colP,
+ *                         writes colC. The field at a segment's start is the field at the
+ *                         previous segment's end, kept per column in rhoP / rhoC, except on
+ *                         step 0 and for columns that just entered the window (fresh: bit 0
+ *                         column w = 0, bit 1 w = n, bit 2 row 0, bit 3 row n), where it is
+ *                         evaluated.
+ *  [n_col, n_col + n_vox) voxels of step j - 1 (slice kv) from colP (the columns after step
+ *                         j - 1), written as exp(-tau) or tau.
+ *  [.., + n_flush)        a = x with float16 only: the voxel rows run along y, stride n in the
+ *                         output, so voxels go to a two-slab buffer tmp[2][16][n][n] first and
+ *                         each completed slab of 16 slices (x = flush_kb .. flush_kb + 15) is
+ *                         written as contiguous x-runs.
+ * Column buffers are [rows][cw] (global column index = window origin + window-local index),
+ * ping-ponged between launches: a column never re-enters a window it has left and all start
+ * at 0, so nothing needs copying.
+ *
+ *   S, s_off      sweep layout of the level (sweep_layout); n voxels per side; a the sweep axis
+ *   sa, su, sv    sign of l_a; lateral offsets per voxel along a (|su|, |sv| <= 1)
+ *   kscale        scale / |l_a| / 6 (Simpson's weights over a segment of one voxel along a)
+ *   cw            row length of the column buffers colA/B, rhoA/B (ping-pong by the parity of j)
+ *   itab[j]       int row (SWEEP_ITAB): do_cols (step j < n), k (its slice), first (j == 0: the
+ *                 segment starts at the face, half a voxel), fresh, cu0, cv0 (window origin in
+ *                 the column buffers), do_vox (j >= 1), kv (slice of step j - 1), vu0, vv0 (its
+ *                 window origin), flush_kb (slab to write, -1 for none)
+ *   ftab[j]       fu, fv: fractional parts of j * (su, sv); gu, gv: the same for step j - 1
+ *   out_depth, out, out_off        output (level layout [z][y][x] at element offset out_off)
+ */
+#define SWEEP_ITAB 12
+__kernel void transmittance_sweep_step(
+        __global const float *S, const int s_off, const int n, const int a, const int sa,
+        const float su, const float sv, const float kscale, const int cw,
+        __global const int *itab, __global const float *ftab, const int j,
+        __global float *colA, __global float *colB, __global float *rhoA, __global float *rhoB,
+        const int out_depth, __global float *out, const int out_off, __global float *tmp,
+        const int n_col, const int n_vox) {
+    /* per-step parameters (one table row per launch: setting one argument per launch keeps
+     * the host's enqueue cost small) */
+    __global const int *it = itab + SWEEP_ITAB * j;
+    const int do_cols = it[0], k = it[1], first = it[2], fresh = it[3], cu0 = it[4], cv0 = it[5];
+    const int do_vox = it[6], kv = it[7], vu0 = it[8], vv0 = it[9], flush_kb = it[10];
+    const float fu = ftab[4 * j], fv = ftab[4 * j + 1], gu = ftab[4 * j + 2], gv = ftab[4 * j + 3];
+    /* launch j reads what launch j - 1 wrote */
+    __global const float *colP = (j & 1) ? colA : colB;
+    __global float *colC = (j & 1) ? colB : colA;
+    __global const float *rhoP = (j & 1) ? rhoA : rhoB;
+    __global float *rhoC = (j & 1) ? rhoB : rhoA;
+    const int gid = get_global_id(0);
+    const int rs = n + 2 * SWEEP_PAD, ps = rs * rs;
+    if (gid < n_col) {
+        if (!do_cols) return;
+        const int chunks = (n + SWEEP_WIDTH) / SWEEP_WIDTH;       /* lanes over w = 0..n */
+        const int wv = gid / chunks, w0 = (gid - wv * chunks) * SWEEP_WIDTH;
+        if (wv > n) return;
+        const float seg = first ? 0.5f : 1.0f;
+        const vecf w = (float)w0 + LANES;
+        /* lateral offsets from lane w's own index to its end (in slice k) and start */
+        const float eu = -fu, ev = -fv;
+        const float bu = eu + seg * su, bv = ev + seg * sv;
+        __global const float *p0 = S + s_off + (wv + SWEEP_PAD) * rs + (w0 + SWEEP_PAD);
+        const size_t ci = (size_t)(cv0 + wv) * (size_t)cw + (size_t)(cu0 + w0);
+        const vecf r_end = field_at(p0, rs, ps, eu, ev, (float)k);
+        const vecf r_mid = field_at(p0, rs, ps, 0.5f * (eu + bu), 0.5f * (ev + bv),
+                                    (float)k + 0.5f * seg * (float)sa);
+        const int is_fresh = first || ((fresh & 1) && w0 == 0)
+                          || ((fresh & 2) && w0 + SWEEP_WIDTH > n)
+                          || ((fresh & 4) && wv == 0) || ((fresh & 8) && wv == n);
+        const vecf r_beg = is_fresh ? field_at(p0, rs, ps, bu, bv, (float)k + seg * (float)sa)
+                                    : VLOAD(rhoP + ci);
+        /* inside fraction of the lateral segment start -> end */
+        vecf t0u, t1u, t0v, t1v;
+        const vecf begu = w + bu;
+        const vecf begv = (vecf)((float)wv + bv);
+        INSIDE_T(begu, -seg * su, n, t0u, t1u);
+        INSIDE_T(begv, -seg * sv, n, t0v, t1v);
+        vecf c = fmax(fmin(t1u, t1v) - fmax(t0u, t0v), 0.0f);
+        c = VSELECT(c, (vecf)(0.0f), w > (float)n);          /* lanes beyond the window */
+        VSTORE(VLOAD(colP + ci) + (kscale * seg) * c * (r_beg + 4.0f * r_mid + r_end), colC + ci);
+        VSTORE(r_end, rhoC + ci);
+        return;
+    }
+    if (gid < n_col + n_vox) {
+        if (!do_vox) return;
+        const int chunks = (n + SWEEP_WIDTH - 1) / SWEEP_WIDTH;
+        const int i = gid - n_col;
+        const int v = i / chunks, u0 = (i - v * chunks) * SWEEP_WIDTH;
+        if (v >= n) return;
+        __global const float *c0 = colP + (size_t)(vv0 + v) * (size_t)cw + (size_t)(vu0 + u0);
+        const vecf tau = mix(mix(VLOAD(c0), VLOAD(c0 + 1), gu),
+                             mix(VLOAD(c0 + cw), VLOAD(c0 + cw + 1), gu), gv);
+        const vecf val = out_depth ? tau : exp(-tau);
+#if SWEEP_WIDTH == 16
+        if (a == 0) {  /* slab buffer [(kv / 16) % 2][kv % 16][v][u] */
+            const size_t nn = (size_t)n * (size_t)n;
+            VSTORE(val, tmp + (size_t)(((kv >> 4) & 1) * 16 + (kv & 15)) * nn
+                            + (size_t)v * (size_t)n + (size_t)u0);
+            return;
+        }
+#endif
+        VSTORE(val, out + (size_t)out_off + elem_uva(n, a, u0, v, kv));  /* u = x: contiguous */
+        return;
+    }
+#if SWEEP_WIDTH == 16
+    /* flush: one work-item per (z, y) = (v, u): 16 slab values -> out[z][y][kb .. kb + 15] */
+    if (flush_kb < 0) return;
+    const int i = gid - n_col - n_vox;
     if (i >= n * n) return;
-    const int u = i % n, v = i / n;
-    const float tau = sweep_voxel(pyr + off, n, a, sa, k, first, su, sv, inv_la, scale,
-                                  tau_prev, u, v);
-    tau_cur[i] = tau;
-    out[(size_t)out_off + elem_uva(n, a, u, v, k)] = out_depth ? tau : exp(-tau);
+    const size_t nn = (size_t)n * (size_t)n;
+    __global const float *t = tmp + (size_t)(((flush_kb >> 4) & 1) * 16) * nn + (size_t)i;
+    const float16 run = (float16)(t[0], t[nn], t[2 * nn], t[3 * nn], t[4 * nn], t[5 * nn],
+                                  t[6 * nn], t[7 * nn], t[8 * nn], t[9 * nn], t[10 * nn],
+                                  t[11 * nn], t[12 * nn], t[13 * nn], t[14 * nn], t[15 * nn]);
+    vstore16(run, 0, out + (size_t)out_off + (size_t)i * (size_t)n + (size_t)flush_kb);
+#endif
 }
 
 __kernel void combine_levels(__global const float *tgrid, __global const int *offsets,

@@ -71,46 +71,65 @@ def _slice(d, a, k):
     return d[:, :, k]
 
 
-def _prev_weights(q, n):
-    """(i0, i1, w0, w1) for tau_prev at lateral positions q in [-0.5, n - 0.5]."""
-    below, above = q < 0, q > n - 1
-    i0 = np.clip(np.floor(q), 0, n - 1).astype(np.int64)
-    i1 = np.minimum(i0 + 1, n - 1)
-    f = q - i0
-    w0 = np.where(below, np.maximum(2 * (q + 0.5), 0), np.where(above, np.maximum(2 * (n - 0.5 - q), 0), 1 - f))
-    w1 = np.where(below | above, 0.0, f)
-    return i0, i1, w0, w1
+def inside_fraction(b, e, n):
+    """Fraction of the lateral segment from b to e (arrays) inside [-0.5, n - 0.5]."""
+    d = e - b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (-0.5 - b) / d, (n - 0.5 - b) / d
+        t0 = np.where(d != 0, np.maximum(0.0, np.minimum(ta, tb)), 0.0)
+        t1 = np.where(d != 0, np.minimum(1.0, np.maximum(ta, tb)),
+                      np.where((b >= -0.5) & (b <= n - 0.5), 1.0, 0.0))
+    return t0, t1
+
+
+def sweep_steps(n, l):
+    """Per sweep step j: (k, iu, iv, fu, fv): the slice index and the integer / fractional parts
+    of j * (su, sv), the lateral drift of the light rays ("columns") after j slices."""
+    a, sa, su, sv, _ = sweep_geometry(l)
+    steps = []
+    for j in range(n):
+        k = n - 1 - j if sa > 0 else j
+        iu, iv = int(np.floor(j * su)), int(np.floor(j * sv))
+        steps.append((k, iu, iv, j * su - iu, j * sv - iv))
+    return steps
 
 
 def sweep(d, l, scale):
-    """Optical depth by the slice sweep (same algorithm as transmittance_sweep_slice)."""
+    """Optical depth by the column sweep (same algorithm as transmittance_sweep_step).
+
+    Columns are the light rays through the voxel centres of the first slice (nearest the
+    light), extended to a lattice; column c sits at lateral position c - j s in the slice of
+    step j (s = (su, sv)). Each step adds to every column the integral along its segment from
+    the previous slice (the face for j = 0) to the current one: c * Simpson(start, middle, end)
+    of the field clamped at the faces, c the fraction of the segment inside the cube's side
+    faces (exact when the segment is inside, or the field constant along it). Then each voxel
+    of the slice takes the bilinear interpolation of its 4 surrounding columns."""
     d = np.asarray(d, np.float64)
     n = d.shape[0]
     a, sa, su, sv, inv_la = sweep_geometry(l)
-    v, u = np.meshgrid(np.arange(n, dtype=np.float64), np.arange(n, dtype=np.float64), indexing="ij")
+    steps = sweep_steps(n, l)
+    ou = -min(s[1] for s in steps)
+    ov = -min(s[2] for s in steps)
+    cols = np.zeros((n + 2 + ov + max(s[2] for s in steps), n + 2 + ou + max(s[1] for s in steps)))
     tau = np.zeros((n, n, n))
-    prev = None
-    for j in range(n):
-        k = n - 1 - j if sa > 0 else j
+    w = np.arange(n + 1, dtype=np.float64)  # window-local column index
+    wv, wu = np.meshgrid(w, w, indexing="ij")
+    for j, (k, iu, iv, fu, fv) in enumerate(steps):
         seg = 0.5 if j == 0 else 1.0
-        du, dv, da = su * seg, sv * seg, sa * seg
-        c = np.ones_like(u)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            for pos, dd in ((u, du), (v, dv)):
-                c = np.where(pos + dd < -0.5, np.minimum(c, (-0.5 - pos) / dd), c)
-                c = np.where(pos + dd > n - 0.5, np.minimum(c, (n - 0.5 - pos) / dd), c)
-        r0 = _slice(d, a, k)
-        rm = grid_lookup(d, _to_xyz(a, u + 0.5 * c * du, v + 0.5 * c * dv, k + 0.5 * c * da))
-        r1 = grid_lookup(d, _to_xyz(a, u + c * du, v + c * dv, k + c * da))
-        cur = scale * seg * inv_la * c * (r0 + 4 * rm + r1) / 6
-        if j > 0:
-            u0, u1, wu0, wu1 = _prev_weights(u + du, n)
-            v0, v1, wv0, wv1 = _prev_weights(v + dv, n)
-            tp = (wv0 * (wu0 * prev[v0, u0] + wu1 * prev[v0, u1])
-                  + wv1 * (wu0 * prev[v1, u0] + wu1 * prev[v1, u1]))
-            cur = cur + np.where(c >= 1, tp, 0.0)
-        _slice(tau, a, k)[...] = cur
-        prev = cur
+        eu, ev = wu - fu, wv - fv                  # column positions in slice k
+        bu, bv = eu + seg * su, ev + seg * sv      # ... at the start of the segment
+        t0u, t1u = inside_fraction(bu, eu, n)
+        t0v, t1v = inside_fraction(bv, ev, n)
+        c = np.maximum(np.minimum(t1u, t1v) - np.maximum(t0u, t0v), 0.0)
+
+        def rho(t):  # clamped (not zeroed) beyond the faces: c accounts for the outside part
+            return grid_lookup(d, _to_xyz(a, bu + t * (eu - bu), bv + t * (ev - bv),
+                                          k + sa * seg * (1 - t) + 0 * bu))
+
+        win = cols[iv + ov:iv + ov + n + 1, iu + ou:iu + ou + n + 1]
+        win += scale * seg * inv_la / 6 * c * (rho(0.0) + 4 * rho(0.5) + rho(1.0))
+        _slice(tau, a, k)[...] = ((1 - fv) * ((1 - fu) * win[:n, :n] + fu * win[:n, 1:])
+                                  + fv * ((1 - fu) * win[1:, :n] + fu * win[1:, 1:]))
     return tau
 
 

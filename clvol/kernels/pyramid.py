@@ -56,6 +56,9 @@ class Pyramid:
     data: np.ndarray
     buffer: "cl.Buffer"
     runtime: Runtime = field(repr=False)
+    # Derived device data made on demand by other kernels (e.g. the transmittance sweep's
+    # padded per-axis copies), kept as long as the pyramid lives.
+    cache: dict = field(default_factory=dict, repr=False)
 
     @property
     def cube_max(self) -> np.ndarray:

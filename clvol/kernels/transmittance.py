@@ -26,7 +26,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..errors import ClvolError
-from ..runtime import Runtime
+from ..runtime import Runtime, padded
 from .grid import f4
 from .pyramid import Pyramid
 
@@ -128,36 +128,121 @@ def sweep_geometry(light_dir: np.ndarray) -> tuple[int, int, float, float, float
     return a, (1 if l[a] > 0 else -1), l[lat[0]] / la, l[lat[1]] / la, 1.0 / la
 
 
-def _run_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir, method: str,
-               out_depth: bool, out: "cl.Buffer", out_off: int, scratch) -> None:
-    n = pyr.resolution(level)
-    off = int(pyr.level_offsets[level])
-    prog = rt.program("transmittance")
-    if method == "brute":
-        k = prog.kernel("transmittance_brute", [None, np.int32, np.int32, None, np.float32,
-                                                np.int32, None, np.int32])
-        rt.launch(k, n ** 3, (pyr.buffer, np.int32(off), np.int32(n), f4(light_dir),
-                              np.float32(scale), np.int32(out_depth), out, np.int32(out_off)))
-        return
-    k = prog.kernel("transmittance_sweep_slice",
-                    [None, np.int32, np.int32, np.int32, np.int32, np.int32, np.int32,
-                     np.float32, np.float32, np.float32, np.float32, None, None, np.int32,
-                     None, np.int32])
-    a, sa, su, sv, inv_la = sweep_geometry(light_dir)
-    prev, cur = scratch
+SWEEP_PAD = 3     # cl/transmittance.cl: lateral padding of the sweep layout
+SWEEP_SLACK = 64  # floats after the last level: the last work-item's lanes read past it
+VECTOR_MIN_N = 16  # levels with n >= 16 use the float16 kernel, smaller ones the scalar one
+
+
+def sweep_layout(pyr: Pyramid, axis: int):
+    """(buffer, offsets): every level padded and permuted for sweeps along ``axis`` (made
+    once per pyramid and axis on the device, then cached on the pyramid)."""
+    key = ("sweep_layout", axis)
+    if key not in pyr.cache:
+        rt = pyr.runtime
+        sizes = [(n + 2) * (n + 2 * SWEEP_PAD) ** 2
+                 for n in (pyr.resolution(l) for l in range(pyr.n_levels))]
+        offs = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        buf = rt.empty(int(sum(sizes)) + SWEEP_SLACK)
+        k = rt.program("transmittance").kernel(
+            "sweep_layout", [None, np.int32, np.int32, np.int32, None, np.int32])
+        for l in range(pyr.n_levels):
+            rt.launch(k, sizes[l], (pyr.buffer, np.int32(pyr.level_offsets[l]),
+                                    np.int32(pyr.resolution(l)), np.int32(axis), buf,
+                                    np.int32(offs[l])))
+        pyr.cache[key] = (buf, offs)
+    return pyr.cache[key]
+
+
+def sweep_steps(n: int, light_dir) -> list[tuple[int, int, int, float, float]]:
+    """Per step j: (slice k, floor(j su), floor(j sv), and the fractional parts), in float64
+    (the NumPy twin uses the same function's numbers)."""
+    a, sa, su, sv, _ = sweep_geometry(light_dir)
+    out = []
     for j in range(n):
-        kk = n - 1 - j if sa > 0 else j
-        rt.launch(k, n * n, (pyr.buffer, np.int32(off), np.int32(n), np.int32(a), np.int32(sa),
-                             np.int32(kk), np.int32(j == 0), np.float32(su), np.float32(sv),
-                             np.float32(inv_la), np.float32(scale), prev, cur,
-                             np.int32(out_depth), out, np.int32(out_off)))
-        prev, cur = cur, prev
+        iu, iv = int(np.floor(j * su)), int(np.floor(j * sv))
+        out.append((n - 1 - j if sa > 0 else j, iu, iv, j * su - iu, j * sv - iv))
+    return out
 
 
-def _scratch(rt: Runtime, n: int, method: str):
-    if method != "sweep":
-        return None
-    return rt.empty(n * n), rt.empty(n * n)
+_SWEEP_ARGS = ([None, np.int32, np.int32, np.int32, np.int32, np.float32, np.float32,
+                np.float32, np.int32, None, None, np.int32] + [None] * 4
+               + [np.int32, None, np.int32, None, np.int32, np.int32])
+_ARG_J = 11      # index of the per-launch step argument j
+SWEEP_ITAB = 12  # ints per step in the kernel's table
+
+
+def _step_tables(n: int, light_dir, ou: int, ov: int, slabs: bool):
+    """Per launch j = 0 .. n (+1 with slabs): the int and float parameter rows of
+    transmittance_sweep_step (see the kernel's argument list)."""
+    steps = sweep_steps(n, light_dir)
+    launches = n + 2 if slabs else n + 1
+    itab = np.zeros((launches, SWEEP_ITAB), np.int32)
+    ftab = np.zeros((launches, 4), np.float32)
+    pending = -1  # slab base x whose 16 slices are complete and not yet written
+    for j in range(launches):
+        kc, iu, iv, fu, fv = steps[min(j, n - 1)]
+        kv, ju, jv, gu, gv = steps[max(min(j - 1, n - 1), 0)]
+        fresh = 0
+        if 1 <= j < n:
+            du, dv = iu - steps[j - 1][1], iv - steps[j - 1][2]
+            fresh = int(du < 0) | int(du > 0) << 1 | int(dv < 0) << 2 | int(dv > 0) << 3
+        flush_kb = -1
+        if slabs:
+            flush_kb, pending = pending, -1
+            if 1 <= j <= n and j % 16 == 0:  # launch j wrote step j - 1, ending a slab
+                pending = kv & ~15
+        itab[j] = (j < n, kc, j == 0, fresh, iu + ou, iv + ov, 1 <= j <= n, kv, ju + ou, jv + ov,
+                   flush_kb, 0)
+        ftab[j] = (fu, fv, gu, gv)
+    return itab, ftab
+
+
+def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
+                 out_depth: bool, out: "cl.Buffer", out_off: int) -> None:
+    n = pyr.resolution(level)
+    a, sa, su, sv, inv_la = sweep_geometry(light_dir)
+    width = 16 if n >= VECTOR_MIN_N else 1
+    k = rt.program("transmittance", {"SWEEP_WIDTH": width}).kernel("transmittance_sweep_step",
+                                                                    _SWEEP_ARGS)
+    layout, offs = sweep_layout(pyr, a)
+    steps = sweep_steps(n, light_dir)
+    ius, ivs = [s[1] for s in steps], [s[2] for s in steps]
+    ou, ov = -min(ius), -min(ivs)
+    cw = max(ius) + ou + n + 2 * width + 1          # vector lanes run up to w = n + width - 1
+    rows = max(ivs) + ov + n + 2
+    bufs = [rt.empty(rows * cw) for _ in range(4)]  # columns A, B; end-point densities A, B
+    for b in bufs[:2]:  # the density buffers are written before they are read
+        cl.enqueue_fill_buffer(rt.queue, b, np.float32(0), 0, rows * cw * 4)
+    slabs = a == 0 and width == 16
+    tmp = rt.empty(2 * 16 * n * n) if slabs else bufs[0]  # unused unless slabs
+    itab, ftab = _step_tables(n, light_dir, ou, ov, slabs)
+    n_col = (n + 1) * ((n + width) // width)
+    n_vox = n * (-(-n // width))
+    n_items = n_col + n_vox + (n * n if slabs else 0)
+    # clSetKernelArg does not retain buffers: keep these referenced until the last enqueue.
+    itab_buf, ftab_buf = rt.to_device(itab), rt.to_device(ftab)
+    k.set_args(layout, np.int32(offs[level]), np.int32(n), np.int32(a), np.int32(sa),
+               np.float32(su), np.float32(sv), np.float32(scale * inv_la / 6.0), np.int32(cw),
+               itab_buf, ftab_buf, np.int32(0), *bufs,
+               np.int32(out_depth), out, np.int32(out_off), tmp, np.int32(n_col), np.int32(n_vox))
+    for j in range(len(itab)):
+        k.set_arg(_ARG_J, np.int32(j))
+        evt = cl.enqueue_nd_range_kernel(rt.queue, k, (padded(n_items),), None)
+        if rt.profiling:
+            rt._events.append((k.function_name, evt))
+
+
+def _run_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir, method: str,
+               out_depth: bool, out: "cl.Buffer", out_off: int) -> None:
+    if method == "sweep":
+        _sweep_level(rt, pyr, level, scale, light_dir, out_depth, out, out_off)
+        return
+    n = pyr.resolution(level)
+    k = rt.program("transmittance").kernel("transmittance_brute", [
+        None, np.int32, np.int32, None, np.float32, np.int32, None, np.int32])
+    rt.launch(k, n ** 3, (pyr.buffer, np.int32(pyr.level_offsets[level]), np.int32(n),
+                          f4(light_dir), np.float32(scale), np.int32(out_depth), out,
+                          np.int32(out_off)))
 
 
 def graded_transmittance(pyramid: Pyramid, density_scale: float, light_dir, lam: float = DEFAULT_LAMBDA,
@@ -168,11 +253,10 @@ def graded_transmittance(pyramid: Pyramid, density_scale: float, light_dir, lam:
     l = check_light_dir(light_dir)
     rt = pyramid.runtime
     out = rt.empty(pyramid.data.shape)
-    scratch = _scratch(rt, pyramid.base_resolution, method)
     for level in range(pyramid.n_levels):
         scale = lam_f ** (level + 1) * s * pyramid.voxel_size(level)
         _run_level(rt, pyramid, level, scale, l, method, quantity == "optical_depth", out,
-                   int(pyramid.level_offsets[level]), scratch)
+                   int(pyramid.level_offsets[level]))
     return GradedT(pyramid, s, l, lam_f, method, quantity, out)
 
 
@@ -187,7 +271,7 @@ def light_transmittance(pyramid: Pyramid, density_scale: float, light_dir, metho
     n = pyramid.base_resolution
     out = rt.empty(n ** 3)
     _run_level(rt, pyramid, 0, s * pyramid.voxel_size(0), l, method,
-               quantity == "optical_depth", out, 0, _scratch(rt, n, method))
+               quantity == "optical_depth", out, 0)
     return out if as_buffer else rt.from_device(out, (n, n, n))
 
 
