@@ -285,7 +285,9 @@ def _centred(dom: _Domain):
 
 # --------------------------------------------------------------------------- generators
 
-BILLOW = 0.45
+# Amplitude of the (unit-deviation) billow noise against the envelope, which falls from 1 on the
+# axis to 0 at its edge; chosen by eye from renders of the optical depth.
+_CLOUD_BILLOW = 0.45
 
 
 def _cloud(dom: _Domain, seed: int, *, coverage, base, top, width, scale, octaves, worley,
@@ -293,8 +295,8 @@ def _cloud(dom: _Domain, seed: int, *, coverage, base, top, width, scale, octave
     if top < base + 0.1:
         raise VolumeError(
             f"generator 'cloud': top = {top!r} must be at least base + 0.1 = {base + 0.1!r}")
-    # Envelope: a column with straight sides over the lowest 30% of the cloud, capped by a
-    # half-ellipsoid; S > 0 inside, 1 on the axis at the base.
+    # Envelope `shape`: a column over the lowest 20% of the cloud's height, capped by a
+    # half-ellipsoid above; > 0 inside, 1 on the axis at the base, 0 on the surface.
     qx = dom.axis(2 * dom.frac[0] - 1, 0)
     qz = dom.axis(2 * dom.frac[2] - 1, 2)
     h = (dom.frac[1] - base) / (top - base)                  # 0 at the base, 1 at the top
@@ -311,7 +313,7 @@ def _cloud(dom: _Domain, seed: int, *, coverage, base, top, width, scale, octave
     grad = _fbm(dom, seed, 1, scale, octaves) * np.float32(1 / 0.11)
     cells = (_worley_fbm(dom, seed, 2, scale, 3) - np.float32(0.48)) * np.float32(1 / 0.10)
     noise = np.float32(1.0 - worley) * grad + np.float32(worley) * cells
-    amp = dom.axis(BILLOW * (0.35 + 0.65 * np.clip(h, 0.0, 1.0)), 1)
+    amp = dom.axis(_CLOUD_BILLOW * (0.35 + 0.65 * np.clip(h, 0.0, 1.0)), 1)
     f = shape + amp * noise
 
     # coverage 0.5 puts the surface near the envelope; more coverage grows the cloud.
