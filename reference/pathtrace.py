@@ -233,8 +233,9 @@ def chandrasekhar_h(albedo: float, mu, n_nodes: int = 256, tol: float = 1e-13):
     x, wq = 0.5 * (x + 1.0), 0.5 * wq
     h = np.ones_like(x)
     s = math.sqrt(1.0 - albedo)
-    for _ in range(10_000):
-        new = 1.0 / (s + 0.5 * albedo * ((wq * x * h)[None, :] / (x[:, None] + x[None, :])).sum(1))
+    kernel = 0.5 * albedo * (wq * x)[None, :] / (x[:, None] + x[None, :])
+    for _ in range(100_000):
+        new = 1.0 / (s + kernel @ h)
         if np.max(np.abs(new - h)) < tol:
             h = new
             break
