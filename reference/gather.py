@@ -1,0 +1,116 @@
+"""NumPy twin of cl/gather.cl: the template gather (clvol/layout.py is the contract).
+
+Written independently of the kernel's loop structure, in float64:
+- frame from clvol.templates.template_frame;
+- t_enter by slab-testing the ray p + t l against every non-empty cell of the coarse level and
+  taking the largest exit parameter (no DDA);
+- density and graded levels by explicit trilinear weights over the level's voxel centres
+  (reference.grid.grid_lookup for the T_m values at those centres);
+- phase at the exact alpha of each query (clvol.phasetable.phase_features), not the alpha table;
+- render transmittance as sum_m w_m levels[m] + b (no baked grid).
+Arrays are the pyramid's / graded fields' concatenated float32 data (any object with
+base_resolution, n_levels, cube_min, cube_size, level_offsets, data works, e.g. a stand-in).
+"""
+import numpy as np
+
+from clvol import phasetable
+from clvol.kernels.gather import coarse_level
+from clvol.templates import level_for_spacing, load_templates, template_frame
+from reference.grid import grid_lookup
+
+
+def level_array(pyr, data, level):
+    n = pyr.base_resolution >> level
+    off = int(pyr.level_offsets[level])
+    return np.asarray(data[off:off + n ** 3], np.float64).reshape(n, n, n)
+
+
+def light_entry(pyr, points, light_dir):
+    """Largest t >= 0 at which p + t l leaves a non-empty coarse cell (0 if none)."""
+    c = coarse_level(pyr.base_resolution)
+    occ = level_array(pyr, pyr.data, c) > 0
+    n = occ.shape[0]
+    bs = pyr.cube_size / n
+    cells = np.argwhere(occ)[:, ::-1]                      # (k, 3) as x, y, z
+    lo = np.asarray(pyr.cube_min) + cells * bs
+    hi = lo + bs
+    p = np.asarray(points, np.float64)[:, None, :]
+    l = np.asarray(light_dir, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta = (lo[None] - p) / l
+        tb = (hi[None] - p) / l
+    tmin = np.where(l == 0, np.where((p >= lo[None]) & (p <= hi[None]), -np.inf, np.inf),
+                    np.minimum(ta, tb))
+    tmax = np.where(l == 0, np.where((p >= lo[None]) & (p <= hi[None]), np.inf, -np.inf),
+                    np.maximum(ta, tb))
+    t0 = np.maximum(tmin.max(-1), 0.0)
+    t1 = tmax.min(-1)
+    hit = t0 < t1
+    return np.where(hit, t1, 0.0).max(-1, initial=0.0) if len(cells) else np.zeros(len(points))
+
+
+def _corners(g, n):
+    """Trilinear corner indices (x0, x1, y0, ...) and weights, clamped like grid.h."""
+    c = np.clip(g, 0, n - 1)
+    i0 = c.astype(np.int64)
+    i1 = np.minimum(i0 + 1, n - 1)
+    return i0, i1, c - i0
+
+
+def gather(pyr, graded_data, points, omegas, light_dir, lobes, density_scale, mode="train",
+           level_weights=None, bias=0.0):
+    """Returns dict(features [N][3][NP], levels [N][L][NP] (train), t_enter [N], level [N][NP])."""
+    tpl = load_templates()
+    pts = np.asarray(points, np.float64)
+    om = np.asarray(omegas, np.float64)
+    l = np.asarray(light_dir, np.float64)
+    n, L, NP = len(pts), pyr.n_levels, tpl.n_points
+    x, y, z = template_frame(l, om)
+    t_enter = light_entry(pyr, pts, l)
+    hl = tpl.is_highlight
+    scale = np.where(hl[None, :], t_enter[:, None], pyr.cube_size)             # (N, NP)
+    u = tpl.points
+    s = pts[:, None, :] + scale[..., None] * (u[None, :, 0:1] * x[:, None] + u[None, :, 1:2] * y[:, None]
+                                              + u[None, :, 2:3] * z[:, None])
+    lvl = np.empty((n, NP), np.int64)
+    dl = tpl.diffuse_levels(pyr.base_resolution)
+    lvl[:, ~hl] = dl[tpl.layer[~hl]]
+    sp = tpl.spacing[tpl.layer[hl]] * pyr.base_resolution / pyr.cube_size   # base voxels per unit t
+    lvl[:, hl] = level_for_spacing(sp[None, :] * t_enter[:, None], pyr.base_resolution)
+    cmin = np.asarray(pyr.cube_min, np.float64)
+    inside = np.all((s >= cmin) & (s <= cmin + pyr.cube_size), axis=-1)
+    dens = np.zeros((n, NP))
+    levels = np.ones((n, L, NP))
+    for lv in np.unique(lvl):
+        sel = lvl == lv
+        nl = pyr.base_resolution >> lv
+        vox = pyr.cube_size / nl
+        g = (s[sel] - cmin) / vox - 0.5
+        rho = grid_lookup(level_array(pyr, pyr.data, lv), g)
+        dens[sel] = np.where(inside[sel], rho * density_scale * vox, 0.0)
+        if mode == "train" or level_weights is not None:
+            (x0, y0, z0), (x1, y1, z1), (fx, fy, fz) = [np.moveaxis(a, -1, 0) for a in _corners(g, nl)]
+            for m in range(L):
+                tm = level_array(pyr, graded_data, m)
+                nm = pyr.base_resolution >> m
+
+                def at(ix, iy, iz):
+                    c = (np.stack([ix, iy, iz], -1) + 0.5) * (nm / nl) - 0.5
+                    return grid_lookup(tm, c)
+                val = ((1 - fz) * ((1 - fy) * ((1 - fx) * at(x0, y0, z0) + fx * at(x1, y0, z0))
+                                   + fy * ((1 - fx) * at(x0, y1, z0) + fx * at(x1, y1, z0)))
+                       + fz * ((1 - fy) * ((1 - fx) * at(x0, y0, z1) + fx * at(x1, y0, z1))
+                               + fy * ((1 - fx) * at(x0, y1, z1) + fx * at(x1, y1, z1))))
+                tmp = levels[:, m, :]
+                tmp[sel] = np.where(inside[sel], val, 1.0)
+    feats = np.zeros((n, 3, NP))
+    feats[:, 0] = np.log1p(dens)
+    if level_weights is not None:
+        feats[:, 1] = np.einsum("l,nlj->nj", np.asarray(level_weights, np.float64), levels) + bias
+    alpha = np.arccos(np.clip(-(om @ l), -1.0, 1.0))
+    vp = phasetable.volume_phase(lobes)
+    feats[:, 2] = phasetable.phase_features(vp, tpl.points, tpl.half_angle, alpha)
+    out = {"features": feats, "t_enter": t_enter, "level": lvl, "alpha": alpha}
+    if mode == "train":
+        out["levels"] = levels
+    return out
