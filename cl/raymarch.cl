@@ -12,9 +12,10 @@
  * F_ms is the slot the network fills.
  *
  * Quadrature (energy-conserving, Hillaire 2016): segments [t0 + k dt, min(t0 + (k+1) dt, t1)]
- * of the ray's stretch in the box; sigma_t and F at the segment midpoint; each segment adds
- * T_cam (1 - exp(-tau)) F (tau = sigma_t * length; -expm1 for thin segments) and multiplies
- * T_cam by exp(-tau). Colour enters once per ray (albedo and E are constant over the medium).
+ * of the ray's stretch in the box; sigma_t at the segment midpoint, F at the segment's mean
+ * extinction point; each segment adds T_cam (1 - exp(-tau)) F (tau = sigma_t * length;
+ * -expm1 for thin segments) and multiplies T_cam by exp(-tau). Colour enters once per ray
+ * (albedo and E are constant over the medium).
  *
  * Specialisation (-D defines, decided from the scene by clvol/raymarch.py):
  *   PHASE_ISOTROPIC / PHASE_LOBES   phase.h: constant 1/(4 pi) or 1..3 HG lobes
@@ -70,8 +71,8 @@
 #ifndef SKIP_PASSES
 #define SKIP_PASSES 4
 #endif
-/* Below this optical depth the mean-distance term h(tau) uses its series (the direct form
- * cancels); truncation error < tau^4/72 relative. */
+/* Below this optical depth the mean-position fraction uses its series (the direct form
+ * cancels); truncation error < tau^5/30240. */
 #define H_SERIES_BELOW 0.05f
 
 typedef float16 v16;
@@ -286,16 +287,28 @@ __kernel void raymarch(
                                                  (qy - bmin.y) / cell.y - 0.5f,
                                                  (qz - bmin.z) / cell.z - 0.5f) * len;
         const v16 a_seg = -expm1(-tau);
+        const v16 e = exp(-tau);
         const v16 w = T * a_seg;
+        /* Where in the segment the light is scattered toward the camera, on average: the
+         * fraction frac = 1/tau - e^-tau / (1 - e^-tau) of its length (1/2 for thin segments,
+         * ~1/tau for opaque ones). Reading the source there rather than at the midpoint makes
+         * the segment integral exact for a source varying linearly along it; the density
+         * stays the midpoint's. Series below H_SERIES_BELOW (the direct form cancels; its 0/0
+         * at tau = 0 is never selected). */
+        const v16 frac = select(1.0f / tau - e / a_seg,
+                                0.5f - tau * (1.0f / 12.0f - tau * tau * (1.0f / 720.0f)),
+                                tau < H_SERIES_BELOW);
+        const v16 ts = ta + frac * len;
+        const v16 rx = ox + ts * dx, ry = oy + ts * dy, rz = oz + ts * dz;
 #if LIT
         /* Segments where all 16 lanes are empty add nothing: skip the light lookup. */
         if (any(tau > 0.0f)) {
             /* Optical depth toward the light, trilinear (exact along the light in homogeneous
              * media, where trilinear T would not be), then T_light = exp(-tau_l). */
             const v16 tau_l = lookup16(light_tau, ln, ln, ln,
-                                       (qx - cube_min.x) / lcell - 0.5f,
-                                       (qy - cube_min.y) / lcell - 0.5f,
-                                       (qz - cube_min.z) / lcell - 0.5f);
+                                       (rx - cube_min.x) / lcell - 0.5f,
+                                       (ry - cube_min.y) / lcell - 0.5f,
+                                       (rz - cube_min.z) / lcell - 0.5f);
             S += w * exp(-tau_l);
 #if MS_SOURCE == 1 && MS_OCTAVES > 1
             /* T_light^(a^i) = exp(-a^i tau_l). */
@@ -307,9 +320,9 @@ __kernel void raymarch(
             }
             M += w * f;
 #elif MS_SOURCE == 2
-            const v16 ux = (qx - gmin.x) / gcell.x - 0.5f;
-            const v16 uy = (qy - gmin.y) / gcell.y - 0.5f;
-            const v16 uz = (qz - gmin.z) / gcell.z - 0.5f;
+            const v16 ux = (rx - gmin.x) / gcell.x - 0.5f;
+            const v16 uy = (ry - gmin.y) / gcell.y - 0.5f;
+            const v16 uz = (rz - gmin.z) / gcell.z - 0.5f;
 #if MS_CHANNELS == 1
             M += w * lookup16(ms_grid, gx, gy, gz, ux, uy, uz);
 #else
@@ -321,13 +334,9 @@ __kernel void raymarch(
         }
 #endif
         A += w;
-        /* Mean-distance term h(tau) = (1 - (1 + tau) e^-tau) / tau (series for thin segments;
-         * the direct form's 0/0 at tau = 0 is never selected). */
-        const v16 e = exp(-tau);
-        const v16 h = select((a_seg - tau * e) / tau,
-                             tau * (0.5f - tau * (1.0f / 3.0f - tau * (0.125f - tau * (1.0f / 30.0f)))),
-                             tau < H_SERIES_BELOW);
-        D += T * (ta * a_seg + len * h);
+        /* Depth: the same mean position, t_a + frac * len, weighted by this segment's share
+         * of the extinction (exact for a constant sigma_t over the segment). */
+        D += w * ts;
         T *= e;
         k += select((v16)(0.0f), (v16)(1.0f), active);
     }

@@ -1,0 +1,366 @@
+"""cl/raymarch.cl against reference/raymarch.py, and the ray marcher's physics and shortcuts.
+
+Kernel vs twin tolerance: every layer within 2e-5 x the layer's largest value (absolute).
+The kernel marches in float32 (positions, transmittance products and sums over up to ~100
+segments each carry ~1e-7 relative rounding per operation; positions move lookups by
+<= 1e-6 voxel), the twin in float64 on the same float32 inputs; measured differences are
+3e-7..3e-6 of the layer maximum (7e-6 for the tiny single-scattering layer of the opaque
+grid), so the bound has a margin of 3 or more without hiding a real error (a one-segment
+shift or a wrong sample point changes layers by >= 1e-3 of their maximum).
+Empty-space skipping and the scene shortcuts must not change the image: those tests compare
+bit for bit (skipping) or within 2e-6 relative (different -D builds may contract multiply-adds
+differently: a few float32 ULP).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from clvol.errors import ClvolError
+from clvol.kernels import raymarch as kraymarch
+from clvol.kernels.majorant import build_majorant
+from clvol.raymarch import MsGrid, Octaves, render_raymarch
+from clvol.scene import scene_from_dict
+from clvol.volume.grid import Grid
+from reference import raymarch as rraymarch
+from reference.phase import phase_eval
+
+LAYER_NAMES = ("total", "single", "multiple", "alpha", "depth")
+REL_TOL = 2e-5
+
+
+def _basis(origin, target, up=(0.0, 1.0, 0.0)):
+    f = np.subtract(target, origin, dtype=np.float64)
+    f /= np.linalg.norm(f)
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    return f, r, np.cross(r, f)
+
+
+def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), seed=0):
+    """Keyword arguments shared by the kernel wrapper and the twin (float32-exact values)."""
+    rs = np.random.default_rng(seed)
+    shape = (7, 5, 9)                                      # nz, ny, nx: odd, non-cubic
+    density = rs.random(shape).astype(np.float32)
+    density[:, :, :4] = 0.0                                # an empty slab for the skipper
+    bmin = np.array([-0.5, -0.4, -0.3], np.float32).astype(np.float64)
+    bmax = np.array([0.4, 0.3, 0.5], np.float32).astype(np.float64)
+    scale, width, height = 6.0, 13, 11
+    origin, target = np.array([0.3, 0.8, 2.0]), np.zeros(3)
+    up = (0.0, 1.0, 0.0)
+    if case == "empty":
+        density[:] = 0.0
+    elif case == "opaque":
+        density[:] = 1.0
+        scale = 1e4                                        # ~100 optical depths per voxel
+    elif case == "inside":
+        origin, target = np.array([0.1, -0.1, 0.2]), np.array([-0.4, 0.0, -0.3])
+        width, height = 9, 7
+    elif case == "axis":
+        origin, target = np.array([0.0, 0.0, 2.0]), np.zeros(3)   # forward = -z exactly
+        width, height = 9, 9
+    elif case == "graze":
+        # Eye in the plane of the top face, looking along -z: the middle row (odd height,
+        # sy = 0) travels inside that face plane.
+        origin = np.array([0.0, bmax[1], 2.0])
+        target = np.array([0.0, bmax[1], 0.0])
+        width, height = 7, 5
+    f, r, u = _basis(origin, target, up)
+    block = 2
+    # A smooth, varied optical-depth field over a cube holding the box (any field will do
+    # for kernel vs twin; the physical one is tested below).
+    n = 8
+    zz, yy, xx = np.meshgrid(*(np.arange(n),) * 3, indexing="ij")
+    light_tau = (0.3 * xx + 0.5 * (n - 1 - yy) + 0.1 * zz * xx / n).astype(np.float32)
+    if case == "opaque":
+        light_tau *= 100                                   # T_light underflows to 0
+    ms_grid = None
+    if source == "grid1":
+        ms_grid = (0.05 + 0.1 * rs.random((1, 4, 3, 5))).astype(np.float32)
+    elif source == "grid3":
+        ms_grid = (0.05 + 0.1 * rs.random((3, 4, 3, 5))).astype(np.float32)
+    n_oct, a, b, c = octaves
+    return dict(
+        density=density, bbox_min=bmin, bbox_max=bmax, density_scale=scale,
+        majorant=build_majorant(density, block), block=block,
+        light_tau=light_tau, cube_min=np.array([-0.5, -0.5, -0.5]), cube_size=1.0,
+        ms_grid=ms_grid, ms_bbox_min=np.array([-0.45, -0.4, -0.3]),
+        ms_bbox_max=np.array([0.4, 0.25, 0.5]),
+        origin=origin, forward=f, right=r, up=u,
+        tan_half=math.tan(math.radians(40.0) / 2), width=width, height=height,
+        light_dir=np.array([0.6, 0.8, 0.0]), irradiance=(1.0, 0.9, 0.8),
+        albedo=(0.9, 0.8, 0.7), lobes=[(0.8, 0.7), (-0.3, 0.3)], background=(0.1, 0.2, 0.3),
+        source="grid" if source.startswith("grid") else source,
+        octaves=n_oct, a=a, b=b, c=c, step=0.05, threshold=0.0)
+
+
+def _f32(kw):
+    """What the kernel sees: geometry rounded to float32 (the twin then runs in float64)."""
+    out = dict(kw)
+    for key in ("bbox_min", "bbox_max", "cube_min", "ms_bbox_min", "ms_bbox_max", "origin",
+                "forward", "right", "up", "light_dir"):
+        out[key] = np.asarray(kw[key], np.float32).astype(np.float64)
+    for key in ("tan_half", "density_scale", "step", "cube_size"):
+        out[key] = float(np.float32(kw[key]))
+    return out
+
+
+def _assert_layers_close(got, want, rel=REL_TOL):
+    for name in LAYER_NAMES:
+        scale = max(float(np.abs(want[name]).max()), 1e-30)
+        err = float(np.abs(got[name] - want[name]).max())
+        assert err <= rel * scale, f"layer {name}: max |kernel - twin| = {err:.3g} > {rel} x {scale:.3g}"
+
+
+@pytest.mark.parametrize("case", ["odd", "inside", "axis", "graze", "empty", "opaque"])
+def test_kernel_matches_twin(case):
+    kw = _f32(_inputs(case))
+    got = kraymarch.raymarch(**kw)
+    want = rraymarch.raymarch(**kw)
+    _assert_layers_close(got, want)
+    if case == "empty":
+        # Nothing in the box: the background alone, no alpha, depth 0 by definition.
+        np.testing.assert_array_equal(got["alpha"], 0.0)
+        np.testing.assert_array_equal(got["depth"], 0.0)
+        np.testing.assert_allclose(got["total"], np.broadcast_to([0.1, 0.2, 0.3], got["total"].shape),
+                                   rtol=1e-7)
+    if case == "opaque":
+        hit = want["alpha"] > 0
+        assert hit.any()
+        np.testing.assert_allclose(got["alpha"][hit], 1.0, atol=1e-6)
+        assert np.all(got["total"][hit] < 1e-6)        # T_light ~ 0 and no background through
+
+
+@pytest.mark.parametrize("source,octaves", [("none", (3, 0.5, 0.5, 0.5)),
+                                            ("wrenninge", (5, 0.7, 0.4, 0.9)),
+                                            ("wrenninge", (1, 0.5, 0.5, 0.5)),
+                                            ("grid1", (3, 0.5, 0.5, 0.5)),
+                                            ("grid3", (3, 0.5, 0.5, 0.5))])
+def test_kernel_matches_twin_sources(source, octaves):
+    kw = _f32(_inputs("odd", source, octaves))
+    got = kraymarch.raymarch(**kw)
+    want = rraymarch.raymarch(**kw)
+    _assert_layers_close(got, want)
+    if source == "none" or octaves[0] == 1:
+        np.testing.assert_array_equal(got["multiple"], 0.0)
+    else:
+        assert got["multiple"].max() > 1e-3 * got["single"].max()
+
+
+def test_kernel_matches_twin_isotropic_and_unlit():
+    kw = _f32(_inputs("odd"))
+    kw["lobes"] = []
+    _assert_layers_close(kraymarch.raymarch(**kw), rraymarch.raymarch(**kw))
+    kw["lit"] = False
+    got = kraymarch.raymarch(**kw)
+    _assert_layers_close(got, rraymarch.raymarch(**kw))
+    np.testing.assert_array_equal(got["single"], 0.0)
+
+
+@pytest.mark.oclgrind
+def test_raymarch_tiny():
+    """One full tile and one partial tile (5 x 3 pixels), a 3 x 2 x 3 grid."""
+    kw = _inputs("odd")
+    rs = np.random.default_rng(3)
+    kw["density"] = rs.random((3, 2, 3)).astype(np.float32)
+    kw["majorant"] = build_majorant(kw["density"], 2)
+    kw["light_tau"] = kw["light_tau"][:3, :3, :3].copy()
+    kw.update(width=5, height=3, step=0.2)
+    kw = _f32(kw)
+    _assert_layers_close(kraymarch.raymarch(**kw), rraymarch.raymarch(**kw))
+
+
+def test_skipping_is_exact_and_uses_the_majorant():
+    kw = _f32(_inputs("odd"))
+    kw["density"][:, :, 4:6] = 0.0           # more empty blocks
+    kw["majorant"] = build_majorant(kw["density"], 2)
+    skip = kraymarch.raymarch(**kw)
+    full = kraymarch.raymarch(**dict(kw, skip_empty=False))
+    for name in LAYER_NAMES:
+        np.testing.assert_array_equal(skip[name], full[name], err_msg=name)
+    # Power check: a majorant that wrongly says "empty" over occupied blocks must change
+    # the image, or the skipper is not consulting it at all.
+    wrong = kw["majorant"].copy()
+    wrong[:, :, -1] = 0.0
+    lied = kraymarch.raymarch(**dict(kw, majorant=wrong))
+    assert np.abs(lied["alpha"] - skip["alpha"]).max() > 1e-3
+
+
+# --------------------------------------------------------------------------- physics
+
+def _scene(**over):
+    data = {
+        "volume": {"generator": "cloud", "seed": 2, "resolution": 24},
+        "medium": {"preset": "cloud", "density_scale": 30.0},
+        "light": {"direction": [0.6, 0.9, 0.3], "irradiance": [1.0, 1.0, 1.0]},
+        "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0],
+                   "fov_y": 30.0, "width": 24, "height": 20},
+    }
+    for key, value in over.items():
+        table, field = key.split(".")
+        if value is None:
+            data[table].pop(field, None)
+        else:
+            data[table][field] = value
+    return scene_from_dict(data, "<test>")
+
+
+def test_homogeneous_box_matches_closed_form():
+    """A uniform box lit from +y, seen along -z: every term has a closed form.
+
+    The optical-depth field toward the light is sigma (y_max - y), linear in y, so its
+    trilinear reading is exact (except in the top half voxel, where the lookup clamps: rows
+    there are left out). Along a ray y(t) = o_y + t d_y, T_cam = exp(-sigma (t - t0)), so
+        single = albedo E f(d_y) [e^{-sigma (0.5 - y(t0))} - e^{-sigma (0.5 - y(t1)) - tau}] / (1 - d_y),
+        alpha = 1 - e^-tau,   depth = t0 + (1 - (1 + tau) e^-tau) / (sigma alpha),
+    tau = sigma (t1 - t0). Tolerance 1e-4 relative: a float32 march (the midpoint rule's
+    error for a source varying by sigma d_y per unit length is ~1e-9 here).
+    """
+    n, sigma = 16, 3.0
+    grid = Grid(np.ones((n, n, n), np.float32), np.array([-0.5] * 3), np.array([0.5] * 3))
+    scene = _scene(**{"medium.density_scale": sigma, "medium.preset": None,
+                      "medium.albedo": 0.8, "medium.phase": {"type": "hg", "g": 0.5},
+                      "light.direction": [0.0, 1.0, 0.0], "light.irradiance": [2.0, 2.0, 2.0],
+                      "camera.origin": [0.0, 0.0, 40.0], "camera.fov_y": 1.0,
+                      "camera.width": 9, "camera.height": 9})
+    res = render_raymarch(scene, grid=grid, ms="none", step=0.25, threshold=0.0)
+    cam = scene.camera
+    d = cam.pixel_directions()
+    o = np.array(cam.origin)
+    t0 = (0.5 - o[2]) / d[..., 2]                     # enters at z = 0.5, leaves at z = -0.5
+    t1 = (-0.5 - o[2]) / d[..., 2]
+    tau = sigma * (t1 - t0)
+    y0, y1 = o[1] + t0 * d[..., 1], o[1] + t1 * d[..., 1]
+    alpha = -np.expm1(-tau)
+    dy = d[..., 1]
+    f = phase_eval(dy, [(0.5, 1.0)])                  # mu = dot(l, d), l = +y
+    single = 0.8 * 2.0 * f * (np.exp(-sigma * (0.5 - y0))
+                              - np.exp(-sigma * (0.5 - y1) - tau)) / (1.0 - dy)
+    inner = np.maximum(y0, y1) < 0.5 - 1.0 / (2 * n)
+    depth = t0 + (1 - (1 + tau) * np.exp(-tau)) / (sigma * alpha)
+    np.testing.assert_allclose(res.layers["alpha"], alpha, rtol=1e-4)
+    np.testing.assert_allclose(res.layers["depth"], depth, rtol=1e-4)
+    np.testing.assert_allclose(res.layers["single"][..., 0][inner], single[inner], rtol=1e-4)
+    assert inner.sum() >= 40
+
+
+def test_constant_ms_grid_gives_alpha_times_source():
+    """F_ms = c everywhere: multiple = albedo E c alpha exactly (sum of T (1 - e^-tau) = alpha)."""
+    scene = _scene(**{"medium.albedo": [0.9, 0.6, 0.3], "light.irradiance": [1.0, 2.0, 0.5]})
+    g = MsGrid(np.full((3, 4, 5, 3), 0.25, np.float32), (-0.5,) * 3, (0.5,) * 3)
+    res = render_raymarch(scene, ms="grid", ms_grid=g)
+    want = res.layers["alpha"][..., None] * 0.25 * np.array([0.9, 1.2, 0.15])
+    np.testing.assert_allclose(res.layers["multiple"], want, rtol=1e-5, atol=1e-7)
+    assert res.layers["alpha"].max() > 0.5
+
+
+def test_early_termination_error_is_within_its_bound():
+    """Stopping at T_cam < eps misses at most eps x the largest source radiance of the ray:
+    albedo E (f(mu) + sum_i b^i f(mu; g c^i)) (T_light <= 1) or the background."""
+    scene = _scene(**{"light.environment": [0.3, 0.3, 0.3], "medium.density_scale": 80.0})
+    eps = 0.05
+    exact = render_raymarch(scene, threshold=0.0)
+    cut = render_raymarch(scene, threshold=eps)
+    d = scene.camera.pixel_directions()
+    mu = d @ np.asarray(scene.light.direction)
+    lobes = [(lo.g, lo.weight) for lo in scene.medium.phase.lobes]
+    f_max = phase_eval(mu, lobes) + sum(0.5 ** i * phase_eval(mu, [(g * 0.5 ** i, w) for g, w in lobes])
+                                        for i in (1, 2))
+    bound = eps * np.maximum(0.999 * f_max, 0.3)
+    err = np.abs(cut.layers["total"] - exact.layers["total"]).max(axis=-1)
+    assert np.all(err <= bound * (1 + 1e-4) + 1e-7)
+    assert err.max() > 0.01 * bound.max()   # the threshold did cut some rays
+
+
+@pytest.mark.parametrize("over", [
+    {"medium.phase": {"type": "isotropic"}},                     # constant phase
+    {"medium.albedo": 0.0},                                        # nothing scatters
+    {"light.irradiance": [0.0, 0.0, 0.0]},                         # nothing lit
+])
+def test_shortcut_gives_the_general_image(over):
+    scene = _scene(**over)
+    fast = render_raymarch(scene)
+    general = render_raymarch(scene, shortcuts=False)
+    assert fast.header["skipped"] != general.header["skipped"]
+    for name in LAYER_NAMES:
+        np.testing.assert_allclose(fast.layers[name], general.layers[name], rtol=2e-6, atol=0,
+                                   err_msg=name)
+
+
+def test_grey_grid_shortcut_gives_the_general_image():
+    scene = _scene(**{"medium.albedo": 0.9})
+    rs = np.random.default_rng(5)
+    g = MsGrid((0.1 * rs.random((5, 4, 6))).astype(np.float32), (-0.5,) * 3, (0.5,) * 3)
+    fast = render_raymarch(scene, ms="grid", ms_grid=g)
+    general = render_raymarch(scene, ms="grid", ms_grid=g, shortcuts=False)
+    assert "colour channels 2 and 3" in fast.header["skipped"]
+    assert "1 channel" in fast.header["simulated"] and "3 channel" in general.header["simulated"]
+    for name in LAYER_NAMES:
+        np.testing.assert_allclose(fast.layers[name], general.layers[name], rtol=2e-6, atol=0,
+                                   err_msg=name)
+
+
+def test_header_lists_simulated_and_skipped_effects():
+    r = render_raymarch(_scene(**{"light.environment": [0.2, 0.2, 0.2]}), ms="none")
+    assert "single scattering" in r.header["simulated"]
+    assert "background" in r.header["simulated"]
+    assert "multiple scattering (--ms none)" in r.header["skipped"]
+    assert "environment in-scattering" in r.header["skipped"]
+    r = render_raymarch(_scene(**{"medium.albedo": 0.0}))
+    assert "single and multiple scattering" in r.header["skipped"]
+    assert r.header["raymarch.light_resolution"] == 0        # no light field was built
+    np.testing.assert_array_equal(r.layers["total"], 0.0)
+    assert r.layers["alpha"].max() > 0.3
+
+
+def test_step_halving_changes_the_image_little():
+    """Halving the step from 1 to 0.5 voxel changes the image by < 2% of its mean (mean
+    absolute difference per pixel and channel) and by < 0.5 MRPNN units, on a cloud of ~1
+    optical depth per voxel (measured: ~1%, 0.3). The segment integral is second order, so
+    the next halving must change it at least twice less (measured: ~3x less)."""
+    from clvol.metrics import mrpnn_metric
+    scene = _scene(**{"volume.resolution": 32, "camera.width": 32, "camera.height": 32})
+    imgs = [render_raymarch(scene, step=s, threshold=0.0).layers["total"] for s in (1.0, 0.5, 0.25)]
+    d1 = np.abs(imgs[0] - imgs[1]).mean() / imgs[1].mean()
+    d2 = np.abs(imgs[1] - imgs[2]).mean() / imgs[2].mean()
+    assert d1 < 0.02
+    assert d2 < 0.5 * d1
+    assert mrpnn_metric(imgs[0], imgs[1]) < 0.5
+
+
+def test_supersampling_is_a_box_filter():
+    scene = _scene()
+    s2 = render_raymarch(scene, supersample=2)
+    from dataclasses import replace
+    big = replace(scene, camera=replace(scene.camera, width=48, height=40))
+    full = render_raymarch(big)
+    want = full.layers["total"].reshape(20, 2, 24, 2, 3).mean(axis=(1, 3))
+    np.testing.assert_allclose(s2.layers["total"], want, rtol=1e-6, atol=1e-9)
+    a = full.layers["alpha"].reshape(20, 2, 24, 2)
+    ad = (full.layers["alpha"] * full.layers["depth"]).reshape(20, 2, 24, 2)
+    m = a.sum(axis=(1, 3)) > 0
+    want_depth = ad.sum(axis=(1, 3))[m] / a.sum(axis=(1, 3))[m]
+    np.testing.assert_allclose(s2.layers["depth"][m], want_depth, rtol=1e-5)
+
+
+@pytest.mark.parametrize("kwargs,text", [
+    ({"step": 0.0}, "step = 0.0"),
+    ({"threshold": 1.0}, "threshold = 1.0"),
+    ({"octaves": 9}, "octaves = 9"),
+    ({"a": 0.0}, "ms_a = 0.0"),
+    ({"b": 1.5}, "ms_b = 1.5"),
+    ({"ms": "network"}, "ms = 'network'"),
+    ({"ms": "grid"}, "needs an ms grid"),
+    ({"light_resolution": 100}, "light_resolution = 100"),
+    ({"supersample": 0}, "supersample = 0"),
+])
+def test_bad_options_are_named(kwargs, text):
+    with pytest.raises(ClvolError, match=text.replace("(", r"\(").replace(".", r"\.")):
+        render_raymarch(_scene(), **kwargs)
+
+
+def test_octaves_energy_flag():
+    assert Octaves(3, 0.5, 0.5, 0.5).energy_conserving
+    assert not Octaves(3, 0.4, 0.6, 0.5).energy_conserving
