@@ -14,13 +14,18 @@ Per query (one point p, view direction omega toward the camera, one colour chann
   features  float32 [N][3][N_POINTS]     type-major: index FEATURE_TYPES
       density        log1p(optical thickness of one voxel of the layer's mip level),
                      i.e. log1p(sigma_t,i * dx_i)  (DESIGN.md: invariant to scale x size)
-      transmittance  the combined graded transmittance sum_l w_l T_l + b (rendering), in
-                     the units of T (no log); training uses ``levels`` below instead
+      transmittance  the combined graded transmittance sum_m w_m T_m + b (rendering), in
+                     the units of T (no log); training uses ``levels`` below instead.
+                     Each T_m is sampled at the voxel centres of the point's *density* level
+                     and interpolated trilinearly to the point with the density's weights, so
+                     density and transmittance share one footprint (and one interleaved read
+                     at render time, from a grid baked per level with sum_m w_m T_m + b)
       phase          log1p(volume-phase feature)  (seed eq. 5; the centre point uses the
                      plain phase function f(dot(-l, omega)))
-  levels    float32 [N][N_LEVELS][N_POINTS]  every graded transmittance level T_l at every
-            point (training only; the model learns the per-level weights: the seed's 3D-CNN
-            as a 1x1x1 convolution across levels)
+  levels    float32 [N][N_LEVELS][N_POINTS]  every graded transmittance level T_m at every
+            point, on the density level's footprint as above (training only; the model learns
+            the per-level weights: the seed's 3D-CNN as a 1x1x1 convolution across levels).
+            The render feature equals sum_m w_m levels[m] + b (tests/test_gather.py).
   config    float32 [N][CONFIG_DIM]        fields CONFIG_FIELDS:
       g0 g1 g2   HG lobe asymmetries (unused lobes: g 0, weight 0)
       w0 w1 w2   lobe weights (sum 1)
@@ -79,7 +84,7 @@ def contract_dict(base_resolution: int = DEFAULT_BASE_RESOLUTION,
         "base_resolution": int(base_resolution),
         "n_levels": n_levels(base_resolution),
         "lambda": float(lam),
-        "template_hash": template_hash,
+        "template_hash": template_hash,  # clvol.templates.load_templates().sha256
         "frame": "z = l (toward light), x = omega's part perpendicular to l, y = z x x",
         "units": {"density": "log1p(tau_voxel)", "transmittance": "T", "phase": "log1p(f*f*)",
                   "alpha": "radians"},
