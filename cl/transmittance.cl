@@ -128,28 +128,34 @@ typedef int veci;
 #error "SWEEP_WIDTH must be 1 or 16"
 #endif
 
-/* Padded copy of a level for a sweep along axis a ("sweep layout"): S[ka][vv][uu], the
+/* Padded copy of a level for a sweep along axis a ("sweep layout"): S[ka][vv][uu] holds the
  * level's voxel (u, v, k) at ka = k + 1, vv = v + SWEEP_PAD, uu = u + SWEEP_PAD, every index
- * clamped into the level, so a trilinear lookup in S at any lateral position in
- * [-2, n + 1] and any a-position in [-0.5, n - 0.5] returns the level's clamped field
- * without bounds tests, and rows are contiguous along u whatever the light's axis.
- * Plane size (n + 2 PAD)^2, row stride n + 2 PAD; the buffer carries SWEEP_SLACK extra
- * floats at its end because the last work-item's vector lanes run past the last row. */
-#define SWEEP_PAD 3
+ * clamped into the level. A trilinear lookup in S at lateral positions in
+ * [-SWEEP_PAD, n + 2 SWEEP_PAD - 2] (u) or [-SWEEP_PAD, n + SWEEP_PAD - 1] (v) and any
+ * a-position in [-0.5, n - 0.5] returns the level's clamped field without bounds tests, and
+ * rows are contiguous along u whatever the light's axis. The column work-items of a block
+ * reach up to 16 voxels beyond the level laterally (15 steps of drift) plus their 15 extra
+ * lanes on the u side: hence the padding. */
+#define SWEEP_PAD 17
+#define SWEEP_RS(n) ((n) + 3 * SWEEP_PAD)      /* row length (u) */
+#define SWEEP_RV(n) ((n) + 2 * SWEEP_PAD + 1)  /* rows per plane (v) */
+#ifndef SWEEP_BLOCK
+#define SWEEP_BLOCK 16                         /* sweep steps per launch */
+#endif
 
 __kernel void sweep_layout(__global const float *pyr, const int off, const int n, const int a,
                            __global float *S, const int s_off) {
     const int i = get_global_id(0);
-    const int w = n + 2 * SWEEP_PAD;
-    if (i >= (n + 2) * w * w) return;
-    const int uu = i % w, vv = (i / w) % w, ka = i / (w * w);
+    const int rs = SWEEP_RS(n), rv = SWEEP_RV(n);
+    if (i >= (n + 2) * rv * rs) return;
+    const int uu = i % rs, vv = (i / rs) % rv, ka = i / (rs * rv);
     const int u = clamp(uu - SWEEP_PAD, 0, n - 1), v = clamp(vv - SWEEP_PAD, 0, n - 1);
     const int k = clamp(ka - 1, 0, n - 1);
     S[s_off + i] = pyr[off + elem_uva(n, a, u, v, k)];
 }
 
-/* Bilinear lookup in one plane of S for the lanes' row: row0 points at (vv0, uu of lane 0 +
- * node offset), i.e. the lower-left node of every lane; gu, gv the (uniform) fractions. */
+/* Bilinear lookup in one plane of S for the lanes' row: row0 points at the lower-left node
+ * of lane 0 (the lanes' nodes follow contiguously); gu, gv the (uniform) fractions. */
 __attribute__((always_inline))
 vecf plane_bilinear(__global const float *row0, int rs, float gu, float gv) {
     vecf r0 = mix(VLOAD(row0), VLOAD(row0 + 1), gu);
@@ -157,19 +163,19 @@ vecf plane_bilinear(__global const float *row0, int rs, float gu, float gv) {
     return mix(r0, r1, gv);
 }
 
-/* The clamped field at lateral positions (w + du, wv + dv) of every lane w = w0 + lane
- * (window-local column index, equal to the level index offset by the window origin, which
- * the caller has folded into p0 = &S[plane 0][row of wv][uu of w0]) and a-position pa. */
+/* The clamped field for every lane at lateral S indices (uu + du, vv + dv), du, dv offsets in
+ * [-2, 1) given as (integer part already folded into uu / vv) + fraction, and a-position pa:
+ * uu is lane 0's S column index, vv the row index. */
 __attribute__((always_inline))
-vecf field_at(__global const float *p0, int rs, int ps, float du, float dv, float pa) {
-    const float fu_ = floor(du), fv_ = floor(dv);
+vecf field_at(__global const float *S, int rs, int ps, int uu, int vv, float gu, float gv,
+              float pa) {
     const float ka = pa + 1.0f;                  /* plane index in S (>= 0.5) */
-    const int p = (int)ka;
+    const int p = (int)ka;                       /* non-negative: the cast is a floor */
     const float ga = ka - (float)p;
-    __global const float *row = p0 + (size_t)p * (size_t)ps + (int)fv_ * rs + (int)fu_;
-    vecf v0 = plane_bilinear(row, rs, du - fu_, dv - fv_);
+    __global const float *row = S + (size_t)p * (size_t)ps + (size_t)vv * (size_t)rs + (size_t)uu;
+    vecf v0 = plane_bilinear(row, rs, gu, gv);
     if (ga == 0.0f) return v0;
-    return mix(v0, plane_bilinear(row + ps, rs, du - fu_, dv - fv_), ga);
+    return mix(v0, plane_bilinear(row + ps, rs, gu, gv), ga);
 }
 
 /* Parameter interval of a lateral segment b -> b + d inside [-0.5, n - 0.5]. */
@@ -186,122 +192,170 @@ vecf field_at(__global const float *p0, int rs, int ps, float du, float dv, floa
         }                                                                                \
     } while (0)
 
-/* One launch per sweep step j of one level (see the header and reference/transmittance.py).
- * Work-items, in three ranges:
- *  [0, n_col)             add segment j to the columns of window j (window-local column
- *                         w = 0..n, row wv = 0..n; lanes beyond n add nothing). Reads colP,
- *                         writes colC. The field at a segment's start is the field at the
- *                         previous segment's end, kept per column in rhoP / rhoC, except on
- *                         step 0 and for columns that just entered the window (fresh: bit 0
- *                         column w = 0, bit 1 w = n, bit 2 row 0, bit 3 row n), where it is
- *                         evaluated.
- *  [n_col, n_col + n_vox) voxels of step j - 1 (slice kv) from colP (the columns after step
- *                         j - 1), written as exp(-tau) or tau.
- *  [.., + n_flush)        a = x with float16 only: the voxel rows run along y, stride n in the
- *                         output, so voxels go to a two-slab buffer tmp[2][16][n][n] first and
- *                         each completed slab of 16 slices (x = flush_kb .. flush_kb + 15) is
- *                         written as contiguous x-runs.
- * Column buffers are [rows][cw] (global column index = window origin + window-local index),
- * ping-ponged between launches: a column never re-enters a window it has left and all start
- * at 0, so nothing needs copying.
+/* Split an offset x in (-2, 2) into floor and fraction without floor() (slow on PoCL). */
+__attribute__((always_inline))
+int split_offset(float x, float *frac) {
+    int i = (int)(x + 2.0f) - 2;                 /* x + 2 > 0: the cast is a floor */
+    *frac = x - (float)i;
+    return i;
+}
+
+/* One launch per block of SWEEP_BLOCK sweep steps of one level (launch b = 0 .. nb):
+ *  - column work-items (block b < nb): each marches 16 light-ray columns (global column
+ *    indices c0 .. c0 + 15 in row cv) through the block's steps: per step, tau +=
+ *    kscale * seg * c * (rho_start + 4 rho_mid + rho_end) (the start of a segment is the end of
+ *    the previous one, so only the block's first step evaluates it), and tau after every step
+ *    goes to the block buffer bb[b % 2] for the voxels. tau persists in col (in place: one
+ *    owner per column and launch; all zero before the first launch).
+ *  - voxel work-items (block b - 1 >= 0): each voxel of those steps' slices takes the bilinear
+ *    interpolation of its 4 columns from bb[(b - 1) % 2]. Lanes run along u (rows contiguous
+ *    in the output when u = x); for a = x they run along x instead (16 consecutive slices
+ *    form one block, so the output is written as contiguous 16-voxel runs).
  *
  *   S, s_off      sweep layout of the level (sweep_layout); n voxels per side; a the sweep axis
  *   sa, su, sv    sign of l_a; lateral offsets per voxel along a (|su|, |sv| <= 1)
- *   kscale        scale / |l_a| / 6 (Simpson's weights over a segment of one voxel along a)
- *   cw            row length of the column buffers colA/B, rhoA/B (ping-pong by the parity of j)
- *   itab[j]       int row (SWEEP_ITAB): do_cols (step j < n), k (its slice), first (j == 0: the
- *                 segment starts at the face, half a voxel), fresh, cu0, cv0 (window origin in
- *                 the column buffers), do_vox (j >= 1), kv (slice of step j - 1), vu0, vv0 (its
- *                 window origin), flush_kb (slab to write, -1 for none)
- *   ftab[j]       fu, fv: fractional parts of j * (su, sv); gu, gv: the same for step j - 1
- *   out_depth, out, out_off        output (level layout [z][y][x] at element offset out_off)
+ *   kscale        scale / |l_a| / 6 (Simpson's weights over a segment one voxel long along a)
+ *   col, cw, ou, ov   column tau, [rows][cw], global column (cu, cv) at (cv + ov) * cw + cu + ou
+ *   bb, bw, brows     block buffers [2][16][brows][bw], block-local column (cu - umin_b, cv - vmin_b)
+ *   stab[j], sftab[j] step j: int (k, iu, iv): its slice and floor(j * (su, sv));
+ *                     float (fu, fv): the fractional parts (the columns' drift after j steps)
+ *   btab[b]       int (umin, vmin, chunks, rows): the block's column range (from its first
+ *                 window to its last) and work-item counts
+ *   b, nb         this launch; number of blocks
+ *   out_depth, out, out_off   output (level layout [z][y][x] at element offset out_off)
+ *   n_col         work-items reserved for the columns (max over blocks of rows * chunks);
+ *                 the voxels take the next n^2 / 16 (float16, a = x) or 16 n^2 / SWEEP_WIDTH
  */
-#define SWEEP_ITAB 12
-__kernel void transmittance_sweep_step(
+__kernel void transmittance_sweep_block(
         __global const float *S, const int s_off, const int n, const int a, const int sa,
-        const float su, const float sv, const float kscale, const int cw,
-        __global const int *itab, __global const float *ftab, const int j,
-        __global float *colA, __global float *colB, __global float *rhoA, __global float *rhoB,
-        const int out_depth, __global float *out, const int out_off, __global float *tmp,
-        const int n_col, const int n_vox) {
-    /* per-step parameters (one table row per launch: setting one argument per launch keeps
-     * the host's enqueue cost small) */
-    __global const int *it = itab + SWEEP_ITAB * j;
-    const int do_cols = it[0], k = it[1], first = it[2], fresh = it[3], cu0 = it[4], cv0 = it[5];
-    const int do_vox = it[6], kv = it[7], vu0 = it[8], vv0 = it[9], flush_kb = it[10];
-    const float fu = ftab[4 * j], fv = ftab[4 * j + 1], gu = ftab[4 * j + 2], gv = ftab[4 * j + 3];
-    /* launch j reads what launch j - 1 wrote */
-    __global const float *colP = (j & 1) ? colA : colB;
-    __global float *colC = (j & 1) ? colB : colA;
-    __global const float *rhoP = (j & 1) ? rhoA : rhoB;
-    __global float *rhoC = (j & 1) ? rhoB : rhoA;
+        const float su, const float sv, const float kscale,
+        __global float *col, const int cw, const int ou, const int ov,
+        __global float *bb, const int bw, const int brows,
+        __global const int *stab, __global const float *sftab, __global const int *btab,
+        const int b, const int nb, const int out_depth, __global float *out, const int out_off,
+        const int n_col) {
     const int gid = get_global_id(0);
-    const int rs = n + 2 * SWEEP_PAD, ps = rs * rs;
+    const int rs = SWEEP_RS(n), ps = rs * SWEEP_RV(n);
+    const size_t bplane = (size_t)brows * (size_t)bw;
     if (gid < n_col) {
-        if (!do_cols) return;
-        const int chunks = (n + SWEEP_WIDTH) / SWEEP_WIDTH;       /* lanes over w = 0..n */
-        const int wv = gid / chunks, w0 = (gid - wv * chunks) * SWEEP_WIDTH;
-        if (wv > n) return;
-        const float seg = first ? 0.5f : 1.0f;
-        const vecf w = (float)w0 + LANES;
-        /* lateral offsets from lane w's own index to its end (in slice k) and start */
-        const float eu = -fu, ev = -fv;
-        const float bu = eu + seg * su, bv = ev + seg * sv;
-        __global const float *p0 = S + s_off + (wv + SWEEP_PAD) * rs + (w0 + SWEEP_PAD);
-        const size_t ci = (size_t)(cv0 + wv) * (size_t)cw + (size_t)(cu0 + w0);
-        const vecf r_end = field_at(p0, rs, ps, eu, ev, (float)k);
-        const vecf r_mid = field_at(p0, rs, ps, 0.5f * (eu + bu), 0.5f * (ev + bv),
-                                    (float)k + 0.5f * seg * (float)sa);
-        const int is_fresh = first || ((fresh & 1) && w0 == 0)
-                          || ((fresh & 2) && w0 + SWEEP_WIDTH > n)
-                          || ((fresh & 4) && wv == 0) || ((fresh & 8) && wv == n);
-        const vecf r_beg = is_fresh ? field_at(p0, rs, ps, bu, bv, (float)k + seg * (float)sa)
-                                    : VLOAD(rhoP + ci);
-        /* inside fraction of the lateral segment start -> end */
-        vecf t0u, t1u, t0v, t1v;
-        const vecf begu = w + bu;
-        const vecf begv = (vecf)((float)wv + bv);
-        INSIDE_T(begu, -seg * su, n, t0u, t1u);
-        INSIDE_T(begv, -seg * sv, n, t0v, t1v);
-        vecf c = fmax(fmin(t1u, t1v) - fmax(t0u, t0v), 0.0f);
-        c = VSELECT(c, (vecf)(0.0f), w > (float)n);          /* lanes beyond the window */
-        VSTORE(VLOAD(colP + ci) + (kscale * seg) * c * (r_beg + 4.0f * r_mid + r_end), colC + ci);
-        VSTORE(r_end, rhoC + ci);
-        return;
-    }
-    if (gid < n_col + n_vox) {
-        if (!do_vox) return;
-        const int chunks = (n + SWEEP_WIDTH - 1) / SWEEP_WIDTH;
-        const int i = gid - n_col;
-        const int v = i / chunks, u0 = (i - v * chunks) * SWEEP_WIDTH;
-        if (v >= n) return;
-        __global const float *c0 = colP + (size_t)(vv0 + v) * (size_t)cw + (size_t)(vu0 + u0);
-        const vecf tau = mix(mix(VLOAD(c0), VLOAD(c0 + 1), gu),
-                             mix(VLOAD(c0 + cw), VLOAD(c0 + cw + 1), gu), gv);
-        const vecf val = out_depth ? tau : exp(-tau);
-#if SWEEP_WIDTH == 16
-        if (a == 0) {  /* slab buffer [(kv / 16) % 2][kv % 16][v][u] */
-            const size_t nn = (size_t)n * (size_t)n;
-            VSTORE(val, tmp + (size_t)(((kv >> 4) & 1) * 16 + (kv & 15)) * nn
-                            + (size_t)v * (size_t)n + (size_t)u0);
-            return;
+        /* n_col is a multiple of the work-group size, so a group holds only column items and
+         * all of them reach every barrier. The barrier after each step makes the group's
+         * columns advance together: each step's loads then sweep whole rows of two planes,
+         * which the caches stream, instead of each work-item marching its own pencil through
+         * 16 planes (latency-bound, several times slower on a CPU). */
+        const int live = b < nb;
+        const int umin = live ? btab[4 * b] : 0, vmin = live ? btab[4 * b + 1] : 0;
+        const int chunks = live ? btab[4 * b + 2] : 1;
+        const int r = gid / chunks, m = gid - r * chunks;
+        const int active = live && r < btab[4 * b + 3 * live];
+        const int cv = vmin + r, c0 = umin + m * SWEEP_WIDTH;
+        __global float *colp = col + (size_t)(cv + ov) * (size_t)cw + (size_t)(c0 + ou);
+        __global float *bbp = bb + (size_t)((b & 1) * SWEEP_BLOCK) * bplane
+                                 + (size_t)r * (size_t)bw + (size_t)(m * SWEEP_WIDTH);
+        __global const float *Sl = S + s_off;
+        vecf tau = active ? VLOAD(colp) : (vecf)(0.0f), r_beg = 0.0f;
+        for (int jj = 0; jj < SWEEP_BLOCK; ++jj) {
+            const int j = b * SWEEP_BLOCK + jj;
+            if (!live || j >= n) break;          /* uniform over the launch */
+            if (active) {
+                const int k = stab[3 * j], iu = stab[3 * j + 1], iv = stab[3 * j + 2];
+                const float fu = sftab[2 * j], fv = sftab[2 * j + 1];
+                const float seg = (j == 0) ? 0.5f : 1.0f;  /* step 0 starts at the face */
+                /* lane 0's column relative to the slice's window; its position there is that
+                 * minus (fu, fv); the segment runs from there + seg * (su, sv) to there */
+                const int wu = c0 - iu, wv = cv - iv;
+                float gu, gv;
+                int ou_, ov_;
+                ou_ = split_offset(-fu, &gu);
+                ov_ = split_offset(-fv, &gv);
+                const vecf r_end = field_at(Sl, rs, ps, wu + ou_ + SWEEP_PAD,
+                                            wv + ov_ + SWEEP_PAD, gu, gv, (float)k);
+                ou_ = split_offset(-fu + 0.5f * seg * su, &gu);
+                ov_ = split_offset(-fv + 0.5f * seg * sv, &gv);
+                const vecf r_mid = field_at(Sl, rs, ps, wu + ou_ + SWEEP_PAD,
+                                            wv + ov_ + SWEEP_PAD, gu, gv,
+                                            (float)k + 0.5f * seg * (float)sa);
+                if (jj == 0) {
+                    ou_ = split_offset(-fu + seg * su, &gu);
+                    ov_ = split_offset(-fv + seg * sv, &gv);
+                    r_beg = field_at(Sl, rs, ps, wu + ou_ + SWEEP_PAD, wv + ov_ + SWEEP_PAD,
+                                     gu, gv, (float)k + seg * (float)sa);
+                }
+                /* inside fraction of the lateral segment start -> end */
+                vecf t0u, t1u, t0v, t1v;
+                const vecf begu = (float)wu + LANES + (-fu + seg * su);
+                const vecf begv = (vecf)((float)wv + (-fv + seg * sv));
+                INSIDE_T(begu, -seg * su, n, t0u, t1u);
+                INSIDE_T(begv, -seg * sv, n, t0v, t1v);
+                const vecf c = fmax(fmin(t1u, t1v) - fmax(t0u, t0v), 0.0f);
+                tau += (kscale * seg) * c * (r_beg + 4.0f * r_mid + r_end);
+                VSTORE(tau, bbp + (size_t)jj * bplane);
+                r_beg = r_end;
+            }
+            barrier(CLK_GLOBAL_MEM_FENCE);
         }
-#endif
-        VSTORE(val, out + (size_t)out_off + elem_uva(n, a, u0, v, kv));  /* u = x: contiguous */
+        if (active) VSTORE(tau, colp);
         return;
     }
+    /* voxels of block bp = b - 1 */
+    const int bp = b - 1;
+    if (bp < 0) return;
+    const int i = gid - n_col;
+    const int umin = btab[4 * bp], vmin = btab[4 * bp + 1];
+    __global const float *bbq = bb + (size_t)((bp & 1) * SWEEP_BLOCK) * bplane;
 #if SWEEP_WIDTH == 16
-    /* flush: one work-item per (z, y) = (v, u): 16 slab values -> out[z][y][kb .. kb + 15] */
-    if (flush_kb < 0) return;
-    const int i = gid - n_col - n_vox;
-    if (i >= n * n) return;
-    const size_t nn = (size_t)n * (size_t)n;
-    __global const float *t = tmp + (size_t)(((flush_kb >> 4) & 1) * 16) * nn + (size_t)i;
-    const float16 run = (float16)(t[0], t[nn], t[2 * nn], t[3 * nn], t[4 * nn], t[5 * nn],
-                                  t[6 * nn], t[7 * nn], t[8 * nn], t[9 * nn], t[10 * nn],
-                                  t[11 * nn], t[12 * nn], t[13 * nn], t[14 * nn], t[15 * nn]);
-    vstore16(run, 0, out + (size_t)out_off + (size_t)i * (size_t)n + (size_t)flush_kb);
+    if (a == 0) {
+        /* u = y, v = z; x runs along the sweep, and the block's 16 slices are 16 consecutive
+         * x = kb .. kb + 15: interpolate a 16 (slices) x 16 (y) tile, then write it
+         * transposed as 16 contiguous x-runs. Item i = (v, chunk of y). */
+        const int chunks = n / 16;
+        if (i >= n * chunks) return;
+        const int v = i / chunks, u0 = (i - v * chunks) * 16;
+        const int kb = (sa > 0) ? n - SWEEP_BLOCK - bp * SWEEP_BLOCK : bp * SWEEP_BLOCK;
+        float tile[16 * 16];                     /* [slice jj][y lane] */
+        for (int jj = 0; jj < 16; ++jj) {
+            const int j = bp * SWEEP_BLOCK + jj;
+            const float fu = sftab[2 * j], fv = sftab[2 * j + 1];
+            __global const float *c0 = bbq + (size_t)jj * bplane
+                + (size_t)(stab[3 * j + 2] - vmin + v) * (size_t)bw
+                + (size_t)(stab[3 * j + 1] - umin + u0);
+            const float16 t = mix(mix(vload16(0, c0), vload16(0, c0 + 1), fu),
+                                  mix(vload16(0, c0 + bw), vload16(0, c0 + bw + 1), fu), fv);
+            vstore16(out_depth ? t : exp(-t), jj, tile);
+        }
+        for (int q = 0; q < 16; ++q) {           /* x = kb + x_lane is step jj(x_lane) */
+            float16 run;
+            if (sa > 0)
+                run = (float16)(tile[15 * 16 + q], tile[14 * 16 + q], tile[13 * 16 + q],
+                                tile[12 * 16 + q], tile[11 * 16 + q], tile[10 * 16 + q],
+                                tile[9 * 16 + q], tile[8 * 16 + q], tile[7 * 16 + q],
+                                tile[6 * 16 + q], tile[5 * 16 + q], tile[4 * 16 + q],
+                                tile[3 * 16 + q], tile[2 * 16 + q], tile[16 + q], tile[q]);
+            else
+                run = (float16)(tile[q], tile[16 + q], tile[2 * 16 + q], tile[3 * 16 + q],
+                                tile[4 * 16 + q], tile[5 * 16 + q], tile[6 * 16 + q],
+                                tile[7 * 16 + q], tile[8 * 16 + q], tile[9 * 16 + q],
+                                tile[10 * 16 + q], tile[11 * 16 + q], tile[12 * 16 + q],
+                                tile[13 * 16 + q], tile[14 * 16 + q], tile[15 * 16 + q]);
+            vstore16(run, 0, out + (size_t)out_off
+                             + ((size_t)v * (size_t)n + (size_t)(u0 + q)) * (size_t)n + (size_t)kb);
+        }
+        return;
+    }
 #endif
+    /* lanes along u: item i = (jj, v, chunk) */
+    const int chunks = n / SWEEP_WIDTH;          /* n >= SWEEP_WIDTH, both powers of two */
+    if (i >= SWEEP_BLOCK * n * chunks) return;
+    const int jj = i / (n * chunks), rem = i - jj * (n * chunks);
+    const int v = rem / chunks, u0 = (rem - v * chunks) * SWEEP_WIDTH;
+    const int j = bp * SWEEP_BLOCK + jj;
+    if (j >= n) return;
+    const float fu = sftab[2 * j], fv = sftab[2 * j + 1];
+    __global const float *c0 = bbq + (size_t)jj * bplane
+        + (size_t)(stab[3 * j + 2] - vmin + v) * (size_t)bw + (size_t)(stab[3 * j + 1] - umin + u0);
+    const vecf t = mix(mix(VLOAD(c0), VLOAD(c0 + 1), fu),
+                       mix(VLOAD(c0 + bw), VLOAD(c0 + bw + 1), fu), fv);
+    VSTORE(out_depth ? t : exp(-t), out + (size_t)out_off + elem_uva(n, a, u0, v, stab[3 * j]));
 }
 
 __kernel void combine_levels(__global const float *tgrid, __global const int *offsets,

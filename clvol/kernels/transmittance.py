@@ -128,9 +128,15 @@ def sweep_geometry(light_dir: np.ndarray) -> tuple[int, int, float, float, float
     return a, (1 if l[a] > 0 else -1), l[lat[0]] / la, l[lat[1]] / la, 1.0 / la
 
 
-SWEEP_PAD = 3     # cl/transmittance.cl: lateral padding of the sweep layout
-SWEEP_SLACK = 64  # floats after the last level: the last work-item's lanes read past it
+SWEEP_PAD = 17    # cl/transmittance.cl: padding of the sweep layout
+SWEEP_BLOCK = 16  # sweep steps per launch
+SWEEP_SLACK = 64  # floats after the last level (lanes of the last work-items run past it)
+SWEEP_GROUP = 64  # work-group size (column groups step together, see the kernel)
 VECTOR_MIN_N = 16  # levels with n >= 16 use the float16 kernel, smaller ones the scalar one
+
+
+def _layout_size(n: int) -> int:
+    return (n + 2) * (n + 2 * SWEEP_PAD + 1) * (n + 3 * SWEEP_PAD)
 
 
 def sweep_layout(pyr: Pyramid, axis: int):
@@ -139,8 +145,7 @@ def sweep_layout(pyr: Pyramid, axis: int):
     key = ("sweep_layout", axis)
     if key not in pyr.cache:
         rt = pyr.runtime
-        sizes = [(n + 2) * (n + 2 * SWEEP_PAD) ** 2
-                 for n in (pyr.resolution(l) for l in range(pyr.n_levels))]
+        sizes = [_layout_size(pyr.resolution(l)) for l in range(pyr.n_levels)]
         offs = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
         buf = rt.empty(int(sum(sizes)) + SWEEP_SLACK)
         k = rt.program("transmittance").kernel(
@@ -154,8 +159,7 @@ def sweep_layout(pyr: Pyramid, axis: int):
 
 
 def sweep_steps(n: int, light_dir) -> list[tuple[int, int, int, float, float]]:
-    """Per step j: (slice k, floor(j su), floor(j sv), and the fractional parts), in float64
-    (the NumPy twin uses the same function's numbers)."""
+    """Per step j: (slice k, floor(j su), floor(j sv), and the fractional parts), in float64."""
     a, sa, su, sv, _ = sweep_geometry(light_dir)
     out = []
     for j in range(n):
@@ -165,36 +169,9 @@ def sweep_steps(n: int, light_dir) -> list[tuple[int, int, int, float, float]]:
 
 
 _SWEEP_ARGS = ([None, np.int32, np.int32, np.int32, np.int32, np.float32, np.float32,
-                np.float32, np.int32, None, None, np.int32] + [None] * 4
-               + [np.int32, None, np.int32, None, np.int32, np.int32])
-_ARG_J = 11      # index of the per-launch step argument j
-SWEEP_ITAB = 12  # ints per step in the kernel's table
-
-
-def _step_tables(n: int, light_dir, ou: int, ov: int, slabs: bool):
-    """Per launch j = 0 .. n (+1 with slabs): the int and float parameter rows of
-    transmittance_sweep_step (see the kernel's argument list)."""
-    steps = sweep_steps(n, light_dir)
-    launches = n + 2 if slabs else n + 1
-    itab = np.zeros((launches, SWEEP_ITAB), np.int32)
-    ftab = np.zeros((launches, 4), np.float32)
-    pending = -1  # slab base x whose 16 slices are complete and not yet written
-    for j in range(launches):
-        kc, iu, iv, fu, fv = steps[min(j, n - 1)]
-        kv, ju, jv, gu, gv = steps[max(min(j - 1, n - 1), 0)]
-        fresh = 0
-        if 1 <= j < n:
-            du, dv = iu - steps[j - 1][1], iv - steps[j - 1][2]
-            fresh = int(du < 0) | int(du > 0) << 1 | int(dv < 0) << 2 | int(dv > 0) << 3
-        flush_kb = -1
-        if slabs:
-            flush_kb, pending = pending, -1
-            if 1 <= j <= n and j % 16 == 0:  # launch j wrote step j - 1, ending a slab
-                pending = kv & ~15
-        itab[j] = (j < n, kc, j == 0, fresh, iu + ou, iv + ov, 1 <= j <= n, kv, ju + ou, jv + ov,
-                   flush_kb, 0)
-        ftab[j] = (fu, fv, gu, gv)
-    return itab, ftab
+                np.float32, None, np.int32, np.int32, np.int32, None, np.int32, np.int32,
+                None, None, None, np.int32, np.int32, np.int32, None, np.int32, np.int32])
+_ARG_B = 18  # index of the per-launch block argument b
 
 
 def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
@@ -202,32 +179,39 @@ def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
     n = pyr.resolution(level)
     a, sa, su, sv, inv_la = sweep_geometry(light_dir)
     width = 16 if n >= VECTOR_MIN_N else 1
-    k = rt.program("transmittance", {"SWEEP_WIDTH": width}).kernel("transmittance_sweep_step",
+    k = rt.program("transmittance", {"SWEEP_WIDTH": width}).kernel("transmittance_sweep_block",
                                                                     _SWEEP_ARGS)
     layout, offs = sweep_layout(pyr, a)
     steps = sweep_steps(n, light_dir)
-    ius, ivs = [s[1] for s in steps], [s[2] for s in steps]
-    ou, ov = -min(ius), -min(ivs)
-    cw = max(ius) + ou + n + 2 * width + 1          # vector lanes run up to w = n + width - 1
-    rows = max(ivs) + ov + n + 2
-    bufs = [rt.empty(rows * cw) for _ in range(4)]  # columns A, B; end-point densities A, B
-    for b in bufs[:2]:  # the density buffers are written before they are read
-        cl.enqueue_fill_buffer(rt.queue, b, np.float32(0), 0, rows * cw * 4)
-    slabs = a == 0 and width == 16
-    tmp = rt.empty(2 * 16 * n * n) if slabs else bufs[0]  # unused unless slabs
-    itab, ftab = _step_tables(n, light_dir, ou, ov, slabs)
-    n_col = (n + 1) * ((n + width) // width)
-    n_vox = n * (-(-n // width))
-    n_items = n_col + n_vox + (n * n if slabs else 0)
-    # clSetKernelArg does not retain buffers: keep these referenced until the last enqueue.
-    itab_buf, ftab_buf = rt.to_device(itab), rt.to_device(ftab)
+    stab = np.array([s[:3] for s in steps], np.int32)
+    sftab = np.array([s[3:] for s in steps], np.float32)
+    nb = -(-n // SWEEP_BLOCK)
+    btab = np.zeros((nb, 4), np.int32)
+    for b in range(nb):
+        blk = stab[b * SWEEP_BLOCK:(b + 1) * SWEEP_BLOCK]
+        umin, umax = blk[:, 1].min(), blk[:, 1].max()
+        vmin, vmax = blk[:, 2].min(), blk[:, 2].max()
+        btab[b] = (umin, vmin, -(-(umax - umin + n + 1) // width), vmax - vmin + n + 1)
+    ou, ov = -int(stab[:, 1].min()), -int(stab[:, 2].min())
+    cw = int(stab[:, 1].max()) + ou + n + width + 2
+    col_rows = int(stab[:, 2].max()) + ov + n + 1
+    col = rt.empty(col_rows * cw)
+    cl.enqueue_fill_buffer(rt.queue, col, np.float32(0), 0, col_rows * cw * 4)
+    bw, brows = int(btab[:, 2].max()) * width, int(btab[:, 3].max())
+    bb = rt.empty(2 * SWEEP_BLOCK * brows * bw)
+    n_col = padded(int((btab[:, 2] * btab[:, 3]).max()), SWEEP_GROUP)
+    n_vox = n * n // 16 if (width == 16 and a == 0) else SWEEP_BLOCK * n * (n // width)
+    # clSetKernelArg does not retain buffers: keep every one referenced until the last enqueue.
+    tables = [rt.to_device(t) for t in (stab, sftab, btab)]
     k.set_args(layout, np.int32(offs[level]), np.int32(n), np.int32(a), np.int32(sa),
-               np.float32(su), np.float32(sv), np.float32(scale * inv_la / 6.0), np.int32(cw),
-               itab_buf, ftab_buf, np.int32(0), *bufs,
-               np.int32(out_depth), out, np.int32(out_off), tmp, np.int32(n_col), np.int32(n_vox))
-    for j in range(len(itab)):
-        k.set_arg(_ARG_J, np.int32(j))
-        evt = cl.enqueue_nd_range_kernel(rt.queue, k, (padded(n_items),), None)
+               np.float32(su), np.float32(sv), np.float32(scale * inv_la / 6.0),
+               col, np.int32(cw), np.int32(ou), np.int32(ov), bb, np.int32(bw), np.int32(brows),
+               *tables, np.int32(0), np.int32(nb), np.int32(out_depth), out, np.int32(out_off),
+               np.int32(n_col))
+    for b in range(nb + 1):
+        k.set_arg(_ARG_B, np.int32(b))
+        evt = cl.enqueue_nd_range_kernel(rt.queue, k, (padded(n_col + n_vox, SWEEP_GROUP),),
+                                         (SWEEP_GROUP,))
         if rt.profiling:
             rt._events.append((k.function_name, evt))
 
