@@ -104,13 +104,53 @@ static inline V lanes(__global const float *src, const int *off, const int idx) 
                src[off[12] + idx], src[off[13] + idx], src[off[14] + idx], src[off[15] + idx]);
 }
 
-/* Normalised features of one type over one layer: dst[j] for points start..start+count. */
+#if defined(__clang__) && !defined(MLP_NO_SHUFFLE)
+/* In-register 16x16 transpose: round b swaps bit b of the row index with bit b of the lane
+ * index (4 rounds x 16 two-source shuffles). Clang's __builtin_shufflevector (PoCL, Oclgrind,
+ * ROCm, Intel) makes each one instruction; other compilers use the gather path below. */
+#define TR0L 0, 16, 2, 18, 4, 20, 6, 22, 8, 24, 10, 26, 12, 28, 14, 30
+#define TR0H 1, 17, 3, 19, 5, 21, 7, 23, 9, 25, 11, 27, 13, 29, 15, 31
+#define TR1L 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29
+#define TR1H 2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30, 31
+#define TR2L 0, 1, 2, 3, 16, 17, 18, 19, 8, 9, 10, 11, 24, 25, 26, 27
+#define TR2H 4, 5, 6, 7, 20, 21, 22, 23, 12, 13, 14, 15, 28, 29, 30, 31
+#define TR3L 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23
+#define TR3H 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31
+#define TR_ROUND(B, LO, HI)                                                  \
+    for (int i = 0; i < 16; ++i)                                             \
+        if (!(i & (1 << B))) {                                               \
+            const V lo = r[i], hi = r[i | (1 << B)];                         \
+            r[i] = __builtin_shufflevector(lo, hi, LO);                      \
+            r[i | (1 << B)] = __builtin_shufflevector(lo, hi, HI);           \
+        }
+#define MLP_TRANSPOSE 1
+#else
+#define MLP_TRANSPOSE 0
+#endif
+
+/* All features of the 16 queries, lane = query: x[t * N_POINTS + point]. Rows of 16
+ * consecutive floats are read per query and transposed in registers (a strided per-lane read
+ * misses 16 cache lines per vector: it was half of the kernel's time). Reading features from
+ * memory is still the largest cost after the dense layers, hence the explicit prefetch. */
 __attribute__((always_inline))
-static inline void load_layer(__global const float *features, const int *off, const int t,
-                              const int start, const int count, const float shift,
-                              const float scale, V *dst) {
-    for (int j = 0; j < count; ++j)
-        dst[j] = (lanes(features, off, t * N_POINTS + start + j) - shift) * scale;
+static inline void load_features(__global const float *features, const int *off, V *x) {
+    int c = 0;
+#if MLP_TRANSPOSE
+    for (; c + 16 <= N_TYPES * N_POINTS; c += 16) {
+        V r[16];
+        for (int j = 0; j < 16; ++j) {
+            /* 16 rows 3 KB apart defeat the hardware prefetcher: ask ~8 lines ahead */
+            __builtin_prefetch((const __global void *)(features + off[j] + c + 128));
+            r[j] = vload16(0, features + off[j] + c);
+        }
+        TR_ROUND(0, TR0L, TR0H)
+        TR_ROUND(1, TR1L, TR1H)
+        TR_ROUND(2, TR2L, TR2H)
+        TR_ROUND(3, TR3L, TR3H)
+        for (int j = 0; j < 16; ++j) x[c + j] = r[j];
+    }
+#endif
+    for (; c < N_TYPES * N_POINTS; ++c) x[c] = lanes(features, off, c);
 }
 
 __kernel void mlp_forward(__global const float *features, __global const float *config,
@@ -134,17 +174,22 @@ __kernel void mlp_forward(__global const float *features, __global const float *
         cfg[i] = (lanes(config, coff, i) - cshift[i]) * cscale[i];
     const V albedo_cfg = lanes(config, coff, CFG_ALBEDO);
 
-    /* Squeeze vectors of all layers: they do not depend on the channel. */
+    /* Normalised features, then the squeeze vectors of all layers (channel independent). */
+    V x[N_TYPES * N_POINTS];
+    load_features(features, foff, x);
+    for (int t = 0; t < N_TYPES; ++t) {
+        const float sh = fshift[t], sc = fscale[t];
+        for (int j = 0; j < N_POINTS; ++j) x[t * N_POINTS + j] = (x[t * N_POINTS + j] - sh) * sc;
+    }
     V v[N_LAYERS][SQUEEZE];
-    V buf[MAXW];
     {
         int start = 0;
         for (int k = 0; k < N_LAYERS; ++k) {
             const int cnt = COUNTS[k];
             for (int t = 0; t < N_TYPES; ++t) {
-                load_layer(features, foff, t, start, cnt, fshift[t], fscale[t], buf);
-                V s = buf[0], m = buf[0];
-                for (int j = 1; j < cnt; ++j) { s += buf[j]; m = fmax(m, buf[j]); }
+                const V *xt = x + t * N_POINTS + start;
+                V s = xt[0], m = xt[0];
+                for (int j = 1; j < cnt; ++j) { s += xt[j]; m = fmax(m, xt[j]); }
                 v[k][t] = s / (float)cnt;
                 v[k][N_TYPES + t] = m;
             }
@@ -169,13 +214,14 @@ __kernel void mlp_forward(__global const float *features, __global const float *
 #endif
         __global const float *p = layers;
         V mod[N_TYPES * 2][MODULE_WIDTH];
-        V h[MAXW], a[MAXW], e[MAXW], z[MAXW], u[MAXW], xn[MAXW];
+        V h[MAXW], a[MAXW], e[MAXW], z[MAXW], u[MAXW];
         for (int t = 0; t < N_TYPES; ++t) {
             for (int s = 0; s < 2; ++s) {
                 const int k0 = s ? N_DIFFUSE : 0, k1 = s ? N_LAYERS : N_DIFFUSE;
                 int start = 0;
                 for (int k = 0; k < k0; ++k) start += COUNTS[k];
-                load_layer(features, foff, t, start, COUNTS[k0], fshift[t], fscale[t], h);
+                const V *xt = x + t * N_POINTS;
+                for (int i = 0; i < COUNTS[k0]; ++i) h[i] = xt[start + i];
                 for (int k = k0; k < k1; ++k) {
                     const int cnt = COUNTS[k], width = cnt + CONFIG_DIM;
                     for (int i = 0; i < cnt; ++i) a[i] = h[i];
@@ -186,7 +232,7 @@ __kernel void mlp_forward(__global const float *features, __global const float *
                     start += cnt;
                     if (k + 1 < k1) {
                         const int nxt = COUNTS[k + 1];
-                        load_layer(features, foff, t, start, nxt, fshift[t], fscale[t], xn);
+                        const V *xn = xt + start;   /* the next layer's features */
                         p = dense(p, width, nxt, z, u, 1);
                         for (int i = 0; i < nxt; ++i) u[i] += xn[i];
                         p = dense(p, nxt, nxt, u, h, 1);

@@ -197,13 +197,27 @@ class Architecture:
 
 def feature_contract(base_resolution: int = layout.DEFAULT_BASE_RESOLUTION,
                      lam: float = layout.DEFAULT_LAMBDA, template_hash: str = "",
-                     level_map: list | None = None) -> dict:
+                     level_map: dict | None = None) -> dict:
     """The contract a gather produces: clvol.layout.contract_dict plus the level map (the mip
     level each template layer reads, from clvol.templates) and the phase parameterisation.
     The weight-specific parts (level weights, normalisation) are added by ``save_weights``."""
     c = layout.contract_dict(base_resolution, lam, template_hash)
-    c["level_map"] = None if level_map is None else [int(v) for v in level_map]
+    c["level_map"] = level_map
     c["phase_parameterisation"] = PHASE_PARAMETERISATION
+    return c
+
+
+def gather_contract(base_resolution: int = layout.DEFAULT_BASE_RESOLUTION,
+                    lam: float = layout.DEFAULT_LAMBDA, templates=None) -> dict:
+    """``feature_contract`` for the packaged template table (clvol.templates): its hash and
+    level map (diffuse layers: one level each; highlight layers: spacing per unit t_enter,
+    the level is chosen per query from it)."""
+    from .templates import load_templates
+    t = templates if templates is not None else load_templates()
+    level_map = {"diffuse": [int(v) for v in t.diffuse_levels(base_resolution)],
+                 "highlight_spacing": [round(float(v), 9) for v in t.highlight_spacing()]}
+    c = feature_contract(base_resolution, lam, t.sha256)
+    c["level_map"] = level_map
     return c
 
 

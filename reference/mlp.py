@@ -142,3 +142,37 @@ def radiance(params, arch, features, config, channel_albedo, dtype=np.float64) -
         F = decode(forward(params, arch, features, with_albedo(config, a), dtype=dtype), a)
         out[:, alb == a] = F[:, None]
     return out
+
+
+def config_rows(lobes, albedo, alpha) -> np.ndarray:
+    """Config [N][9] for one phase function (list of (g, weight), 1-3 lobes), albedo [N] or
+    scalar and alpha [N] (radians), as the gather writes it."""
+    alpha = np.atleast_1d(np.asarray(alpha, np.float64))
+    n = len(alpha)
+    c = np.zeros((n, len(layout.CONFIG_FIELDS)), np.float32)
+    for k, (g, w) in enumerate(lobes):
+        c[:, k], c[:, 3 + k] = g, w
+    c[:, G_MEAN] = sum(g * w for g, w in lobes)
+    c[:, ALBEDO] = albedo
+    c[:, ALPHA] = alpha
+    return c
+
+
+def random_inputs(n: int, rng: np.random.Generator, arch: Architecture | None = None,
+                  lobes=((0.857, 1.0),), albedo=None, levels: bool = False):
+    """Random inputs in the ranges real features take: density log1p(tau) in [0, 3], T in
+    [0, 1], phase log1p(f f*) in [0, 4]; alpha uniform in [0, pi]; albedo uniform in [0.3, 1]
+    unless given. Returns (features, config) or (features, config, levels)."""
+    arch = arch or Architecture()
+    P = arch.n_points
+    f = np.empty((n, 3, P), np.float32)
+    # spatially smooth-ish: a per-query level plus per-point variation, so layers differ
+    f[:, 0] = np.clip(rng.uniform(0, 2, (n, 1)) + rng.normal(0, 0.5, (n, P)), 0, 3)
+    f[:, 1] = rng.uniform(0, 1, (n, 1)) ** 2 * rng.uniform(0.5, 1, (n, P))
+    f[:, 2] = rng.uniform(0, 4, (n, P)) * rng.uniform(0, 1, (n, 1))
+    a = rng.uniform(0.3, 1.0, n) if albedo is None else albedo
+    c = config_rows(lobes, a, rng.uniform(0, np.pi, n))
+    if not levels:
+        return f, c
+    lv = np.clip(f[:, 1][:, None, :] * rng.uniform(0.7, 1.3, (n, arch.n_levels, P)), 0, 1).astype(np.float32)
+    return f, c, lv

@@ -82,9 +82,14 @@ class MlpKernel:
         if channel_albedo is not None:
             alb[:3] = _channel_albedo(channel_albedo)
         items = -(-int(n) // QUERIES_PER_ITEM)
+        # A work-item holds ~120 KB of private arrays (all 798 features of its 16 queries, the
+        # layer buffers). PoCL's CPU driver with a NULL local size packs many work-items into
+        # one group and overflows its stack (segfault at 256 items); groups of one work-item
+        # also need no padding of the global size.
+        local = (1,) if self.rt.entry.kind == "cpu" else None
         return self.rt.launch(self.kernel(channels, decode), items,
                               (features, config, self.params_buf, alb, np.int32(n), out),
-                              wait_for=wait_for)
+                              local_size=local, pad=1 if local else 64, wait_for=wait_for)
 
     def forward(self, features, config, channel_albedo=None, decode: bool = False,
                 n: int | None = None) -> np.ndarray:
