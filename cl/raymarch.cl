@@ -7,7 +7,7 @@
  * Pixel equation (DESIGN.md; l toward the light, omega = -d toward the camera):
  *     L = int T_cam(t) sigma_s(x_t) E (F_1 + F_ms)(x_t, omega) dt + T_cam(exit) L_background
  * F_1 = f(dot(-l, omega)) T_light(x), with T_light the exact light transmittance field
- * (lambda = 1: seed eq. 1 at its finest level, built by cl/transmittance.cl). The seed's
+ * (lambda = 1: seed eq. 1 at its finest level, built by cl/transmittance.cl), trilinear. The seed's
  * rendering step "bring the predicted F into the radiative transfer equation" is this march;
  * F_ms is the slot the network fills.
  *
@@ -26,12 +26,16 @@
  *   MS_CHANNELS 1|3  planes of the source-2 grid (1 when albedo is grey: F_ms is then grey)
  *   SKIP_EMPTY 0|1   jump over majorant blocks whose majorant is 0 (exact: such a block and
  *                    half a voxel around it have density exactly 0; see majorant.h)
+ *   LIGHT_TAU 0|1    the light field holds T_light (0, default) or its optical depth (1);
+ *                    which one is read trilinearly changes the result (docs/raymarch.md)
+ *   RAYMARCH_STATS 0|1  count work per tile into `stats` (benchmarks; off otherwise)
  *
  * Arguments (float4 holds a 3-vector in xyz; world units throughout):
  *   density    float [nz][ny][nx]     raw density over bmin..bmax; sigma_t = density * density_scale
  *   majorant   float [mz][my][mx]     max density per block of `block`^3 voxels (majorant.h)
- *   light_tau  float [ln][ln][ln]     optical depth toward the light (lambda = 1; T_light =
- *                                     exp(-tau)) over the cube cube_min .. + cube_size
+ *   light      float [ln][ln][ln]     the exact light transmittance field (lambda = 1) over the
+ *                                     cube cube_min .. + cube_size: T_light, or with LIGHT_TAU
+ *                                     its optical depth (T_light = exp(-tau))
  *   ms_grid    float [C][gz][gy][gx]  F_ms (radiance per unit irradiance) over gmin..gmax
  *   origin, forward, right, up, tan_half, width, height    pinhole camera (grid.h camera_ray)
  *   light_dir  unit, toward the light; irradiance E (RGB); albedo (RGB); lobe_g, lobe_w (phase.h)
@@ -42,6 +46,9 @@
  *   total, single, multiple   float [height][width][3] out
  *   alpha, depth              float [height][width] out: 1 - T_cam(exit) and the mean
  *              distance of the first extinction event (0 where alpha = 0)
+ *   stats      uint [tiles][4] out with RAYMARCH_STATS (else untouched, may be 4 bytes):
+ *              march iterations, light lookups, majorant reads (each on 16 lanes), and
+ *              active lane-segments
  * Global size: ceil(width / 4) * ceil(height / 4) work-items (padded; guarded here).
  */
 #include "grid.h"
@@ -61,6 +68,12 @@
 #endif
 #ifndef SKIP_EMPTY
 #define SKIP_EMPTY 1
+#endif
+#ifndef RAYMARCH_STATS
+#define RAYMARCH_STATS 0
+#endif
+#ifndef LIGHT_TAU
+#define LIGHT_TAU 0
 #endif
 
 #if MS_OCTAVES < 1 || MS_OCTAVES > 8
@@ -157,7 +170,7 @@ __kernel void raymarch(
     __global const float *density, const int nx, const int ny, const int nz,
     const float4 bmin, const float4 bmax, const float density_scale,
     __global const float *majorant, const int mx, const int my, const int mz, const int block,
-    __global const float *light_tau, const int ln, const float4 cube_min, const float cube_size,
+    __global const float *light, const int ln, const float4 cube_min, const float cube_size,
     __global const float *ms_grid, const int gx, const int gy, const int gz,
     const float4 gmin, const float4 gmax,
     const float4 origin, const float4 forward, const float4 right, const float4 up,
@@ -167,7 +180,7 @@ __kernel void raymarch(
     const float oct_a, const float oct_b, const float oct_c,
     const float step, const float threshold,
     __global float *total, __global float *single, __global float *multiple,
-    __global float *alpha, __global float *depth)
+    __global float *alpha, __global float *depth, __global uint *stats)
 {
     const int tiles_x = (width + TILE - 1) / TILE;
     const int tile = get_global_id(0);
@@ -251,10 +264,16 @@ __kernel void raymarch(
     v16 M0 = (v16)(0.0f), M1 = (v16)(0.0f), M2 = (v16)(0.0f);
 #endif
 
+#if RAYMARCH_STATS
+    uint n_iter = 0, n_lit = 0, n_maj = 0, n_active = 0;
+#endif
     for (;;) {
         v16 ta = t0 + k * step;
         i16 active = hit & (ta < t1) & (T >= threshold);
         if (!any(active)) break;
+#if RAYMARCH_STATS
+        ++n_iter;
+#endif
 #if SKIP_EMPTY
         /* A lane whose segment midpoint lies in an empty block jumps to the block's exit;
          * a few passes let lanes cross several empty blocks before the next lookup. */
@@ -265,6 +284,9 @@ __kernel void raymarch(
             const i16 by = convert_int16(clamp((oy + tq * dy - bmin.y) / bsize.y, 0.0f, (float)(my - 1)));
             const i16 bz = convert_int16(clamp((oz + tq * dz - bmin.z) / bsize.z, 0.0f, (float)(mz - 1)));
             const i16 empty = active & (gather16(majorant, (bz * my + by) * mx + bx) == 0.0f);
+#if RAYMARCH_STATS
+            ++n_maj;
+#endif
             if (!any(empty)) break;
             const v16 t_exit = fmin(fmin(
                 slab_exit16(ox, dx, bmin.x + convert_float16(bx) * bsize.x, bsize.x),
@@ -276,6 +298,14 @@ __kernel void raymarch(
             k = select(k, fmax(k + 1.0f, k_star), empty);
             ta = t0 + k * step;
             active &= ta < t1;
+        }
+#endif
+#if RAYMARCH_STATS
+        {
+            const i16 one = active & (i16)(1);
+            const int8 h8 = one.lo + one.hi;
+            const int4 h4 = h8.lo + h8.hi;
+            n_active += (uint)(h4.x + h4.y + h4.z + h4.w);
         }
 #endif
         const v16 len = select((v16)(0.0f), fmin(ta + step, t1) - ta, active);
@@ -303,15 +333,26 @@ __kernel void raymarch(
 #if LIT
         /* Segments where all 16 lanes are empty add nothing: skip the light lookup. */
         if (any(tau > 0.0f)) {
-            /* Optical depth toward the light, trilinear (exact along the light in homogeneous
-             * media, where trilinear T would not be), then T_light = exp(-tau_l). */
-            const v16 tau_l = lookup16(light_tau, ln, ln, ln,
-                                       (rx - cube_min.x) / lcell - 0.5f,
-                                       (ry - cube_min.y) / lcell - 0.5f,
-                                       (rz - cube_min.z) / lcell - 0.5f);
-            S += w * exp(-tau_l);
+#if RAYMARCH_STATS
+            ++n_lit;
+#endif
+            /* The light field, trilinear; -log T_light (>= 0; +inf where T underflowed to 0,
+             * and the octaves' exp(-a^i inf) = 0 then, a > 0 being enforced). */
+            const v16 lf = lookup16(light, ln, ln, ln,
+                                    (rx - cube_min.x) / lcell - 0.5f,
+                                    (ry - cube_min.y) / lcell - 0.5f,
+                                    (rz - cube_min.z) / lcell - 0.5f);
+#if LIGHT_TAU
+            const v16 t_l = exp(-lf);
+#define TAU_L lf
+#else
+            const v16 t_l = lf;
+#define TAU_L (-log(lf))
+#endif
+            S += w * t_l;
 #if MS_SOURCE == 1 && MS_OCTAVES > 1
             /* T_light^(a^i) = exp(-a^i tau_l). */
+            const v16 tau_l = TAU_L;
             float ai = 1.0f;
             v16 f = (v16)(0.0f);
             for (int i = 0; i < MS_OCTAVES - 1; ++i) {
@@ -365,4 +406,9 @@ __kernel void raymarch(
     store_lanes(total, 3, 2, s_b + m_b + T * background.z, pix, valid);
     store_lanes(alpha, 1, 0, A, pix, valid);
     store_lanes(depth, 1, 0, select((v16)(0.0f), D / A, A > 0.0f), pix, valid);
+#if RAYMARCH_STATS
+    /* Per tile: march iterations (each one density lookup on 16 lanes), iterations with a
+     * light lookup, majorant reads (16 lanes each) and active lane-segments. */
+    vstore4((uint4)(n_iter, n_lit, n_maj, n_active), tile, stats);
+#endif
 }

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ClvolError
-from .kernels.raymarch import MAX_OCTAVES, SOURCES, DeviceArray, raymarch
+from .kernels.raymarch import LIGHT_QUANTITIES, MAX_OCTAVES, SOURCES, DeviceArray, raymarch
 from .render import RenderResult
 from .runtime import Stopwatch, get_runtime
 
@@ -181,24 +181,29 @@ def auto_light_resolution(grid) -> int:
 class RayMarcher:
     """A volume kept on the device for many frames: density, majorant grid, light field.
 
-    ``grid``: clvol Grid; ``medium``: clvol Medium. The light field (optical depth toward
-    the light, on the pyramid's cube) is made by ``set_light`` (the light-change cost).
+    ``grid``: clvol Grid; ``medium``: clvol Medium. The light field (T_light, or its optical
+    depth with light_interp="optical_depth", on the pyramid's cube) is made by ``set_light``
+    (the light-change cost).
     """
 
     def __init__(self, grid, medium, runtime=None, block: int = DEFAULT_BLOCK,
-                 light_resolution: int | None = None):
+                 light_resolution: int | None = None, light_interp: str = "transmittance"):
         from .kernels.majorant import build_majorant_buffer
         self.rt = runtime or get_runtime()
         self.grid = grid
         self.medium = medium
         self.block = int(block)
         self.light_resolution = light_resolution or auto_light_resolution(grid)
+        if light_interp not in LIGHT_QUANTITIES:
+            raise ClvolError(f"raymarch option light_interp = {light_interp!r}: choose one of "
+                             f"{list(LIGHT_QUANTITIES)}")
+        self.light_interp = light_interp
         self.density = DeviceArray.upload(grid.density, self.rt)
         buf, shape = build_majorant_buffer(self.density.buffer, grid.density.shape, self.block,
                                            self.rt)
         self.majorant = DeviceArray(buf, shape)
         self._pyramid = None
-        self.light_tau = None
+        self.light_field = None
         self.light_dir = None
 
     @property
@@ -214,21 +219,21 @@ class RayMarcher:
         from .kernels.transmittance import light_transmittance
         pyr = self.pyramid
         buf = light_transmittance(pyr, self.medium.density_scale, light_dir,
-                                  quantity="optical_depth", as_buffer=True)
+                                  quantity=self.light_interp, as_buffer=True)
         n = pyr.base_resolution
-        self.light_tau = DeviceArray(buf, (n, n, n))
+        self.light_field = DeviceArray(buf, (n, n, n))
         self.light_dir = np.asarray(light_dir, np.float64) / np.linalg.norm(light_dir)
 
     def march(self, camera, light, *, ms: str = "wrenninge", octaves: Octaves = Octaves(),
               ms_grid: MsGrid | None = None, step: float = DEFAULT_STEP,
               threshold: float = DEFAULT_THRESHOLD, skip_empty: bool = True,
-              shortcuts: bool = True, read_back: bool = True):
+              shortcuts: bool = True, read_back: bool = True, stats: bool = False):
         """Render ``camera`` lit by ``light`` (its direction must be the one of ``set_light``
         unless nothing is lit). Returns (layers, plan) with plan = the ``Plan`` used, or with
         ``read_back=False`` (event, buffers, plan)."""
         plan = Plan.make(self.medium, light, ms, octaves, ms_grid, shortcuts)
         if plan.lit:
-            if self.light_tau is None or not np.allclose(
+            if self.light_field is None or not np.allclose(
                     self.light_dir, np.asarray(light.direction) / np.linalg.norm(light.direction),
                     rtol=0, atol=1e-12):
                 self.set_light(light.direction)
@@ -240,14 +245,15 @@ class RayMarcher:
         res = raymarch(
             self.density, g.bbox_min, g.bbox_max, self.medium.density_scale,
             self.majorant, self.block,
-            self.light_tau if plan.lit else None, cube_min, cube_size,
+            self.light_field if plan.lit else None, cube_min, cube_size,
             planes, *(plan.ms_box if planes is not None else (None, None)),
             camera.origin, fwd, right, up, math.tan(math.radians(camera.fov_y) / 2),
             camera.width, camera.height,
             light.direction, light.irradiance, self.medium.albedo, plan.lobes,
             plan.background, source=plan.source, octaves=octaves.n, a=octaves.a, b=octaves.b,
             c=octaves.c, step=step * float(np.min(g.cell_size)), threshold=threshold,
-            skip_empty=skip_empty, lit=plan.lit, runtime=self.rt, read_back=read_back)
+            skip_empty=skip_empty, lit=plan.lit, light_quantity=self.light_interp,
+            runtime=self.rt, read_back=read_back, stats=stats)
         if read_back:
             return res, plan
         return res + (plan,)
@@ -316,8 +322,9 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
                     b: float = 0.5, c: float = 0.5, ms_grid: MsGrid | None = None,
                     step: float = DEFAULT_STEP, threshold: float = DEFAULT_THRESHOLD,
                     skip_empty: bool = True, block: int = DEFAULT_BLOCK,
-                    light_resolution: int | None = None, supersample: int = 1,
-                    shortcuts: bool = True, grid=None, runtime=None) -> RenderResult:
+                    light_resolution: int | None = None, light_interp: str = "transmittance",
+                    supersample: int = 1, shortcuts: bool = True, grid=None,
+                    runtime=None) -> RenderResult:
     """Render ``scene`` with the ray marcher. Returns a RenderResult with layers total,
     single, multiple (H, W, 3), alpha and depth (H, W), and the header.
 
@@ -333,7 +340,7 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
     with Stopwatch() as sw_total:
         with Stopwatch() as sw_load:
             grid = grid if grid is not None else scene.volume.load()
-        rm = RayMarcher(grid, scene.medium, runtime, block, light_resolution)
+        rm = RayMarcher(grid, scene.medium, runtime, block, light_resolution, light_interp)
         cam = scene.camera
         if supersample > 1:
             from dataclasses import replace
@@ -364,6 +371,7 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
         "raymarch.skip_empty": bool(skip_empty),
         "raymarch.block": int(block),
         "raymarch.light_resolution": int(rm.light_resolution) if plan.lit else 0,
+        "raymarch.light_interp": light_interp,
         "raymarch.supersample": int(supersample),
         "raymarch.shortcuts": bool(shortcuts),
         "device": rm.rt.entry.label,
@@ -411,6 +419,9 @@ def add_arguments(group) -> None:
     group.add_argument("--light-resolution", type=int, default=None,
                        help="light field resolution (power of two; default: grid size rounded "
                             f"up to a power of two, at most {MAX_LIGHT_RESOLUTION})")
+    group.add_argument("--light-interp", choices=list(LIGHT_QUANTITIES), default="transmittance",
+                       help="what is blended trilinearly between light-field voxels: T "
+                            "(default) or the optical depth (docs/raymarch.md)")
     group.add_argument("--supersample", type=int, default=1,
                        help="S x S rays per pixel (default 1)")
     group.add_argument("--no-skip-empty", action="store_true",
@@ -427,6 +438,7 @@ def render(scene, args) -> RenderResult:
         scene, ms=args.ms, octaves=args.octaves, a=args.ms_a, b=args.ms_b, c=args.ms_c,
         ms_grid=ms_grid, step=args.step, threshold=args.threshold,
         skip_empty=not args.no_skip_empty, light_resolution=args.light_resolution,
+        light_interp=args.light_interp,
         supersample=args.supersample, shortcuts=not args.no_shortcuts, runtime=rt)
     if getattr(args, "profile", False):
         import sys

@@ -29,12 +29,14 @@ Sources (``source``):
     "wrenninge"  F_ms = sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i)   (Wrenninge octaves;
                  every lobe's g is scaled by c^i)
     "grid"       F_ms = trilinear lookup in a precomputed RGB (or grey) grid of F_ms values
-F_1 = f(mu) T_light with mu = dot(-l, omega) = dot(l, d); T_light = exp(-tau_l) where tau_l is
-the exact light transmittance field (lambda = 1) on the pyramid's cube in its optical-depth
-form, read trilinearly (clamped). Interpolating the optical depth rather than T keeps T_light
-exact along the light in a homogeneous medium (T drops by e^-2 per voxel at 2 optical depths
-per voxel, and a linear blend of T is then 54% too bright half-way) and gives the octaves
-T_light^(a^i) = exp(-a^i tau_l) without a logarithm.
+F_1 = f(mu) T_light with mu = dot(-l, omega) = dot(l, d), T_light read trilinearly (clamped) from
+the exact light transmittance field (lambda = 1) on the pyramid's cube. The field holds T_light
+(``light_quantity="transmittance"``, the default) or its optical depth tau_l
+(``"optical_depth"``, T_light = exp(-tau_l)). The two readings differ between voxel centres:
+blending tau is exact along the light in a homogeneous medium (where a linear blend of T is
+too bright: 54% half-way at 2 optical depths per voxel) but too dark across shadow edges
+(exp of a mean <= mean of exp); on the shipped examples blending T was measured closer to the
+path tracer (docs/raymarch.md). Octaves use T_light^(a^i) = exp(-a^i tau_l), tau_l = -log T_light.
 
 Empty space (``skip_empty``): if the midpoint of the current segment lies in a coarse
 majorant block whose majorant is 0 (majorant.h: then the trilinear density is exactly 0
@@ -98,19 +100,21 @@ def octave_weights(mu, lobes, octaves, b, c):
 
 def raymarch(density, bbox_min, bbox_max, density_scale,
              majorant, block,
-             light_tau, cube_min, cube_size,
+             light, cube_min, cube_size,
              ms_grid, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
              light_dir, irradiance, albedo, lobes, background,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
-             step=None, threshold=1e-3, skip_empty=True, lit=True):
+             step=None, threshold=1e-3, skip_empty=True, lit=True,
+             light_quantity="transmittance"):
     """Render one image. Returns a dict of float64 arrays: total, single, multiple (H, W, 3),
     alpha, depth (H, W).
 
     density      [nz][ny][nx] raw density over bbox_min..bbox_max (sigma_t = density * scale)
     majorant     [mz][my][mx] per-block majorant (majorant.h), block = fine voxels per block
-    light_tau    [n][n][n] optical depth toward the light (the exact light transmittance field,
-                 lambda = 1, as optical depth) over the cube cube_min .. cube_min + cube_size
+    light        [n][n][n] the exact light transmittance field (lambda = 1) over the cube
+                 cube_min .. cube_min + cube_size: T_light, or its optical depth with
+                 light_quantity="optical_depth"
     ms_grid      (C, gz, gy, gx), C = 1 or 3, F_ms over ms_bbox_min..ms_bbox_max ("grid" source)
     camera       origin, basis (forward, right, up), tan(fov_y / 2), width x height
     light_dir    unit, toward the light; irradiance E, albedo, background: RGB
@@ -135,7 +139,7 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     if source == "wrenninge" and octaves > 1:
         ow = octave_weights(mu, lobes, octaves, b, c)
         oa = np.array([a ** i for i in range(1, octaves)])
-    light_cell = float(cube_size) / light_tau.shape[0]
+    light_cell = float(cube_size) / light.shape[0]
     if source == "grid":
         ms_grid = np.asarray(ms_grid)
         gmin, gmax = np.asarray(ms_bbox_min, f64), np.asarray(ms_bbox_max, f64)
@@ -182,8 +186,10 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         ts = ta + mean_fraction(tau) * length          # the source's sample point
         ps = o + ts[:, None] * d
         if lit:
-            tau_l = _lookup(light_tau, np.asarray(cube_min, f64), light_cell, ps)
-            S += w * np.exp(-tau_l)
+            lf = _lookup(light, np.asarray(cube_min, f64), light_cell, ps)
+            with np.errstate(divide="ignore"):
+                tau_l = lf if light_quantity == "optical_depth" else -np.log(lf)
+            S += w * (np.exp(-lf) if light_quantity == "optical_depth" else lf)
             if source == "wrenninge" and octaves > 1:
                 M[:, 0] += w * (ow * np.exp(-oa[:, None] * tau_l[None, :])).sum(axis=0)
             elif source == "grid":

@@ -69,11 +69,11 @@ def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), se
         width, height = 7, 5
     f, r, u = _basis(origin, target, up)
     block = 2
-    # A smooth, varied optical-depth field over a cube holding the box (any field will do
-    # for kernel vs twin; the physical one is tested below).
+    # A smooth, varied light field over a cube holding the box (any field will do for
+    # kernel vs twin; the physical one is tested below), held as T_light.
     n = 8
     zz, yy, xx = np.meshgrid(*(np.arange(n),) * 3, indexing="ij")
-    light_tau = (0.3 * xx + 0.5 * (n - 1 - yy) + 0.1 * zz * xx / n).astype(np.float32)
+    light_tau = 0.3 * xx + 0.5 * (n - 1 - yy) + 0.1 * zz * xx / n
     if case == "opaque":
         light_tau *= 100                                   # T_light underflows to 0
     ms_grid = None
@@ -85,7 +85,8 @@ def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), se
     return dict(
         density=density, bbox_min=bmin, bbox_max=bmax, density_scale=scale,
         majorant=build_majorant(density, block), block=block,
-        light_tau=light_tau, cube_min=np.array([-0.5, -0.5, -0.5]), cube_size=1.0,
+        light=np.exp(-light_tau).astype(np.float32), cube_min=np.array([-0.5, -0.5, -0.5]),
+        cube_size=1.0,
         ms_grid=ms_grid, ms_bbox_min=np.array([-0.45, -0.4, -0.3]),
         ms_bbox_max=np.array([0.4, 0.25, 0.5]),
         origin=origin, forward=f, right=r, up=u,
@@ -149,6 +150,13 @@ def test_kernel_matches_twin_sources(source, octaves):
         assert got["multiple"].max() > 1e-3 * got["single"].max()
 
 
+def test_kernel_matches_twin_optical_depth_field():
+    kw = _f32(_inputs("odd"))
+    kw["light"] = (-np.log(kw["light"])).astype(np.float32)
+    kw["light_quantity"] = "optical_depth"
+    _assert_layers_close(kraymarch.raymarch(**kw), rraymarch.raymarch(**kw))
+
+
 def test_kernel_matches_twin_isotropic_and_unlit():
     kw = _f32(_inputs("odd"))
     kw["lobes"] = []
@@ -166,7 +174,7 @@ def test_raymarch_tiny():
     rs = np.random.default_rng(3)
     kw["density"] = rs.random((3, 2, 3)).astype(np.float32)
     kw["majorant"] = build_majorant(kw["density"], 2)
-    kw["light_tau"] = kw["light_tau"][:3, :3, :3].copy()
+    kw["light"] = kw["light"][:3, :3, :3].copy()
     kw.update(width=5, height=3, step=0.2)
     kw = _f32(kw)
     _assert_layers_close(kraymarch.raymarch(**kw), rraymarch.raymarch(**kw))
@@ -211,8 +219,8 @@ def test_homogeneous_box_matches_closed_form():
     """A uniform box lit from +y, seen along -z: every term has a closed form.
 
     The optical-depth field toward the light is sigma (y_max - y), linear in y, so its
-    trilinear reading is exact (except in the top half voxel, where the lookup clamps: rows
-    there are left out). Along a ray y(t) = o_y + t d_y, T_cam = exp(-sigma (t - t0)), so
+    trilinear reading (light_interp="optical_depth") is exact (except in the top half voxel,
+    where the lookup clamps: rows there are left out). Along a ray y(t) = o_y + t d_y, T_cam = exp(-sigma (t - t0)), so
         single = albedo E f(d_y) [e^{-sigma (0.5 - y(t0))} - e^{-sigma (0.5 - y(t1)) - tau}] / (1 - d_y),
         alpha = 1 - e^-tau,   depth = t0 + (1 - (1 + tau) e^-tau) / (sigma alpha),
     tau = sigma (t1 - t0). Tolerance 1e-4 relative: a float32 march (the midpoint rule's
@@ -225,7 +233,8 @@ def test_homogeneous_box_matches_closed_form():
                       "light.direction": [0.0, 1.0, 0.0], "light.irradiance": [2.0, 2.0, 2.0],
                       "camera.origin": [0.0, 0.0, 40.0], "camera.fov_y": 1.0,
                       "camera.width": 9, "camera.height": 9})
-    res = render_raymarch(scene, grid=grid, ms="none", step=0.25, threshold=0.0)
+    res = render_raymarch(scene, grid=grid, ms="none", step=0.25, threshold=0.0,
+                          light_interp="optical_depth")
     cam = scene.camera
     d = cam.pixel_directions()
     o = np.array(cam.origin)
@@ -316,18 +325,18 @@ def test_header_lists_simulated_and_skipped_effects():
 
 
 def test_step_halving_changes_the_image_little():
-    """Halving the step from 1 to 0.5 voxel changes the image by < 2% of its mean (mean
-    absolute difference per pixel and channel) and by < 0.5 MRPNN units, on a cloud of ~1
-    optical depth per voxel (measured: ~1%, 0.3). The segment integral is second order, so
-    the next halving must change it at least twice less (measured: ~3x less)."""
+    """Halving the step from 1 to 0.5 voxel changes the image by < 3% of its mean (mean
+    absolute difference per pixel and channel) and by < 1 MRPNN unit, on a cloud of ~1
+    optical depth per voxel (measured: 1.9%, 0.6). The segment integral is second order, so
+    the next halving must change it at least twice less (measured: 4x less, 0.5%)."""
     from clvol.metrics import mrpnn_metric
     scene = _scene(**{"volume.resolution": 32, "camera.width": 32, "camera.height": 32})
     imgs = [render_raymarch(scene, step=s, threshold=0.0).layers["total"] for s in (1.0, 0.5, 0.25)]
     d1 = np.abs(imgs[0] - imgs[1]).mean() / imgs[1].mean()
     d2 = np.abs(imgs[1] - imgs[2]).mean() / imgs[2].mean()
-    assert d1 < 0.02
+    assert d1 < 0.03
     assert d2 < 0.5 * d1
-    assert mrpnn_metric(imgs[0], imgs[1]) < 0.5
+    assert mrpnn_metric(imgs[0], imgs[1]) < 1.0
 
 
 def test_supersampling_is_a_box_filter():

@@ -1,6 +1,6 @@
 """Host wrapper for cl/raymarch.cl (twin: reference/raymarch.py; same argument names).
 
-Big inputs (``density``, ``majorant``, ``light_tau``, ``ms_grid``) may be NumPy arrays (copied
+Big inputs (``density``, ``majorant``, ``light``, ``ms_grid``) may be NumPy arrays (copied
 to the device on each call: tests) or ``DeviceArray`` handles of buffers already on the device
 (the renderer keeps the volume and the light field resident between frames).
 """
@@ -16,6 +16,7 @@ from .grid import f4
 from .phase import lobe_vectors, phase_defines
 
 SOURCES = {"none": 0, "wrenninge": 1, "grid": 2}
+LIGHT_QUANTITIES = ("transmittance", "optical_depth")
 MAX_OCTAVES = 8
 TILE = 4  # pixels per side of the tile one work-item marches (16 float16 lanes)
 LOCAL_SIZE = 64  # tiles per work-group
@@ -64,23 +65,26 @@ _SCALARS = ([None, np.int32, np.int32, np.int32, None, None, np.float32]       #
             + [None, None, None, None, np.float32, np.int32, np.int32]           # camera
             + [None] * 6                                                         # light, medium
             + [np.float32] * 5                                                   # a, b, c, step, thr
-            + [None] * 5)                                                        # outputs
+            + [None] * 6)                                                        # outputs
 
 
 def raymarch(density, bbox_min, bbox_max, density_scale,
              majorant, block,
-             light_tau, cube_min, cube_size,
+             light, cube_min, cube_size,
              ms_grid, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
              light_dir, irradiance, albedo, lobes, background,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
              step=None, threshold=1e-3, skip_empty=True, lit=True,
-             runtime=None, read_back=True):
+             light_quantity="transmittance", runtime=None, read_back=True, stats=False):
     """Launch the ray marcher. Returns {layer: array} (float32; total/single/multiple
     (H, W, 3), alpha/depth (H, W)), or with ``read_back=False`` (event, {layer: buffer}).
 
+    With ``stats`` the kernel also counts its work (cl/raymarch.cl, RAYMARCH_STATS) and the
+    result gets "stats": uint32 (tiles, 4) (iterations, light lookups, majorant reads,
+    active lane-segments per 4 x 4 tile).
     ``ms_grid`` is (C, gz, gy, gx) with C = 1 or 3 (source "grid"), else ignored (may be
-    None). ``light_tau`` may be None when ``lit`` is False. Argument meanings: see the twin.
+    None). ``light`` may be None when ``lit`` is False. Argument meanings: see the twin.
     """
     rt = runtime or get_runtime()
     if step is None or not step > 0:
@@ -91,10 +95,10 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     mz, my, mx = maj.shape
     dummy = None
     if lit:
-        light = _device(light_tau, rt)
+        light = _device(light, rt)
         ln = light.shape[0]
         if light.shape != (ln, ln, ln):
-            raise ValueError(f"light_tau must be a cube [n][n][n], got {light.shape}")
+            raise ValueError(f"light must be a cube [n][n][n], got {light.shape}")
     else:
         dummy = dummy or rt.empty(1)
         light, ln = DeviceArray(dummy, (1, 1, 1)), 1
@@ -108,12 +112,18 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         dummy = dummy or rt.empty(1)
         ms, channels, (gz, gy, gx) = DeviceArray(dummy, (1, 1, 1, 1)), 1, (1, 1, 1)
         gmin, gmax = (0, 0, 0), (1, 1, 1)
-    prog = rt.program("raymarch", raymarch_defines(lobes, lit, source, octaves, channels,
-                                                   skip_empty))
+    defines = raymarch_defines(lobes, lit, source, octaves, channels, skip_empty)
+    if stats:
+        defines["RAYMARCH_STATS"] = 1
+    if light_quantity not in LIGHT_QUANTITIES:
+        raise ValueError(f"light_quantity {light_quantity!r}: one of {LIGHT_QUANTITIES}")
+    defines["LIGHT_TAU"] = int(light_quantity == "optical_depth")
+    prog = rt.program("raymarch", defines)
     k = prog.kernel("raymarch", _SCALARS)
     g, w = lobe_vectors(lobes)
     outs = {name: rt.empty((height * width * ch,)) for name, ch in LAYERS}
     n_tiles = -(-width // TILE) * -(-height // TILE)
+    outs["stats"] = rt.empty((n_tiles * 4 if stats else 1,), np.uint32)
     args = (dens.buffer, np.int32(nx), np.int32(ny), np.int32(nz), f4(bbox_min), f4(bbox_max),
             np.float32(density_scale),
             maj.buffer, np.int32(mx), np.int32(my), np.int32(mz), np.int32(block),
@@ -124,7 +134,8 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
             f4(light_dir), f4(irradiance), f4(albedo), g, w, f4(background),
             np.float32(a), np.float32(b), np.float32(c), np.float32(step),
             np.float32(threshold),
-            outs["total"], outs["single"], outs["multiple"], outs["alpha"], outs["depth"])
+            outs["total"], outs["single"], outs["multiple"], outs["alpha"], outs["depth"],
+            outs["stats"])
     # An explicit local size: with a NULL one, PoCL 3.1 picked work-groups for 512 x 512
     # images (16384 tiles) that crashed it (segfault); 64 tiles per group measured fastest.
     evt = rt.launch(k, n_tiles, args, pad=LOCAL_SIZE, local_size=(LOCAL_SIZE,))
@@ -134,4 +145,6 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     for name, ch in LAYERS:
         shape = (height, width, 3) if ch == 3 else (height, width)
         result[name] = rt.from_device(outs[name], shape, wait_for=[evt])
+    if stats:
+        result["stats"] = rt.from_device(outs["stats"], (n_tiles, 4), np.uint32)
     return result
