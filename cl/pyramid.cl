@@ -21,7 +21,9 @@ __kernel void mip_reduce(__global float *data, const int src_off, const int dst_
     const int i = get_global_id(0);
     const int count = n_dst * n_dst * n_dst;
     if (i >= count) return;
-    const int x = i % n_dst, y = (i / n_dst) % n_dst, z = i / (n_dst * n_dst);
+    /* no '%': LLVM turns a / and % pair into a 'freeze' that Oclgrind cannot simulate */
+    const int zy = i / n_dst, z = zy / n_dst;
+    const int x = i - zy * n_dst, y = zy - z * n_dst;
     const size_t ns = (size_t)(2 * n_dst);
     __global const float *s = data + src_off;
     const size_t r0 = ((size_t)(2 * z) * ns + (size_t)(2 * y)) * ns + (size_t)(2 * x);

@@ -63,7 +63,8 @@ __kernel void transmittance_brute(__global const float *pyr, const int off, cons
     const int i = get_global_id(0);
     if (i >= n * n * n) return;
     __global const float *d = pyr + off;
-    const float3 p = (float3)((float)(i % n), (float)((i / n) % n), (float)(i / (n * n)));
+    const int zy = i / n, z = zy / n;           /* no '%' (see cl/pyramid.cl) */
+    const float3 p = (float3)((float)(i - zy * n), (float)(zy - z * n), (float)z);
     const float3 l = dir.xyz;
     const float dc[3] = {l.x, l.y, l.z}, pc[3] = {p.x, p.y, p.z};
     float h[3], tn[3], texit = INFINITY;
@@ -148,7 +149,8 @@ __kernel void sweep_layout(__global const float *pyr, const int off, const int n
     const int i = get_global_id(0);
     const int rs = SWEEP_RS(n), rv = SWEEP_RV(n);
     if (i >= (n + 2) * rv * rs) return;
-    const int uu = i % rs, vv = (i / rs) % rv, ka = i / (rs * rv);
+    const int kv = i / rs, ka = kv / rv;        /* no '%' (see cl/pyramid.cl) */
+    const int uu = i - kv * rs, vv = kv - ka * rv;
     const int u = clamp(uu - SWEEP_PAD, 0, n - 1), v = clamp(vv - SWEEP_PAD, 0, n - 1);
     const int k = clamp(ka - 1, 0, n - 1);
     S[s_off + i] = pyr[off + elem_uva(n, a, u, v, k)];
@@ -363,8 +365,8 @@ __kernel void combine_levels(__global const float *tgrid, __global const int *of
                              const float bias, __global float *out) {
     const int i = get_global_id(0);
     if (i >= base * base * base) return;
-    const float3 c = (float3)((float)(i % base), (float)((i / base) % base),
-                              (float)(i / (base * base))) + 0.5f;
+    const int zy = i / base, z = zy / base;     /* no '%' (see cl/pyramid.cl) */
+    const float3 c = (float3)((float)(i - zy * base), (float)(zy - z * base), (float)z) + 0.5f;
     float sum = bias;
     for (int l = 0; l < n_levels; ++l) {
         const int n = base >> l;

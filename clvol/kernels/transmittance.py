@@ -28,7 +28,7 @@ import pyopencl as cl
 from ..errors import ClvolError
 from ..runtime import Runtime, padded
 from .grid import f4
-from .pyramid import Pyramid
+from .pyramid import Pyramid, device_scratch
 
 METHODS = ("sweep", "brute")
 QUANTITIES = ("transmittance", "optical_depth")
@@ -147,7 +147,7 @@ def sweep_layout(pyr: Pyramid, axis: int):
         rt = pyr.runtime
         sizes = [_layout_size(pyr.resolution(l)) for l in range(pyr.n_levels)]
         offs = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-        buf = rt.empty(int(sum(sizes)) + SWEEP_SLACK)
+        buf = device_scratch(rt, int(sum(sizes)) + SWEEP_SLACK)
         k = rt.program("transmittance").kernel(
             "sweep_layout", [None, np.int32, np.int32, np.int32, None, np.int32])
         for l in range(pyr.n_levels):
@@ -195,10 +195,9 @@ def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
     ou, ov = -int(stab[:, 1].min()), -int(stab[:, 2].min())
     cw = int(stab[:, 1].max()) + ou + n + width + 2
     col_rows = int(stab[:, 2].max()) + ov + n + 1
-    col = rt.empty(col_rows * cw)
-    cl.enqueue_fill_buffer(rt.queue, col, np.float32(0), 0, col_rows * cw * 4)
+    col = device_scratch(rt, col_rows * cw, zero=True)
     bw, brows = int(btab[:, 2].max()) * width, int(btab[:, 3].max())
-    bb = rt.empty(2 * SWEEP_BLOCK * brows * bw)
+    bb = device_scratch(rt, 2 * SWEEP_BLOCK * brows * bw)
     n_col = padded(int((btab[:, 2] * btab[:, 3]).max()), SWEEP_GROUP)
     n_vox = n * n // 16 if (width == 16 and a == 0) else SWEEP_BLOCK * n * (n // width)
     # clSetKernelArg does not retain buffers: keep every one referenced until the last enqueue.
@@ -236,7 +235,7 @@ def graded_transmittance(pyramid: Pyramid, density_scale: float, light_dir, lam:
     s, lam_f = _check_args(pyramid, density_scale, lam, method, quantity)
     l = check_light_dir(light_dir)
     rt = pyramid.runtime
-    out = rt.empty(pyramid.data.shape)
+    out = device_scratch(rt, pyramid.data.size)  # read by later kernels (gather)
     for level in range(pyramid.n_levels):
         scale = lam_f ** (level + 1) * s * pyramid.voxel_size(level)
         _run_level(rt, pyramid, level, scale, l, method, quantity == "optical_depth", out,
@@ -253,7 +252,7 @@ def light_transmittance(pyramid: Pyramid, density_scale: float, light_dir, metho
     l = check_light_dir(light_dir)
     rt = pyramid.runtime
     n = pyramid.base_resolution
-    out = rt.empty(n ** 3)
+    out = device_scratch(rt, n ** 3)  # read by later kernels (ray marcher)
     _run_level(rt, pyramid, 0, s * pyramid.voxel_size(0), l, method,
                quantity == "optical_depth", out, 0)
     return out if as_buffer else rt.from_device(out, (n, n, n))
@@ -276,7 +275,7 @@ def combine_levels(graded: GradedT, weights, bias: float = 0.0, as_buffer: bool 
     base = graded.base_resolution
     k = rt.program("transmittance").kernel("combine_levels",
                                            [None, None, None, np.int32, np.int32, np.float32, None])
-    out = rt.empty(base ** 3)
+    out = device_scratch(rt, base ** 3)
     rt.launch(k, base ** 3, (graded.buffer, rt.to_device(graded.level_offsets.astype(np.int32)),
                              rt.to_device(w.astype(np.float32)), np.int32(graded.n_levels),
                              np.int32(base), np.float32(bias), out))
