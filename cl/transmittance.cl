@@ -294,7 +294,9 @@ __kernel void transmittance_sweep_block(
                 VSTORE(tau, bbp + (size_t)jj * bplane);
                 r_beg = r_end;
             }
+#ifndef SWEEP_NO_SYNC
             barrier(CLK_GLOBAL_MEM_FENCE);
+#endif
         }
         if (active) VSTORE(tau, colp);
         return;
