@@ -258,6 +258,9 @@ def test_bad_arguments_are_refused_with_their_values():
     g = kt.graded_transmittance(p, 1.0, l)
     with pytest.raises(ClvolError, match=r"weights must be 3 finite numbers .* got \[1.0, 2.0\]"):
         kt.combine_levels(g, [1.0, 2.0])
+    depth = kt.graded_transmittance(p, 1.0, l, quantity="optical_depth")
+    with pytest.raises(ClvolError, match=r"needs transmittance fields, got quantity = 'optical_depth'"):
+        kt.combine_levels(depth, [1.0, 1.0, 1.0])
 
 
 @pytest.mark.oclgrind

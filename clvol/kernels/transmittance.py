@@ -265,6 +265,9 @@ def combine_levels(graded: GradedT, weights, bias: float = 0.0, as_buffer: bool 
     Outside the cube every T_l is 1, so the combined value there is sum_l w_l + bias."""
     if not isinstance(graded, GradedT):
         raise ClvolError(f"combine_levels needs a GradedT, got {type(graded).__name__}")
+    if graded.quantity != "transmittance":
+        raise ClvolError(f"combine_levels needs transmittance fields, got quantity = "
+                         f"{graded.quantity!r} (call graded_transmittance with the default quantity)")
     w = np.asarray(weights, dtype=np.float64)
     if w.shape != (graded.n_levels,) or not np.isfinite(w).all():
         raise ClvolError(f"combine_levels weights must be {graded.n_levels} finite numbers (one "
