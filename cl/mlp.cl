@@ -26,6 +26,9 @@
  * Defines (set by the wrapper from the Architecture): N_LAYERS, N_DIFFUSE, LAYER_COUNTS (comma
  * list), N_POINTS, SE_HIDDEN, MODULE_WIDTH, HEAD_DEPTH, HEAD_WIDTHS (comma list), MAXW (largest
  * padded width), MLP_CHANNELS (1 or 3), MLP_DECODE (0/1). gamma is 4 (the weight format's).
+ * Optional (the host sets both on PoCL): MLP_TRANSPOSE16 (feature rows read contiguously and
+ * transposed in registers instead of per-lane loads; Clang), MLP_PREFETCH (software prefetch of
+ * the rows; Clang).
  *
  * Equations (clvol/export.py docstring): squeeze v_k = (mean, max per type over layer k, g_mean,
  * alpha); excitation w = sigmoid(E2 relu(E1 v)); z = w * [h, c]; u = relu(FC1 z) + x_{k+1};
@@ -104,10 +107,13 @@ static inline V lanes(__global const float *src, const int *off, const int idx) 
                src[off[12] + idx], src[off[13] + idx], src[off[14] + idx], src[off[15] + idx]);
 }
 
-#if defined(__clang__) && !defined(MLP_NO_SHUFFLE)
+#ifdef MLP_TRANSPOSE16
 /* In-register 16x16 transpose: round b swaps bit b of the row index with bit b of the lane
- * index (4 rounds x 16 two-source shuffles). Clang's __builtin_shufflevector (PoCL, Oclgrind,
- * ROCm, Intel) makes each one instruction; other compilers use the gather path below. */
+ * index (4 rounds x 16 two-source shuffles, one instruction each with Clang's
+ * __builtin_shufflevector). The host enables it on PoCL only: other compilers may lack the
+ * builtin, and Oclgrind reports its shuffles' results as uninitialised although the transpose is
+ * exact (a false positive of its per-instruction vector shadows; tests/test_mlp.py checks both
+ * load paths give bit-identical outputs). */
 #define TR0L 0, 16, 2, 18, 4, 20, 6, 22, 8, 24, 10, 26, 12, 28, 14, 30
 #define TR0H 1, 17, 3, 19, 5, 21, 7, 23, 9, 25, 11, 27, 13, 29, 15, 31
 #define TR1L 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29
@@ -123,24 +129,24 @@ static inline V lanes(__global const float *src, const int *off, const int idx) 
             r[i] = __builtin_shufflevector(lo, hi, LO);                      \
             r[i | (1 << B)] = __builtin_shufflevector(lo, hi, HI);           \
         }
-#define MLP_TRANSPOSE 1
-#else
-#define MLP_TRANSPOSE 0
 #endif
 
-/* All features of the 16 queries, lane = query: x[t * N_POINTS + point]. Rows of 16
- * consecutive floats are read per query and transposed in registers (a strided per-lane read
- * misses 16 cache lines per vector: it was half of the kernel's time). Reading features from
- * memory is still the largest cost after the dense layers, hence the explicit prefetch. */
+/* All features of the 16 queries, lane = query: x[t * N_POINTS + point]. With
+ * MLP_TRANSPOSE16, rows of 16 consecutive floats are read per query and transposed in
+ * registers (per-lane reads, 16 cache lines per vector, were half of the kernel's time on
+ * PoCL); features still come from memory, hence the optional prefetch. */
 __attribute__((always_inline))
 static inline void load_features(__global const float *features, const int *off, V *x) {
     int c = 0;
-#if MLP_TRANSPOSE
+#ifdef MLP_TRANSPOSE16
     for (; c + 16 <= N_TYPES * N_POINTS; c += 16) {
         V r[16];
         for (int j = 0; j < 16; ++j) {
-            /* 16 rows 3 KB apart defeat the hardware prefetcher: ask ~8 lines ahead */
+#ifdef MLP_PREFETCH
+            /* 16 rows 3 KB apart: ask for the line 8 ahead (+10-20% on PoCL; the host sets
+             * MLP_PREFETCH on PoCL only, as Oclgrind has no prefetch intrinsic) */
             __builtin_prefetch((const __global void *)(features + off[j] + c + 128));
+#endif
             r[j] = vload16(0, features + off[j] + c);
         }
         TR_ROUND(0, TR0L, TR0H)
@@ -213,7 +219,7 @@ __kernel void mlp_forward(__global const float *features, __global const float *
         cfg[CFG_ALBEDO] = (V)((albedos[ch] - cshift[CFG_ALBEDO]) * cscale[CFG_ALBEDO]);
 #endif
         __global const float *p = layers;
-        V mod[N_TYPES * 2][MODULE_WIDTH];
+        V mod[N_TYPES * 2][PAD8(MODULE_WIDTH)];   /* dense writes whole blocks of 8 */
         V h[MAXW], a[MAXW], e[MAXW], z[MAXW], u[MAXW];
         for (int t = 0; t < N_TYPES; ++t) {
             for (int s = 0; s < 2; ++s) {

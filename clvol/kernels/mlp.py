@@ -54,7 +54,9 @@ def kernel_defines(arch, channels: int, decode: bool) -> dict:
 class MlpKernel:
     """A weight file on one device, ready to evaluate gather buffers."""
 
-    def __init__(self, weights: MlpWeights, runtime=None):
+    def __init__(self, weights: MlpWeights, runtime=None, defines: dict | None = None):
+        """``defines``: extra -D options, overriding the defaults (a value of None removes
+        one: tests use {"MLP_TRANSPOSE16": None} for the per-lane load path)."""
         if GAMMA != 4.0:  # the kernel's decode hard-codes albedo^4
             raise ValueError("cl/mlp.cl decodes with gamma = 4")
         self.weights = weights
@@ -63,12 +65,18 @@ class MlpKernel:
         self.params = pack_params(weights)
         self.params_buf = self.rt.to_device(self.params)
         self._kernels = {}
+        self._extra = dict(defines or {})
 
     def kernel(self, channels: int, decode: bool):
         key = (channels, bool(decode))
         k = self._kernels.get(key)
         if k is None:
-            prog = self.rt.program("mlp", defines=kernel_defines(self.arch, channels, decode))
+            defines = kernel_defines(self.arch, channels, decode)
+            if self.rt.is_pocl:   # Clang builtins, measured faster on PoCL (see cl/mlp.cl)
+                defines["MLP_TRANSPOSE16"] = 1
+                defines["MLP_PREFETCH"] = 1
+            defines.update(self._extra)   # runtime._define_flags skips None values
+            prog = self.rt.program("mlp", defines=defines)
             k = self._kernels[key] = prog.kernel(
                 "mlp_forward", [None, None, None, None, np.int32, None])
         return k
