@@ -64,16 +64,55 @@
 #define PT_T_RR 0.1f
 #define PT_OUT 12
 
-/* Throughput and albedo: a scalar when the albedo is grey (PT_GREY), else RGB. Light
- * (sun, environment) and the accumulated radiance are always RGB. */
+/* Colours are structs of three floats, and every value carried around a loop is a scalar:
+ * Oclgrind's uninitialised-value checker (run in CI) crashes on loop-carried float3 /
+ * float4 values (LLVM keeps a float3 in a 4-lane register with an undefined lane). */
+typedef struct {
+    float r, g, b;
+} pt_rgb;
+
+__attribute__((always_inline))
+pt_rgb pt_rgb_of(float4 v) {
+    pt_rgb c;
+    c.r = v.x; c.g = v.y; c.b = v.z;
+    return c;
+}
+
+/* *acc += a * s */
+__attribute__((always_inline))
+void pt_rgb_add(pt_rgb *acc, pt_rgb a, float s) {
+    acc->r += a.r * s; acc->g += a.g * s; acc->b += a.b * s;
+}
+
+/* Throughput and albedo: one float when the albedo is grey (PT_GREY), else RGB. */
 #ifdef PT_GREY
 typedef float spec_t;
-#define SPEC(v4) ((v4).x)
+#define SPEC_OF(v4) ((v4).x)
+#define SPEC_ONE 1.0f
 #define SPEC_MAX(b) (b)
+#define SPEC_MUL(b, a) ((b) * (a))
+#define SPEC_DIV(b, q) ((b) / (q))
+#define SPEC_TINT(c, b) pt_tint1((c), (b))
+__attribute__((always_inline)) pt_rgb pt_tint1(pt_rgb c, float b) {
+    c.r *= b; c.g *= b; c.b *= b;
+    return c;
+}
 #else
-typedef float3 spec_t;
-#define SPEC(v4) ((v4).xyz)
-#define SPEC_MAX(b) fmax(fmax((b).x, (b).y), (b).z)
+typedef pt_rgb spec_t;
+#define SPEC_OF(v4) pt_rgb_of(v4)
+#define SPEC_ONE pt_rgb_of((float4)(1.0f))
+#define SPEC_MAX(v) fmax(fmax((v).r, (v).g), (v).b)
+#define SPEC_MUL(b, a) pt_tint3((b), (a))
+#define SPEC_DIV(b, q) pt_div3((b), (q))
+#define SPEC_TINT(c, b) pt_tint3((c), (b))
+__attribute__((always_inline)) pt_rgb pt_tint3(pt_rgb c, pt_rgb b) {
+    c.r *= b.r; c.g *= b.g; c.b *= b.b;
+    return c;
+}
+__attribute__((always_inline)) pt_rgb pt_div3(pt_rgb c, float q) {
+    c.r /= q; c.g /= q; c.b /= q;
+    return c;
+}
 #endif
 
 /* ------------------------------------------------------------------ random stream */
@@ -130,10 +169,11 @@ float pt_tau(pt_rng *r) {
     return -log(1.0f - pt_next(r));
 }
 
-/* Delta tracking from x along unit w. Returns 1 with *hit at a real collision, 0 if the
- * ray leaves the box first. */
+/* Delta tracking from x along unit w. Returns 1 with *t_hit the distance to a real
+ * collision, 0 if the ray leaves the box first. (A distance, not a float3 out-pointer:
+ * see the note on colours above.) */
 __attribute__((always_inline))
-int pt_free_flight(const pt_medium *m, float3 x, float3 w, pt_rng *r, float3 *hit,
+int pt_free_flight(const pt_medium *m, float3 x, float3 w, pt_rng *r, float *t_hit,
                    uint *steps) {
     maj_dda s;
     if (!maj_dda_init(&s, x, w, m->bmin, m->bmax, m->bsize, (int3)(m->mx, m->my, m->mz),
@@ -143,10 +183,9 @@ int pt_free_flight(const pt_medium *m, float3 x, float3 w, pt_rng *r, float3 *hi
         float tau = pt_tau(r), t, sm;
         if (!maj_dda_track(&s, m->maj, m->scale, &tau, &t, &sm)) return 0;
         *steps += 1;
-        float3 p = x + t * w;
         /* Real with probability sigma / sigma_maj (u * sm < sigma: no division). */
-        if (pt_next(r) * sm < pt_sigma(m, p)) {
-            *hit = p;
+        if (pt_next(r) * sm < pt_sigma(m, x + t * w)) {
+            *t_hit = t;
             return 1;
         }
     }
@@ -177,33 +216,45 @@ float pt_transmittance(const pt_medium *m, float3 x, float3 w, pt_rng *r, uint *
 
 typedef struct {
     float3 dir;       /* toward the sun */
-    float3 sun;       /* irradiance */
-    float3 env;       /* environment radiance */
+    pt_rgb sun;       /* irradiance */
+    pt_rgb env;       /* environment radiance */
     spec_t albedo;
     float4 lobe_g, lobe_w;
 } pt_light;
 
+/* Add c to the order-1 sum (k == 1) or to the higher orders. */
+__attribute__((always_inline))
+void pt_add_order(int k, pt_rgb c, pt_rgb *l1, pt_rgb *lms) {
+    if (k == 1) pt_rgb_add(l1, c, 1.0f); else pt_rgb_add(lms, c, 1.0f);
+}
+
 /* Continue a path at vertex k (position x, arrival propagation direction w, throughput
  * beta including the albedo of this vertex). Adds order-1 light to *l1 and higher orders
- * to *lms. */
+ * to *lms. Position and direction cross iterations as scalars (see pt_rgb). */
 __attribute__((always_inline))
-void pt_walk(const pt_medium *m, const pt_light *L, float3 x, float3 w, spec_t beta, int k,
-             int max_order, pt_rng *r, float3 *l1, float3 *lms, uint *vertices, uint *steps,
-             uint *truncated) {
+void pt_walk(const pt_medium *m, const pt_light *L, float3 x_in, float3 w_in, spec_t beta,
+             int k, int max_order, pt_rng *r, pt_rgb *l1, pt_rgb *lms, uint *vertices,
+             uint *steps, uint *truncated) {
+    float x0 = x_in.x, x1 = x_in.y, x2 = x_in.z;
+    float w0 = w_in.x, w1 = w_in.y, w2 = w_in.z;
     for (;;) {
+        float3 x = (float3)(x0, x1, x2), w = (float3)(w0, w1, w2);
         if (SPEC_MAX(beta) <= 0.0f) return;  /* albedo 0: nothing can arrive any more */
         *vertices += 1;
 #ifndef PT_NO_SUN
         /* Also tested at run time, so the general build of a sunless scene draws the same
-         * random numbers as the PT_NO_SUN build. */
-        if (L->sun.x > 0.0f || L->sun.y > 0.0f || L->sun.z > 0.0f) {
+         * random numbers as the PT_NO_SUN build. (fmax, not ||: LLVM turns a float || into
+         * a 'freeze' that Oclgrind cannot run.) */
+        if (fmax(fmax(L->sun.r, L->sun.g), L->sun.b) > 0.0f) {
             float f = phase_eval(dot(L->dir, w), L->lobe_g, L->lobe_w);
             float T = pt_transmittance(m, x, L->dir, r, steps);
-            float3 c = beta * L->sun * (f * T);
+            float s = f * T;
 #ifdef PT_TEST_BIAS
-            c *= PT_TEST_BIAS;
+            s *= PT_TEST_BIAS;
 #endif
-            if (k == 1) *l1 += c; else *lms += c;
+            pt_rgb c = SPEC_TINT(L->sun, beta);
+            c.r *= s; c.g *= s; c.b *= s;
+            pt_add_order(k, c, l1, lms);
         }
 #endif
 #ifdef PT_SINGLE_ONLY
@@ -217,32 +268,33 @@ void pt_walk(const pt_medium *m, const pt_light *L, float3 x, float3 w, spec_t b
         if (k >= PT_RR_START) {
             float q = fmin(1.0f, SPEC_MAX(beta));
             if (pt_next(r) >= q) return;
-            beta /= q;
+            beta = SPEC_DIV(beta, q);
         }
-        float3 u;
-        u.x = pt_next(r);
-        u.y = pt_next(r);
-        u.z = pt_next(r);
-        w = phase_sample(w, L->lobe_g, L->lobe_w, u);
-        if (!pt_free_flight(m, x, w, r, &x, steps)) {
+        float u0 = pt_next(r), u1 = pt_next(r), u2 = pt_next(r);  /* in this order */
+        w = phase_sample(w, L->lobe_g, L->lobe_w, (float3)(u0, u1, u2));
+        float t;
+        if (!pt_free_flight(m, x, w, r, &t, steps)) {
 #ifdef PT_ENV
-            if (k == 1) *l1 += beta * L->env; else *lms += beta * L->env;
+            pt_add_order(k, SPEC_TINT(L->env, beta), l1, lms);
 #endif
             return;
         }
-        beta *= L->albedo;
+        x = x + t * w;
+        x0 = x.x; x1 = x.y; x2 = x.z;
+        w0 = w.x; w1 = w.y; w2 = w.z;
+        beta = SPEC_MUL(beta, L->albedo);
         k += 1;
 #endif
     }
 }
 
 __attribute__((always_inline))
-void pt_store(__global float *out, size_t g, float3 bg, float3 a, float3 b, uint vertices,
+void pt_store(__global float *out, size_t g, pt_rgb bg, pt_rgb a, pt_rgb b, uint vertices,
               uint steps, uint truncated) {
     __global float *o = out + PT_OUT * g;
-    o[0] = bg.x; o[1] = bg.y; o[2] = bg.z;
-    o[3] = a.x; o[4] = a.y; o[5] = a.z;
-    o[6] = b.x; o[7] = b.y; o[8] = b.z;
+    o[0] = bg.r; o[1] = bg.g; o[2] = bg.b;
+    o[3] = a.r; o[4] = a.g; o[5] = a.b;
+    o[6] = b.r; o[7] = b.g; o[8] = b.b;
     o[9] = (float)vertices;
     o[10] = (float)steps;
     o[11] = (float)truncated;
@@ -261,7 +313,8 @@ void pt_store(__global float *out, size_t g, float3 bg, float3 a, float3 b, uint
     m.nx = nx; m.ny = ny; m.nz = nz; m.mx = mx; m.my = my; m.mz = mz;                     \
     m.bmin = bmin.xyz; m.bmax = bmax.xyz; m.bsize = bsize.xyz; m.scale = scale;           \
     pt_light L;                                                                           \
-    L.dir = light_dir.xyz; L.sun = sun.xyz; L.env = env.xyz; L.albedo = SPEC(albedo);   \
+    L.dir = light_dir.xyz; L.sun = pt_rgb_of(sun); L.env = pt_rgb_of(env);                \
+    L.albedo = SPEC_OF(albedo);                                                           \
     L.lobe_g = lobe_g; L.lobe_w = lobe_w;
 
 __kernel void pt_render(PT_MEDIUM_ARGS, const float4 cam_o, const float4 cam_f,
@@ -279,11 +332,12 @@ __kernel void pt_render(PT_MEDIUM_ARGS, const float4 cam_o, const float4 cam_f,
     pt_rng_init(&r, seed, (ulong)pix, sample0 + (uint)j);
     float px = (float)col + pt_next(&r), py = (float)row + pt_next(&r);
     float3 w = camera_ray(cam_f.xyz, cam_r.xyz, cam_u.xyz, tan_half, width, height, px, py);
-    float3 l1 = 0.0f, lms = 0.0f, bg = 0.0f;
+    pt_rgb zero = pt_rgb_of((float4)(0.0f));
+    pt_rgb l1 = zero, lms = zero, bg = zero;
     uint vertices = 0, steps = 0, truncated = 0;
-    float3 x;
-    if (pt_free_flight(&m, cam_o.xyz, w, &r, &x, &steps)) {
-        pt_walk(&m, &L, x, w, L.albedo, 1, max_order, &r, &l1, &lms, &vertices, &steps,
+    float t;
+    if (pt_free_flight(&m, cam_o.xyz, w, &r, &t, &steps)) {
+        pt_walk(&m, &L, cam_o.xyz + t * w, w, L.albedo, 1, max_order, &r, &l1, &lms, &vertices, &steps,
                 &truncated);
     } else {
 #ifdef PT_ENV
@@ -303,10 +357,10 @@ __kernel void pt_query(PT_MEDIUM_ARGS, __global const float *points,
     int j = g / nq, q = g - j * nq;
     pt_rng r;
     pt_rng_init(&r, seed, (ulong)q, sample0 + (uint)j);
-    float3 l1 = 0.0f, lms = 0.0f;
+    pt_rgb zero = pt_rgb_of((float4)(0.0f));
+    pt_rgb l1 = zero, lms = zero;
     uint vertices = 0, steps = 0, truncated = 0;
-    spec_t one = 1.0f;
-    pt_walk(&m, &L, vload3(q, points), -vload3(q, omegas), one, 1, max_order, &r, &l1, &lms,
-            &vertices, &steps, &truncated);
-    pt_store(out, (size_t)g, (float3)(0.0f), l1, lms, vertices, steps, truncated);
+    pt_walk(&m, &L, vload3(q, points), -vload3(q, omegas), SPEC_ONE, 1, max_order, &r, &l1,
+            &lms, &vertices, &steps, &truncated);
+    pt_store(out, (size_t)g, zero, l1, lms, vertices, steps, truncated);
 }
