@@ -155,12 +155,16 @@ typedef struct {
     __global const float *maj;
     int nx, ny, nz, mx, my, mz;
     float3 bmin, bmax, bsize;
+    float3 inv_cell;   /* n / (bmax - bmin): voxels per unit length */
     float scale;
 } pt_medium;
 
 __attribute__((always_inline))
 float pt_sigma(const pt_medium *m, float3 p) {
-    return grid_density(m->density, m->nx, m->ny, m->nz, m->bmin, m->bmax, p) * m->scale;
+    /* grid_density of grid.h with the cell size inverted once per launch, not per lookup. */
+    if (any(p < m->bmin) || any(p > m->bmax)) return 0.0f;
+    return grid_lookup(m->density, m->nx, m->ny, m->nz, (p - m->bmin) * m->inv_cell - 0.5f)
+           * m->scale;
 }
 
 /* Exponential optical depth from a uniform in [0, 1): 1 - u is in (0, 1], no log(0). */
@@ -312,6 +316,7 @@ void pt_store(__global float *out, size_t g, pt_rgb bg, pt_rgb a, pt_rgb b, uint
     m.density = density; m.maj = maj;                                                     \
     m.nx = nx; m.ny = ny; m.nz = nz; m.mx = mx; m.my = my; m.mz = mz;                     \
     m.bmin = bmin.xyz; m.bmax = bmax.xyz; m.bsize = bsize.xyz; m.scale = scale;           \
+    m.inv_cell = (float3)((float)nx, (float)ny, (float)nz) / (bmax.xyz - bmin.xyz);       \
     pt_light L;                                                                           \
     L.dir = light_dir.xyz; L.sun = pt_rgb_of(sun); L.env = pt_rgb_of(env);                \
     L.albedo = SPEC_OF(albedo);                                                           \
