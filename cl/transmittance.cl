@@ -25,21 +25,21 @@
  *   2-point Gauss-Legendre per piece integrates it exactly (error = float32 rounding only).
  *   Cost O(n) per voxel, O(n^4) per level. dir = unit direction toward the light.
  *
- * transmittance_sweep_slice: one launch per slice, slices ordered from the light's side along
- *   the dominant light axis a (|l_a| largest). For voxel (u, v) of slice k, the ray toward the
- *   light reaches the previous slice kp = k + sa after one voxel along a, at lateral offset
- *   (su, sv) = (l_u, l_v) / |l_a| (|su|, |sv| <= 1). Then
- *       tau(u, v, k) = scale * len * Simpson(rho at start, middle, end) + tau_prev(u + su, v + sv)
- *   The segment stays inside one trilinear cell, so Simpson's rule is exact there; the only
- *   approximation is the bilinear interpolation of tau_prev in the previous slice (numerical
- *   diffusion: exact for axis-aligned and 45-degree lights; bound in docs/transmittance.md).
- *   Slice j = 0 (nearest the light) goes half a voxel to the face and has tau_prev = 0. A ray
- *   that leaves through a side face before reaching the previous slice is integrated to that
- *   face only (nothing lies beyond it). Between the last voxel centre and a side face
- *   (interpolation position in [-0.5, 0) or (n-1, n-0.5]) tau_prev falls linearly to 0 at the
- *   face, where the ray toward the light leaves the cube.
- *   tau_prev / tau_cur: float [n][n] indexed [v][u]; u, v the lateral axes in x, y, z order
- *   (a = z: u = x, v = y; a = y: u = x, v = z; a = x: u = y, v = z).
+ * sweep_layout + transmittance_sweep_block: the fast sweep, O(n^3) per level. Along the dominant
+ *   light axis a (|l_a| largest) the light rays drift laterally by (su, sv) = (l_u, l_v) / |l_a|
+ *   per slice (|su|, |sv| <= 1). "Columns" are the light rays through the voxel centres of the
+ *   first slice (nearest the light), extended to a lattice: column c sits at lateral position
+ *   c - j (su, sv) in the slice of sweep step j, so all columns share one fractional offset and
+ *   every lookup is a uniform stencil (float16 across 16 columns). Each step adds to every column
+ *       scale / |l_a| * seg * c * (rho_start + 4 rho_mid + rho_end) / 6
+ *   over its segment from the previous slice (from the face, half a voxel, for j = 0) to the
+ *   current one: inside the cube a segment stays in one trilinear cell, so Simpson is exact;
+ *   c is the fraction of the segment inside the side faces (the field clamped beyond them),
+ *   exact when the field is constant along the segment. Each voxel of the slice then takes the
+ *   bilinear interpolation of optical depth between its 4 surrounding columns: the sweep's only
+ *   approximation inside the cube, made once per voxel (not carried from slice to slice). Exact
+ *   for axis-aligned and 45-degree lights; bounds in docs/transmittance.md.
+ *   Lateral axes (u, v) in x, y, z order without a: a = z: (x, y); a = y: (x, z); a = x: (y, z).
  *
  * combine_levels: base^3 field sum_l w_l T_l(centre) + bias, each T_l read trilinearly
  *   (clamped) at the base voxel centre (render-time bake of the learned 1x1x1 convolution
@@ -48,14 +48,6 @@
  * Twin: reference/transmittance.py. Host wrapper: clvol/kernels/transmittance.py.
  */
 #include "grid.h"
-
-/* Lookup at voxel-unit coordinates given as (lateral u, lateral v, sweep axis a). */
-__attribute__((always_inline))
-float lookup_uva(__global const float *d, int n, int a, float pu, float pv, float pa) {
-    float3 g = (a == 2) ? (float3)(pu, pv, pa) : (a == 1) ? (float3)(pu, pa, pv)
-                                                          : (float3)(pa, pu, pv);
-    return grid_lookup(d, n, n, n, g);
-}
 
 __kernel void transmittance_brute(__global const float *pyr, const int off, const int n,
                                   const float4 dir, const float scale, const int out_depth,

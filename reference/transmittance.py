@@ -7,10 +7,9 @@ lambda^(i+1) * density_scale * voxel size, so tau = scale * integral of rho over
 - ``brute``: exact integral of the trilinear field (2-point Gauss on pieces between the
   half-integer planes, where the field is cubic along a line), all voxels at once. Every ray
   starts at an integer point, so all rays share the same crossing distances m / (2 |l_a|).
-- ``sweep``: the slice-by-slice algorithm, written per slice for all voxels of the slice.
+- ``sweep``: the column sweep (light rays through the first slice's voxel centres, integrated
+  slice by slice, then interpolated to each slice's voxels), for all voxels of a slice at once.
 - ``combine_levels``: sum_l w_l T_l(base voxel centre) + bias.
-- ``transmittance_at``: trilinear lookup of a field over the cube at world points, T = 1 outside
-  (how consumers read the fields).
 """
 import numpy as np
 
@@ -95,7 +94,7 @@ def sweep_steps(n, l):
 
 
 def sweep(d, l, scale):
-    """Optical depth by the column sweep (same algorithm as transmittance_sweep_step).
+    """Optical depth by the column sweep (same algorithm as transmittance_sweep_block).
 
     Columns are the light rays through the voxel centres of the first slice (nearest the
     light), extended to a lattice; column c sits at lateral position c - j s in the slice of
@@ -133,16 +132,6 @@ def sweep(d, l, scale):
     return tau
 
 
-def graded(levels, density_scale, l, lam, cube_size, method="brute"):
-    """List of T_l (float64) for a list of levels [base^3, ..., 1^3]."""
-    fn = brute if method == "brute" else sweep
-    out = []
-    for i, d in enumerate(levels):
-        n = d.shape[0]
-        out.append(np.exp(-fn(d, l, lam ** (i + 1) * density_scale * cube_size / n)))
-    return out
-
-
 def combine_levels(t_levels, weights, bias):
     """sum_l w_l T_l + bias at the base voxel centres (T_l trilinear, clamped)."""
     base = t_levels[0].shape[0]
@@ -152,11 +141,3 @@ def combine_levels(t_levels, weights, bias):
     for i, (w, t) in enumerate(zip(weights, t_levels)):
         out += w * grid_lookup(np.asarray(t, np.float64), c / 2 ** i - 0.5)
     return out
-
-
-def transmittance_at(field, cube_min, cube_size, points):
-    """Trilinear lookup of a cube field [z][y][x] at world points (N, 3); 1 outside the cube."""
-    n = field.shape[0]
-    g = (np.asarray(points, np.float64) - np.asarray(cube_min)) / (cube_size / n) - 0.5
-    inside = np.all((g >= -0.5) & (g <= n - 0.5), axis=-1)
-    return np.where(inside, grid_lookup(np.asarray(field, np.float64), g), 1.0)

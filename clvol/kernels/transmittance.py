@@ -12,9 +12,10 @@ Fields are sampled at their level's voxel centres (cube_min + (i + 0.5) * cube_s
 read them trilinearly, clamped at the faces, and use T = 1 outside the cube (nothing there
 attenuates). ``light_dir`` is the direction *toward* the light (DESIGN.md); it is normalised here.
 
-Methods: "sweep" (default, fast: one launch per slice along the dominant light axis, error
-bounded in tests/test_transmittance.py and docs/transmittance.md) and "brute" (a per-voxel
-march that integrates the trilinear field exactly: the accuracy reference, O(n^4) per level).
+Methods: "sweep" (default, fast: light-ray columns swept slice by slice along the dominant
+light axis, 16 slices per launch; error bounded in tests/test_transmittance.py and
+docs/transmittance.md) and "brute" (a per-voxel march that integrates the trilinear field
+exactly: the accuracy reference, O(n^4) per level).
 ``quantity="optical_depth"`` returns tau instead of T = exp(-tau) (better to interpolate in
 opaque media, where T underflows to 0 for tau > ~104).
 """
