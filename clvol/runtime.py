@@ -233,6 +233,10 @@ class Runtime:
         self.kernel_launches: dict[str, int] = {}
 
     @property
+    def is_oclgrind(self) -> bool:
+        return "oclgrind" in self.entry.platform.name.lower()
+
+    @property
     def is_pocl(self) -> bool:
         return "portable computing language" in self.entry.platform.name.lower()
 
@@ -273,9 +277,19 @@ class Runtime:
             return cl.Buffer(self.context, flags, size=max(a.itemsize, 4))
         return cl.Buffer(self.context, flags | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
 
-    def empty(self, shape, dtype=np.float32) -> "cl.Buffer":
-        nbytes = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
-        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=max(nbytes, 4))
+    def empty(self, shape, dtype=np.float32, zero: bool = False) -> "cl.Buffer":
+        """A new device buffer; zero-filled on request.
+
+        Under Oclgrind it is always written from the host: Oclgrind's uninitialised-value
+        check does not carry what one launch stored over to the next, so a buffer written only
+        by kernels would be reported when a later kernel reads it."""
+        nbytes = max(int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize, 4)
+        buf = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=nbytes)
+        if self.is_oclgrind:
+            cl.enqueue_copy(self.queue, buf, np.zeros(nbytes, np.uint8))
+        elif zero:
+            cl.enqueue_fill_buffer(self.queue, buf, np.uint8(0), 0, nbytes)
+        return buf
 
     def from_device(self, buf: "cl.Buffer", shape, dtype=np.float32,
                     wait_for=None) -> np.ndarray:

@@ -196,19 +196,6 @@ def resample_to_cube(grid: Grid, base_resolution: int) -> tuple[np.ndarray, np.n
 
 # ----------------------------------------------------------------------------- pyramid
 
-def device_scratch(rt: Runtime, n_floats: int, zero: bool = False) -> "cl.Buffer":
-    """A float buffer for kernel-to-kernel data. Zero-filled on request, and always written from
-    the host under Oclgrind: its uninitialised-value check does not carry values a kernel
-    stored over to the next launch, so a buffer that only kernels write would be reported."""
-    buf = rt.empty(n_floats)
-    if zero or "oclgrind" in rt.entry.platform.name.lower():
-        if "oclgrind" in rt.entry.platform.name.lower():
-            cl.enqueue_copy(rt.queue, buf, np.zeros(max(n_floats, 1), np.float32))
-        else:
-            cl.enqueue_fill_buffer(rt.queue, buf, np.float32(0), 0, max(n_floats, 1) * 4)
-    return buf
-
-
 def build_mips(runtime: Runtime, buffer: "cl.Buffer", base_resolution: int) -> None:
     """Fill levels 1.. of ``buffer`` from level 0 (in place, on the device)."""
     k = runtime.program("pyramid").kernel("mip_reduce", [None, np.int32, np.int32, np.int32])
@@ -227,7 +214,7 @@ def build_pyramid(grid: Grid, base_resolution: int = 256, runtime: Runtime | Non
     level0, cube_min, size = resample_to_cube(grid, base)
     data = np.empty(pyramid_size(base), np.float32)
     data[:base ** 3] = level0.ravel()
-    data[base ** 3:] = 0  # written from the host in full: see device_scratch
+    data[base ** 3:] = 0  # written from the host in full (Oclgrind: see Runtime.empty)
     buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE, size=data.nbytes)
     cl.enqueue_copy(rt.queue, buf, data)
     build_mips(rt, buf, base)

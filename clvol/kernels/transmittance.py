@@ -29,7 +29,7 @@ import pyopencl as cl
 from ..errors import ClvolError
 from ..runtime import Runtime, padded
 from .grid import f4
-from .pyramid import Pyramid, device_scratch
+from .pyramid import Pyramid
 
 METHODS = ("sweep", "brute")
 QUANTITIES = ("transmittance", "optical_depth")
@@ -148,7 +148,7 @@ def sweep_layout(pyr: Pyramid, axis: int):
         rt = pyr.runtime
         sizes = [_layout_size(pyr.resolution(l)) for l in range(pyr.n_levels)]
         offs = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-        buf = device_scratch(rt, int(sum(sizes)) + SWEEP_SLACK)
+        buf = rt.empty(int(sum(sizes)) + SWEEP_SLACK)
         k = rt.program("transmittance").kernel(
             "sweep_layout", [None, np.int32, np.int32, np.int32, None, np.int32])
         for l in range(pyr.n_levels):
@@ -196,9 +196,9 @@ def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
     ou, ov = -int(stab[:, 1].min()), -int(stab[:, 2].min())
     cw = int(stab[:, 1].max()) + ou + n + width + 2
     col_rows = int(stab[:, 2].max()) + ov + n + 1
-    col = device_scratch(rt, col_rows * cw, zero=True)
+    col = rt.empty(col_rows * cw, zero=True)
     bw, brows = int(btab[:, 2].max()) * width, int(btab[:, 3].max())
-    bb = device_scratch(rt, 2 * SWEEP_BLOCK * brows * bw)
+    bb = rt.empty(2 * SWEEP_BLOCK * brows * bw)
     n_col = padded(int((btab[:, 2] * btab[:, 3]).max()), SWEEP_GROUP)
     n_vox = n * n // 16 if (width == 16 and a == 0) else SWEEP_BLOCK * n * (n // width)
     # clSetKernelArg does not retain buffers: keep every one referenced until the last enqueue.
@@ -236,7 +236,7 @@ def graded_transmittance(pyramid: Pyramid, density_scale: float, light_dir, lam:
     s, lam_f = _check_args(pyramid, density_scale, lam, method, quantity)
     l = check_light_dir(light_dir)
     rt = pyramid.runtime
-    out = device_scratch(rt, pyramid.data.size)  # read by later kernels (gather)
+    out = rt.empty(pyramid.data.size)  # read by later kernels (gather)
     for level in range(pyramid.n_levels):
         scale = lam_f ** (level + 1) * s * pyramid.voxel_size(level)
         _run_level(rt, pyramid, level, scale, l, method, quantity == "optical_depth", out,
@@ -253,7 +253,7 @@ def light_transmittance(pyramid: Pyramid, density_scale: float, light_dir, metho
     l = check_light_dir(light_dir)
     rt = pyramid.runtime
     n = pyramid.base_resolution
-    out = device_scratch(rt, n ** 3)  # read by later kernels (ray marcher)
+    out = rt.empty(n ** 3)  # read by later kernels (ray marcher)
     _run_level(rt, pyramid, 0, s * pyramid.voxel_size(0), l, method,
                quantity == "optical_depth", out, 0)
     return out if as_buffer else rt.from_device(out, (n, n, n))
@@ -279,7 +279,7 @@ def combine_levels(graded: GradedT, weights, bias: float = 0.0, as_buffer: bool 
     base = graded.base_resolution
     k = rt.program("transmittance").kernel("combine_levels",
                                            [None, None, None, np.int32, np.int32, np.float32, None])
-    out = device_scratch(rt, base ** 3)
+    out = rt.empty(base ** 3)
     rt.launch(k, base ** 3, (graded.buffer, rt.to_device(graded.level_offsets.astype(np.int32)),
                              rt.to_device(w.astype(np.float32)), np.int32(graded.n_levels),
                              np.int32(base), np.float32(bias), out))
