@@ -316,8 +316,13 @@ __kernel void raymarch(
                                                  (qx - bmin.x) / cell.x - 0.5f,
                                                  (qy - bmin.y) / cell.y - 0.5f,
                                                  (qz - bmin.z) / cell.z - 0.5f) * len;
-        const v16 a_seg = -expm1(-tau);
+        /* 1 - e^-tau without cancellation: its series below 0.1 (truncation < tau^4/120
+         * relative), 1 - e^-tau above (rounding < 1.2e-7 / tau relative). Cheaper than
+         * expm1, which PoCL evaluates 4x slower than exp on float16. */
         const v16 e = exp(-tau);
+        const v16 a_seg = select(1.0f - e,
+                                 tau * (1.0f - tau * (0.5f - tau * ((1.0f / 6.0f) - tau * (1.0f / 24.0f)))),
+                                 tau < 0.1f);
         const v16 w = T * a_seg;
         /* Where in the segment the light is scattered toward the camera, on average: the
          * fraction frac = 1/tau - e^-tau / (1 - e^-tau) of its length (1/2 for thin segments,

@@ -171,8 +171,12 @@ def _check_options(ms, octaves: Octaves, step, threshold, block, light_resolutio
 
 
 def auto_light_resolution(grid) -> int:
-    """Smallest power of two >= the grid's largest side, at most MAX_LIGHT_RESOLUTION."""
-    n = max(grid.resolution)
+    """The light field's default resolution: twice the grid's largest side rounded up to a
+    power of two, at most MAX_LIGHT_RESOLUTION. The voxelised light field is the ray
+    marcher's main bias against exact single scattering (image mean of the cloud example
+    2.5% dark at 1x, 0.7% at 2x; docs/raymarch.md); 2x costs ~0.5 s of resampling once per
+    volume and ~0.1 s per light change at 256^3."""
+    n = 2 * max(grid.resolution)
     return min(1 << max(0, (n - 1).bit_length()), MAX_LIGHT_RESOLUTION)
 
 
@@ -417,8 +421,8 @@ def add_arguments(group) -> None:
                        help=f"stop a ray when its transmittance falls below this "
                             f"(default {DEFAULT_THRESHOLD:g}; 0 = never)")
     group.add_argument("--light-resolution", type=int, default=None,
-                       help="light field resolution (power of two; default: grid size rounded "
-                            f"up to a power of two, at most {MAX_LIGHT_RESOLUTION})")
+                       help="light field resolution (power of two; default: twice the grid "
+                            f"size rounded up to a power of two, at most {MAX_LIGHT_RESOLUTION})")
     group.add_argument("--light-interp", choices=list(LIGHT_QUANTITIES), default="transmittance",
                        help="what is blended trilinearly between light-field voxels: T "
                             "(default) or the optical depth (docs/raymarch.md)")
