@@ -77,7 +77,9 @@ class Model(nn.Module):
         if levels is not None:
             t = torch.einsum("nlp,l->np", levels, self.level_weights) + self.level_bias
             features = torch.cat([features[:, :T_INDEX], t[:, None], features[:, T_INDEX + 1:]], dim=1)
-        x = (features - self.feature_shift[None, :, None]) * self.feature_scale[None, :, None]
+        # (x - shift) * scale as one fused pass over the large feature tensor
+        scale = self.feature_scale[None, :, None]
+        x = torch.addcmul(-self.feature_shift[None, :, None] * scale, features, scale)
         c = (config - self.config_shift) * self.config_scale
         gc = c[:, [G_MEAN, ALPHA]]
         parts = [x[:, :, sl] for sl in self._slices]

@@ -1,0 +1,136 @@
+"""Throughput of the network's fused OpenCL forward pass (cl/mlp.cl) against torch.
+
+    python bench/bench_mlp.py            # batches 4,096 and 262,144, 5 repeats each
+    python bench/bench_mlp.py --quick    # batches 4,096 and 32,768, 3 repeats
+
+Evaluations/s = queries x channels evaluated per second. OpenCL is timed on device buffers
+(the render path: the gather's buffers in, a device buffer out; no host copies), torch
+(clvol.model.Model, the training model) on the same inputs as CPU tensors in inference mode with
+2 threads, and also with 1 thread: on a loaded 2-core machine torch's OpenMP pool often runs
+slower with 2 threads than with 1, and the ratio is taken against the faster of the two. The
+runs alternate within each repeat and medians are reported, with the load average before and
+after: the cores are shared, so other processes' load lowers every figure.
+Target (issue 5): >= 5x torch.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # reference/ lives in the checkout
+
+from clvol.export import Architecture, MlpWeights, default_params, feature_contract  # noqa: E402
+from clvol.kernels.mlp import MlpKernel  # noqa: E402
+from clvol.runtime import get_runtime  # noqa: E402
+from reference import mlp as ref  # noqa: E402
+
+TARGET_RATIO = 5.0
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def make_inputs(n: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """n queries: a random block of up to 8,192 (realistic ranges, reference.mlp) tiled."""
+    block = min(n, 8192)
+    f, c = ref.random_inputs(block, rng, lobes=[(0.8, 0.7), (-0.3, 0.3)])
+    reps = -(-n // block)
+    return (np.ascontiguousarray(np.tile(f, (reps, 1, 1))[:n]),
+            np.ascontiguousarray(np.tile(c, (reps, 1))[:n]))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="small batches, 3 repeats")
+    ap.add_argument("--repeats", type=int, default=None,
+                    help="repeats per batch (default: 3, more for small batches: at least "
+                         "~2 s of OpenCL time, at most 25)")
+    ap.add_argument("--device", default=None)
+    args = ap.parse_args(argv)
+    batches = (4096, 32768) if args.quick else (4096, 262144)
+
+    import torch
+    from clvol.model import Model
+    torch.set_num_threads(2)
+
+    arch = Architecture()
+    weights = MlpWeights(arch, default_params(arch, np.random.default_rng(0)), feature_contract())
+    rt = get_runtime(args.device)
+    net = MlpKernel(weights, runtime=rt)
+    model = Model(arch)
+    model.load_numpy_params(weights.params)
+    model.eval()
+
+    print("bench_mlp: fused OpenCL forward (cl/mlp.cl) vs torch")
+    print(f"machine : {cpu_model()}, {os.cpu_count()} logical cores, Python {platform.python_version()}")
+    print(f"device  : {rt.entry.label} ({rt.entry.platform.version.strip()})")
+    print(f"torch   : {torch.__version__}, 2 threads and 1 thread, inference_mode")
+    macs = arch.n_macs()
+    print(f"network : {arch.n_params()} parameters, {macs['total']} multiply-adds per evaluation "
+          f"({macs['dense']} in dense layers)")
+    print(f"protocol: 3-25 repeats per row (n), OpenCL and torch (2, 1 threads) alternating, medians; "
+          f"load average before {os.getloadavg()[0]:.2f}")
+    print()
+    header = (f"{'batch':>8} {'mode':>5} {'OpenCL evals/s':>15} {'torch-2t evals/s':>17} "
+              f"{'torch-1t evals/s':>17} {'ratio':>7} {'target':>7}  {'CL ms':>7} {'torch ms':>9} {'n':>3}")
+    print(header)
+    rows = []
+    rng = np.random.default_rng(1)
+    for n in batches:
+        f, c = make_inputs(n, rng)
+        fb, cb = rt.to_device(f), rt.to_device(c)
+        ft, ct = torch.from_numpy(f), torch.from_numpy(c)
+        for mode, alb in (("grey", None), ("rgb", (0.92, 0.99, 0.94))):
+            ch = 1 if alb is None else 3
+            out = rt.empty((n, ch))
+            cfgs = [ct] if alb is None else [torch.from_numpy(ref.with_albedo(c, a)) for a in alb]
+            net.enqueue(fb, cb, n, out, alb).wait()            # build + warm-up
+            with torch.inference_mode():
+                model(ft[:256], ct[:256])
+            t0 = time.perf_counter()
+            net.enqueue(fb, cb, n, out, alb).wait()
+            once = time.perf_counter() - t0
+            repeats = args.repeats or int(np.clip(2.0 / max(once, 1e-3), 3, 25))
+            t_cl, t_th = [], {2: [], 1: []}
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                net.enqueue(fb, cb, n, out, alb).wait()
+                t_cl.append(time.perf_counter() - t0)
+                for threads in (2, 1):
+                    torch.set_num_threads(threads)
+                    t0 = time.perf_counter()
+                    with torch.inference_mode():
+                        for cc in cfgs:
+                            model(ft, cc)
+                    t_th[threads].append(time.perf_counter() - t0)
+            cl_rate = n * ch / np.median(t_cl)
+            th2, th1 = (n * ch / np.median(t_th[k]) for k in (2, 1))
+            ratio = cl_rate / max(th2, th1)
+            rows.append((n, mode, cl_rate, th2, th1, ratio))
+            print(f"{n:>8} {mode:>5} {cl_rate:>15,.0f} {th2:>17,.0f} {th1:>17,.0f} {ratio:>6.1f}x "
+                  f"{TARGET_RATIO:>6.1f}x  {np.median(t_cl) * 1e3:>7.1f} "
+                  f"{min(np.median(t_th[2]), np.median(t_th[1])) * 1e3:>9.1f} {repeats:>3}")
+        del f, c, fb, cb, ft, ct
+    print()
+    print(f"load average after {os.getloadavg()[0]:.2f} (2 cores; figures measured under that load)")
+    worst = min(r[5] for r in rows)
+    print(f"lowest ratio (vs the faster torch) {worst:.1f}x, target {TARGET_RATIO:.0f}x: "
+          f"{'met' if worst >= TARGET_RATIO else 'NOT met'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
