@@ -97,20 +97,21 @@ v16 gather16(__global const float *p, i16 i) {
                  p[i.s8], p[i.s9], p[i.sa], p[i.sb], p[i.sc], p[i.sd], p[i.se], p[i.sf]);
 }
 
+/* Row pairs (x0, x0 + 1) of 16 lanes as one 8-byte load each, through private arrays
+ * (building the vectors from 32 scalars directly crashes Oclgrind 21.10's
+ * uninitialised-value checker; this form costs PoCL ~5%). */
 #define LANE_PAIRS(P, I, LO, HI)                                                         \
     {                                                                                    \
-        const float2 e0 = vload2(0, P + I.s0), e1 = vload2(0, P + I.s1);                  \
-        const float2 e2 = vload2(0, P + I.s2), e3 = vload2(0, P + I.s3);                  \
-        const float2 e4 = vload2(0, P + I.s4), e5 = vload2(0, P + I.s5);                  \
-        const float2 e6 = vload2(0, P + I.s6), e7 = vload2(0, P + I.s7);                  \
-        const float2 e8 = vload2(0, P + I.s8), e9 = vload2(0, P + I.s9);                  \
-        const float2 ea = vload2(0, P + I.sa), eb = vload2(0, P + I.sb);                  \
-        const float2 ec = vload2(0, P + I.sc), ed = vload2(0, P + I.sd);                  \
-        const float2 ee = vload2(0, P + I.se), ef = vload2(0, P + I.sf);                  \
-        LO = (v16)(e0.x, e1.x, e2.x, e3.x, e4.x, e5.x, e6.x, e7.x,                       \
-                   e8.x, e9.x, ea.x, eb.x, ec.x, ed.x, ee.x, ef.x);                       \
-        HI = (v16)(e0.y, e1.y, e2.y, e3.y, e4.y, e5.y, e6.y, e7.y,                       \
-                   e8.y, e9.y, ea.y, eb.y, ec.y, ed.y, ee.y, ef.y);                       \
+        int id_[16];                                                                     \
+        float lo_[16], hi_[16];                                                          \
+        vstore16(I, 0, id_);                                                             \
+        for (int j_ = 0; j_ < 16; ++j_) {                                                \
+            const float2 e_ = vload2(0, P + id_[j_]);                                    \
+            lo_[j_] = e_.x;                                                              \
+            hi_[j_] = e_.y;                                                              \
+        }                                                                                \
+        LO = vload16(0, lo_);                                                            \
+        HI = vload16(0, hi_);                                                            \
     }
 
 /* grid_lookup (grid.h) on 16 lanes: trilinear at continuous voxel coordinates, clamped.
@@ -121,12 +122,14 @@ __attribute__((always_inline))
 v16 lookup16(__global const float *d, int nx, int ny, int nz, v16 gx, v16 gy, v16 gz) {
     /* Clamping first makes the casts floors (non-negative); it also keeps every index in
      * range for any finite coordinate. */
-    v16 x = clamp(gx, 0.0f, (float)(nx - 1));
-    v16 y = clamp(gy, 0.0f, (float)(ny - 1));
-    v16 z = clamp(gz, 0.0f, (float)(nz - 1));
-    i16 x0 = min(convert_int16(x), max(nx - 2, 0));
+    /* Scalar bounds are broadcast explicitly: Oclgrind 21.10 applies the scalar argument of
+     * min(int16, int) to lane 0 only (an out-of-bounds read it then reported itself). */
+    v16 x = clamp(gx, (v16)(0.0f), (v16)((float)(nx - 1)));
+    v16 y = clamp(gy, (v16)(0.0f), (v16)((float)(ny - 1)));
+    v16 z = clamp(gz, (v16)(0.0f), (v16)((float)(nz - 1)));
+    i16 x0 = min(convert_int16(x), (i16)(max(nx - 2, 0)));
     i16 y0 = convert_int16(y), z0 = convert_int16(z);
-    i16 y1 = min(y0 + 1, ny - 1), z1 = min(z0 + 1, nz - 1);
+    i16 y1 = min(y0 + 1, (i16)(ny - 1)), z1 = min(z0 + 1, (i16)(nz - 1));
     v16 fx = x - convert_float16(x0), fy = y - convert_float16(y0), fz = z - convert_float16(z0);
     i16 r00 = (z0 * ny + y0) * nx + x0, r01 = (z0 * ny + y1) * nx + x0;
     i16 r10 = (z1 * ny + y0) * nx + x0, r11 = (z1 * ny + y1) * nx + x0;
@@ -229,7 +232,7 @@ __kernel void raymarch(
     const v16 mu = dx * light_dir.x + dy * light_dir.y + dz * light_dir.z;  /* dot(-l, omega) */
     v16 f0;
 #if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
-    v16 ow[MS_OCTAVES - 1];
+    float ow[MS_OCTAVES - 1][16];  /* octave weights b^i f(mu; g c^i) per lane */
 #endif
     {
         float m[16], f[16];
@@ -241,8 +244,10 @@ __kernel void raymarch(
         for (int i = 0; i < MS_OCTAVES - 1; ++i) {
             ci *= oct_c;
             bi *= oct_b;
-            for (int j = 0; j < 16; ++j) f[j] = bi * phase_eval(m[j], lobe_g * ci, lobe_w);
-            ow[i] = vload16(0, f);
+            /* Component-wise: Oclgrind 21.10's uninitialised-value checker crashed on the
+             * float4 * float form here. */
+            const float4 gi = (float4)(lobe_g.x * ci, lobe_g.y * ci, lobe_g.z * ci, lobe_g.w * ci);
+            for (int j = 0; j < 16; ++j) ow[i][j] = bi * phase_eval(m[j], gi, lobe_w);
         }
 #endif
     }
@@ -258,6 +263,11 @@ __kernel void raymarch(
 #endif
 
     v16 k = (v16)(0.0f), T = (v16)(1.0f), S = (v16)(0.0f), A = (v16)(0.0f), D = (v16)(0.0f);
+#if MS_SOURCE == 1 && LIT && MS_OCTAVES > 1
+    /* One sum per octave; its per-ray phase weight is applied after the march. */
+    v16 Mo[MS_OCTAVES - 1];
+    for (int i = 0; i < MS_OCTAVES - 1; ++i) Mo[i] = (v16)(0.0f);
+#endif
 #if MS_SOURCE == 1 || (MS_SOURCE == 2 && MS_CHANNELS == 1)
     v16 M = (v16)(0.0f);
 #elif MS_SOURCE == 2
@@ -280,9 +290,12 @@ __kernel void raymarch(
         for (int pass = 0; pass < SKIP_PASSES; ++pass) {
             /* Untruncated midpoint of the current segment (0 for idle lanes: stays finite). */
             const v16 tq = select((v16)(0.0f), ta + 0.5f * step, active);
-            const i16 bx = convert_int16(clamp((ox + tq * dx - bmin.x) / bsize.x, 0.0f, (float)(mx - 1)));
-            const i16 by = convert_int16(clamp((oy + tq * dy - bmin.y) / bsize.y, 0.0f, (float)(my - 1)));
-            const i16 bz = convert_int16(clamp((oz + tq * dz - bmin.z) / bsize.z, 0.0f, (float)(mz - 1)));
+            const i16 bx = convert_int16(clamp((ox + tq * dx - bmin.x) / bsize.x, (v16)(0.0f),
+                                                   (v16)((float)(mx - 1))));
+            const i16 by = convert_int16(clamp((oy + tq * dy - bmin.y) / bsize.y, (v16)(0.0f),
+                                                   (v16)((float)(my - 1))));
+            const i16 bz = convert_int16(clamp((oz + tq * dz - bmin.z) / bsize.z, (v16)(0.0f),
+                                                   (v16)((float)(mz - 1))));
             const i16 empty = active & (gather16(majorant, (bz * my + by) * mx + bx) == 0.0f);
 #if RAYMARCH_STATS
             ++n_maj;
@@ -359,12 +372,10 @@ __kernel void raymarch(
             /* T_light^(a^i) = exp(-a^i tau_l). */
             const v16 tau_l = TAU_L;
             float ai = 1.0f;
-            v16 f = (v16)(0.0f);
             for (int i = 0; i < MS_OCTAVES - 1; ++i) {
                 ai *= oct_a;
-                f += ow[i] * exp(-ai * tau_l);
+                Mo[i] += w * exp(-ai * tau_l);
             }
-            M += w * f;
 #elif MS_SOURCE == 2
             const v16 ux = (rx - gmin.x) / gcell.x - 0.5f;
             const v16 uy = (ry - gmin.y) / gcell.y - 0.5f;
@@ -387,6 +398,9 @@ __kernel void raymarch(
         k += select((v16)(0.0f), (v16)(1.0f), active);
     }
 
+#if MS_SOURCE == 1 && LIT && MS_OCTAVES > 1
+    for (int i = 0; i < MS_OCTAVES - 1; ++i) M += vload16(0, ow[i]) * Mo[i];
+#endif
     /* Colour, once per ray. */
     const float3 ae = albedo.xyz * irradiance.xyz;
     v16 s_r = (v16)(0.0f), s_g = (v16)(0.0f), s_b = (v16)(0.0f);

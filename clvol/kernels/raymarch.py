@@ -19,7 +19,7 @@ SOURCES = {"none": 0, "wrenninge": 1, "grid": 2}
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
 MAX_OCTAVES = 8
 TILE = 4  # pixels per side of the tile one work-item marches (16 float16 lanes)
-LOCAL_SIZE = 64  # tiles per work-group
+LOCAL_SIZE = 16  # tiles per work-group
 LAYERS = (("total", 3), ("single", 3), ("multiple", 3), ("alpha", 1), ("depth", 1))
 
 
@@ -137,7 +137,8 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
             outs["total"], outs["single"], outs["multiple"], outs["alpha"], outs["depth"],
             outs["stats"])
     # An explicit local size: with a NULL one, PoCL 3.1 picked work-groups for 512 x 512
-    # images (16384 tiles) that crashed it (segfault); 64 tiles per group measured fastest.
+    # images (16384 tiles) that crashed it (segfault). 16 and 64 measured alike on PoCL;
+    # Oclgrind 21.10 crashes with 64.
     evt = rt.launch(k, n_tiles, args, pad=LOCAL_SIZE, local_size=(LOCAL_SIZE,))
     if not read_back:
         return evt, outs
