@@ -274,6 +274,7 @@ class Plan:
     background: tuple
     simulated: tuple
     skipped: tuple
+    channels: int = 1
 
     @classmethod
     def make(cls, medium, light, ms, octaves, ms_grid, shortcuts=True) -> "Plan":
@@ -313,13 +314,20 @@ class Plan:
             sim.append(f"multiple scattering (precomputed F_ms grid {gx}x{gy}x{gz}, "
                        f"{planes.shape[0]} channel(s))")
             box = (tuple(ms_grid.bbox_min), tuple(ms_grid.bbox_max))
+        channels = 1
+        if planes is not None:
+            channels = planes.shape[0]
+        elif lit:
+            skip.append("per-channel marching (albedo and irradiance are constant over the "
+                        "medium: one colour-free march, colour applied once per ray)")
         env = light.environment
         if env is not None:
             sim.append("background (environment radiance behind the medium)")
             skip.append("environment in-scattering (the medium is lit by the sun only)")
         background = tuple(env) if env is not None else (0.0, 0.0, 0.0)
         sim.append("extinction along camera rays")
-        return cls(lit, source, lobes, planes, box, background, tuple(sim), tuple(skip))
+        return cls(lit, source, lobes, planes, box, background, tuple(sim), tuple(skip),
+                   channels)
 
 
 def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float = 0.5,
@@ -377,6 +385,7 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
         "raymarch.light_resolution": int(rm.light_resolution) if plan.lit else 0,
         "raymarch.light_interp": light_interp,
         "raymarch.supersample": int(supersample),
+        "raymarch.channels_marched": plan.channels,
         "raymarch.shortcuts": bool(shortcuts),
         "device": rm.rt.entry.label,
     }
