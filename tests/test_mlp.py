@@ -173,3 +173,19 @@ def test_matches_torch(weights):
     got = MlpKernel(weights).forward(f, c)
     # two float32 computations: twice the one-sided bound
     assert np.all(np.abs(got - want) <= 2 * _bound(want))
+
+
+@pytest.mark.parametrize("albedo", [(0.8, 0.8, 0.8), (0.0, 0.6, 0.9)])
+def test_radiance_grey_and_chromatic(net, weights, albedo):
+    """F [N][3] as reference.mlp.radiance: grey is one evaluation broadcast to 3 channels."""
+    f, c = ref.random_inputs(21, np.random.default_rng(6), lobes=LOBES[1])
+    got = net.radiance(f, c, albedo)
+    want = ref.radiance(weights.params, ARCH, f, c, albedo)
+    assert got.shape == (21, 3)
+    for ch, a in enumerate(albedo):
+        if a == 0:
+            assert np.all(got[:, ch] == 0)
+            continue
+        y = ref.forward(weights.params, ARCH, f, ref.with_albedo(c, a))
+        bound = 1e-5 * want[:, ch] + a ** 4 * np.exp(y) * 1e-5 * np.abs(y).max()
+        assert np.all(np.abs(got[:, ch] - want[:, ch]) <= bound)

@@ -3,6 +3,7 @@
     net = MlpKernel(load_weights("net.npz"))          # packs the weights once, on the device
     y = net.forward(features, config)                 # y [N] (config's albedo)
     F = net.forward(features, config, channel_albedo=(0.9, 0.95, 1.0), decode=True)   # F [N][3]
+    F = net.radiance(features, config, albedo_rgb)    # F [N][3], grey media: one evaluation
     net.enqueue(features_buf, config_buf, n, out_buf, ...)   # gather buffers -> device output
 
 ``features``/``config`` are the gather's arrays or buffers (clvol/layout.py). With
@@ -15,7 +16,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..export import GAMMA, TYPES, MlpWeights
-from ..layout import CONFIG_DIM
+from ..layout import CONFIG_DIM, CONFIG_FIELDS
 from ..runtime import get_runtime
 
 QUERIES_PER_ITEM = 16   # float16 lanes of one work-item
@@ -126,6 +127,21 @@ class MlpKernel:
         evt = self.enqueue(fb, cb, n, out, channel_albedo, decode)
         y = rt.from_device(out, (n, channels), wait_for=[evt])
         return y[:, 0] if channels == 1 else y
+
+
+    def radiance(self, features, config, albedo_rgb, n: int | None = None) -> np.ndarray:
+        """F [N][3] (orders >= 2, unit irradiance) for a medium of RGB albedo ``albedo_rgb``:
+        one evaluation per query for a grey medium (its config's albedo is replaced by the
+        medium's), three for a chromatic one (equal channels share one); albedo 0 gives 0."""
+        alb = _channel_albedo(albedo_rgb)
+        if alb[0] == alb[1] == alb[2]:
+            if isinstance(config, cl.Buffer):   # the kernel's 3-channel mode dedupes equal albedos
+                return self.forward(features, config, channel_albedo=alb, decode=True, n=n)
+            cfg = np.array(config, np.float32, copy=True)
+            cfg[:, CONFIG_FIELDS.index("albedo")] = alb[0]
+            F = self.forward(features, cfg, decode=True, n=n)
+            return np.repeat(F[:, None], 3, axis=1)
+        return self.forward(features, config, channel_albedo=alb, decode=True, n=n)
 
 
 def _channel_albedo(a) -> np.ndarray:
