@@ -180,22 +180,27 @@ __kernel void mlp_forward(__global const float *features, __global const float *
         cfg[i] = (lanes(config, coff, i) - cshift[i]) * cscale[i];
     const V albedo_cfg = lanes(config, coff, CFG_ALBEDO);
 
-    /* Normalised features, then the squeeze vectors of all layers (channel independent). */
+    /* Features, normalised in the same pass that pools them into the squeeze vectors of all
+     * layers (channel independent). */
     V x[N_TYPES * N_POINTS];
     load_features(features, foff, x);
-    for (int t = 0; t < N_TYPES; ++t) {
-        const float sh = fshift[t], sc = fscale[t];
-        for (int j = 0; j < N_POINTS; ++j) x[t * N_POINTS + j] = (x[t * N_POINTS + j] - sh) * sc;
-    }
     V v[N_LAYERS][SQUEEZE];
     {
         int start = 0;
         for (int k = 0; k < N_LAYERS; ++k) {
             const int cnt = COUNTS[k];
             for (int t = 0; t < N_TYPES; ++t) {
-                const V *xt = x + t * N_POINTS + start;
-                V s = xt[0], m = xt[0];
-                for (int j = 1; j < cnt; ++j) { s += xt[j]; m = fmax(m, xt[j]); }
+                const float sh = fshift[t], sc = fscale[t];
+                V *xt = x + t * N_POINTS + start;
+                V y = (xt[0] - sh) * sc;
+                V s = y, m = y;
+                xt[0] = y;
+                for (int j = 1; j < cnt; ++j) {
+                    y = (xt[j] - sh) * sc;
+                    xt[j] = y;
+                    s += y;
+                    m = fmax(m, y);
+                }
                 v[k][t] = s / (float)cnt;
                 v[k][N_TYPES + t] = m;
             }
