@@ -189,3 +189,57 @@ def test_radiance_grey_and_chromatic(net, weights, albedo):
         y = ref.forward(weights.params, ARCH, f, ref.with_albedo(c, a))
         bound = 1e-5 * want[:, ch] + a ** 4 * np.exp(y) * 1e-5 * np.abs(y).max()
         assert np.all(np.abs(got[:, ch] - want[:, ch]) <= bound)
+
+
+# --------------------------------------------------------------------------- gather features
+
+PHASES = {1: {"type": "hg", "g": 0.857},
+          2: {"type": "mhg", "lobes": [{"g": 0.8, "weight": 0.7}, {"g": -0.3, "weight": 0.3}]},
+          3: {"type": "mhg", "lobes": [{"g": 0.8, "weight": 0.5}, {"g": 0.3, "weight": 0.3},
+                                       {"g": -0.3, "weight": 0.2}]}}
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    from clvol.kernels.pyramid import build_pyramid
+    from clvol.kernels.transmittance import graded_transmittance
+    from clvol.volume.generators import generate
+    grid = generate("cloud", seed=2, resolution=32)
+    pyr = build_pyramid(grid, base_resolution=64)
+    l = np.array([0.6, 0.9, 0.3]) / np.linalg.norm([0.6, 0.9, 0.3])
+    graded = graded_transmittance(pyr, 20.0, l)
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(grid.bbox_min * 0.8, grid.bbox_max * 0.8, (90, 3))
+    om = rng.normal(size=(90, 3))
+    om /= np.linalg.norm(om, axis=1, keepdims=True)
+    return pyr, graded, l, pts, om
+
+
+@pytest.mark.parametrize("n_lobes,albedo", [(1, (0.95, 0.95, 0.95)), (2, (0.999, 0.999, 0.999)),
+                                             (3, (0.99, 0.85, 0.75))])
+def test_parity_on_gathered_features(cloud, n_lobes, albedo):
+    """Features of a real scene (a 32^3 cloud on a 64^3 pyramid, render mode with the level
+    weights from the weight file), fed to the kernel as the gather's device buffers."""
+    from clvol.kernels.gather import gather
+    from clvol.scene import scene_from_dict
+    pyr, graded, l, pts, om = cloud
+    arch = Architecture(n_levels=pyr.n_levels)
+    w = MlpWeights(arch, default_params(arch, np.random.default_rng(n_lobes)), feature_contract())
+    medium = scene_from_dict({
+        "volume": {"generator": "cloud", "resolution": 8},
+        "medium": {"density_scale": 20.0, "albedo": list(albedo), "phase": PHASES[n_lobes]},
+        "light": {"direction": list(l)},
+        "camera": {"origin": [0, 0, 3], "target": [0, 0, 0], "up": [0, 1, 0], "fov_y": 30,
+                   "width": 4, "height": 4}}, "<test>").medium
+    kw = dict(mode="render", level_weights=w.level_weights, bias=w.level_bias)
+    g = gather(pyr, graded, pts, om, l, medium, albedo[0], **kw)
+    assert np.ptp(g["features"][:, 0]) > 0.1 and np.ptp(g["features"][:, 2]) > 0.1  # not empty
+    net = MlpKernel(w)
+    bufs = gather(pyr, graded, pts, om, l, medium, albedo[0], as_buffers=True, **kw)
+    if len(set(albedo)) == 1:
+        got = net.forward(bufs["features"], bufs["config"], n=bufs["n"])
+        want = ref.forward(w.params, arch, g["features"], g["config"])
+    else:
+        got = net.forward(bufs["features"], bufs["config"], channel_albedo=albedo, n=bufs["n"])
+        want = ref.forward_channels(w.params, arch, g["features"], g["config"], albedo)
+    _assert_y(got, want)
