@@ -1,7 +1,10 @@
 """Weight files (clvol/export.py): round trip, counts, and every kind of bad file refused with a
 message naming the file and the field. NumPy only (no torch, no OpenCL)."""
 import json
+import subprocess
+import sys
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -189,3 +192,23 @@ def test_save_is_atomic_and_checks(tmp_path, params):
     assert not list(tmp_path.iterdir())   # nothing half-written
     p = save_weights(tmp_path / "x.npz", ARCH, params, feature_contract())
     assert zipfile.is_zipfile(p) and sorted(q.name for q in tmp_path.iterdir()) == ["x.npz"]
+
+
+def test_loader_and_forward_need_no_torch(saved):
+    """Rendering never imports torch: load a weight file and run the NumPy forward in a process
+    where importing torch fails."""
+    code = (
+        "import sys; sys.modules['torch'] = None\n"
+        "import numpy as np\n"
+        "from clvol.export import load_weights\n"
+        "import clvol.kernels.mlp\n"
+        "from reference import mlp\n"
+        f"w = load_weights({str(saved)!r})\n"
+        "f, c = mlp.random_inputs(3, np.random.default_rng(0))\n"
+        "y = mlp.forward(w.params, w.arch, f, c)\n"
+        "assert y.shape == (3,) and np.all(np.isfinite(y))\n"
+        "assert 'torch' not in [m.split('.')[0] for m in sys.modules if sys.modules[m] is not None]\n"
+        "print('ok')\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          cwd=str(Path(__file__).resolve().parents[1]))
+    assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr[-2000:]
