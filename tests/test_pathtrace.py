@@ -10,7 +10,8 @@ How the tests decide (tolerances and why):
   PT_TEST_BIAS) must fail it on every path
   that receives sun light (power check).
 - Statistical, independent streams: z = |mean_a - mean_b| / sqrt(se_a^2 + se_b^2) < 4.0
-  (about 20 comparisons in this file: family-wise false alarm ~1e-3).
+  (about 20 comparisons in this file: family-wise false alarm ~1e-3); standard errors from
+  per-pixel sample variances of >= 2048 spp (see the twin test for its 16-spp side).
 - White furnace, missed rays, empty grid, albedo 0: exact per path (no tolerance): with
   albedo 1 the throughput is exactly 1 and each path adds the environment exactly once.
 """
@@ -142,6 +143,7 @@ STATISTICAL = {
     "hg-rgb-env-grid": dict(lobes=[(0.7, 1.0)], albedo=(0.9, 0.7, 0.5), env=(0.3, 0.2, 0.1)),
     "mhg2-order2-grid": dict(lobes=[(0.8, 0.7), (-0.3, 0.3)], max_order=2, albedo=(0.8, 0.85, 0.9)),
     "iso-spiky-grid": dict(density=_spiky(), scale=1.0, lobes=[]),
+    "mhg3-single-env-grid": dict(lobes=SKIN, max_order=1, albedo=(0.99, 0.85, 0.75), env=(0.2, 0.2, 0.3)),
 }
 SMALL_CAM = Camera((0.1, 0.05, 2.0), (0, 0, 0.05), (0, 1, 0), 22.0, 4, 4)
 
@@ -156,7 +158,12 @@ def test_kernel_with_majorant_grid_matches_twin_statistically(name):
     for key in mk:
         if key == "multiple" and med.max_order == 1:
             continue
-        assert np.all(_z(mk[key], mr[key]) < 4.0), (key, mk[key], mr[key])
+        # The twin's 16 spp are too few to estimate its own variance (order-2 light is
+        # heavy-tailed: 256 paths underestimated it 10x in a trial), so under the null
+        # hypothesis (same distribution) its standard error is taken from the kernel's
+        # per-path variance (4096 spp) scaled to 16 spp.
+        se_twin = mk[key][1] * np.sqrt(k.shape[0] / r.shape[0])
+        assert np.all(_z(mk[key], (mr[key][0], se_twin)) < 4.0), (key, mk[key], mr[key], se_twin)
 
 
 def test_majorant_grid_and_global_majorant_agree_statistically():
