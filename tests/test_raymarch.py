@@ -373,3 +373,29 @@ def test_bad_options_are_named(kwargs, text):
 def test_octaves_energy_flag():
     assert Octaves(3, 0.5, 0.5, 0.5).energy_conserving
     assert not Octaves(3, 0.4, 0.6, 0.5).energy_conserving
+
+
+def test_cli_renders_a_scene_with_the_ray_marcher(tmp_path):
+    from clvol.cli import main
+    from clvol.image import read_exr
+    scene = tmp_path / "s.toml"
+    scene.write_text(
+        '[volume]\ngenerator = "cloud"\nseed = 2\nresolution = 24\n'
+        '[medium]\npreset = "cloud"\ndensity_scale = 30.0\n'
+        '[light]\ndirection = [0.6, 0.9, 0.3]\nenvironment = [0.1, 0.1, 0.1]\n'
+        '[camera]\norigin = [0.0, 0.3, 2.4]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 30.0\n'
+        'width = 20\nheight = 16\n')
+    out = tmp_path / "o.exr"
+    assert main(["render", str(scene), "--method", "raymarch", "--ms", "none", "--step", "0.5",
+                 "-o", str(out)]) == 0
+    img = read_exr(out)
+    assert set(img.layers) == {"total", "single", "multiple", "alpha", "depth"}
+    assert img.layers["total"].shape == (16, 20, 3)
+    assert "single scattering" in img.header["simulated"]
+    assert img.header["raymarch.step_voxels"] == "0.5"
+    # Where nothing is in the way the background (environment 0.1) comes through unchanged.
+    clear = img.layers["alpha"] == 0
+    assert clear.any()
+    np.testing.assert_allclose(img.layers["total"][clear], 0.1, rtol=1e-6)
+    assert main(["render", str(scene), "--method", "raymarch", "--step", "-1",
+                 "-o", str(out)]) == 2
