@@ -293,6 +293,9 @@ def save_weights(path, arch: Architecture, params: dict, contract: dict,
     """Write a weight file (atomically: a temporary file renamed into place)."""
     path = Path(path)
     params = _check_params(params, arch, str(path))
+    if "n_levels" in contract and contract["n_levels"] != arch.n_levels:
+        raise WeightsError(f"{path}: the network has {arch.n_levels} transmittance levels, the contract "
+                           f"{contract['n_levels']} (base resolution {contract.get('base_resolution')})")
     contract = dict(contract)
     contract["level_weights"] = [float(v) for v in params["level_weights"]]
     contract["level_bias"] = float(params["level_bias"][0])

@@ -19,7 +19,7 @@ from torch import nn
 
 from . import layout
 from .export import (DEFAULT_CONFIG_SCALE, SQUEEZE_DIM, TEMPLATES, TYPES, Architecture,
-                     MlpWeights, feature_contract, save_weights)
+                     MlpWeights, save_weights)
 
 G_MEAN = layout.CONFIG_FIELDS.index("g_mean")
 ALPHA = layout.CONFIG_FIELDS.index("alpha")
@@ -111,11 +111,11 @@ class Model(nn.Module):
         m.load_numpy_params(w.params)
         return m
 
-    def export(self, path, contract: dict | None = None, training: dict | None = None):
-        """Write the weight file (clvol/export.py) with this gather contract (default: the
-        layout's defaults; pass ``feature_contract(base, lam, template_hash, level_map)``)."""
-        return save_weights(path, self.arch, self.numpy_params(),
-                            contract if contract is not None else feature_contract(), training)
+    def export(self, path, contract: dict, training: dict | None = None):
+        """Write the weight file (clvol/export.py) with the contract of the gather that made the
+        training features: ``clvol.export.gather_contract(base_resolution, lam)`` for the
+        packaged templates (there is no default: a wrong one would pass the loader's check)."""
+        return save_weights(path, self.arch, self.numpy_params(), contract, training)
 
 
 def count_parameters(model: nn.Module) -> int:

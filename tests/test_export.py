@@ -212,3 +212,13 @@ def test_loader_and_forward_need_no_torch(saved):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                           cwd=str(Path(__file__).resolve().parents[1]))
     assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr[-2000:]
+
+
+def test_level_count_must_match_contract(tmp_path):
+    arch = Architecture(n_levels=7)                       # a 64^3 pyramid
+    p = default_params(arch)
+    with pytest.raises(WeightsError, match=r"7 transmittance levels, the contract 9 \(base resolution 256\)"):
+        save_weights(tmp_path / "x.npz", arch, p, gather_contract(256))
+    w = load_weights(save_weights(tmp_path / "y.npz", arch, p, gather_contract(64)),
+                     expect_contract=gather_contract(64))
+    assert w.arch.n_levels == 7 and len(w.contract["level_weights"]) == 7
