@@ -100,7 +100,7 @@ def _cmd_render(args) -> int:
     scene = load_scene(args.scene)
     module = method_module(args.method)
     result = module.render(scene, args)
-    header = {"clvol.scene": str(args.scene), "clvol.method": args.method, **result.header}
+    header = {"scene": str(args.scene), "method": args.method, **result.header}
     write_exr(args.output, result.layers, header)
     print(f"wrote {args.output}", file=sys.stderr)
     if args.png is not None:

@@ -94,3 +94,21 @@ def test_render_bad_scene_is_exit_2_with_field(tmp_path, capsys):
     scene.write_text("[volume]\ngenerator = 'sphere'\n[medium]\ndensity_scale = -1\n")
     code, _, err = run(capsys, "render", scene, "-o", tmp_path / "o.exr")
     assert code == 2 and "s.toml" in err and err.count("\n") == 1
+
+
+def test_render_writes_exr_png_and_header(tmp_path, capsys):
+    scene = tmp_path / "s.toml"
+    scene.write_text(
+        "[volume]\ngenerator = 'sphere'\nresolution = 12\n"
+        "[medium]\npreset = 'milk'\ndensity_scale = 8.0\n"
+        "[light]\ndirection = [0.3, 1.0, 0.4]\n"
+        "[camera]\norigin = [0.0, 0.2, 2.2]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 35.0\n"
+        "width = 9\nheight = 7\n")
+    out = tmp_path / "o.exr"
+    code, _, err = run(capsys, "render", scene, "--method", "raymarch", "-o", out, "--png")
+    assert code == 0, err
+    from clvol.image import read_exr
+    img = read_exr(out)
+    assert img.rgb.shape == (7, 9, 3) and np.all(np.isfinite(img.rgb)) and img.rgb.max() > 0
+    assert img.header["scene"] == str(scene) and img.header["method"] == "raymarch"
+    assert (tmp_path / "o.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
