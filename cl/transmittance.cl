@@ -189,7 +189,10 @@ vecf field_at(__global const float *S, int rs, int ps, int uu, int vv, float gu,
 /* Split an offset x in (-2, 2) into floor and fraction without floor() (slow on PoCL). */
 __attribute__((always_inline))
 int split_offset(float x, float *frac) {
-    int i = (int)(x + 2.0f) - 2;                 /* x + 2 > 0: the cast is a floor */
+    int i = (int)(x + 2.0f) - 2;                 /* x + 2 > 0: the cast is a floor ... */
+    /* ... except that x + 2 rounds to 2 for -6e-8 < x < 0 (a light grazing a face), which
+     * gave i = 0 and a negative fraction: mix() then extrapolated to a negative optical depth. */
+    if ((float)i > x) i -= 1;
     *frac = x - (float)i;
     return i;
 }

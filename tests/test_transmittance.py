@@ -279,3 +279,17 @@ def test_transmittance_tiny():
     np.testing.assert_allclose(kt.combine_levels(g, [1, 1, 1], 0.5),
                                rt.combine_levels([g.level(l) for l in range(3)], [1, 1, 1], 0.5),
                                atol=1e-5)
+
+
+def test_sweep_never_negative_for_a_light_grazing_a_face():
+    """Regression: a lateral offset of ~-1e-8 voxel (light (1, 1e-7, 0)) used to floor to 0
+    with a negative fraction, and the sweep returned optical depths of -9e-19."""
+    rs = np.random.default_rng(5)
+    d = np.where(rs.random((9, 11, 7)) < 0.03, 10 ** rs.uniform(-2, 2, (9, 11, 7)), 0)
+    grid = Grid(d.astype(np.float32), np.array([-0.5] * 3), np.array([0.5] * 3))
+    pyr = kp.build_pyramid(grid, base_resolution=16)
+    l = np.array([1.0, 1e-7, 0.0]) / np.linalg.norm([1.0, 1e-7, 0.0])
+    tau = kt.light_transmittance(pyr, 1e-4, l, quantity="optical_depth")
+    assert tau.min() >= 0.0
+    want = rt.sweep(pyr.level(0).astype(np.float64), l, 1e-4 * pyr.voxel_size(0))
+    np.testing.assert_allclose(tau, want, rtol=0, atol=KERNEL_TWIN_RTOL * want.max())
