@@ -28,6 +28,7 @@ import time
 
 import numpy as np
 
+from _common import cpu_model  # noqa: E402  (bench/ is on sys.path)
 from clvol.kernels.pathtrace import ROW_STEPS, ROW_VERTICES, PathTracer
 from clvol.metrics import compare_images
 from clvol.pathtrace import _medium, render_pathtrace
@@ -36,14 +37,6 @@ from clvol.scene import Camera, Light, Phase, Scene, VolumeSpec
 from clvol.scene import Medium as SceneMedium
 
 
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def bench_scene(density_scale: float, size: int) -> Scene:

@@ -35,6 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _common import machine  # noqa: E402  (bench/ is on sys.path)
 from clvol.kernels.pyramid import build_pyramid  # noqa: E402
 from clvol.raymarch import RayMarcher, render_raymarch  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
@@ -43,21 +44,6 @@ from clvol.volume.generators import generate  # noqa: E402
 
 PEAK_LOOKUPS = (0.7e9, 0.8e9)
 TARGET_MS = {256: 30.0, 512: 100.0}
-
-
-def machine(rt) -> str:
-    cpu = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    plat = rt.entry.platform
-    return (f"CPU: {cpu}; {os.cpu_count()} cores; device: {rt.entry.label}; "
-            f"platform: {plat.version.strip()}; load average: "
-            + " ".join(f"{x:.2f}" for x in os.getloadavg()))
 
 
 def cpu_seconds() -> float:

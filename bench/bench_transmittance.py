@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from _common import cpu_model  # noqa: E402  (bench/ is on sys.path)
 from clvol.kernels import transmittance as kt
 from clvol.kernels.pyramid import build_pyramid
 from clvol.runtime import get_runtime
@@ -33,14 +34,6 @@ DIRECTIONS = {"x-dominant": (0.9, 0.3, 0.2), "y-dominant": (0.6, 0.9, 0.3),
               "z-dominant": (0.3, 0.2, 0.9)}
 
 
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def timed(rt, fn, dirs):

@@ -1,0 +1,208 @@
+"""What accuracy costs in time: every clvol method on one scene, error against a long path-traced
+reference of our own, with the seconds each took, measured in one run.
+
+    python bench/accuracy_vs_time.py [--scene examples/cloud.toml] [--size 128] [--ref-spp 1024]
+                                     [--quick] [--out out/bench]
+
+Methods and settings (each point is one render, timed warm: kernels are compiled by a first
+untimed run at the smallest setting):
+  pathtrace     spp 1, 4, 16, 64, 256 (unbiased; error falls as 1/sqrt(time))
+  raymarch/none        single scattering only, step 2, 1, 0.5 voxels
+  raymarch/wrenninge   + Wrenninge octaves (N=3, a=b=c=0.5), step 2, 1, 0.5 voxels
+  raymarch/grid        + F_ms from a lattice of path-traced point queries (8^3 and 16^3 points,
+                       64 paths each); the time includes filling the lattice, which the network
+                       will replace by one evaluation per lattice point
+Times: "frame" is what one more image costs (the march for the ray marcher; the whole render
+for the path tracer), "light update" what a light change costs once (the light field, and the
+lattice fill for the grid source). Errors: the MRPNN metric (RMSE x 100 of tonemapped 8-bit luminance), relMSE and RMSE against the
+reference (a different seed from the test renders). Writes a CSV and an SVG plot (log-log,
+error against seconds) to --out, and prints the table.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from _common import machine  # noqa: E402  (bench/ is on sys.path)
+from clvol.image import read_exr, write_exr  # noqa: E402
+from clvol.metrics import compare_images  # noqa: E402
+from clvol.pathtrace import point_query, render_pathtrace  # noqa: E402
+from clvol.raymarch import RayMarcher, fill_ms_grid  # noqa: E402
+from clvol.runtime import get_runtime  # noqa: E402
+from clvol.scene import load_scene  # noqa: E402
+
+
+def reference(scene, grid, spp, out_dir: Path):
+    """The long path-traced reference, cached on disk by (scene, size, spp)."""
+    cam = scene.camera
+    name = f"ref_{Path(scene.path).stem}_{cam.width}x{cam.height}_{spp}spp.exr"
+    path = out_dir / name
+    if path.exists():
+        img = read_exr(path)
+        print(f"reference: {path} (cached; {img.header.get('seconds', '?')} s when made)")
+        return img.rgb
+    print(f"reference: path tracing {spp} spp at {cam.width}x{cam.height} ...", flush=True)
+    res = render_pathtrace(scene, spp=spp, seed=987654321, grid=grid)
+    write_exr(path, {"total": res.layers["total"]}, res.header)
+    print(f"reference: {res.header.get('seconds')} s, written to {path}")
+    return res.layers["total"]
+
+
+def timed(fn):
+    t0 = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t0
+
+
+def best_of(n, fn):
+    """(result, seconds) of the fastest of n runs: the machine is shared, and the minimum is
+    the least disturbed estimate of what the work itself costs."""
+    best = None
+    for _ in range(n):
+        out, s = timed(fn)
+        if best is None or s < best[1]:
+            best = (out, s)
+    return best
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scene", default=str(ROOT / "examples" / "cloud.toml"))
+    ap.add_argument("--size", type=int, default=128, help="image width and height")
+    ap.add_argument("--ref-spp", type=int, default=1024)
+    ap.add_argument("--quick", action="store_true", help="64x64, 256-spp reference, fewer points")
+    ap.add_argument("--out", default=str(ROOT / "out" / "bench"))
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.size, args.ref_spp = 64, 256
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    rt = get_runtime()
+    scene = load_scene(args.scene)
+    scene = replace(scene, camera=replace(scene.camera, width=args.size, height=args.size))
+    grid = scene.volume.load()
+    print(machine(rt))
+    print(f"scene: {args.scene}, {args.size}x{args.size}, grid {grid.resolution}, "
+          f"density_scale {scene.medium.density_scale}, albedo {scene.medium.albedo}, "
+          f"phase {scene.medium.phase.type} {[(l.g, l.weight) for l in scene.medium.phase.lobes]}")
+    ref = reference(scene, grid, args.ref_spp, out_dir)
+
+    # Warm-up: compile the path tracer once, untimed.
+    render_pathtrace(scene, spp=1, grid=grid, progress=False)
+    rows = []
+
+    def record(method, setting, layers, frame, light=0.0):
+        """frame: the per-frame cost (the march for the ray marcher, the whole render for the
+        path tracer); light: the once-per-light-change cost (light field, lattice fill)."""
+        m = compare_images(layers["total"], ref)
+        rows.append({"method": method, "setting": setting, "seconds": frame,
+                     "light_update_seconds": light, **m})
+        print(f"  {method:<19} {setting:<27} {frame:8.3f} s {light:8.3f} s   MRPNN {m['mrpnn']:7.3f}"
+              f"   relMSE {m['relmse']:.3e}   RMSE {m['rmse']:.3e}", flush=True)
+
+    print("\nmethod              setting                        frame  light upd.   error vs reference")
+    spps = (1, 4, 16, 64) if args.quick else (1, 4, 16, 64, 256)
+    for spp in spps:
+        repeats = 3 if spp <= 16 else 1
+        res, s = best_of(repeats, lambda: render_pathtrace(scene, spp=spp, seed=1, grid=grid,
+                                                           progress=False))
+        record("pathtrace", f"{spp} spp", res.layers, s)
+
+    # The ray marcher as a real-time renderer uses it: volume resident on the device, the light
+    # field remade when the light moves (timed as a change from another direction), then frames.
+    rm = RayMarcher(grid, scene.medium, rt)
+    other = np.array(scene.light.direction) + np.array([0.3, 0.0, -0.2])
+    rm.set_light(other / np.linalg.norm(other))  # builds the pyramid once, untimed
+
+    def light_change():
+        rm.set_light(other / np.linalg.norm(other))
+        rm.rt.finish()
+        rm.set_light(scene.light.direction)
+        rm.rt.finish()
+
+    light_s = best_of(3, light_change)[1] / 2  # two light changes per run
+    cam = scene.camera
+    for ms in ("none", "wrenninge"):
+        for step in (2.0, 1.0, 0.5):
+            rm.march(cam, scene.light, ms=ms, step=step)  # compile this variant, untimed
+            (layers, _), s = best_of(3, lambda: rm.march(cam, scene.light, ms=ms, step=step))
+            record(f"raymarch/{ms}", f"step {step:g} voxel", layers, s, light_s)
+    for lattice in ((8,) if args.quick else (8, 16)):
+        def query(points, omegas):
+            return point_query(scene, points, omegas, n_paths=64, seed=2, grid=grid)["Fms"]
+        msg, fill_s = timed(lambda: fill_ms_grid(scene, lattice, query, grid.bbox_min,
+                                                 grid.bbox_max))
+        rm.march(cam, scene.light, ms="grid", ms_grid=msg)
+        (layers, _), s = best_of(3, lambda: rm.march(cam, scene.light, ms="grid", ms_grid=msg))
+        record("raymarch/grid", f"{lattice}^3 lattice, 64 paths", layers, s, light_s + fill_s)
+
+    csv_path = out_dir / f"accuracy_vs_time_{Path(args.scene).stem}_{args.size}.csv"
+    with open(csv_path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    svg_path = csv_path.with_suffix(".svg")
+    svg_path.write_text(svg_plot(rows, f"{Path(args.scene).name} {args.size}x{args.size}, "
+                                       f"reference {args.ref_spp} spp"))
+    print(f"\nwrote {csv_path} and {svg_path}")
+    return 0
+
+
+def svg_plot(rows, title: str, w: int = 640, h: int = 420) -> str:
+    """A log-log scatter of MRPNN error against frame seconds, one colour per method (no plotting
+    dependency: a plain SVG)."""
+    xs = np.array([r["seconds"] for r in rows])
+    ys = np.array([max(r["mrpnn"], 1e-3) for r in rows])
+    lx0, lx1 = np.floor(np.log10(xs.min())), np.ceil(np.log10(xs.max()))
+    ly0, ly1 = np.floor(np.log10(ys.min())), np.ceil(np.log10(ys.max()))
+    ml, mr, mt, mb = 60, 170, 30, 45
+
+    def px(x):
+        return ml + (np.log10(x) - lx0) / max(lx1 - lx0, 1) * (w - ml - mr)
+
+    def py(y):
+        return h - mb - (np.log10(y) - ly0) / max(ly1 - ly0, 1) * (h - mt - mb)
+
+    colours = {"pathtrace": "#1f77b4", "raymarch/none": "#7f7f7f",
+               "raymarch/wrenninge": "#ff7f0e", "raymarch/grid": "#2ca02c"}
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" '
+           f'font-family="sans-serif" font-size="11">',
+           f'<rect width="{w}" height="{h}" fill="white"/>',
+           f'<text x="{ml}" y="18" font-size="13">{title}</text>']
+    for e in range(int(lx0), int(lx1) + 1):
+        x = px(10.0 ** e)
+        out.append(f'<line x1="{x:.1f}" y1="{mt}" x2="{x:.1f}" y2="{h - mb}" stroke="#ddd"/>')
+        out.append(f'<text x="{x:.1f}" y="{h - mb + 15}" text-anchor="middle">1e{e} s</text>')
+    for e in range(int(ly0), int(ly1) + 1):
+        y = py(10.0 ** e)
+        out.append(f'<line x1="{ml}" y1="{y:.1f}" x2="{w - mr}" y2="{y:.1f}" stroke="#ddd"/>')
+        out.append(f'<text x="{ml - 5}" y="{y + 4:.1f}" text-anchor="end">{10.0 ** e:g}</text>')
+    out.append(f'<text x="{(ml + w - mr) / 2}" y="{h - 8}" text-anchor="middle">frame seconds (log)</text>')
+    out.append(f'<text x="14" y="{(mt + h - mb) / 2}" transform="rotate(-90 14 {(mt + h - mb) / 2})" '
+               f'text-anchor="middle">MRPNN error (log)</text>')
+    for k, (method, colour) in enumerate(colours.items()):
+        pts = [(px(r["seconds"]), py(max(r["mrpnn"], 1e-3))) for r in rows if r["method"] == method]
+        if not pts:
+            continue
+        path = " ".join(f"{x:.1f},{y:.1f}" for x, y in pts)
+        out.append(f'<polyline points="{path}" fill="none" stroke="{colour}" stroke-width="1.5"/>')
+        out += [f'<circle cx="{x:.1f}" cy="{y:.1f}" r="3.5" fill="{colour}"/>' for x, y in pts]
+        ly = mt + 10 + 18 * k
+        out.append(f'<circle cx="{w - mr + 15}" cy="{ly}" r="4" fill="{colour}"/>')
+        out.append(f'<text x="{w - mr + 25}" y="{ly + 4}">{method}</text>')
+    out.append("</svg>")
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
