@@ -96,10 +96,14 @@ def _cmd_compare(args) -> int:
 def _cmd_render(args) -> int:
     from .image import write_exr, write_png_preview
     from .render import method_module
+    from .runtime import configure, get_runtime
     from .scene import load_scene
+    configure(device=args.device, profiling=args.profile)
     scene = load_scene(args.scene)
     module = method_module(args.method)
     result = module.render(scene, args)
+    if args.profile:
+        print("device time per kernel:\n" + get_runtime().timing_report(), file=sys.stderr)
     header = {"scene": str(args.scene), "method": args.method, **result.header}
     write_exr(args.output, result.layers, header)
     print(f"wrote {args.output}", file=sys.stderr)

@@ -328,10 +328,23 @@ class Runtime:
 
 
 _RUNTIMES: dict[tuple, Runtime] = {}
+_DEFAULTS = {"device": None, "profiling": False}
 
 
-def get_runtime(device: str | None = None, profiling: bool = False) -> Runtime:
-    """The process-wide runtime for a device spec (resolved as ``choose_device`` does)."""
+def configure(device: str | None = None, profiling: bool | None = None) -> None:
+    """Process-wide defaults for ``get_runtime()`` calls that give no arguments (the CLI's
+    ``--device`` and ``--profile`` reach every render method this way)."""
+    if device is not None:
+        _DEFAULTS["device"] = device
+    if profiling is not None:
+        _DEFAULTS["profiling"] = bool(profiling)
+
+
+def get_runtime(device: str | None = None, profiling: bool | None = None) -> Runtime:
+    """The process-wide runtime for a device spec (resolved as ``choose_device`` does;
+    unspecified arguments take the ``configure`` defaults)."""
+    device = device if device is not None else _DEFAULTS["device"]
+    profiling = profiling if profiling is not None else _DEFAULTS["profiling"]
     entry, _ = choose_device(device)
     key = (entry.spec, profiling)
     rt = _RUNTIMES.get(key)

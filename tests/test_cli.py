@@ -112,3 +112,44 @@ def test_render_writes_exr_png_and_header(tmp_path, capsys):
     assert img.rgb.shape == (7, 9, 3) and np.all(np.isfinite(img.rgb)) and img.rgb.max() > 0
     assert img.header["scene"] == str(scene) and img.header["method"] == "raymarch"
     assert (tmp_path / "o.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_render_profile_and_device_options(tmp_path, capsys):
+    from clvol import runtime
+    scene = tmp_path / "s.toml"
+    scene.write_text(
+        "[volume]\ngenerator = 'sphere'\nresolution = 10\n"
+        "[medium]\npreset = 'smoke'\ndensity_scale = 8.0\n"
+        "[light]\ndirection = [0.0, 1.0, 0.0]\n"
+        "[camera]\norigin = [0.0, 0.0, 2.5]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 35.0\n"
+        "width = 8\nheight = 8\n")
+    spec = runtime.list_devices()[0].spec
+    try:
+        code, _, err = run(capsys, "render", scene, "--method", "raymarch", "-o",
+                           tmp_path / "o.exr", "--profile", "--device", spec)
+        assert code == 0, err
+        assert "device time per kernel" in err and "raymarch" in err
+        code, _, err = run(capsys, "render", scene, "-o", tmp_path / "o.exr", "--device", "9:9")
+        assert code == 2 and "9:9" in err
+    finally:
+        runtime._DEFAULTS.update(device=None, profiling=False)  # undo the CLI's configure()
+
+
+def test_rendering_never_imports_torch(tmp_path):
+    """torch is for training only: the CLI and both renderers must work without it."""
+    code = (
+        "import sys\n"
+        "from clvol.cli import main\n"
+        f"assert main(['render', {str(tmp_path / 's.toml')!r}, '-o', {str(tmp_path / 'o.exr')!r}]) == 0\n"
+        f"assert main(['render', {str(tmp_path / 's.toml')!r}, '--method', 'pathtrace', '--spp', '1',"
+        f" '-o', {str(tmp_path / 'p.exr')!r}]) == 0\n"
+        "import clvol.export, clvol.kernels.mlp, clvol.kernels.gather\n"
+        "assert 'torch' not in sys.modules, 'torch was imported'\n")
+    (tmp_path / "s.toml").write_text(
+        "[volume]\ngenerator = 'sphere'\nresolution = 8\n"
+        "[medium]\npreset = 'cloud'\ndensity_scale = 8.0\n"
+        "[light]\ndirection = [0.0, 1.0, 0.0]\n"
+        "[camera]\norigin = [0.0, 0.0, 2.5]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 35.0\n"
+        "width = 6\nheight = 5\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
