@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+import pyopencl as cl
 
 from .. import layout
 from ..errors import ClvolError
@@ -50,25 +51,47 @@ def _lobes(medium):
 
 @lru_cache(maxsize=8)
 def phase_table(lobes: tuple, n_alpha: int = N_ALPHA) -> np.ndarray:
+    """log1p phase features [n_alpha][NP] over alpha = linspace(0, pi, n_alpha)."""
     tpl = load_templates()
     return phase_feature_table(volume_phase(lobes), tpl.points, tpl.half_angle, n_alpha)
 
 
+@lru_cache(maxsize=8)
+def _phase_table_padded(lobes: tuple, n_alpha: int = N_ALPHA) -> np.ndarray:
+    t = phase_table(lobes, n_alpha)
+    out = np.zeros((t.shape[0], n_pad(t.shape[1])), np.float32)
+    out[:, :t.shape[1]] = t
+    return out
+
+
+CHUNK = 16   # template points per float16 chunk of the kernel
+
+
+def n_pad(n_points: int = layout.N_POINTS) -> int:
+    """Template points rounded up to whole chunks (the kernel's table row length)."""
+    return -(-n_points // CHUNK) * CHUNK
+
+
 def template_arrays(base_resolution: int):
-    """(tpl float4 [NP], pinfo int [NP], hl_spacing float [4] per unit t_enter) for the kernel."""
+    """(tpl float [3][NPAD] x, y, z rows, pinfo int [NPAD], hl_spacing float [4] per unit
+    t_enter) for the kernel. Padding lanes are diffuse level-0 points at u = 0 (never stored)."""
     tpl = load_templates()
-    pts = np.zeros((tpl.n_points, 4), np.float32)
-    pts[:, :3] = tpl.points
+    npad = n_pad(tpl.n_points)
+    pts = np.zeros((3, npad), np.float32)
+    pts[:, :tpl.n_points] = tpl.points.T
     levels = tpl.diffuse_levels(base_resolution)
-    info = np.where(tpl.is_highlight, -(tpl.layer - tpl.n_diffuse_layers + 1),
-                    levels[np.minimum(tpl.layer, tpl.n_diffuse_layers - 1)]).astype(np.int32)
+    info = np.zeros(npad, np.int32)
+    info[:tpl.n_points] = np.where(tpl.is_highlight, -(tpl.layer - tpl.n_diffuse_layers + 1),
+                                   levels[np.minimum(tpl.layer, tpl.n_diffuse_layers - 1)])
     hl = tpl.highlight_spacing().astype(np.float32)    # x t_enter (world) / base voxel in the kernel
     return pts, info, hl
 
 
 @dataclass(eq=False)
 class BakedGrid:
-    """float2 (tau, C) per voxel of every level, offsets x 2 of the pyramid's."""
+    """float2 (tau, C) per voxel of every level, offsets x 2 of the pyramid's, + BAKE_PAD floats
+    of zeros (the kernel's row loads on the 1-voxel level read up to 3 voxels past it).
+    One per pyramid at a time: the next bake for the same pyramid overwrites the buffer."""
     buffer: object
     weights: tuple
     bias: float
@@ -76,6 +99,9 @@ class BakedGrid:
 
 
 _BAKED: dict = {}
+MIN_ROW_LEVEL = 16        # levels at least this wide are baked by rows of 16 (bake_rows)
+MAX_RENDER_FLOATS = 2**31 - 1   # the render kernel indexes the (tau, C) pairs with int
+BAKE_PAD = 8
 
 
 def _check_weights(level_weights, bias, n_levels):
@@ -93,9 +119,45 @@ def _taufac(pyramid: Pyramid, density_scale: float) -> np.ndarray:
                     np.float32)
 
 
+def _reused(pyramid: Pyramid, name: str, nfloats: int):
+    """A device buffer of at least ``nfloats`` kept on the pyramid and reused by later calls:
+    a fresh buffer costs a page fault per 4 KiB on its first write (~60 ms of CPU for the
+    200 MiB of features of 65,536 queries on this VM, as much as the gather itself)."""
+    buf = pyramid.cache.get(name)
+    if buf is None or buf.size < 4 * max(nfloats, 1):
+        pyramid.cache.pop(name, None)
+        buf = pyramid.cache[name] = pyramid.runtime.empty(max(nfloats, 1))
+    return buf
+
+
+def _static(pyramid: Pyramid) -> dict:
+    """Device copies of the per-pyramid tables (level offsets, templates), made once."""
+    st = pyramid.cache.get("gather")
+    if st is None:
+        rt = pyramid.runtime
+        tpl, info, hl = template_arrays(pyramid.base_resolution)
+        st = pyramid.cache["gather"] = {
+            "loff": rt.to_device(pyramid.level_offsets.astype(np.int32)),
+            "tpl": rt.to_device(tpl), "pinfo": rt.to_device(info), "hl": rt.to_device(hl)}
+    return st
+
+
+def _xpass_layout(pyramid: Pyramid, lvl: int) -> tuple[np.ndarray, int]:
+    """Offsets of the x-interpolated rows X_m (m > lvl) of the coarser levels at level lvl's
+    x centres in the bake's scratch buffer, and its size: nm^2 rows of n_lvl each."""
+    L, n = pyramid.n_levels, pyramid.resolution(lvl)
+    xoff = np.zeros(L, np.int32)
+    size = 0
+    for m in range(lvl + 1, L):
+        xoff[m] = size
+        size += pyramid.resolution(m) ** 2 * n
+    return xoff, size
+
+
 def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, level_weights,
                      bias: float = 0.0) -> BakedGrid:
-    """The render-time grid (cached per graded fields, scale, weights and bias)."""
+    """The render-time grid (cached per graded fields, scale, weights and bias): for every
+    voxel of every level, (rho * density_scale * voxel size, sum_m w_m T_m(centre) + bias)."""
     w, b = _check_weights(level_weights, bias, pyramid.n_levels)
     key = (id(graded), float(density_scale), w.tobytes(), b)
     hit = _BAKED.get(key)
@@ -103,14 +165,50 @@ def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, le
         return hit[1]
     rt = pyramid.runtime
     total = int(pyramid.data.size)
-    out = rt.empty(2 * total)
-    k = rt.program("gather").kernel("gather_bake", [None, None, None, np.int32, np.int32, None,
-                                                    None, np.float32, np.int32, None])
-    rt.launch(k, total, (pyramid.buffer, graded.buffer,
-                         rt.to_device(pyramid.level_offsets.astype(np.int32)),
-                         np.int32(pyramid.n_levels), np.int32(pyramid.base_resolution),
-                         rt.to_device(_taufac(pyramid, density_scale)),
-                         rt.to_device(w.astype(np.float32)), np.float32(b), np.int32(total), out))
+    if 2 * total + BAKE_PAD > MAX_RENDER_FLOATS:
+        raise GatherError(f"render mode supports pyramids up to 2^30 voxels in all (base 512); "
+                          f"base_resolution = {pyramid.base_resolution} has {total}")
+    L, n0 = pyramid.n_levels, pyramid.base_resolution
+    # One light at a time per pyramid: the previous bake's buffer is overwritten (a fresh one
+    # would cost a page fault per 4 KiB on first write, ~40 ms for 150 MiB here).
+    out = pyramid.cache.get("gather_baked")
+    if out is None:
+        out = pyramid.cache["gather_baked"] = rt.empty(2 * total + BAKE_PAD)
+        if not rt.is_oclgrind:          # (Oclgrind: rt.empty already zero-filled it)
+            cl.enqueue_fill_buffer(rt.queue, out, np.float32(0.0), 4 * 2 * total, 4 * BAKE_PAD)
+    st = _static(pyramid)
+    prog = rt.program("gather")
+    taufac = _taufac(pyramid, density_scale)
+    wbuf = rt.to_device(w.astype(np.float32))
+    row_levels = [l for l in range(L) if pyramid.resolution(l) >= MIN_ROW_LEVEL]
+    if row_levels:
+        kx = prog.kernel("bake_xpass", [None, np.int32, np.int32, np.int32, np.int32, None, np.int32])
+        kr = prog.kernel("bake_rows", [None, None, None, None, None, np.int32, np.int32, np.int32,
+                                       np.int32, np.float32, None, np.float32, None])
+        scratch_size = max(_xpass_layout(pyramid, l)[1] for l in row_levels)
+        scratch = pyramid.cache.get("gather_xpass")
+        if scratch is None or scratch.size < 4 * max(scratch_size, 1):
+            scratch = pyramid.cache["gather_xpass"] = rt.empty(max(scratch_size, 1))
+        for lvl in row_levels:
+            n = pyramid.resolution(lvl)
+            log2n = n.bit_length() - 1
+            xoff, _ = _xpass_layout(pyramid, lvl)
+            for m in range(lvl + 1, L):
+                nm = pyramid.resolution(m)
+                rt.launch(kx, nm * nm * n, (graded.buffer, np.int32(pyramid.level_offsets[m]),
+                                            np.int32(nm), np.int32(n), np.int32(log2n), scratch,
+                                            np.int32(xoff[m])))
+            rt.launch(kr, n ** 3 // 16, (pyramid.buffer, graded.buffer, scratch, st["loff"],
+                                         rt.to_device(xoff),
+                                         np.int32(L), np.int32(n0), np.int32(lvl), np.int32(log2n),
+                                         taufac[lvl], wbuf, np.float32(b), out))
+    first = len(row_levels)
+    if first < L:
+        ks = prog.kernel("bake_small", [None, None, None, np.int32, np.int32, np.int32, None, None,
+                                        np.float32, None])
+        rt.launch(ks, total - int(pyramid.level_offsets[first]),
+                  (pyramid.buffer, graded.buffer, st["loff"], np.int32(L), np.int32(n0),
+                   np.int32(first), rt.to_device(taufac), wbuf, np.float32(b), out))
     baked = BakedGrid(out, tuple(w), b, float(np.float32(w.sum() + b)))
     _BAKED.clear()                 # one light at a time: keep the memory bounded
     _BAKED[key] = (graded, baked)
@@ -167,9 +265,33 @@ def config_vectors(medium, channel_albedo, omegas, light_dir) -> np.ndarray:
     return cfg
 
 
+SORT_BITS = 5     # queries run ordered by the Morton code of their cell in a 32^3 grid of the cube
+
+
+def _spread_bits(v: np.ndarray) -> np.ndarray:
+    """Bits b of v (< 2^SORT_BITS) moved to bit 3 b."""
+    out = np.zeros_like(v)
+    for b in range(SORT_BITS):
+        out |= ((v >> b) & 1) << (3 * b)
+    return out
+
+
+def query_order(pyramid: Pyramid, points: np.ndarray) -> np.ndarray:
+    """A processing order for the queries: by the Morton code of their cell in a 32^3 grid over
+    the cube (points outside are clamped onto it). Consecutive queries then read nearby voxels
+    and share cache lines and pages (random queries in a cloud: ~1.5x faster at 256^3). A
+    16-bit key, so NumPy's stable sort is a radix sort (~1 ms for 65,536 queries)."""
+    cells = 1 << SORT_BITS
+    g = (np.asarray(points, np.float64) - pyramid.cube_min) * (cells / pyramid.cube_size)
+    c = np.clip(g, 0, cells - 1).astype(np.uint16)
+    key = _spread_bits(c[:, 0]) | (_spread_bits(c[:, 1]) << 1) | (_spread_bits(c[:, 2]) << 2)
+    return np.argsort(key, kind="stable").astype(np.int32)
+
+
 def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium, channel_albedo,
            mode: str = "train", level_weights=None, bias: float = 0.0,
-           return_t_enter: bool = False) -> dict:
+           return_t_enter: bool = False, as_buffers: bool = False, sort: bool = True,
+           reuse: dict | None = None) -> dict:
     """Features for N queries (clvol/layout.py): ``features`` float32 [N][3][NP], ``levels``
     [N][L][NP] (train mode only), ``config`` [N][CONFIG_DIM] (and ``t_enter`` [N] on request).
 
@@ -177,7 +299,18 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
     unit toward the light (the one ``graded`` was made for); ``medium`` a clvol.scene.Medium;
     ``channel_albedo`` scalar or (N,) in [0, 1]. Train mode fills features[:, 1] with
     sum_l w_l levels[:, l] + bias when ``level_weights`` is given, else with 0 (the model
-    combines ``levels`` itself). Render mode needs ``level_weights``."""
+    combines ``levels`` itself). Render mode needs ``level_weights``.
+
+    ``as_buffers=True`` (render mode) returns device buffers instead of arrays, for the
+    network's OpenCL forward (clvol/kernels/mlp.py: ``MlpKernel.enqueue(features, config, n,
+    ...)``): ``features`` and ``config`` (and ``t_enter``) are cl.Buffers holding the same
+    layout, plus ``n``; nothing is read back (~200 MiB for 65,536 queries). Pass a previous
+    such result as ``reuse`` to have its buffers overwritten instead of new ones allocated (new
+    buffers cost ~60 ms of page faults per 200 MiB on this VM).
+
+    ``sort`` (default): the kernel visits the queries in ``query_order`` (results are the same
+    and in the caller's order; only speed changes). ``sort=False`` visits them as given, for
+    callers whose queries are already coherent."""
     pts, om, l = _check_inputs(pyramid, graded, points, omegas, light_dir, medium, mode)
     rt = pyramid.runtime
     n, L, NP = len(pts), pyramid.n_levels, layout.N_POINTS
@@ -186,37 +319,51 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
     render = mode == "render"
     if render and level_weights is None:
         raise GatherError("mode='render' needs level_weights (one per graded level) and bias")
+    if as_buffers and not render:
+        raise GatherError("as_buffers=True is for mode='render' (training reads host arrays)")
     lobes = _lobes(medium)
+    cfg = config_vectors(medium, channel_albedo, om, l)
     defines = dict(phase_defines(lobes), NP=NP, COARSE_LEVEL=coarse_level(pyramid.base_resolution))
     if render:
         defines["GATHER_RENDER"] = 1
+    if rt.is_pocl:        # register transposes with a Clang builtin (cl/gather.cl TRANSPOSE4)
+        defines["GATHER_SHUFFLE"] = 1
     prog = rt.program("gather", defines=defines)
     k = prog.kernel("gather", [None, None, None, None, np.int32, np.int32, None, np.float32,
                                None, None, None, None, None, np.int32, None, None, None, None,
-                               None, np.float32, np.int32, None, None, None])
-    tpl, info, hl = template_arrays(pyramid.base_resolution)
-    ptab = phase_table(lobes)
+                               None, np.float32, None, np.int32, None, None, None])
+    st = _static(pyramid)
+    ptab = _phase_table_padded(lobes)
     lg, lw = lobe_vectors(lobes)
     c_out = 0.0
     if render:
         baked = bake_render_grid(pyramid, graded, medium.density_scale, level_weights, bias)
         baked_buf, c_out = baked.buffer, baked.c_out
+        levels = taufac = rt.empty(1)
     else:
-        baked_buf = rt.empty(2)
-    feats = rt.empty(n * 3 * NP)
-    levels = rt.empty(n * L * NP if not render else 1)
-    tenter = rt.empty(n)
+        baked_buf = rt.empty(1)
+        levels = _reused(pyramid, "gather_levels", n * L * NP)
+        taufac = rt.to_device(_taufac(pyramid, medium.density_scale))
+    if as_buffers:
+        fits = (reuse is not None and reuse["features"].size >= 4 * max(n * 3 * NP, 1)
+                and reuse["t_enter"].size >= 4 * max(n, 1))
+        feats = reuse["features"] if fits else rt.empty(n * 3 * NP)
+        tenter = reuse["t_enter"] if fits else rt.empty(n)
+    else:                # read back below: the buffers stay with the pyramid for the next call
+        feats = _reused(pyramid, "gather_features", n * 3 * NP)
+        tenter = _reused(pyramid, "gather_t_enter", n)
     if n:
-        rt.launch(k, n, (pyramid.buffer, graded.buffer, baked_buf,
-                         rt.to_device(pyramid.level_offsets.astype(np.int32)), np.int32(L),
+        rt.launch(k, n, (pyramid.buffer, graded.buffer, baked_buf, st["loff"], np.int32(L),
                          np.int32(pyramid.base_resolution), f4(pyramid.cube_min),
-                         np.float32(pyramid.cube_size),
-                         rt.to_device(_taufac(pyramid, medium.density_scale)), rt.to_device(tpl),
-                         rt.to_device(info), rt.to_device(hl), rt.to_device(ptab),
-                         np.int32(ptab.shape[0]), rt.to_device(pts), rt.to_device(om), f4(l),
-                         lg, lw, np.float32(c_out), np.int32(n), feats, levels, tenter))
-    out = {"features": rt.from_device(feats, (n, 3, NP)),
-           "config": config_vectors(medium, channel_albedo, om, l)}
+                         np.float32(pyramid.cube_size), taufac, st["tpl"], st["pinfo"], st["hl"],
+                         rt.to_device(ptab), np.int32(ptab.shape[0]), rt.to_device(pts),
+                         rt.to_device(om), f4(l), lg, lw, np.float32(c_out),
+                         rt.to_device(query_order(pyramid, pts) if sort else
+                                      np.arange(n, dtype=np.int32)), np.int32(n), feats,
+                         levels, tenter))
+    if as_buffers:
+        return {"features": feats, "config": rt.to_device(cfg), "t_enter": tenter, "n": n}
+    out = {"features": rt.from_device(feats, (n, 3, NP)), "config": cfg}
     if not render:
         out["levels"] = rt.from_device(levels, (n, L, NP))
         if level_weights is not None:
