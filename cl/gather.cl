@@ -78,12 +78,15 @@ i16 gatheri16(__global const int *p, i16 i) {
                  p[i.s8], p[i.s9], p[i.sa], p[i.sb], p[i.sc], p[i.sd], p[i.se], p[i.sf]);
 }
 
-/* Sixteen float4 values E##0 .. E##f (one per lane) -> four float16 of their x, y, z, w.
- * GATHER_SHUFFLE (the host sets it on PoCL): Clang's __builtin_shufflevector, a 4x4 transpose
- * in registers (~24 instructions); written lane by lane instead, LLVM makes four gathers of it,
- * which were ~2x slower here. Oclgrind gets the lane-by-lane form (its uninitialised-value
- * check reports shuffle results as undefined, a false positive noted in cl/mlp.cl); the two
- * give identical bits (tests/test_gather.py). */
+/* Render lookups read, per lane and row, the float4 (tau, C at x0; tau, C at x0 + 1).
+ * GATHER_SHUFFLE (the host sets it on PoCL): each lane's four row addresses are scalars (a base
+ * and two strides, extracted from the vectors once), the sixteen float4 of a row are loaded
+ * and transposed into four float16 in registers with Clang's __builtin_shufflevector (~24
+ * instructions a row). Written lane by lane instead, LLVM turns them into four AVX-512 gathers
+ * a row, ~2x slower here. Without it (Oclgrind, other compilers): per-lane scalar loads; its
+ * uninitialised-value checker crashed on the float4 form and reports shuffle results as
+ * undefined (a false positive, cl/mlp.cl). Both read the same values and give the same bits
+ * (tests/test_gather.py). */
 #ifdef GATHER_SHUFFLE
 #define SV __builtin_shufflevector
 #define TRANSPOSE4(E, X, Y, Z, W)                                                          \
@@ -109,27 +112,14 @@ i16 gatheri16(__global const int *p, i16 i) {
         Z = SV(u1, u3, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);             \
         W = SV(u1, u3, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);       \
     }
-#else
-#define TRANSPOSE4(E, X, Y, Z, W)                                                          \
-    {                                                                                      \
-        X = (v16)(E##0.x, E##1.x, E##2.x, E##3.x, E##4.x, E##5.x, E##6.x, E##7.x,          \
-                  E##8.x, E##9.x, E##a.x, E##b.x, E##c.x, E##d.x, E##e.x, E##f.x);         \
-        Y = (v16)(E##0.y, E##1.y, E##2.y, E##3.y, E##4.y, E##5.y, E##6.y, E##7.y,          \
-                  E##8.y, E##9.y, E##a.y, E##b.y, E##c.y, E##d.y, E##e.y, E##f.y);         \
-        Z = (v16)(E##0.z, E##1.z, E##2.z, E##3.z, E##4.z, E##5.z, E##6.z, E##7.z,          \
-                  E##8.z, E##9.z, E##a.z, E##b.z, E##c.z, E##d.z, E##e.z, E##f.z);         \
-        W = (v16)(E##0.w, E##1.w, E##2.w, E##3.w, E##4.w, E##5.w, E##6.w, E##7.w,          \
-                  E##8.w, E##9.w, E##a.w, E##b.w, E##c.w, E##d.w, E##e.w, E##f.w);         \
-    }
-#endif
 
-/* Lane J's four rows of a render lookup: float4 (tau, C at x0; tau, C at x0 + 1) of rows
- * (z0, y0), (z0, y1), (z1, y0), (z1, y1), from the lane's scalar base and row strides. */
+/* Lane J's four rows (z0, y0), (z0, y1), (z1, y0), (z1, y1). */
 #define LANE_ROWS(P, J)                                                                    \
     const float4 ra##J = vload4(0, P + ib[0x##J]);                                         \
     const float4 rb##J = vload4(0, P + ib[0x##J] + iy[0x##J]);                             \
     const float4 rc##J = vload4(0, P + ib[0x##J] + iz[0x##J]);                             \
     const float4 rd##J = vload4(0, P + ib[0x##J] + iy[0x##J] + iz[0x##J]);
+#endif
 
 /* grid_lookup (grid.h) on 16 lanes of one level (off, n uniform), clamped coordinates.
  * Scalar bounds are broadcast explicitly: Oclgrind 21.10 applies the scalar argument of
@@ -164,18 +154,32 @@ void store_chunk(__global float *row, int c, v16 v) {
     }
 }
 
-/* The template frame of DESIGN.md (twin: clvol.templates.template_frame). */
+/* The template frame of DESIGN.md (twin: clvol.templates.template_frame): f[0..2] = x,
+ * f[3..5] = y. In scalars: Oclgrind's uninitialised-value checker crashed on the float3
+ * merged after the fallback branch (a vector phi). */
 __attribute__((always_inline))
-void template_frame(float3 l, float3 w, float3 *x, float3 *y) {
-    float3 perp = w - dot(w, l) * l;
-    if (length(cross(w, l)) < 1e-4f) {
-        float3 a = fabs(l);
-        float3 e = (a.x <= a.y && a.x <= a.z) ? (float3)(1.0f, 0.0f, 0.0f)
-                 : (a.y <= a.z ? (float3)(0.0f, 1.0f, 0.0f) : (float3)(0.0f, 0.0f, 1.0f));
-        perp = e - dot(e, l) * l;
+void template_frame(float3 l, float3 w, float *f) {
+    const float d = dot(w, l);
+    float px = w.x - d * l.x, py = w.y - d * l.y, pz = w.z - d * l.z;
+    const float cx = w.y * l.z - w.z * l.y, cy = w.z * l.x - w.x * l.z, cz = w.x * l.y - w.y * l.x;
+    if (sqrt(cx * cx + cy * cy + cz * cz) < 1e-4f) {
+        /* omega (anti)parallel to l: x from the world axis least aligned with l (ties: lowest) */
+        const float ax = fabs(l.x), ay = fabs(l.y), az = fabs(l.z);
+        const int ix = (ax <= ay) & (ax <= az);
+        const int iy = (ix == 0) & (ay <= az);
+        const float ex = ix ? 1.0f : 0.0f, ey = iy ? 1.0f : 0.0f, ez = (ix | iy) ? 0.0f : 1.0f;
+        const float de = ex * l.x + ey * l.y + ez * l.z;
+        px = ex - de * l.x;
+        py = ey - de * l.y;
+        pz = ez - de * l.z;
     }
-    *x = normalize(perp);
-    *y = cross(l, *x);
+    const float inv = 1.0f / sqrt(px * px + py * py + pz * pz);
+    f[0] = px * inv;
+    f[1] = py * inv;
+    f[2] = pz * inv;
+    f[3] = l.y * f[2] - l.z * f[1];     /* y = l x x */
+    f[4] = l.z * f[0] - l.x * f[2];
+    f[5] = l.x * f[1] - l.y * f[0];
 }
 
 /* Distance along p + t l (t >= 0) to the far end of the last non-empty coarse cell. */
@@ -220,8 +224,9 @@ __kernel void gather(__global const float *dens, __global const float *tlev,
     const float3 cmin = cmin4.xyz, cmax = cmin4.xyz + (float3)(csize);
     const float3 l = light4.xyz;
     const float3 p = vload3(q, points), w = vload3(q, omegas);
-    float3 fx, fy;
-    template_frame(l, w, &fx, &fy);
+    float fr[6];
+    template_frame(l, w, fr);
+    const float fxx = fr[0], fxy = fr[1], fxz = fr[2], fyx = fr[3], fyy = fr[4], fyz = fr[5];
     const float mu = clamp(-dot(l, w), -1.0f, 1.0f);
     const float alpha = acos(mu);
 
@@ -254,9 +259,9 @@ __kernel void gather(__global const float *dens, __global const float *tlev,
         const i16 diffuse = info >= (i16)(0);
         const i16 lvl = diffuse ? info : hl;
         const v16 scale = select((v16)(t_enter), (v16)(csize), diffuse);
-        const v16 sx = p.x + scale * (ux * fx.x + uy * fy.x + uz * l.x);
-        const v16 sy = p.y + scale * (ux * fx.y + uy * fy.y + uz * l.y);
-        const v16 sz = p.z + scale * (ux * fx.z + uy * fy.z + uz * l.z);
+        const v16 sx = p.x + scale * (ux * fxx + uy * fyx + uz * l.x);
+        const v16 sy = p.y + scale * (ux * fxy + uy * fyy + uz * l.y);
+        const v16 sz = p.z + scale * (ux * fxz + uy * fyz + uz * l.z);
         const i16 n = (i16)(n0) >> lvl;
         const v16 vox = csize / convert_float16(n);
         const i16 inside = (sx >= cmin.x) & (sx <= cmax.x) & (sy >= cmin.y) & (sy <= cmax.y)
@@ -277,25 +282,33 @@ __kernel void gather(__global const float *dens, __global const float *tlev,
         const i16 z0 = min(convert_int16(gz), top);
         const v16 wx = gx - convert_float16(x0), wy = gy - convert_float16(y0);
         const v16 wz = gz - convert_float16(z0);
-        /* Lane addresses as scalars: one base and two strides per lane instead of four
-         * vectors of addresses (each lane extracted once). */
+        const i16 base = (i16)(2) * (off + (z0 * n + y0) * n + x0);
+        const i16 dy = (i16)(2) * n, dz = (i16)(2) * n * n;     /* row strides */
+        v16 t0, c0, t1, c1;
+#ifdef GATHER_SHUFFLE
         int ib[16], iy[16], iz[16];
-        vstore16((i16)(2) * (off + (z0 * n + y0) * n + x0), 0, ib);
-        vstore16((i16)(2) * n, 0, iy);
-        vstore16((i16)(2) * n * n, 0, iz);
+        vstore16(base, 0, ib);
+        vstore16(dy, 0, iy);
+        vstore16(dz, 0, iz);
         LANE_ROWS(baked, 0) LANE_ROWS(baked, 1) LANE_ROWS(baked, 2) LANE_ROWS(baked, 3)
         LANE_ROWS(baked, 4) LANE_ROWS(baked, 5) LANE_ROWS(baked, 6) LANE_ROWS(baked, 7)
         LANE_ROWS(baked, 8) LANE_ROWS(baked, 9) LANE_ROWS(baked, a) LANE_ROWS(baked, b)
         LANE_ROWS(baked, c) LANE_ROWS(baked, d) LANE_ROWS(baked, e) LANE_ROWS(baked, f)
-        v16 t0, c0, t1, c1;
-        TRANSPOSE4(ra, t0, c0, t1, c1)
+#define ROW(E, R) TRANSPOSE4(E, t0, c0, t1, c1)
+#else
+#define ROW(E, R)                                                                          \
+        t0 = gather16(baked, R); c0 = gather16(baked, R + (i16)(1));                       \
+        t1 = gather16(baked, R + (i16)(2)); c1 = gather16(baked, R + (i16)(3));
+#endif
+        ROW(ra, base)
         const v16 t00 = mix(t0, t1, wx), k00 = mix(c0, c1, wx);
-        TRANSPOSE4(rb, t0, c0, t1, c1)
+        ROW(rb, base + dy)
         const v16 t01 = mix(t0, t1, wx), k01 = mix(c0, c1, wx);
-        TRANSPOSE4(rc, t0, c0, t1, c1)
+        ROW(rc, base + dz)
         const v16 t10 = mix(t0, t1, wx), k10 = mix(c0, c1, wx);
-        TRANSPOSE4(rd, t0, c0, t1, c1)
+        ROW(rd, base + dy + dz)
         const v16 t11 = mix(t0, t1, wx), k11 = mix(c0, c1, wx);
+#undef ROW
         const v16 tau = mix(mix(t00, t01, wy), mix(t10, t11, wy), wz);
         const v16 tc = mix(mix(k00, k01, wy), mix(k10, k11, wy), wz);
         store_chunk(o, c, log1p(select((v16)(0.0f), tau, inside)));
