@@ -1,7 +1,7 @@
 """Throughput of the network's fused OpenCL forward pass (cl/mlp.cl) against torch.
 
-    python bench/bench_mlp.py            # batches 4,096 and 262,144, 5 repeats each
-    python bench/bench_mlp.py --quick    # batches 4,096 and 32,768, 3 repeats
+    python bench/bench_mlp.py            # batches 4,096 and 262,144
+    python bench/bench_mlp.py --quick    # batches 4,096 and 32,768
 
 Evaluations/s = queries x channels evaluated per second. OpenCL is timed on device buffers
 (the render path: the gather's buffers in, a device buffer out; no host copies), torch
@@ -9,13 +9,16 @@ Evaluations/s = queries x channels evaluated per second. OpenCL is timed on devi
 2 threads, and also with 1 thread: on a loaded 2-core machine torch's OpenMP pool often runs
 slower with 2 threads than with 1, and the ratio is taken against the faster of the two. The
 runs alternate within each repeat and medians are reported, with the load average before and
-after: the cores are shared, so other processes' load lowers every figure.
+after: the cores are shared, so other processes' load lowers every figure. The last two
+columns divide by the process's CPU time instead of wall time (evaluations per CPU-second, for
+OpenCL and 1-thread torch): less sensitive to the load; 2 idle cores give at most twice that.
 Target (issue 5): >= 5x torch.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import resource
 import platform
 import sys
 import time
@@ -31,6 +34,11 @@ from clvol.runtime import get_runtime  # noqa: E402
 from reference import mlp as ref  # noqa: E402
 
 TARGET_RATIO = 5.0
+
+
+def cpu_seconds() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)   # all threads, PoCL's included
+    return r.ru_utime + r.ru_stime
 
 
 def cpu_model() -> str:
@@ -54,7 +62,7 @@ def make_inputs(n: int, rng) -> tuple[np.ndarray, np.ndarray]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="small batches, 3 repeats")
+    ap.add_argument("--quick", action="store_true", help="batches 4,096 and 32,768")
     ap.add_argument("--repeats", type=int, default=None,
                     help="repeats per batch (default: 3, more for small batches: at least "
                          "~2 s of OpenCL time, at most 25)")
@@ -85,7 +93,8 @@ def main(argv=None) -> int:
           f"load average before {os.getloadavg()[0]:.2f}")
     print()
     header = (f"{'batch':>8} {'mode':>5} {'OpenCL evals/s':>15} {'torch-2t evals/s':>17} "
-              f"{'torch-1t evals/s':>17} {'ratio':>7} {'target':>7}  {'CL ms':>7} {'torch ms':>9} {'n':>3}")
+              f"{'torch-1t evals/s':>17} {'ratio':>7} {'target':>7}  {'CL ms':>7} {'torch ms':>9} {'n':>3}"
+              f" {'CL /cpu-s':>10} {'t1 /cpu-s':>10}")
     print(header)
     rows = []
     rng = np.random.default_rng(1)
@@ -104,25 +113,29 @@ def main(argv=None) -> int:
             net.enqueue(fb, cb, n, out, alb).wait()
             once = time.perf_counter() - t0
             repeats = args.repeats or int(np.clip(2.0 / max(once, 1e-3), 3, 25))
-            t_cl, t_th = [], {2: [], 1: []}
+            t_cl, t_th, c_cl, c_th = [], {2: [], 1: []}, [], []
             for _ in range(repeats):
-                t0 = time.perf_counter()
+                c0, t0 = cpu_seconds(), time.perf_counter()
                 net.enqueue(fb, cb, n, out, alb).wait()
                 t_cl.append(time.perf_counter() - t0)
+                c_cl.append(cpu_seconds() - c0)
                 for threads in (2, 1):
                     torch.set_num_threads(threads)
-                    t0 = time.perf_counter()
+                    c0, t0 = cpu_seconds(), time.perf_counter()
                     with torch.inference_mode():
                         for cc in cfgs:
                             model(ft, cc)
                     t_th[threads].append(time.perf_counter() - t0)
+                    if threads == 1:
+                        c_th.append(cpu_seconds() - c0)
             cl_rate = n * ch / np.median(t_cl)
             th2, th1 = (n * ch / np.median(t_th[k]) for k in (2, 1))
             ratio = cl_rate / max(th2, th1)
             rows.append((n, mode, cl_rate, th2, th1, ratio))
             print(f"{n:>8} {mode:>5} {cl_rate:>15,.0f} {th2:>17,.0f} {th1:>17,.0f} {ratio:>6.1f}x "
                   f"{TARGET_RATIO:>6.1f}x  {np.median(t_cl) * 1e3:>7.1f} "
-                  f"{min(np.median(t_th[2]), np.median(t_th[1])) * 1e3:>9.1f} {repeats:>3}")
+                  f"{min(np.median(t_th[2]), np.median(t_th[1])) * 1e3:>9.1f} {repeats:>3}"
+                  f" {n * ch / np.median(c_cl):>10,.0f} {n * ch / np.median(c_th):>10,.0f}")
         del f, c, fb, cb, ft, ct
     print()
     print(f"load average after {os.getloadavg()[0]:.2f} (2 cores; figures measured under that load)")
