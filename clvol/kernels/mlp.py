@@ -91,7 +91,7 @@ class MlpKernel:
         if channel_albedo is not None:
             alb[:3] = _channel_albedo(channel_albedo)
         items = -(-int(n) // QUERIES_PER_ITEM)
-        # A work-item holds ~120 KB of private arrays (all 798 features of its 16 queries, the
+        # A work-item holds ~105 KB of private arrays (all 798 features of its 16 queries, the
         # layer buffers). PoCL's CPU driver with a NULL local size packs many work-items into
         # one group and overflows its stack (segfault at 256 items); groups of one work-item
         # also need no padding of the global size.
