@@ -1,6 +1,7 @@
 """Host wrapper for cl/mlp.cl: the network's fused forward pass from a weight file.
 
-    net = MlpKernel(load_weights("net.npz"))          # packs the weights once, on the device
+    w = load_weights("net.npz", expect_contract=gather_contract(base_resolution, lam))
+    net = MlpKernel(w)                                # packs the weights once, on the device
     y = net.forward(features, config)                 # y [N] (config's albedo)
     F = net.forward(features, config, channel_albedo=(0.9, 0.95, 1.0), decode=True)   # F [N][3]
     F = net.radiance(features, config, albedo_rgb)    # F [N][3], grey media: one evaluation
