@@ -7,7 +7,9 @@ Written independently of the kernel's loop structure, in float64:
 - density and graded levels by explicit trilinear weights over the level's voxel centres
   (reference.grid.grid_lookup for the T_m values at those centres);
 - phase at the exact alpha of each query (clvol.phasetable.phase_features), not the alpha table;
-- render transmittance as sum_m w_m levels[m] + b (no baked grid).
+- render transmittance as sum_m w_m levels[m] + b (no baked grid);
+- ``baked_grid``: the twin of the bake kernels (gather_bake's definition), by direct trilinear
+  lookups of every level at every level's voxel centres (the kernels split them into passes).
 Arrays are the pyramid's / graded fields' concatenated float32 data (any object with
 base_resolution, n_levels, cube_min, cube_size, level_offsets, data works, e.g. a stand-in).
 """
@@ -113,4 +115,22 @@ def gather(pyr, graded_data, points, omegas, light_dir, lobes, density_scale, mo
     out = {"features": feats, "t_enter": t_enter, "level": lvl, "alpha": alpha}
     if mode == "train":
         out["levels"] = levels
+    return out
+
+
+def baked_grid(pyr, graded_data, density_scale, level_weights, bias):
+    """Per level l: (tau, C) arrays (n_l, n_l, n_l), tau = rho_l * density_scale * voxel size,
+    C = sum_m w_m T_m(centre of the voxel at level m's coordinates) + bias."""
+    out = []
+    for lv in range(pyr.n_levels):
+        n = pyr.base_resolution >> lv
+        c = np.arange(n) + 0.5
+        zz, yy, xx = np.meshgrid(c, c, c, indexing="ij")
+        acc = np.full((n, n, n), float(bias))
+        for m in range(pyr.n_levels):
+            nm = pyr.base_resolution >> m
+            g = np.stack([xx, yy, zz], -1) * (nm / n) - 0.5
+            acc += level_weights[m] * grid_lookup(level_array(pyr, graded_data, m), g)
+        tau = level_array(pyr, pyr.data, lv) * density_scale * (pyr.cube_size / n)
+        out.append((tau, acc))
     return out

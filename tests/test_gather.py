@@ -6,12 +6,19 @@ Tolerances (absolute; features are log1p values or T in [0, 1]):
   kernel vs float64 in the twin (values are O(1); ~100 ULP of slack for the chained lerps);
 - phase: 2e-3, the kernel's linear interpolation over its alpha table (the bound measured in
   tests/test_phasetable.py); the centre point is exact in both (1e-5);
-- t_enter: 1e-5 of the cube edge (float32 DDA vs float64 slab tests).
+- t_enter: 1e-5 of the cube edge (float32 DDA vs float64 slab tests);
+- baked render grid vs its twin (reference.gather.baked_grid): 2e-6 on C, a float32 sum of
+  L terms w_m T_m with |w_m| <= 0.6 and T_m in [0, 1], each lerp rounded (~10 ULP of 1), and
+  1e-6 relative on tau (one product);
+- render vs train features: 2e-6 on T, 1e-6 on density (the same lookups, summed before
+  instead of after the lerps); the PoCL shuffle path vs the portable loads, sorted vs unsorted
+  processing, device buffers vs arrays: identical bits.
 """
 import numpy as np
 import pytest
 
 from clvol import layout
+from clvol.kernels import gather as kgather
 from clvol.kernels.gather import GatherError, gather
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
@@ -240,3 +247,109 @@ def test_rotation_of_analytic_field_within_tolerance():
 def test_tiny():
     pyr, gt = setup(generate("sphere", seed=0, resolution=4).density, 4, (0.2, 0.3, 0.9))
     compare(pyr, gt, *queries(3, seed=1, spread=0.4))
+
+
+# --------------------------------------------------------------------------- render path
+
+def test_bake_matches_twin_every_level():
+    """The separable bake (x pass + rows for levels >= 16 wide, incl. the finer-level 2x2x2
+    means; direct lookups below) against direct lookups at every voxel of every level, on a
+    non-cubic grid padded to a 64^3 base (levels 0-2 by rows: each has coarser and finer
+    levels) and a light that makes every level differ."""
+    g = generate("cloud", seed=4, resolution=(21, 17, 26))
+    pyr, gt = setup(g.density, 64, (0.45, -0.3, 0.84), bmin=g.bbox_min, bmax=g.bbox_max)
+    w = np.linspace(-0.3, 0.6, pyr.n_levels)
+    baked = kgather.bake_render_grid(pyr, gt, MEDIUM.density_scale, w, 0.07)
+    flat = pyr.runtime.from_device(baked.buffer, (baked.buffer.size // 4,))
+    want = rgather.baked_grid(pyr, gt.data, MEDIUM.density_scale, w, 0.07)
+    for lv, (tau, comb) in enumerate(want):
+        n = pyr.resolution(lv)
+        off = 2 * int(pyr.level_offsets[lv])
+        got = flat[off:off + 2 * n ** 3].reshape(n, n, n, 2)
+        np.testing.assert_allclose(got[..., 0], tau, rtol=1e-6, atol=0, err_msg=f"tau, level {lv}")
+        np.testing.assert_allclose(got[..., 1], comb, atol=2e-6, rtol=0, err_msg=f"C, level {lv}")
+    assert np.ptp(want[0][1]) > 0.1                      # power: C varies across the grid
+    np.testing.assert_array_equal(flat[2 * pyr.data.size:], 0.0)   # the padding the kernel reads
+    assert float(np.float32(w.sum() + 0.07)) == baked.c_out
+
+
+def _render_vs_train(pyr, gt, pts, om, w, b):
+    train = gather(pyr, gt, pts, om, gt.light_dir, MEDIUM, 0.9, mode="train", level_weights=w, bias=b)
+    render = gather(pyr, gt, pts, om, gt.light_dir, MEDIUM, 0.9, mode="render", level_weights=w, bias=b)
+    np.testing.assert_allclose(render["features"][:, 1], train["features"][:, 1], atol=2e-6)
+    np.testing.assert_allclose(render["features"][:, 0], train["features"][:, 0], atol=1e-6)
+    np.testing.assert_array_equal(render["features"][:, 2], train["features"][:, 2])
+    want = rgather.gather(pyr, gt.data, pts, om, gt.light_dir, LOBES, MEDIUM.density_scale,
+                          mode="render", level_weights=w, bias=b)
+    np.testing.assert_allclose(render["features"][:, 1], want["features"][:, 1], atol=2e-5)
+    np.testing.assert_allclose(render["features"][:, 0], want["features"][:, 0], atol=2e-5)
+    return render
+
+
+def test_render_on_faces_and_64_base():
+    """Render mode on a 64^3 base (levels baked by rows), with queries on the cube's faces,
+    edges and corners (the kernel's corners stop at n - 2 and weigh the last voxel by 1 there)
+    and outside it; against train mode and the twin."""
+    g = generate("cloud", seed=6, resolution=(19, 23, 16))
+    pyr, gt = setup(g.density, 64, (-0.2, 0.7, 0.5), bmin=g.bbox_min, bmax=g.bbox_max)
+    pts, om = queries(48, seed=21, spread=0.6)
+    lo, hi = pyr.cube_min, pyr.cube_max
+    pts[:8] = np.array([[lo[0], 0, 0], [hi[0], 0, 0], [0, lo[1], 0], [0, hi[1], 0],
+                        [0, 0, hi[2]], hi, lo, [hi[0], lo[1], hi[2]]], np.float32)
+    w = np.linspace(0.3, -0.1, pyr.n_levels)
+    r = _render_vs_train(pyr, gt, pts, om, w, -0.05)
+    assert np.any(r["features"][:, 0] > 0.5)
+
+
+def test_render_paths_and_order_give_identical_bits(monkeypatch):
+    """The PoCL register-transpose path vs the portable per-lane loads, and the sorted vs the
+    given processing order: the same values read and combined, so the same bits."""
+    g = generate("cloud", seed=3, resolution=(13, 9, 11))
+    pyr, gt = setup(g.density, 32, LIGHTS["oblique"], bmin=g.bbox_min, bmax=g.bbox_max)
+    pts, om = queries(70, seed=5)
+    w = np.linspace(-0.2, 0.6, pyr.n_levels)
+
+    def run(**kw):
+        return gather(pyr, gt, pts, om, gt.light_dir, MEDIUM, 0.9, mode="render",
+                      level_weights=w, bias=0.1, return_t_enter=True, **kw)
+    a = run()
+    np.testing.assert_array_equal(run(sort=False)["features"], a["features"])
+    np.testing.assert_array_equal(run(sort=False)["t_enter"], a["t_enter"])
+    monkeypatch.setattr(kgather, "USE_SHUFFLE", False)
+    np.testing.assert_array_equal(run()["features"], a["features"])
+    order = kgather.query_order(pyr, pts)
+    assert sorted(order.tolist()) == list(range(len(pts))) and np.any(order != np.arange(len(pts)))
+
+
+def test_as_buffers_and_reuse():
+    g = generate("blob", seed=1, resolution=16)
+    pyr, gt = setup(g.density, 16, (0.2, -0.4, 0.9), bmin=g.bbox_min, bmax=g.bbox_max)
+    pts, om = queries(33, seed=8, spread=0.4)
+    w = np.full(pyr.n_levels, 0.2)
+    kw = dict(mode="render", level_weights=w, bias=0.0)
+    host = gather(pyr, gt, pts, om, gt.light_dir, MEDIUM, 0.9, return_t_enter=True, **kw)
+    dev = gather(pyr, gt, pts, om, gt.light_dir, MEDIUM, 0.9, as_buffers=True, **kw)
+    rt = pyr.runtime
+    assert dev["n"] == len(pts)
+    np.testing.assert_array_equal(rt.from_device(dev["features"], host["features"].shape), host["features"])
+    np.testing.assert_array_equal(rt.from_device(dev["config"], host["config"].shape), host["config"])
+    np.testing.assert_array_equal(rt.from_device(dev["t_enter"], (len(pts),)), host["t_enter"])
+    # a smaller batch into the same buffers; a larger one gets new buffers
+    again = gather(pyr, gt, pts[:20], om[:20], gt.light_dir, MEDIUM, 0.9, as_buffers=True,
+                   reuse=dev, **kw)
+    assert again["features"] is dev["features"]
+    np.testing.assert_array_equal(rt.from_device(again["features"], (20, 3, layout.N_POINTS)),
+                                  host["features"][:20])
+    big = np.concatenate([pts, pts])
+    more = gather(pyr, gt, big, np.concatenate([om, om]), gt.light_dir, MEDIUM, 0.9,
+                  as_buffers=True, reuse=dev, **kw)
+    assert more["features"] is not dev["features"]
+    with pytest.raises(GatherError, match="as_buffers"):
+        gather(pyr, gt, pts, om, gt.light_dir, MEDIUM, 0.9, mode="train", as_buffers=True)
+
+
+@pytest.mark.oclgrind
+def test_tiny_render():
+    pyr, gt = setup(generate("sphere", seed=0, resolution=4).density, 4, (0.2, 0.3, 0.9))
+    pts, om = queries(3, seed=1, spread=0.4)
+    _render_vs_train(pyr, gt, pts, om, np.linspace(-0.2, 0.6, pyr.n_levels), 0.1)

@@ -266,6 +266,9 @@ def config_vectors(medium, channel_albedo, omegas, light_dir) -> np.ndarray:
 
 
 SORT_BITS = 5     # queries run ordered by the Morton code of their cell in a 32^3 grid of the cube
+# Register transposes of the render lookups with Clang's __builtin_shufflevector (cl/gather.cl,
+# GATHER_SHUFFLE), used on PoCL; False forces the portable per-lane loads (tests compare both).
+USE_SHUFFLE = True
 
 
 def _spread_bits(v: np.ndarray) -> np.ndarray:
@@ -326,7 +329,7 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
     defines = dict(phase_defines(lobes), NP=NP, COARSE_LEVEL=coarse_level(pyramid.base_resolution))
     if render:
         defines["GATHER_RENDER"] = 1
-    if rt.is_pocl:        # register transposes with a Clang builtin (cl/gather.cl TRANSPOSE4)
+    if rt.is_pocl and USE_SHUFFLE:
         defines["GATHER_SHUFFLE"] = 1
     prog = rt.program("gather", defines=defines)
     k = prog.kernel("gather", [None, None, None, None, np.int32, np.int32, None, np.float32,
