@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import resource
-import platform
 import sys
 import time
 from pathlib import Path
@@ -33,22 +32,14 @@ from clvol.kernels.mlp import MlpKernel  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from reference import mlp as ref  # noqa: E402
 
+from _common import machine  # noqa: E402  (bench/ is on sys.path when run as a script)
+
 TARGET_RATIO = 5.0
 
 
 def cpu_seconds() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)   # all threads, PoCL's included
     return r.ru_utime + r.ru_stime
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def make_inputs(n: int, rng) -> tuple[np.ndarray, np.ndarray]:
@@ -83,8 +74,7 @@ def main(argv=None) -> int:
     model.eval()
 
     print("bench_mlp: fused OpenCL forward (cl/mlp.cl) vs torch")
-    print(f"machine : {cpu_model()}, {os.cpu_count()} logical cores, Python {platform.python_version()}")
-    print(f"device  : {rt.entry.label} ({rt.entry.platform.version.strip()})")
+    print(f"machine : {machine(rt)}")
     print(f"torch   : {torch.__version__}, 2 threads and 1 thread, inference_mode")
     macs = arch.n_macs()
     print(f"network : {arch.n_params()} parameters, {macs['total']} multiply-adds per evaluation "
