@@ -27,3 +27,7 @@ class DeviceError(ClvolError):
 
 class BuildError(ClvolError):
     """An OpenCL program failed to compile; the message carries the file and compiler log."""
+
+
+class WeightsError(ClvolError):
+    """A weight file is missing, malformed, of another version or of another feature contract."""

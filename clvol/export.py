@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from . import layout
-from .errors import ClvolError
+from .errors import ClvolError, WeightsError  # noqa: F401 (re-exported)
 
 FORMAT = "clvol-mlp"
 FORMAT_VERSION = 1
@@ -71,10 +71,6 @@ PHASE_PARAMETERISATION = (
     "to 1; g_mean = sum w_k g_k is the one g of the attention squeeze; phase features log1p(f*f*) "
     "of cone-averaged HG (DESIGN.md)")
 OUTPUT_ENCODING = "y = log(F / albedo^4 + 1), F = multiple scattering (orders >= 2) for unit irradiance"
-
-
-class WeightsError(ClvolError):
-    """A weight file is missing, malformed, of another version or of another feature contract."""
 
 
 # --------------------------------------------------------------------------- architecture
