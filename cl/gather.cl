@@ -384,40 +384,50 @@ __kernel void bake_xpass(__global const float *tlev, const int src_off, const in
     dst[dst_off + i] = mix(s[x0], s[x1], g - (float)x0);
 }
 
-/* One level with n >= 16 (a multiple of 16): work-item = 16 x of row (y, z). xoff[m]: offset
- * of X_m in xbuf (m > lvl). */
+/* One level with n >= 16: a work-item bakes span = min(n, BAKE_SPAN) consecutive x of row
+ * (y, z) as span / 16 float16 chunks, so the per-level row set-up is shared by up to four
+ * chunks. xoff[m]: offset of X_m in xbuf (m > lvl). */
+#ifndef BAKE_SPAN
+#define BAKE_SPAN 64
+#endif
 __kernel void bake_rows(__global const float *dens, __global const float *tlev,
                         __global const float *xbuf, __global const int *loff,
                         __global const int *xoff, const int L, const int n0, const int lvl,
                         const int log2n, const float taufac_lvl, __global const float *weights,
                         const float bias, __global float *baked) {
     const int n = n0 >> lvl;
-    const int i = get_global_id(0);           /* chunk index */
-    if (i >= (n * n * n) >> 4) return;
-    const int x = (i << 4) & (n - 1);
-    const int zy = (i << 4) >> log2n;
+    const int span = min(n, BAKE_SPAN), ns = span >> 4;
+    const int i = get_global_id(0);           /* row segment index */
+    if (i >= (n * n * n) / span) return;
+    const int v = i * span;                   /* voxel index of the first lane in the level */
+    const int x = v & (n - 1);
+    const int zy = v >> log2n;
     const int y = zy & (n - 1), z = zy >> log2n;
-    const int v = (i << 4);                   /* voxel index of lane 0 in the level */
-    v16 acc = (v16)(0.0f);
+    v16 acc[BAKE_SPAN / 16];
+    for (int s = 0; s < ns; ++s) acc[s] = (v16)(0.0f);
     for (int m = 0; m < L; ++m) {
         const int nmi = n0 >> m;
         __global const float *tm = tlev + loff[m];
-        float wm = weights[m];
+        const float wm = weights[m];
         if (m == lvl) {
-            acc += wm * vload16(0, tm + v);
+            for (int s = 0; s < ns; ++s) acc[s] += wm * vload16(s, tm + v);
         } else if (m < lvl) {
             /* centre of v at level m: x 2^k + 2^(k-1) - 1/2 per axis, k = lvl - m: the mean
              * of the 2x2x2 block from b = x 2^k + 2^(k-1) - 1, lerped at 1/2 like grid.h */
             const int k = lvl - m, h = (1 << (k - 1)) - 1;
             const int by = (y << k) + h, bz = (z << k) + h;
-            const i16 bx = (((i16)(x) + (i16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)) << k) + (i16)(h);
             const int r00 = (bz * nmi + by) * nmi, r01 = r00 + nmi;
             const int r10 = r00 + nmi * nmi, r11 = r10 + nmi;
-            const v16 c00 = mix(gather16(tm, bx + (i16)(r00)), gather16(tm, bx + (i16)(r00 + 1)), 0.5f);
-            const v16 c01 = mix(gather16(tm, bx + (i16)(r01)), gather16(tm, bx + (i16)(r01 + 1)), 0.5f);
-            const v16 c10 = mix(gather16(tm, bx + (i16)(r10)), gather16(tm, bx + (i16)(r10 + 1)), 0.5f);
-            const v16 c11 = mix(gather16(tm, bx + (i16)(r11)), gather16(tm, bx + (i16)(r11 + 1)), 0.5f);
-            acc += wm * mix(mix(c00, c01, 0.5f), mix(c10, c11, 0.5f), 0.5f);
+            for (int s = 0; s < ns; ++s) {
+                const i16 bx = (((i16)(x + 16 * s)
+                                 + (i16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)) << k)
+                               + (i16)(h);
+                const v16 c00 = mix(gather16(tm, bx + (i16)(r00)), gather16(tm, bx + (i16)(r00 + 1)), 0.5f);
+                const v16 c01 = mix(gather16(tm, bx + (i16)(r01)), gather16(tm, bx + (i16)(r01 + 1)), 0.5f);
+                const v16 c10 = mix(gather16(tm, bx + (i16)(r10)), gather16(tm, bx + (i16)(r10 + 1)), 0.5f);
+                const v16 c11 = mix(gather16(tm, bx + (i16)(r11)), gather16(tm, bx + (i16)(r11 + 1)), 0.5f);
+                acc[s] += wm * mix(mix(c00, c01, 0.5f), mix(c10, c11, 0.5f), 0.5f);
+            }
         } else {
             const float r = (float)nmi / (float)n;
             const float gy = clamp(((float)y + 0.5f) * r - 0.5f, 0.0f, (float)(nmi - 1));
@@ -426,18 +436,22 @@ __kernel void bake_rows(__global const float *dens, __global const float *tlev,
             const int y1 = min(y0 + 1, nmi - 1), z1 = min(z0 + 1, nmi - 1);
             const float fy = gy - (float)y0, fz = gz - (float)z0;
             __global const float *xm = xbuf + xoff[m] + x;
-            const v16 c00 = vload16(0, xm + (size_t)(z0 * nmi + y0) * n);
-            const v16 c01 = vload16(0, xm + (size_t)(z0 * nmi + y1) * n);
-            const v16 c10 = vload16(0, xm + (size_t)(z1 * nmi + y0) * n);
-            const v16 c11 = vload16(0, xm + (size_t)(z1 * nmi + y1) * n);
-            acc += wm * mix(mix(c00, c01, fy), mix(c10, c11, fy), fz);
+            __global const float *q00 = xm + (size_t)(z0 * nmi + y0) * n;
+            __global const float *q01 = xm + (size_t)(z0 * nmi + y1) * n;
+            __global const float *q10 = xm + (size_t)(z1 * nmi + y0) * n;
+            __global const float *q11 = xm + (size_t)(z1 * nmi + y1) * n;
+            for (int s = 0; s < ns; ++s)
+                acc[s] += wm * mix(mix(vload16(s, q00), vload16(s, q01), fy),
+                                   mix(vload16(s, q10), vload16(s, q11), fy), fz);
         }
     }
-    const v16 tau = vload16(0, dens + loff[lvl] + v) * taufac_lvl;
-    const v16 cc = acc + bias;
     __global float *b = baked + 2 * ((size_t)loff[lvl] + v);
-    vstore16(shuffle2(tau, cc, (uint16)(0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23)), 0, b);
-    vstore16(shuffle2(tau, cc, (uint16)(8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31)), 1, b);
+    for (int s = 0; s < ns; ++s) {
+        const v16 tau = vload16(s, dens + loff[lvl] + v) * taufac_lvl;
+        const v16 cc = acc[s] + bias;
+        vstore16(shuffle2(tau, cc, (uint16)(0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23)), 2 * s, b);
+        vstore16(shuffle2(tau, cc, (uint16)(8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31)), 2 * s + 1, b);
+    }
 }
 
 /* Levels first..L-1 (all with n < 16): one voxel per work-item, direct lookups. */

@@ -100,6 +100,7 @@ class BakedGrid:
 
 _BAKED: dict = {}
 MIN_ROW_LEVEL = 16        # levels at least this wide are baked by rows of 16 (bake_rows)
+BAKE_SPAN = 64            # voxels of a row per bake_rows work-item (cl/gather.cl BAKE_SPAN)
 MAX_RENDER_FLOATS = 2**31 - 1   # the render kernel indexes the (tau, C) pairs with int
 BAKE_PAD = 8
 
@@ -198,7 +199,7 @@ def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, le
                 rt.launch(kx, nm * nm * n, (graded.buffer, np.int32(pyramid.level_offsets[m]),
                                             np.int32(nm), np.int32(n), np.int32(log2n), scratch,
                                             np.int32(xoff[m])))
-            rt.launch(kr, n ** 3 // 16, (pyramid.buffer, graded.buffer, scratch, st["loff"],
+            rt.launch(kr, n ** 3 // min(n, BAKE_SPAN), (pyramid.buffer, graded.buffer, scratch, st["loff"],
                                          rt.to_device(xoff),
                                          np.int32(L), np.int32(n0), np.int32(lvl), np.int32(log2n),
                                          taufac[lvl], wbuf, np.float32(b), out))
