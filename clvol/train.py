@@ -202,3 +202,159 @@ def per_key_mean(train: Samples, test: Samples) -> np.ndarray:
         if m.any():
             out[test.key == k] = np.average(train.y[m], weights=train.weight[m])
     return out
+
+
+# --------------------------------------------------------------------------- training runs
+# A run on a clvol.dataset folder: held-out split by volume and configuration, checkpoints
+# written atomically and resumed exactly, export with the gather's contract.
+
+CHECKPOINT = "checkpoint.pt"
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """What determines a training run (a resumed run must use the same)."""
+    steps: int = 6000
+    batch: int = 256
+    lr: float = 2e-3
+    weight_decay: float = 0.0
+    seed: int = 0
+    floor: float = 0.05
+    holdout_volumes: tuple = (1,)     # whole volumes never seen in training (+ the first solid)
+    holdout_config: int = -1          # this configuration index of every volume is held out too
+    eval_every: int = 500
+    checkpoint_every: int = 250
+
+    def to_dict(self) -> dict:
+        from dataclasses import asdict
+        d = asdict(self)
+        d["holdout_volumes"] = list(self.holdout_volumes)
+        return d
+
+
+def split_shards(shards, cfg: RunConfig):
+    """(train shards, held-out shards): held out are all configurations of the volumes in
+    ``cfg.holdout_volumes`` and of the first solid volume (if the data set has solids), and
+    configuration ``cfg.holdout_config`` (negative: from the end) of every other volume. Held-out
+    points therefore come from volumes or light/view/phase/albedo draws training never saw."""
+    spec = shards[0].meta["spec"]
+    n_cfg = spec["configs_per_volume"]
+    hv = set(int(v) for v in cfg.holdout_volumes)
+    if spec["n_solids"] > 0:
+        hv.add(spec["n_volumes"] - spec["n_solids"])
+    hc = cfg.holdout_config % n_cfg
+    held = [s for s in shards if s.volume in hv or s.config_index == hc]
+    train = [s for s in shards if not (s.volume in hv or s.config_index == hc)]
+    if not train or not held:
+        raise ValueError(f"held-out split of {len(shards)} shards leaves {len(train)} for training "
+                         f"and {len(held)} held out (held-out volumes {sorted(hv)}, configuration "
+                         f"{hc}); both must be non-empty")
+    return train, held
+
+
+def shard_samples(shards, floor: float = 0.05) -> Samples:
+    """Samples of a list of clvol.dataset.Shard: one per (query, distinct non-zero albedo), key
+    = the shard's position in the data set (volume * configs + configuration)."""
+    parts = []
+    for s in shards:
+        a = s.arrays
+        n_cfg = s.meta["spec"]["configs_per_volume"]
+        key = np.full(len(a["Fms"]), s.volume * n_cfg + s.config_index)
+        parts.append(make_samples(a["features"], a["config"], a["Fms"], a["Fms_se"], s.albedo,
+                                  levels=a["levels"], key=key, floor=floor))
+    return concat_samples(parts)
+
+
+def save_checkpoint(path, state: dict) -> None:
+    """torch.save to a temporary file, then os.replace (a killed run leaves the previous one)."""
+    import os
+    import tempfile
+    from pathlib import Path
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + "-", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save(state, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class Trainer:
+    """Adam + cosine decay on the noise-weighted eq. 20 loss, in resumable steps.
+
+    Everything that changes during training (model, optimiser and scheduler state, the batch
+    generator's state, the step, the loss history) is in ``state_dict()``; a run restored from a
+    checkpoint continues exactly as the uninterrupted run would have (tests/test_dataset.py)."""
+
+    def __init__(self, train: Samples, cfg: RunConfig, arch=None):
+        from .export import Architecture
+        self.cfg = cfg
+        self.train = train
+        torch.manual_seed(cfg.seed)
+        L = train.levels.shape[1] if train.levels is not None else layout.N_LEVELS
+        self.model = Model(arch or Architecture(n_levels=L))
+        set_normalisation(self.model, train)
+        self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        self.sched = torch.optim.lr_scheduler.CosineAnnealingLR(self.opt, T_max=max(cfg.steps, 1))
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.step = 0
+        self.history = {"train": [], "eval": []}
+
+    def state_dict(self) -> dict:
+        return {"model": self.model.state_dict(), "opt": self.opt.state_dict(),
+                "sched": self.sched.state_dict(), "gen": self.gen.get_state(), "step": self.step,
+                "history": self.history, "config": self.cfg.to_dict()}
+
+    def load_state_dict(self, st: dict) -> None:
+        if st["config"] != self.cfg.to_dict():
+            diff = sorted(k for k in st["config"] if st["config"][k] != self.cfg.to_dict().get(k))
+            raise ValueError(f"checkpoint was made with other run settings ({diff}); use the same "
+                             f"settings or another output folder")
+        self.model.load_state_dict(st["model"])
+        self.opt.load_state_dict(st["opt"])
+        self.sched.load_state_dict(st["sched"])
+        self.gen.set_state(st["gen"])
+        self.step = int(st["step"])
+        self.history = st["history"]
+
+    def run(self, until: int, checkpoint=None, held: Samples | None = None, log=print) -> None:
+        """Train to step ``until`` (<= cfg.steps), writing ``checkpoint`` every
+        cfg.checkpoint_every steps and at the end, evaluating ``held`` every cfg.eval_every."""
+        until = min(int(until), self.cfg.steps)
+        n = len(self.train)
+        window = []
+        while self.step < until:
+            self.model.train()
+            idx = torch.randint(0, n, (min(self.cfg.batch, n),), generator=self.gen).numpy()
+            f, c, lv, y, w = _tensors(self.train, idx)
+            loss = weighted_loss(self.model(f, c, lv), y, w)
+            self.opt.zero_grad()
+            loss.backward()
+            self.opt.step()
+            self.sched.step()
+            self.step += 1
+            window.append(float(loss.detach()))
+            last = self.step == until
+            if self.cfg.eval_every and (self.step % self.cfg.eval_every == 0 or last):
+                row = {"step": self.step, "train": float(np.mean(window))}
+                window = []
+                if held is not None:
+                    row["held_out"] = evaluate(self.model, held)
+                    row["held_out_weighted"] = evaluate(self.model, held, weighted=True)
+                self.history["eval"].append(row)
+                if log:
+                    log("  ".join(f"{k} {v:.5f}" if isinstance(v, float) else f"{k} {v}"
+                                  for k, v in row.items()))
+            if checkpoint is not None and (self.step % self.cfg.checkpoint_every == 0 or last):
+                save_checkpoint(checkpoint, self.state_dict())
+
+
+def mean_predictor_loss(train: Samples, held: Samples) -> float:
+    """Held-out eq. 20 loss of the constant predictor (the training set's weighted mean y)."""
+    m = float(np.average(train.y, weights=train.weight))
+    return float(np.mean((held.y.astype(np.float64) - m) ** 2))
