@@ -13,9 +13,11 @@ the density, its majorant grid and the light field on the device; ``set_light`` 
 the light field (the cost of a light change), ``march`` renders a camera.
 
 Multiple-scattering sources (``ms``): ``"none"`` (single scattering only), ``"wrenninge"``
-(octaves, the games' analytic approximation; the default) and ``"grid"`` (a precomputed
-``MsGrid`` of F_ms sampled trilinearly: the slot the network fills; ``fill_ms_grid`` builds
-one from any point estimator, e.g. the path tracer's ``point_query``).
+(octaves, the games' analytic approximation; the default), ``"grid"`` (a precomputed
+``MsGrid`` of F_ms sampled trilinearly; ``fill_ms_grid`` builds one from any point estimator,
+e.g. the path tracer's ``point_query``) and ``"network"`` (that lattice filled by the trained
+network: template gather in render mode + the fused OpenCL MLP, ``NetworkSource``; weights
+from ``--weights FILE.npz``, docs/neural.md).
 
 The kernel is specialised to what the scene calls for (cl/raymarch.cl defines); the header
 of the result lists what was simulated, what was skipped and why. ``shortcuts=False``
@@ -40,6 +42,9 @@ DEFAULT_THRESHOLD = 1e-3   # early termination when T_cam falls below this
 DEFAULT_BLOCK = 8          # voxels per majorant block per axis (empty-space skipping)
 MAX_LIGHT_RESOLUTION = 256
 MAX_SUPERSAMPLE = 8
+MS_SOURCES = tuple(sorted(SOURCES)) + ("network",)   # "network" marches as a "grid" source
+DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
+NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
 
 
 # --------------------------------------------------------------------------- options
@@ -121,6 +126,14 @@ def fill_ms_grid(scene, resolution, query, bbox_min=None, bbox_max=None) -> MsGr
     The lattice is ``resolution`` (int or (gx, gy, gz)) voxel centres over the box
     (default: the volume's box); omega at each point is toward the camera.
     """
+    res, lo, hi, pts, om = ms_lattice(scene, resolution, bbox_min, bbox_max)
+    vals = np.asarray(query(pts, om), np.float64).reshape(res[2], res[1], res[0], 3)
+    return _check_ms_grid(MsGrid(np.maximum(vals, 0.0).astype(np.float32), tuple(lo), tuple(hi)))
+
+
+def ms_lattice(scene, resolution, bbox_min=None, bbox_max=None):
+    """(res (gx, gy, gz), lo, hi, points (N, 3), omegas (N, 3)) of an F_ms lattice: voxel
+    centres over the box (default: the volume's), [z][y][x] order, omega toward the camera."""
     res = (resolution,) * 3 if np.isscalar(resolution) else tuple(resolution)
     if len(res) != 3 or min(res) < 1:
         raise ClvolError(f"ms grid resolution {resolution!r}: give n or (gx, gy, gz), each >= 1")
@@ -133,16 +146,106 @@ def fill_ms_grid(scene, resolution, query, bbox_min=None, bbox_max=None) -> MsGr
     pts = np.stack([x, y, z], axis=-1).reshape(-1, 3)
     om = np.asarray(scene.camera.origin, np.float64) - pts
     om /= np.maximum(np.linalg.norm(om, axis=1, keepdims=True), 1e-30)
-    vals = np.asarray(query(pts, om), np.float64).reshape(res[2], res[1], res[0], 3)
-    return _check_ms_grid(MsGrid(np.maximum(vals, 0.0).astype(np.float32), tuple(lo), tuple(hi)))
+    return res, lo, hi, pts, om
+
+
+def load_network_weights(path):
+    """A weight file checked against the contract of the gather that will feed it: this
+    code's layout and packaged templates (hash, level map) at the file's base resolution and
+    lambda (the pyramid is built to match those). Raises WeightsError naming the field."""
+    from .export import MlpWeights, gather_contract, load_weights, read_meta
+    from .errors import WeightsError
+    if isinstance(path, MlpWeights):
+        path = path.path
+    c = read_meta(path)["contract"]
+    base, lam = c.get("base_resolution"), c.get("lambda")
+    if not (isinstance(base, int) and 2 <= base <= 512 and base & (base - 1) == 0):
+        raise WeightsError(f"{path}: [contract.base_resolution] = {base!r}: must be a power of two "
+                           f"from 2 to 512")
+    if not (isinstance(lam, (int, float)) and 0 < lam <= 1):
+        raise WeightsError(f"{path}: [contract.lambda] = {lam!r}: must be in (0, 1]")
+    return load_weights(path, expect_contract=gather_contract(base, float(lam)))
+
+
+class NetworkSource:
+    """The network as the ray marcher's F_ms source for one volume and medium.
+
+    Holds the checked weights on the device (``MlpKernel``) and the density pyramid at the
+    weights' base resolution; ``fill`` makes the graded transmittance for the light (cached per
+    light direction), gathers render-mode features (the weights' level combination baked by the
+    gather) at an F_ms lattice and evaluates the network there: one evaluation per point for a
+    grey albedo (``grey_shortcut``), else one per distinct non-zero channel albedo.
+    """
+
+    def __init__(self, weights, grid, medium, runtime=None):
+        from .kernels.mlp import MlpKernel
+        from .kernels.pyramid import build_pyramid
+        self.rt = runtime or get_runtime()
+        self.weights = load_network_weights(weights)
+        self.grid, self.medium = grid, medium
+        self.mlp = MlpKernel(self.weights, self.rt)
+        self.base = int(self.weights.contract["base_resolution"])
+        self.lam = float(self.weights.contract["lambda"])
+        self.pyramid = build_pyramid(grid, self.base, self.rt)
+        self._graded = (None, None)
+
+    def graded(self, light_dir):
+        from .kernels.transmittance import graded_transmittance
+        l = np.asarray(light_dir, np.float64) / np.linalg.norm(light_dir)
+        if self._graded[0] is None or not np.array_equal(self._graded[0], l):
+            self._graded = (l, graded_transmittance(self.pyramid, self.medium.density_scale, l,
+                                                    lam=self.lam))
+        return self._graded[1]
+
+    def fill(self, scene, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
+             bbox_max=None, grey_shortcut: bool = True):
+        """(MsGrid, info): F_ms at the lattice (``ms_lattice``) for the scene's camera and a
+        light toward ``light_dir``; info has seconds "light" (graded fields), "gather",
+        "network", and "evaluations" (network evaluations per lattice point)."""
+        from .kernels.gather import gather
+        rt = self.rt
+        if bbox_min is None or bbox_max is None:
+            bbox_min, bbox_max = self.grid.bbox_min, self.grid.bbox_max
+        res, lo, hi, pts, om = ms_lattice(scene, resolution, bbox_min, bbox_max)
+        alb = np.asarray(self.medium.albedo, np.float64)
+        grey = grey_shortcut and self.medium.is_grey
+        l = np.asarray(light_dir, np.float64) / np.linalg.norm(light_dir)
+        info = {"light": 0.0, "gather": 0.0, "network": 0.0}
+        with Stopwatch() as sw:
+            graded = self.graded(l)
+            rt.finish()
+        info["light"] = sw.seconds
+        out = np.zeros((len(pts),) if grey else (len(pts), 3), np.float32)
+        reuse = None
+        for i in range(0, len(pts), NETWORK_CHUNK):
+            sl = slice(i, i + NETWORK_CHUNK)
+            with Stopwatch() as sw:
+                g = gather(self.pyramid, graded, pts[sl], om[sl], l, self.medium, float(alb[0]),
+                           mode="render", level_weights=self.weights.level_weights,
+                           bias=self.weights.level_bias, as_buffers=True, reuse=reuse)
+                rt.finish()
+            info["gather"] += sw.seconds
+            reuse = g
+            with Stopwatch() as sw:
+                if grey:     # the config's albedo is the medium's: one evaluation per point
+                    out[sl] = self.mlp.forward(g["features"], g["config"], decode=True, n=g["n"])
+                else:        # one per distinct non-zero channel albedo (the kernel dedupes)
+                    out[sl] = self.mlp.forward(g["features"], g["config"], channel_albedo=alb,
+                                               decode=True, n=g["n"])
+            info["network"] += sw.seconds
+        info["evaluations"] = 1 if grey else len(set(float(a) for a in alb if a > 0))
+        vals = out.reshape((res[2], res[1], res[0]) + (() if grey else (3,)))
+        if not np.all(np.isfinite(vals)):
+            raise ClvolError(f"{self.weights.path}: the network produced non-finite F_ms")
+        return _check_ms_grid(MsGrid(np.maximum(vals, 0.0), tuple(lo), tuple(hi))), info
 
 
 def _check_options(ms, octaves: Octaves, step, threshold, block, light_resolution,
                    supersample, ms_grid):
     def bad(name, value, allowed):
         return ClvolError(f"raymarch option {name} = {value!r}: {allowed}")
-    if ms not in SOURCES:
-        raise bad("ms", ms, f"choose one of {sorted(SOURCES)}")
+    if ms not in MS_SOURCES:
+        raise bad("ms", ms, f"choose one of {list(MS_SOURCES)}")
     if not (isinstance(octaves.n, (int, np.integer)) and 1 <= octaves.n <= MAX_OCTAVES):
         raise bad("octaves", octaves.n, f"must be an integer from 1 to {MAX_OCTAVES}")
     # a = 0 would make T^(a^i) = 1 behind any amount of medium: light through walls.
@@ -168,6 +271,18 @@ def _check_options(ms, octaves: Octaves, step, threshold, block, light_resolutio
             raise ClvolError("raymarch option ms = 'grid' needs an ms grid (--ms-grid FILE.npz, "
                              "or ms_grid=MsGrid(...) in Python)")
         _check_ms_grid(ms_grid)
+
+
+def _check_network_options(weights, ms_resolution):
+    if weights is None:
+        raise ClvolError("raymarch option ms = 'network' needs a weight file (--weights FILE.npz, "
+                         "or weights=... in Python)")
+    r = ms_resolution
+    ok = (isinstance(r, (int, np.integer)) and 2 <= r <= 256) or (
+        not np.isscalar(r) and len(r) == 3 and all(isinstance(v, (int, np.integer)) and 2 <= v <= 256
+                                                   for v in r))
+    if not ok:
+        raise ClvolError(f"raymarch option ms_resolution = {r!r}: an integer (or three) from 2 to 256")
 
 
 def auto_light_resolution(grid) -> int:
@@ -291,7 +406,7 @@ class Plan:
         if shortcuts and phase.is_isotropic:
             lobes = []
             skip.append("phase evaluation (isotropic: constant 1/(4 pi))")
-        source = ms if lit else "none"
+        source = ("grid" if ms == "network" else ms) if lit else "none"
         planes = box = None
         if lit and ms == "none":
             skip.append("multiple scattering (--ms none)")
@@ -301,7 +416,7 @@ class Plan:
                            f"b={octaves.b:g} c={octaves.c:g})")
             else:
                 skip.append("multiple scattering (Wrenninge with 1 octave: single only)")
-        elif lit and ms == "grid":
+        elif lit and ms in ("grid", "network"):
             planes = ms_grid.planes()
             grey_grid = planes.shape[0] == 1 or (np.array_equal(planes[0], planes[1])
                                                  and np.array_equal(planes[0], planes[2]))
@@ -311,8 +426,8 @@ class Plan:
             elif planes.shape[0] == 1:
                 planes = np.ascontiguousarray(np.repeat(planes, 3, axis=0))
             gz, gy, gx = planes.shape[1:]
-            sim.append(f"multiple scattering (precomputed F_ms grid {gx}x{gy}x{gz}, "
-                       f"{planes.shape[0]} channel(s))")
+            what = "network-filled F_ms lattice" if ms == "network" else "precomputed F_ms grid"
+            sim.append(f"multiple scattering ({what} {gx}x{gy}x{gz}, {planes.shape[0]} channel(s))")
             box = (tuple(ms_grid.bbox_min), tuple(ms_grid.bbox_max))
         channels = 1
         if planes is not None:
@@ -336,7 +451,8 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
                     skip_empty: bool = True, block: int = DEFAULT_BLOCK,
                     light_resolution: int | None = None, light_interp: str = "transmittance",
                     supersample: int = 1, shortcuts: bool = True, grid=None,
-                    runtime=None) -> RenderResult:
+                    runtime=None, weights=None,
+                    ms_resolution=DEFAULT_NETWORK_RESOLUTION) -> RenderResult:
     """Render ``scene`` with the ray marcher. Returns a RenderResult with layers total,
     single, multiple (H, W, 3), alpha and depth (H, W), and the header.
 
@@ -344,11 +460,16 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
     threshold: early termination transmittance (error < threshold x the largest source
     radiance along the ray); supersample: S x S rays per pixel on a regular sub-grid, box
     filtered (1 = pixel centres); grid: the loaded volume (else ``scene.volume.load()``).
+    ms="network": ``weights`` (a weight file path) fills an F_ms lattice of ``ms_resolution``
+    points per side for this camera and light (``NetworkSource``), which is then marched like
+    ms="grid"; the header splits the time into gather, network and march.
     """
     oct_ = Octaves(int(octaves) if isinstance(octaves, (int, np.integer)) else octaves,
                    float(a), float(b), float(c))
     _check_options(ms, oct_, float(step), float(threshold), block, light_resolution,
-                   supersample, ms_grid)
+                   supersample, ms_grid if ms != "network" else None)
+    if ms == "network":
+        _check_network_options(weights, ms_resolution)
     with Stopwatch() as sw_total:
         with Stopwatch() as sw_load:
             grid = grid if grid is not None else scene.volume.load()
@@ -357,6 +478,19 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
         if supersample > 1:
             from dataclasses import replace
             cam = replace(cam, width=cam.width * supersample, height=cam.height * supersample)
+        net_info = None
+        if ms == "network":
+            lit = bool(np.any(np.asarray(scene.medium.albedo) * np.asarray(scene.light.irradiance) > 0))
+            if lit or not shortcuts:
+                with Stopwatch() as sw_setup:
+                    src = NetworkSource(weights, grid, scene.medium, rm.rt)
+                    rm.rt.finish()
+                ms_grid, net_info = src.fill(scene, scene.light.direction, ms_resolution,
+                                             grey_shortcut=shortcuts)
+                net_info["setup"] = sw_setup.seconds
+            else:   # nothing is lit: the plan skips the source; an empty grid stands in
+                ms_grid = MsGrid(np.zeros((1, 1, 1), np.float32), tuple(grid.bbox_min),
+                                 tuple(grid.bbox_max))
         plan = Plan.make(scene.medium, scene.light, ms, oct_, ms_grid, shortcuts)
         with Stopwatch() as sw_light:
             if plan.lit:
@@ -389,6 +523,21 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
         "raymarch.shortcuts": bool(shortcuts),
         "device": rm.rt.entry.label,
     }
+    if ms == "network":
+        w = src.weights if net_info is not None else None
+        if net_info is not None and scene.medium.is_grey and shortcuts:
+            extra = "network evaluations for colour channels 2 and 3 (grey albedo: one per lattice point)"
+            header["skipped"] = extra if header["skipped"] == "nothing" else header["skipped"] + "; " + extra
+        header.update({
+            "raymarch.weights": str(w.path) if w else "",
+            "raymarch.ms_resolution": str(ms_resolution),
+            "raymarch.network_base_resolution": src.base if w else 0,
+            "raymarch.network_evaluations_per_point": net_info["evaluations"] if net_info else 0,
+            "seconds.network_setup": round(net_info["setup"], 4) if net_info else 0.0,
+            "seconds.graded_transmittance": round(net_info["light"], 4) if net_info else 0.0,
+            "seconds.gather": round(net_info["gather"], 4) if net_info else 0.0,
+            "seconds.network": round(net_info["network"], 4) if net_info else 0.0,
+        })
     if ms == "wrenninge":
         header.update({"raymarch.octaves": oct_.n, "raymarch.ms_a": oct_.a,
                        "raymarch.ms_b": oct_.b, "raymarch.ms_c": oct_.c,
@@ -412,9 +561,16 @@ def downsample(layers: dict, s: int) -> dict:
 # --------------------------------------------------------------------------- CLI hooks
 
 def add_arguments(group) -> None:
-    group.add_argument("--ms", choices=sorted(SOURCES), default="wrenninge",
+    group.add_argument("--ms", choices=list(MS_SOURCES), default="wrenninge",
                        help="multiple-scattering source: none (single only), wrenninge "
-                            "(analytic octaves, default), grid (precomputed F_ms, --ms-grid)")
+                            "(analytic octaves, default), grid (precomputed F_ms, --ms-grid), "
+                            "network (trained network, --weights)")
+    group.add_argument("--weights", metavar="FILE.npz",
+                       help="network weight file for --ms network (e.g. "
+                            "clvol/data/weights/cloud_small.npz)")
+    group.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
+                       help=f"F_ms lattice points per side filled by the network (default "
+                            f"{DEFAULT_NETWORK_RESOLUTION})")
     group.add_argument("--ms-grid", metavar="FILE.npz",
                        help="precomputed F_ms grid (arrays values, bbox_min, bbox_max) for --ms grid")
     group.add_argument("--octaves", type=int, default=3, help="Wrenninge octaves N (default 3)")
@@ -452,7 +608,9 @@ def render(scene, args) -> RenderResult:
         ms_grid=ms_grid, step=args.step, threshold=args.threshold,
         skip_empty=not args.no_skip_empty, light_resolution=args.light_resolution,
         light_interp=args.light_interp,
-        supersample=args.supersample, shortcuts=not args.no_shortcuts, runtime=rt)
+        supersample=args.supersample, shortcuts=not args.no_shortcuts, runtime=rt,
+        weights=getattr(args, "weights", None),
+        ms_resolution=getattr(args, "ms_resolution", DEFAULT_NETWORK_RESOLUTION))
     if getattr(args, "profile", False):
         import sys
         print(rt.timing_report(), file=sys.stderr)
