@@ -10,8 +10,12 @@ untimed run at the smallest setting):
   raymarch/none        single scattering only, step 2, 1, 0.5 voxels
   raymarch/wrenninge   + Wrenninge octaves (N=3, a=b=c=0.5), step 2, 1, 0.5 voxels
   raymarch/grid        + F_ms from a lattice of path-traced point queries (8^3 and 16^3 points,
-                       64 paths each); the time includes filling the lattice, which the network
-                       will replace by one evaluation per lattice point
+                       64 paths each); the time includes filling the lattice
+  raymarch/network     + F_ms from the trained network (--weights, default
+                       clvol/data/weights/cloud_small.npz) on a 16^3 and 32^3 lattice: frame = the
+                       march; light update = graded transmittance + gather + network fill + the
+                       light field (the lattice depends on the camera too: a camera move costs
+                       the gather + network part again)
 Times: "frame" is what one more image costs (the march for the ray marcher; the whole render
 for the path tracer), "light update" what a light change costs once (the light field, and the
 lattice fill for the grid source). Errors: the MRPNN metric (RMSE x 100 of tonemapped 8-bit luminance), relMSE and RMSE against the
@@ -36,7 +40,7 @@ from _common import machine  # noqa: E402  (bench/ is on sys.path)
 from clvol.image import read_exr, write_exr  # noqa: E402
 from clvol.metrics import compare_images  # noqa: E402
 from clvol.pathtrace import point_query, render_pathtrace  # noqa: E402
-from clvol.raymarch import RayMarcher, fill_ms_grid  # noqa: E402
+from clvol.raymarch import NetworkSource, RayMarcher, fill_ms_grid  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 
@@ -81,6 +85,8 @@ def main(argv=None) -> int:
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--quick", action="store_true", help="64x64, 256-spp reference, fewer points")
     ap.add_argument("--out", default=str(ROOT / "out" / "bench"))
+    ap.add_argument("--weights", default=str(ROOT / "clvol" / "data" / "weights" / "cloud_small.npz"),
+                    help="network weight file for the raymarch/network points ('' to skip them)")
     args = ap.parse_args(argv)
     if args.quick:
         args.size, args.ref_spp = 64, 256
@@ -146,6 +152,27 @@ def main(argv=None) -> int:
         (layers, _), s = best_of(3, lambda: rm.march(cam, scene.light, ms="grid", ms_grid=msg))
         record("raymarch/grid", f"{lattice}^3 lattice, 64 paths", layers, s, light_s + fill_s)
 
+    if args.weights and Path(args.weights).exists():
+        src = NetworkSource(args.weights, grid, scene.medium, rt)
+        unit_other = other / np.linalg.norm(other)
+        for lattice in (16, 32):
+            src.fill(scene, unit_other, lattice)          # compile and bake once, untimed
+
+            def network_change():
+                """Two light changes (graded T + gather + network); info of the second."""
+                a = src.fill(scene, unit_other, lattice)[1]
+                msg, b = src.fill(scene, scene.light.direction, lattice)
+                return msg, {k: (a[k] + b[k]) / 2 for k in ("light", "gather", "network")}
+            (msg, info), _ = best_of(3, network_change)
+            fill_s = info["light"] + info["gather"] + info["network"]
+            rm.march(cam, scene.light, ms="grid", ms_grid=msg)
+            (layers, _), s = best_of(3, lambda: rm.march(cam, scene.light, ms="grid", ms_grid=msg))
+            record("raymarch/network", f"{lattice}^3 lattice", layers, s, light_s + fill_s)
+            print(f"{'':21}(light update: light field {light_s:.3f} s, graded T {info['light']:.3f} s, "
+                  f"gather {info['gather']:.3f} s, network {info['network']:.3f} s)")
+    elif args.weights:
+        print(f"raymarch/network skipped: no weight file {args.weights}")
+
     csv_path = out_dir / f"accuracy_vs_time_{Path(args.scene).stem}_{args.size}.csv"
     with open(csv_path, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
@@ -174,7 +201,8 @@ def svg_plot(rows, title: str, w: int = 640, h: int = 420) -> str:
         return h - mb - (np.log10(y) - ly0) / max(ly1 - ly0, 1) * (h - mt - mb)
 
     colours = {"pathtrace": "#1f77b4", "raymarch/none": "#7f7f7f",
-               "raymarch/wrenninge": "#ff7f0e", "raymarch/grid": "#2ca02c"}
+               "raymarch/wrenninge": "#ff7f0e", "raymarch/grid": "#2ca02c",
+               "raymarch/network": "#d62728"}
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" '
            f'font-family="sans-serif" font-size="11">',
            f'<rect width="{w}" height="{h}" fill="white"/>',

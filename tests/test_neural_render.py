@@ -1,0 +1,169 @@
+"""The network as the ray marcher's multiple-scattering source (clvol/raymarch.py, ms="network").
+
+A tiny random-weight network (the real architecture, He-scaled weights, last layer scaled down so
+y stays O(1)) on a 16^3 cloud with a 16^3 pyramid: training is not the point here, the wiring is
+(gather in render mode with the file's level weights -> OpenCL MLP -> F_ms lattice in [z][y][x]
+order -> march). Tolerances:
+- lattice vs the float64 NumPy reference (reference/mlp.py) on the same gathered features:
+  docs/network.md's parity bound in y, |y - y_ref| <= 1e-5 |y_ref| + 1e-5 max|y_ref|, carried to
+  F = a^4 (e^y - 1) as |dF| <= a^4 e^y |dy| (x 2 for the float32 decode);
+- grey shortcut (one evaluation, one plane) vs the 3-channel path: the same network on the same
+  features, built as different kernels (1 vs 3 channels), so equal within float32 rounding of
+  the decode (2e-6 relative), and images within 2e-6 relative (docs/raymarch.md's bound for
+  shortcut vs general kernel).
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from clvol.errors import ClvolError, WeightsError
+from clvol.export import Architecture, default_params, gather_contract, save_weights
+from clvol.scene import scene_from_dict
+
+BASE = 16
+
+
+def _params(seed=0):
+    arch = Architecture(n_levels=int(np.log2(BASE)) + 1)
+    p = default_params(arch, np.random.default_rng(seed))
+    last = f"head.{len(arch.head_widths)}"
+    p[f"{last}.weight"] = (p[f"{last}.weight"] * 0.05).astype(np.float32)
+    p[f"{last}.bias"] = np.full_like(p[f"{last}.bias"], 0.3)
+    p["level_weights"] = np.linspace(0.05, 0.3, arch.n_levels).astype(np.float32)
+    p["level_bias"] = np.array([0.02], np.float32)
+    return arch, p
+
+
+@pytest.fixture(scope="module")
+def weights_file(tmp_path_factory):
+    arch, p = _params()
+    path = tmp_path_factory.mktemp("net") / "tiny.npz"
+    save_weights(path, arch, p, gather_contract(BASE, 0.6), training={"note": "random, tests"})
+    return path
+
+
+def _scene(albedo=0.95, lobes=None):
+    phase = ({"type": "hg", "g": 0.857} if lobes is None else
+             {"type": "mhg", "lobes": [{"g": g, "weight": w} for g, w in lobes]})
+    return scene_from_dict({
+        "volume": {"generator": "cloud", "seed": 4, "resolution": 16},
+        "medium": {"density_scale": 30.0, "albedo": albedo, "phase": phase},
+        "light": {"direction": [0.5, 0.8, 0.3], "irradiance": [1.0, 0.9, 0.8]},
+        "camera": {"origin": [0.3, 0.4, 2.2], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0],
+                   "fov_y": 35.0, "width": 16, "height": 12},
+    }, "<neural test>")
+
+
+@pytest.mark.parametrize("albedo,lobes", [(0.95, None), ([0.9, 0.95, 0.99], [(0.7, 0.6), (-0.3, 0.4)])])
+def test_network_source_renders(weights_file, albedo, lobes):
+    from clvol.raymarch import render_raymarch
+    res = render_raymarch(_scene(albedo, lobes), ms="network", weights=str(weights_file),
+                          ms_resolution=8)
+    for name in ("total", "single", "multiple"):
+        img = res.layers[name]
+        assert np.all(np.isfinite(img)) and np.all(img >= 0), name
+    assert res.layers["multiple"].max() > 0          # the network's source reaches the image
+    h = res.header
+    assert "network-filled F_ms lattice 8x8x8" in h["simulated"]
+    for k in ("seconds.gather", "seconds.network", "seconds.march"):
+        assert h[k] >= 0
+    grey = not isinstance(albedo, list)
+    assert h["raymarch.network_evaluations_per_point"] == (1 if grey else 3)
+    assert ("one per lattice point" in h["skipped"]) == grey
+
+
+def test_grey_shortcut_equals_three_channels(weights_file):
+    from clvol.raymarch import NetworkSource, render_raymarch
+    sc = _scene(0.95)
+    grid = sc.volume.load()
+    src = NetworkSource(weights_file, grid, sc.medium)
+    g1, i1 = src.fill(sc, sc.light.direction, 8, grey_shortcut=True)
+    g3, i3 = src.fill(sc, sc.light.direction, 8, grey_shortcut=False)
+    assert g1.values.shape == (8, 8, 8) and g3.values.shape == (8, 8, 8, 3)
+    assert i1["evaluations"] == 1
+    for c in range(3):
+        np.testing.assert_allclose(g3.values[..., c], g1.values, rtol=2e-6, atol=0)
+    a = render_raymarch(sc, ms="network", weights=str(weights_file), ms_resolution=8)
+    b = render_raymarch(sc, ms="network", weights=str(weights_file), ms_resolution=8,
+                        shortcuts=False)
+    assert a.header["raymarch.channels_marched"] == 1 and b.header["raymarch.channels_marched"] == 3
+    for name in ("total", "multiple"):
+        scale = float(np.abs(b.layers[name]).max())
+        np.testing.assert_allclose(a.layers[name], b.layers[name], rtol=0, atol=2e-6 * scale)
+
+
+def test_lattice_matches_numpy_reference(weights_file):
+    """Each lattice value F[k][j][i] equals the NumPy network evaluated on the gathered features
+    of lattice point (i, j, k) (voxel centre, omega toward the camera): checks the point order,
+    the baked level weights and the channel handling on an anisotropic lattice (5 x 6 x 7)."""
+    import reference.mlp as ref
+    from clvol.export import load_weights
+    from clvol.kernels.gather import gather
+    from clvol.raymarch import NetworkSource, ms_lattice
+    sc = _scene([0.9, 0.95, 0.0], [(0.7, 0.6), (-0.3, 0.4)])
+    grid = sc.volume.load()
+    src = NetworkSource(weights_file, grid, sc.medium)
+    msg, info = src.fill(sc, sc.light.direction, (5, 6, 7))
+    assert msg.values.shape == (7, 6, 5, 3) and info["evaluations"] == 2
+    res, lo, hi, pts, om = ms_lattice(sc, (5, 6, 7), grid.bbox_min, grid.bbox_max)
+    w = load_weights(weights_file)
+    l = np.asarray(sc.light.direction)
+    g = gather(src.pyramid, src.graded(l), pts, om, l, sc.medium, 0.9, mode="render",
+               level_weights=w.level_weights, bias=w.level_bias)
+    got = msg.values.reshape(-1, 3).astype(np.float64)
+    assert np.all(got[:, 2] == 0)                     # albedo-0 channel: no evaluation, F = 0
+    for c, a in ((0, 0.9), (1, 0.95)):
+        y_ref = ref.forward(w.params, w.arch, g["features"], ref.with_albedo(g["config"], a))
+        F_ref = ref.decode(y_ref, a)
+        dy = 1e-5 * np.abs(y_ref) + 1e-5 * np.abs(y_ref).max()
+        bound = 2 * a ** 4 * np.exp(y_ref) * dy + 1e-7 * np.abs(F_ref)
+        err = np.abs(got[:, c] - F_ref)
+        assert np.all(err <= bound), f"channel {c}: worst err/bound {np.max(err / bound):.3g}"
+        assert F_ref.max() > 0 and np.std(F_ref) > 0     # a non-trivial comparison
+
+
+def test_mismatched_weights_refused(weights_file, tmp_path):
+    from clvol.raymarch import render_raymarch
+    arch, p = _params()
+    bad = gather_contract(BASE, 0.6)
+    bad["template_hash"] = "0" * 64
+    path = tmp_path / "other_templates.npz"
+    save_weights(path, arch, p, bad)
+    with pytest.raises(WeightsError, match=r"other_templates.npz.*\[contract.template_hash\]"):
+        render_raymarch(_scene(), ms="network", weights=str(path), ms_resolution=4)
+    levels = gather_contract(BASE, 0.6)
+    levels["level_map"] = dict(levels["level_map"], diffuse=[0] * 8)
+    save_weights(path, arch, p, levels)
+    with pytest.raises(WeightsError, match=r"\[contract.level_map\]"):
+        render_raymarch(_scene(), ms="network", weights=str(path), ms_resolution=4)
+    with pytest.raises(ClvolError, match="needs a weight file"):
+        render_raymarch(_scene(), ms="network", ms_resolution=4)
+    with pytest.raises(ClvolError, match="ms_resolution = 1"):
+        render_raymarch(_scene(), ms="network", weights=str(weights_file), ms_resolution=1)
+    with pytest.raises(WeightsError, match="no such weight file"):
+        render_raymarch(_scene(), ms="network", weights=str(tmp_path / "missing.npz"))
+
+
+def test_cli_network_source(weights_file, tmp_path):
+    """clvol render --ms network --weights FILE writes an EXR whose header has the time split."""
+    from clvol.cli import main
+    from clvol.image import read_exr
+    scene_path = tmp_path / "s.toml"
+    scene_path.write_text(
+        '[volume]\ngenerator = "cloud"\nseed = 4\nresolution = 16\n'
+        '[medium]\npreset = "cloud"\ndensity_scale = 30.0\n'
+        '[light]\ndirection = [0.5, 0.8, 0.3]\n'
+        '[camera]\norigin = [0.3, 0.4, 2.2]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 35.0\n'
+        'width = 12\nheight = 10\n')
+    out = tmp_path / "o.exr"
+    rc = main(["render", str(scene_path), "--method", "raymarch", "--ms", "network",
+               "--weights", str(weights_file), "--ms-resolution", "6", "-o", str(out)])
+    assert rc == 0
+    img = read_exr(out)
+    assert np.all(np.isfinite(img.layers["total"]))
+    assert float(img.header["seconds.network"]) >= 0 and "network" in img.header["simulated"]
+    assert main(["render", str(scene_path), "--method", "raymarch", "--ms", "network",
+                 "-o", str(out)]) == 2          # no --weights: a clear error, exit 2
