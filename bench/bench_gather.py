@@ -72,7 +72,7 @@ class KernelClock:
 
 def measure(rt, clock, fn, repeats, kernels):
     """Medians over repeats of: device ms of the launches of ``kernels`` (summed per call),
-    their CPU ms / cores, the call's wall ms; and the best wall ms."""
+    their CPU ms / cores, the call's wall ms; the best wall ms; launches per call."""
     cores = rt.device.max_compute_units
     clock.names = set(kernels)
     dev, cpu, wall = [], [], []
@@ -85,11 +85,11 @@ def measure(rt, clock, fn, repeats, kernels):
         rt.queue.finish()
         wall.append((time.perf_counter() - t0) * 1e3)
         cpu.append(clock.cpu * 1e3 / cores)
-        dev.append(sum((e.profile.end - e.profile.start) * 1e-6 for name, e in rt._events
-                       if name in kernels))
+        ours = [e for name, e in rt._events if name in kernels]
+        dev.append(sum((e.profile.end - e.profile.start) * 1e-6 for e in ours))
         rt._events.clear()
     med = statistics.median
-    return med(dev), med(cpu), med(wall), min(wall)
+    return med(dev), med(cpu), med(wall), min(wall), len(ours)
 
 
 def main():
@@ -135,9 +135,10 @@ def main():
         kg._BAKED.clear()
         kg.bake_render_grid(pyr, gt, med.density_scale, w, 0.1)
     bake()                                            # compile + warm
-    d, c, wl, best = measure(rt, clock, bake, args.repeats, {"bake_xpass", "bake_rows", "bake_small"})
-    print(f"bake (per light/weight change): device {d:.1f} ms, cpu/core {c:.1f} ms, wall {wl:.1f} ms "
-          f"(best {best:.1f}); target well under {BAKE_TARGET_MS:.0f} ms")
+    d, c, wl, best, nl = measure(rt, clock, bake, args.repeats, {"bake_xpass", "bake_rows", "bake_small"})
+    print(f"bake (per light/weight change, {nl} launches): device {d:.1f} ms, "
+          f"cpu/core {c:.1f} ms, wall {wl:.1f} ms (best {best:.1f}); target well under "
+          f"{BAKE_TARGET_MS:.0f} ms at 256^3")
 
     def run(p, o, **kw):
         return lambda: kg.gather(pyr, gt, p, o, light, med, 0.999, mode="render",
@@ -146,14 +147,20 @@ def main():
     run(pts, om)()                                    # compile + warm
     run(pts, om, sort=False)()
     mib = 3 * layout.N_POINTS * 4 * args.queries / 2**20
+    coherent = kg.query_order(pyr, pts)             # as a caller with coherent queries has them
     cases = (("random order, sorted inside (default)", pts, om, {}),
              ("random order, sort=False", pts, om, {"sort": False}),
+             ("coherent order (pre-sorted), sort=False", pts[coherent], om[coherent], {"sort": False}),
              (f"random order, as_buffers (no {mib:.0f} MiB read-back, buffers reused)", pts, om,
               {"as_buffers": True, "reuse": prev}))
+    full = args.queries == 65536 and args.base == 256
     for name, p, o, kw in cases:
-        d, c, wl, best = measure(rt, clock, run(p, o, **kw), args.repeats, {"gather"})
+        d, c, wl, best, _ = measure(rt, clock, run(p, o, **kw), args.repeats, {"gather"})
+        verdict = (f"device {'met' if d <= TARGET_MS else 'NOT met'}, cpu/core "
+                   f"{'met' if c <= TARGET_MS else 'NOT met'}" if full
+                   else "the target is for 65,536 queries at 256^3")
         print(f"gather, {name}:\n    device {d:7.1f} ms, cpu/core {c:7.1f} ms (target <= {TARGET_MS:.0f} "
-              f"ms: {'met' if min(d, c) <= TARGET_MS else 'NOT met'}), wall {wl:.1f} ms (best {best:.1f})")
+              f"ms: {verdict}), wall {wl:.1f} ms (best {best:.1f})")
     print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
