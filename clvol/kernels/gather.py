@@ -7,9 +7,13 @@
     out = gather(pyr, gt, points, omegas, light.direction, medium, 0.9, mode="render",
                  level_weights=w, bias=b)            # features (combined T), config
 
+    dev = gather(..., mode="render", level_weights=w, bias=b, as_buffers=True, reuse=dev)
+                                # device buffers for the OpenCL network (dev = None at first)
+
 Render mode bakes, once per (graded fields, weights, bias), a float2 grid per level holding
 (optical thickness of a voxel, sum_l w_l T_l + b) at that level's voxel centres, interleaved so
-one trilinear read serves both features (``bake_render_grid``; cached). Train mode returns every
+one trilinear read serves both features (``bake_render_grid``; cached). Queries run sorted by
+coarse cell (``query_order``; results unchanged). Train mode returns every
 level T_l sampled at the centres of the point's density level and interpolated with the same
 trilinear weights, so sum_l w_l levels[:, l] + b equals the render feature (to rounding).
 Phase features come from a per-frame table over alpha (clvol/phasetable.py) built once per phase.
@@ -346,13 +350,14 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
         levels = taufac = rt.empty(1)
     else:
         baked_buf = rt.empty(1)
-        levels = _reused(pyramid, "gather_levels", n * L * NP)
+        levels = rt.empty(n * L * NP)    # (not kept: 9x the features, and training is compute-bound)
         taufac = rt.to_device(_taufac(pyramid, medium.density_scale))
     if as_buffers:
-        fits = (reuse is not None and reuse["features"].size >= 4 * max(n * 3 * NP, 1)
-                and reuse["t_enter"].size >= 4 * max(n, 1))
-        feats = reuse["features"] if fits else rt.empty(n * 3 * NP)
-        tenter = reuse["t_enter"] if fits else rt.empty(n)
+        old_f, old_t = (reuse or {}).get("features"), (reuse or {}).get("t_enter")
+        fits = (isinstance(old_f, cl.Buffer) and isinstance(old_t, cl.Buffer)
+                and old_f.size >= 4 * max(n * 3 * NP, 1) and old_t.size >= 4 * max(n, 1))
+        feats = old_f if fits else rt.empty(n * 3 * NP)
+        tenter = old_t if fits else rt.empty(n)
     else:                # read back below: the buffers stay with the pyramid for the next call
         feats = _reused(pyramid, "gather_features", n * 3 * NP)
         tenter = _reused(pyramid, "gather_t_enter", n)
