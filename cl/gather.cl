@@ -27,9 +27,13 @@
  * lanes (17 chunks of 16 for NP = 266), so the table reads and the output stores are
  * contiguous vector operations and only the grid reads are per-lane gathers. Render mode reads
  * (tau, C) pairs interleaved: one 16-byte load per lane and row serves both features and both
- * x corners (x0 is clamped to n - 2, so fx = 1 at the last voxel replaces grid.h's clamped
- * x1: the same value to rounding). Oclgrind (CI): no vector value is carried around a loop,
- * no struct has vector members, no '/' and '%' on the same operands (see cl/pathtrace.cl).
+ * x corners (x0, y0, z0 stop at n - 2, so a weight of 1 at the top face replaces grid.h's
+ * clamped corner: the same value to rounding), and the four rows of a lane are its base plus
+ * fixed strides (see TRANSPOSE4 for how the loads become vectors). Queries come in the order
+ * given by `order` (the host sorts them by coarse cell: ~1.3x fewer cache misses).
+ * Oclgrind (CI, --uninitialized): its checker crashed on a float3 merged after a branch (the
+ * template frame is computed in scalars) and on the float4 row loads (GATHER_SHUFFLE only); no
+ * struct has vector members, no '/' and '%' on the same operands (see cl/pathtrace.cl).
  *
  * gather arguments (float32 unless said; world units; offsets in elements):
  *   dens      pyramid levels concatenated (raw density), offsets loff[L]          (train)
