@@ -43,6 +43,8 @@ def main(argv=None) -> int:
                     help="torch threads (default 1: the machine is shared; results depend on it)")
     ap.add_argument("--until", type=int, default=None, help="stop at this step (resume later)")
     ap.add_argument("--export", default=None, help="weight file to write at the end")
+    ap.add_argument("--evaluate", metavar="WEIGHTS.npz", default=None,
+                    help="no training: held-out losses of a weight file, per held-out group")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
     cfg = tr.RunConfig(steps=args.steps, batch=args.batch, lr=args.lr, seed=args.seed,
@@ -65,6 +67,8 @@ def main(argv=None) -> int:
     base_loss = tr.mean_predictor_loss(train, held)
     noise = float(np.mean(held.var))
     print(f"held-out loss of the mean predictor {base_loss:.5f}; label noise (mean var_y) {noise:.5f}")
+    if args.evaluate:
+        return evaluate_weights(args.evaluate, train, held_sh, cfg, base_loss)
     trainer = tr.Trainer(train, cfg)
     ckpt = out / tr.CHECKPOINT
     if ckpt.exists():
@@ -92,6 +96,34 @@ def main(argv=None) -> int:
                                          "held_out_label_noise", "final")}
         trainer.model.export(args.export, contract, training=notes)
         print(f"exported {args.export}")
+    return 0
+
+
+def evaluate_weights(path, train, held_sh, cfg, base_loss) -> int:
+    """Held-out eq. 20 loss of a weight file, split into unseen volumes and unseen configurations
+    of seen volumes, with the mean predictor's loss and the labels' noise, and the median
+    relative error of the decoded F against the labels."""
+    import numpy as np
+    from clvol import train as tr
+    from clvol.export import load_weights
+    from clvol.model import Model
+    model = Model.from_weights(load_weights(path))
+    hv = {s.volume for s in held_sh if sum(t.volume == s.volume for t in held_sh) > 1}
+    groups = {"all held out": held_sh,
+              "unseen volumes": [s for s in held_sh if s.volume in hv],
+              "unseen configurations of seen volumes": [s for s in held_sh if s.volume not in hv]}
+    m = float(np.average(train.y, weights=train.weight))
+    for name, shards in groups.items():
+        if not shards:
+            continue
+        h = tr.shard_samples(shards, cfg.floor)
+        y = tr.predict(model, h).astype(np.float64)
+        a4 = h.config[:, tr.ALBEDO].astype(np.float64) ** 4
+        F_hat, F_lab = a4 * np.expm1(y), a4 * np.expm1(h.y.astype(np.float64))
+        rel = np.abs(F_hat - F_lab) / np.maximum(F_lab, 1e-12)
+        print(f"{name:40s} {len(shards):4d} shards {len(h):7d} samples  loss {np.mean((y - h.y) ** 2):.3e}"
+              f"  mean predictor {np.mean((m - h.y) ** 2):.3e}  label noise {np.mean(h.var):.3e}"
+              f"  median |F - label| / label {np.median(rel):.3f}")
     return 0
 
 
