@@ -88,14 +88,7 @@
  * cancels); truncation error < tau^5/30240. */
 #define H_SERIES_BELOW 0.05f
 
-typedef float16 v16;
-typedef int16 i16;
-
-__attribute__((always_inline))
-v16 gather16(__global const float *p, i16 i) {
-    return (v16)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7],
-                 p[i.s8], p[i.s9], p[i.sa], p[i.sb], p[i.sc], p[i.sd], p[i.se], p[i.sf]);
-}
+#include "lanes.h"
 
 /* Row pairs (x0, x0 + 1) of 16 lanes as one 8-byte load each, through private arrays
  * (building the vectors from 32 scalars directly crashes Oclgrind 21.10's

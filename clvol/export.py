@@ -43,14 +43,13 @@ import hashlib
 import io
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from . import layout
+from .atomic import atomic_open
 from .errors import ClvolError, WeightsError  # noqa: F401 (re-exported)
 
 FORMAT = "clvol-mlp"
@@ -312,15 +311,8 @@ def save_weights(path, arch: Architecture, params: dict, contract: dict,
     buf = io.BytesIO()
     np.savez(buf, **{META_KEY: blob}, **params)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(buf.getvalue())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path) as f:
+        f.write(buf.getvalue())
     return path
 
 

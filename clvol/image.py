@@ -34,9 +34,7 @@ preview and the MRPNN metric (``clvol.metrics``) both use it.
 from __future__ import annotations
 
 import math
-import os
 import re
-import secrets
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -44,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import atomic_open, atomic_path
 from .errors import ImageError
 
 HEADER_PREFIX = "clvol."
@@ -84,27 +83,9 @@ def to_srgb8(rgb: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------------------- atomic writes
 
-def _temp_path_for(path: Path) -> Path:
-    """A fresh temporary name next to ``path`` (same folder, so os.replace is atomic)."""
-    folder = path.parent
-    if not folder.is_dir():
-        raise ImageError(f"{path}: cannot write, folder {folder} does not exist")
-    return folder / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
-
-
-def _finish_atomic(tmp: Path, path: Path) -> None:
-    try:
-        os.replace(tmp, path)
-    except OSError as e:
-        _remove_quietly(tmp)
-        raise ImageError(f"{path}: cannot write ({e.strerror or e})") from e
-
-
-def _remove_quietly(p: Path) -> None:
-    try:
-        p.unlink()
-    except FileNotFoundError:
-        pass
+def _check_folder(path: Path) -> None:
+    if not path.parent.is_dir():
+        raise ImageError(f"{path}: cannot write, folder {path.parent} does not exist")
 
 
 # --------------------------------------------------------------------------- EXR
@@ -216,14 +197,13 @@ def write_exr(path, layers: dict[str, np.ndarray],
     exr_header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     exr_header.update(attrs)
 
-    tmp = _temp_path_for(path)
+    _check_folder(path)
     try:
-        # The binding replaces the dict's arrays by Channel objects: pass only our own dicts.
-        OpenEXR.File(exr_header, channels).write(str(tmp))
+        with atomic_path(path) as tmp:
+            # The binding replaces the dict's arrays by Channel objects: pass only our own dicts.
+            OpenEXR.File(exr_header, channels).write(str(tmp))
     except Exception as e:  # the binding raises RuntimeError/TypeError with its own text
-        _remove_quietly(tmp)
         raise ImageError(f"{path}: cannot write EXR ({e})") from e
-    _finish_atomic(tmp, path)
 
 
 def read_exr(path) -> ExrImage:
@@ -314,10 +294,9 @@ def write_png_preview(path, rgb: np.ndarray, exposure: float = 0.0) -> None:
     if bad:
         raise ImageError(f"{path}: {bad} non-finite value(s) (NaN/Inf) in the image; refusing to write")
     data = encode_png_rgb8(to_srgb8(a.astype(np.float64) * 2.0 ** float(exposure)))
-    tmp = _temp_path_for(path)
+    _check_folder(path)
     try:
-        tmp.write_bytes(data)
+        with atomic_open(path) as f:
+            f.write(data)
     except OSError as e:
-        _remove_quietly(tmp)
         raise ImageError(f"{path}: cannot write ({e.strerror or e})") from e
-    _finish_atomic(tmp, path)
