@@ -19,18 +19,16 @@ direction, camera position, phase, albedo, density scale):
                                    query seed, timings, code contract (layout version, template hash)
 
 Robust to a session ending at any moment: a shard is written to a temporary file
-(``.shard_*.tmp``) and renamed into place (``os.replace`` is atomic on one file system), so a
-``shard_*.npz`` is always complete; the loader reads only ``shard_*.npz``, and a rerun deletes
-stale temporary files and skips finished shards. Everything random is keyed by (spec.seed, v, c):
-the same spec gives the same shards bit for bit on the same device, in any order and after any
-interruption.
+(``.shard_*.tmp``, clvol/atomic.py) and renamed into place (``os.replace`` is atomic on one file
+system), so a ``shard_*.npz`` is always complete; the loader reads only ``shard_*.npz``, and a
+rerun deletes stale temporary files and skips finished shards (one writer per folder at a time). Everything random
+is keyed by (spec.seed, v, c): the same spec gives the same shards bit for bit on the same
+device, in any order and after any interruption.
 """
 from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -38,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from . import layout
+from .atomic import atomic_open
 from .errors import ClvolError
 
 DATASET_FORMAT = "clvol-dataset"
@@ -287,28 +286,16 @@ def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runti
 
 
 def write_atomic_npz(path: Path, arrays: dict, meta: dict) -> None:
-    """np.savez into a temporary file in the same folder, fsync, then os.replace: a reader (or
-    a resumed run) sees either no file or the whole file."""
-    path = Path(path)
+    """np.savez through clvol.atomic (temporary file, fsync, os.replace): a reader (or a resumed
+    run) sees either no file or the whole file."""
     blob = np.frombuffer(json.dumps(meta, sort_keys=True).encode("utf-8"), np.uint8)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.stem + "-", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **{META_KEY: blob}, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path, "wb") as f:
+        np.savez(f, **{META_KEY: blob}, **arrays)
 
 
 def _write_json_atomic(path: Path, obj) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + "-", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
+    with atomic_open(path, "w") as f:
         json.dump(obj, f, indent=1, sort_keys=True)
-    os.replace(tmp, path)
 
 
 def check_spec_file(out_dir: Path, spec: DatasetSpec) -> None:

@@ -266,22 +266,10 @@ def shard_samples(shards, floor: float = 0.05) -> Samples:
 
 
 def save_checkpoint(path, state: dict) -> None:
-    """torch.save to a temporary file, then os.replace (a killed run leaves the previous one)."""
-    import os
-    import tempfile
-    from pathlib import Path
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + "-", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(state, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """torch.save through clvol.atomic (a killed run leaves the previous checkpoint whole)."""
+    from .atomic import atomic_open
+    with atomic_open(path, "wb") as f:
+        torch.save(state, f)
 
 
 class Trainer:
