@@ -167,3 +167,14 @@ def test_cli_network_source(weights_file, tmp_path):
     assert float(img.header["seconds.network"]) >= 0 and "network" in img.header["simulated"]
     assert main(["render", str(scene_path), "--method", "raymarch", "--ms", "network",
                  "-o", str(out)]) == 2          # no --weights: a clear error, exit 2
+
+
+def test_shipped_weights_match_this_gather():
+    """clvol/data/weights/cloud_small.npz must load against the packaged templates and layout
+    (a template or layout change without retraining fails here, not at render time)."""
+    from pathlib import Path
+    from clvol.raymarch import load_network_weights
+    path = Path(__file__).resolve().parents[1] / "clvol" / "data" / "weights" / "cloud_small.npz"
+    w = load_network_weights(path)
+    assert w.contract["base_resolution"] == 64 and w.arch.n_levels == 7
+    assert np.all(np.isfinite(w.level_weights)) and w.meta["training"]["step"] == 16000
