@@ -273,6 +273,14 @@ def _check_options(ms, octaves: Octaves, step, threshold, block, light_resolutio
         _check_ms_grid(ms_grid)
 
 
+def shipped_weights():
+    """The model that ships with clvol, trained on procedural clouds and solids (albedo
+    0.8-0.999; how it was made and how well it does: clvol/data/weights/cloud_small.md)."""
+    import importlib.resources
+    from pathlib import Path
+    return Path(str(importlib.resources.files("clvol") / "data" / "weights" / "cloud_small.npz"))
+
+
 def _check_network_options(weights, ms_resolution):
     if weights is None:
         raise ClvolError("raymarch option ms = 'network' needs a weight file (--weights FILE.npz, "
@@ -469,6 +477,7 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
     _check_options(ms, oct_, float(step), float(threshold), block, light_resolution,
                    supersample, ms_grid if ms != "network" else None)
     if ms == "network":
+        weights = shipped_weights() if weights is None else weights
         _check_network_options(weights, ms_resolution)
     with Stopwatch() as sw_total:
         with Stopwatch() as sw_load:
@@ -566,8 +575,8 @@ def add_arguments(group) -> None:
                             "(analytic octaves, default), grid (precomputed F_ms, --ms-grid), "
                             "network (trained network, --weights)")
     group.add_argument("--weights", metavar="FILE.npz",
-                       help="network weight file for --ms network (e.g. "
-                            "clvol/data/weights/cloud_small.npz)")
+                       help="network weight file for --ms network (default: the shipped "
+                            "model, clvol/data/weights/cloud_small.npz)")
     group.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
                        help=f"F_ms lattice points per side filled by the network (default "
                             f"{DEFAULT_NETWORK_RESOLUTION})")
