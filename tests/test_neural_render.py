@@ -139,8 +139,9 @@ def test_mismatched_weights_refused(weights_file, tmp_path):
     save_weights(path, arch, p, levels)
     with pytest.raises(WeightsError, match=r"\[contract.level_map\]"):
         render_raymarch(_scene(), ms="network", weights=str(path), ms_resolution=4)
-    with pytest.raises(ClvolError, match="needs a weight file"):
-        render_raymarch(_scene(), ms="network", ms_resolution=4)
+    with pytest.raises(ClvolError, match="needs a weight file"):  # the check itself
+        from clvol.raymarch import _check_network_options
+        _check_network_options(None, 4)
     with pytest.raises(ClvolError, match="ms_resolution = 1"):
         render_raymarch(_scene(), ms="network", weights=str(weights_file), ms_resolution=1)
     with pytest.raises(WeightsError, match="no such weight file"):
@@ -165,8 +166,13 @@ def test_cli_network_source(weights_file, tmp_path):
     img = read_exr(out)
     assert np.all(np.isfinite(img.layers["total"]))
     assert float(img.header["seconds.network"]) >= 0 and "network" in img.header["simulated"]
+    # No --weights: the shipped model (clvol/data/weights/cloud_small.npz) is used.
     assert main(["render", str(scene_path), "--method", "raymarch", "--ms", "network",
-                 "-o", str(out)]) == 2          # no --weights: a clear error, exit 2
+                 "--ms-resolution", "6", "-o", str(out)]) == 0
+    assert "network" in read_exr(out).header["simulated"]
+    # A weight file that does not exist: a clear error, exit 2.
+    assert main(["render", str(scene_path), "--method", "raymarch", "--ms", "network",
+                 "--weights", str(tmp_path / "missing.npz"), "-o", str(out)]) == 2
 
 
 def test_shipped_weights_match_this_gather():

@@ -360,7 +360,7 @@ def test_supersampling_is_a_box_filter():
     ({"octaves": 9}, "octaves = 9"),
     ({"a": 0.0}, "ms_a = 0.0"),
     ({"b": 1.5}, "ms_b = 1.5"),
-    ({"ms": "network"}, "ms = 'network'"),
+    ({"ms": "network", "ms_resolution": 1}, "ms_resolution = 1"),
     ({"ms": "grid"}, "needs an ms grid"),
     ({"light_resolution": 100}, "light_resolution = 100"),
     ({"supersample": 0}, "supersample = 0"),
