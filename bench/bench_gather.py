@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import resource
 import statistics
 import time
 
 import numpy as np
 
+from _common import cpu_model  # bench/ is on sys.path
 from clvol import layout
 from clvol.kernels import gather as kg
 from clvol.kernels.pyramid import build_pyramid
@@ -32,16 +32,6 @@ from clvol.volume.generators import generate
 
 TARGET_MS = 60.0
 BAKE_TARGET_MS = 100.0   # "well under 100 ms-class" (issue 4 discussion): part of a light change
-
-
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def cpu_seconds() -> float:
