@@ -164,16 +164,21 @@ BAD_VOL = {
 }
 
 
-@pytest.mark.parametrize("case", sorted(BAD_VOL))
-def test_malformed_vol_is_rejected_with_file_and_value(tmp_path, case):
-    data, fragments = BAD_VOL[case]
-    p = write(tmp_path, f"bad_{case}.vol", data)
+def assert_rejected(p, fragments):
+    """read_volume(p) raises a VolumeError naming the file and containing every fragment."""
     with pytest.raises(VolumeError) as err:
         read_volume(p)
     msg = str(err.value)
     assert str(p) in msg
     for frag in fragments:
         assert frag in msg, f"{frag!r} not in {msg!r}"
+
+
+@pytest.mark.parametrize("case", sorted(BAD_VOL))
+def test_malformed_vol_is_rejected_with_file_and_value(tmp_path, case):
+    data, fragments = BAD_VOL[case]
+    p = write(tmp_path, f"bad_{case}.vol", data)
+    assert_rejected(p, fragments)
 
 
 # --------------------------------------------------------------------------- malformed .npy / .npz
@@ -195,12 +200,7 @@ def _npy(tmp_path, name, arr):
 ])
 def test_malformed_npy_is_rejected(tmp_path, arr, fragments):
     p = _npy(tmp_path, "bad.npy", arr)
-    with pytest.raises(VolumeError) as err:
-        read_volume(p)
-    msg = str(err.value)
-    assert str(p) in msg
-    for frag in fragments:
-        assert frag in msg, f"{frag!r} not in {msg!r}"
+    assert_rejected(p, fragments)
 
 
 def test_corrupt_npy_is_a_volume_error(tmp_path):
@@ -221,12 +221,7 @@ def test_corrupt_npy_is_a_volume_error(tmp_path):
 def test_malformed_npz_is_rejected(tmp_path, arrays, fragments):
     p = tmp_path / "bad.npz"
     np.savez(p, **arrays)
-    with pytest.raises(VolumeError) as err:
-        read_volume(p)
-    msg = str(err.value)
-    assert str(p) in msg
-    for frag in fragments:
-        assert frag in msg, f"{frag!r} not in {msg!r}"
+    assert_rejected(p, fragments)
 
 
 def test_unknown_extension_and_missing_file(tmp_path):

@@ -88,14 +88,19 @@ def check_light_dir(light_dir, where: str = "light_dir") -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
+def _as_float(value) -> float:
+    """float(value), or NaN for anything that is not a number (then refused by the range check)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
 def _check_args(pyramid, density_scale, lam, method, quantity) -> tuple[float, float]:
     if not isinstance(pyramid, Pyramid):
         raise ClvolError(f"expected a Pyramid (clvol.kernels.pyramid.build_pyramid), "
                          f"got {type(pyramid).__name__}")
-    try:
-        s = float(density_scale)
-    except (TypeError, ValueError):
-        s = float("nan")
+    s = _as_float(density_scale)
     if not (np.isfinite(s) and s >= 0):
         raise ClvolError(f"density_scale = {density_scale!r} must be a finite number >= 0")
     # The largest optical depth must stay a finite float32 (inf * 0 would make NaN).
@@ -103,10 +108,7 @@ def _check_args(pyramid, density_scale, lam, method, quantity) -> tuple[float, f
     if not worst < 1e37:
         raise ClvolError(f"density_scale = {density_scale!r} times the largest density over the "
                          f"cube gives optical depths beyond float32 range; rescale the density")
-    try:
-        lam_f = float(lam)
-    except (TypeError, ValueError):
-        lam_f = float("nan")
+    lam_f = _as_float(lam)
     if not 0 < lam_f <= 1:
         raise ClvolError(f"lambda = {lam!r} must be in (0, 1] (the seed uses 0.6)")
     if method not in METHODS:
