@@ -279,24 +279,82 @@ def encode_png_rgb8(pixels: np.ndarray) -> bytes:
             + _png_chunk(b"IEND", b""))
 
 
-def write_png_preview(path, rgb: np.ndarray, exposure: float = 0.0) -> None:
+# --------------------------------------------------------------------------- tone mapping
+
+TONE_CURVES = ("filmic", "linear")
+# Auto exposure maps this percentile of the lit pixels' luminance to AUTO_WHITE.
+AUTO_PERCENTILE = 99.0
+AUTO_WHITE = 0.8
+_REC709_LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def auto_exposure(rgb: np.ndarray) -> float:
+    """Exposure in stops that maps the ``AUTO_PERCENTILE`` luminance of the non-black pixels
+    to ``AUTO_WHITE`` (so a small object on black is exposed for itself, not for the
+    background). 0 for an all-black image."""
+    a = np.asarray(rgb, dtype=np.float64)
+    lum = a.reshape(-1, 3) @ _REC709_LUMA
+    lit = lum[lum > 0.0]
+    if lit.size == 0:
+        return 0.0
+    level = float(np.percentile(lit, AUTO_PERCENTILE))
+    if not (math.isfinite(level) and level > 0.0):
+        return 0.0
+    return float(np.clip(math.log2(AUTO_WHITE / level), -30.0, 30.0))
+
+
+def filmic(x: np.ndarray) -> np.ndarray:
+    """A filmic shoulder on linear values >= 0: ``x (2.51 x + 0.03) / (x (2.43 x + 0.59) + 0.14)``
+    (Narkowicz's fit of the ACES reference rendering transform). Smooth, monotonic, 0 -> 0,
+    reaches 1 near x = 11, so highlights roll off instead of clipping. Output in [0, 1]."""
+    x = np.maximum(np.asarray(x, dtype=np.float64), 0.0)
+    # The denominator is >= 0.14 for x >= 0: no division by zero.
+    return np.clip(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0)
+
+
+def tonemap_srgb8(rgb: np.ndarray, exposure: float | None = 0.0,
+                  curve: str = "linear") -> tuple[np.ndarray, float]:
+    """Linear (H, W, 3) -> (uint8 sRGB pixels, exposure used in stops).
+
+    ``exposure=None`` picks it from the image (``auto_exposure``). ``curve``: "linear" clamps
+    to [0, 1] (``to_srgb8``), "filmic" applies ``filmic`` first. Non-finite pixels raise."""
+    if curve not in TONE_CURVES:
+        raise ImageError(f"tone curve {curve!r}: choose one of {', '.join(TONE_CURVES)}")
+    a = np.asarray(rgb, dtype=np.float64)
+    bad = int(np.count_nonzero(~np.isfinite(a)))
+    if bad:
+        raise ImageError(f"{bad} non-finite value(s) (NaN/Inf) in the image")
+    if exposure is None:
+        exposure = auto_exposure(a)
+    if not math.isfinite(float(exposure)):
+        raise ImageError(f"exposure {exposure!r} is not finite")
+    scaled = a * 2.0 ** float(exposure)
+    return to_srgb8(filmic(scaled) if curve == "filmic" else scaled), float(exposure)
+
+
+def write_png_preview(path, rgb: np.ndarray, exposure: float | None = 0.0,
+                      curve: str = "linear") -> float:
     """Tonemapped 8-bit sRGB preview of a linear (H, W, 3) image, written atomically.
 
-    Pixel = ``to_srgb8(rgb * 2**exposure)`` (clamp to [0, 1], sRGB curve, round half up).
+    Pixel = ``to_srgb8(rgb * 2**exposure)`` for the linear curve (clamp to [0, 1], sRGB
+    curve, round half up), or through ``filmic`` first; ``exposure=None`` chooses it from
+    the image. Returns the exposure used.
     """
     path = Path(path)
     a = np.asarray(rgb)
     if a.ndim != 3 or a.shape[2] != 3:
         raise ImageError(f"{path}: preview image must be (H, W, 3) RGB, got shape {a.shape}")
-    if not math.isfinite(float(exposure)):
+    if exposure is not None and not math.isfinite(float(exposure)):
         raise ImageError(f"{path}: exposure {exposure!r} is not finite")
     bad = int(np.count_nonzero(~np.isfinite(a)))
     if bad:
         raise ImageError(f"{path}: {bad} non-finite value(s) (NaN/Inf) in the image; refusing to write")
-    data = encode_png_rgb8(to_srgb8(a.astype(np.float64) * 2.0 ** float(exposure)))
+    pixels, used = tonemap_srgb8(a, exposure, curve)
+    data = encode_png_rgb8(pixels)
     _check_folder(path)
     try:
         with atomic_open(path) as f:
             f.write(data)
     except OSError as e:
         raise ImageError(f"{path}: cannot write ({e.strerror or e})") from e
+    return used

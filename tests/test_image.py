@@ -276,3 +276,38 @@ def test_png_preview_refuses_nan(tmp_path):
     with pytest.raises(ImageError, match=r"n\.png: 1 non-finite"):
         write_png_preview(tmp_path / "n.png", rgb)
     assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- tone mapping
+
+def test_filmic_curve_is_monotonic_bounded_and_rolls_off():
+    from clvol.image import filmic
+    x = np.concatenate([[0.0], np.geomspace(1e-6, 1e3, 2000)])
+    y = filmic(x)
+    assert y[0] == 0.0 and np.all(np.diff(y) >= 0.0) and y.max() <= 1.0
+    # The shoulder: 4x the light gives far less than 4x the value near white, unlike a clamp.
+    assert filmic(np.array([0.5]))[0] < 0.8 and filmic(np.array([2.0]))[0] < 1.0
+    # Hand-checked value of the formula at x = 1: 2.54 / 3.16.
+    assert abs(filmic(np.array([1.0]))[0] - 2.54 / 3.16) < 1e-12
+
+
+def test_auto_exposure_maps_the_bright_percentile_of_lit_pixels():
+    from clvol.image import AUTO_WHITE, auto_exposure
+    rgb = np.zeros((64, 64, 3))
+    rgb[:8, :8] = 0.01                       # a small grey object on black
+    ev = auto_exposure(rgb)
+    assert abs(0.01 * 2.0 ** ev - AUTO_WHITE) < 1e-9   # luminance weights sum to 1
+    assert auto_exposure(np.zeros((4, 4, 3))) == 0.0
+
+
+def test_tonemap_default_is_the_old_linear_preview_and_refuses_bad_input():
+    from clvol.errors import ImageError
+    from clvol.image import tonemap_srgb8
+    rgb = np.random.default_rng(3).uniform(0, 2, (5, 7, 3))
+    px, ev = tonemap_srgb8(rgb, 1.0, "linear")
+    assert ev == 1.0 and np.array_equal(px, to_srgb8(rgb * 2.0))
+    with pytest.raises(ImageError, match="tone curve"):
+        tonemap_srgb8(rgb, 0.0, "aces")
+    rgb[0, 0, 0] = np.nan
+    with pytest.raises(ImageError, match="non-finite"):
+        tonemap_srgb8(rgb, None, "filmic")
