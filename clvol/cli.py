@@ -116,6 +116,22 @@ def _cmd_render(args) -> int:
     return 0
 
 
+def _cmd_view(args) -> int:
+    from .runtime import configure
+    from .scene import load_scene
+    from .viewer.server import serve
+    try:
+        import aiohttp  # noqa: F401
+    except ImportError:
+        raise ClvolError("clvol view needs aiohttp: pip install 'clvol[view]'") from None
+    if not 0 <= args.port <= 65535:
+        raise ClvolError(f"--port {args.port}: allowed range 0-65535 (0 = any free port)")
+    configure(device=args.device)
+    scene = load_scene(args.scene)
+    return serve(scene, host=args.host, port=args.port, open_browser=not args.no_browser,
+                 save_dir=Path(args.save_dir) if args.save_dir else None)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .render import METHODS, available_methods
     parser = argparse.ArgumentParser(
@@ -165,6 +181,17 @@ def build_parser() -> argparse.ArgumentParser:
         if hasattr(module, "add_arguments"):
             module.add_arguments(p.add_argument_group(f"{name} options"))
     p.set_defaults(func=_cmd_render)
+
+    p = sub.add_parser("view", help="interactive viewer in the browser (served on 127.0.0.1)")
+    p.add_argument("scene", help="scene .toml file")
+    p.add_argument("--port", type=int, default=8765, help="port (default 8765; 0 = any free port)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1; anything else is reachable "
+                        "from other machines and has no authentication)")
+    p.add_argument("--no-browser", action="store_true", help="do not open a browser")
+    p.add_argument("--save-dir", help="folder for 'save EXR' (default: the current folder)")
+    p.add_argument("--device", help="OpenCL device: P:D, gpu, cpu or a name substring")
+    p.set_defaults(func=_cmd_view)
 
     p = sub.add_parser("compare", help="error metrics of a test image against a reference")
     p.add_argument("test", help="test .exr")

@@ -1,0 +1,126 @@
+// clvol viewer page: sends state changes over a WebSocket and shows the frames that come
+// back. Frame messages are binary: uint32 LE n | n bytes JSON | PNG (clvol/viewer/server.py).
+"use strict";
+
+const PRESETS = ["cloud", "fog", "smoke", "milk", "jade", "wax", "skin"];
+const $ = (id) => document.getElementById(id);
+const state = {};          // the newest state the server confirmed or we sent
+const clvol = window.clvol = { framesReceived: 0, errors: [], lastMeta: null, socket: null,
+                               frameTimes: [] };
+
+function log(text) {
+  clvol.errors.push(text);
+  const m = $("messages");
+  m.textContent = (text + "\n" + m.textContent).slice(0, 2000);
+}
+
+function send(changes) {
+  Object.assign(state, changes);
+  if (clvol.socket && clvol.socket.readyState === WebSocket.OPEN) {
+    clvol.socket.send(JSON.stringify({ type: "state", state: changes }));
+  }
+}
+
+function showState(s) {
+  Object.assign(state, s);
+  $("method").value = s.method;
+  $("resolution").value = String(s.resolution);
+  $("preset").value = s.preset || "";
+  s.albedo.forEach((a, i) => { $("albedo" + i).value = a; });
+  $("g").value = s.g;
+  $("density").value = Math.log10(s.density_scale);
+  $("autoexp").checked = s.exposure === null;
+  if (s.exposure !== null) $("exposure").value = s.exposure;
+}
+
+function onFrame(buffer) {
+  const n = new DataView(buffer).getUint32(0, true);
+  const meta = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, n)));
+  const png = new Blob([new Uint8Array(buffer, 4 + n)], { type: "image/png" });
+  const img = $("frame");
+  const old = img.src;
+  img.src = URL.createObjectURL(png);
+  if (old) URL.revokeObjectURL(old);
+  clvol.lastMeta = meta;
+  clvol.framesReceived += 1;
+  document.body.dataset.frames = String(clvol.framesReceived);
+  const now = performance.now();
+  clvol.frameTimes.push(now);
+  while (clvol.frameTimes.length > 1 && now - clvol.frameTimes[0] > 2000) clvol.frameTimes.shift();
+  const span = (now - clvol.frameTimes[0]) / 1000;
+  $("fps").textContent = span > 0 ? ((clvol.frameTimes.length - 1) / span).toFixed(1) : "-";
+  $("framems").textContent = meta.frame_ms.toFixed(1) + " ms (" + meta.width + "\u00d7" + meta.height + ")";
+  $("spp").textContent = meta.method === "pathtrace" ? String(meta.spp) : "-";
+  $("stages").textContent = Object.entries(meta.stages_ms)
+    .map(([k, v]) => k + ": " + v.toFixed(1) + " ms").join("\n");
+  $("effects").textContent = Object.entries(meta.effects).map(([k, v]) => k + ": " + v).join("\n");
+  const w = $("warning");
+  w.hidden = !meta.warning;
+  w.textContent = meta.warning || "";
+  if (!$("autoexp").checked) return;
+  $("exposure").value = meta.exposure;
+}
+
+function connect() {
+  const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws");
+  ws.binaryType = "arraybuffer";
+  clvol.socket = ws;
+  ws.onmessage = (ev) => {
+    if (typeof ev.data !== "string") { onFrame(ev.data); return; }
+    const msg = JSON.parse(ev.data);
+    if (msg.type === "hello") showState(msg.state);
+    else if (msg.type === "error") log("error: " + msg.message);
+    else if (msg.type === "saved") log("saved " + msg.path);
+  };
+  ws.onclose = () => log("connection closed");
+}
+
+// ------------------------------------------------------------------ controls
+function setup() {
+  for (const p of PRESETS) {
+    const o = document.createElement("option");
+    o.value = p; o.textContent = p;
+    $("preset").appendChild(o);
+  }
+  $("method").onchange = () => send({ method: $("method").value });
+  $("resolution").onchange = () => send({ resolution: Number($("resolution").value) });
+  $("preset").onchange = () => send({ preset: $("preset").value || null });
+  for (let i = 0; i < 3; i++) {
+    $("albedo" + i).oninput = () => send({ albedo: [0, 1, 2].map((j) => Number($("albedo" + j).value)) });
+  }
+  $("g").oninput = () => send({ g: Number($("g").value) });
+  $("density").oninput = () => send({ density_scale: Math.pow(10, Number($("density").value)) });
+  $("exposure").oninput = () => { $("autoexp").checked = false; send({ exposure: Number($("exposure").value) }); };
+  $("autoexp").onchange = () => send({ exposure: $("autoexp").checked ? null : Number($("exposure").value) });
+  $("save").onclick = () => clvol.socket.send(JSON.stringify({ type: "save" }));
+
+  const img = $("frame");
+  let drag = null;
+  img.addEventListener("pointerdown", (e) => {
+    drag = { x: e.clientX, y: e.clientY, sun: e.shiftKey || $("sunmode").checked };
+    img.setPointerCapture(e.pointerId);
+  });
+  img.addEventListener("pointermove", (e) => {
+    if (!drag) return;
+    const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
+    drag.x = e.clientX; drag.y = e.clientY;
+    const clampEl = (v, lim) => Math.max(-lim, Math.min(lim, v));
+    if (drag.sun) {
+      send({ sun_azimuth: state.sun_azimuth - 0.5 * dx,
+             sun_elevation: clampEl(state.sun_elevation - 0.5 * dy, 90) });
+    } else {
+      send({ azimuth: state.azimuth - 0.5 * dx, elevation: clampEl(state.elevation + 0.5 * dy, 89) });
+    }
+  });
+  const end = () => { drag = null; };
+  img.addEventListener("pointerup", end);
+  img.addEventListener("pointercancel", end);
+  img.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    const d = state.distance * Math.exp(0.001 * e.deltaY);
+    send({ distance: Math.max(0.05, Math.min(100, d)) });
+  }, { passive: false });
+}
+
+setup();
+connect();

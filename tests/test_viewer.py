@@ -1,0 +1,394 @@
+"""The browser viewer (``clvol view``): message checks, the orbit frame, the server over a real
+WebSocket, Ctrl-C, and the page in headless Chromium (Debian's chromium + chromedriver).
+
+Every server here listens on 127.0.0.1 with port 0 (a free port), never another address.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import os
+import shutil
+import signal
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clvol.scene import load_scene
+from clvol.viewer.state import LIMITS, ViewerMessageError, ViewState, orbit_frame
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE_TOML = """
+[volume]
+generator = "cloud"
+seed = 3
+resolution = 32
+[medium]
+preset = "cloud"
+density_scale = 32.0
+[light]
+direction = [0.6, 0.9, 0.3]
+[camera]
+origin = [0.0, 0.3, 2.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_y = 40.0
+width = 64
+height = 64
+"""
+
+
+@pytest.fixture(scope="module")
+def scene_path(tmp_path_factory):
+    p = tmp_path_factory.mktemp("view") / "small.toml"
+    p.write_text(SCENE_TOML)
+    return p
+
+
+# ------------------------------------------------------------------ state and messages
+
+def test_initial_state_reproduces_the_scene_camera_and_light(scene_path):
+    scene = load_scene(scene_path)
+    s = ViewState.from_scene(scene)
+    cam = s.camera(scene.camera)
+    assert np.allclose(cam.origin, scene.camera.origin, atol=1e-12)
+    light = s.light(scene.light, scene.camera)
+    assert np.allclose(light.direction, scene.light.direction, atol=1e-12)
+    # The medium is the scene's own until the client changes it.
+    assert s.medium(scene.medium) == scene.medium
+
+
+def test_orbit_keeps_distance_and_turns_about_up(scene_path):
+    scene = load_scene(scene_path)
+    s = ViewState.from_scene(scene).update({"azimuth": 90.0, "elevation": 0.0, "distance": 3.0})
+    o = np.asarray(s.camera(scene.camera).origin)
+    assert math.isclose(np.linalg.norm(o), 3.0, rel_tol=1e-12)
+    up, x0, y0 = orbit_frame(scene.camera)
+    # azimuth 90 deg, elevation 0: along y0, perpendicular to the file camera's direction.
+    assert np.allclose(o / 3.0, y0, atol=1e-12) and abs(np.dot(o, up)) < 1e-12
+
+
+@pytest.mark.parametrize("changes, field", [
+    ({"g": 1.5}, "g"), ({"g": "x"}, "g"), ({"g": float("nan")}, "g"),
+    ({"albedo": [1, 1]}, "albedo"), ({"albedo": [0.5, 2.0, 0.5]}, "albedo"),
+    ({"density_scale": 0.0}, "density_scale"), ({"elevation": 90.0}, "elevation"),
+    ({"method": "magic"}, "method"), ({"resolution": 100}, "resolution"),
+    ({"resolution": True}, "resolution"), ({"preset": "lava"}, "preset"), ({"zoom": 1}, "zoom"),
+    ({"exposure": float("inf")}, "exposure"),
+])
+def test_bad_fields_are_refused_by_name(scene_path, changes, field):
+    s = ViewState.from_scene(load_scene(scene_path))
+    with pytest.raises(ViewerMessageError, match=rf"^{field}:"):
+        s.update(changes)
+
+
+def test_a_refused_message_changes_nothing(scene_path):
+    s = ViewState.from_scene(load_scene(scene_path))
+    with pytest.raises(ViewerMessageError):
+        s.update({"g": 0.1, "albedo": "red"})
+    assert s.g == ViewState.from_scene(load_scene(scene_path)).g
+
+
+def test_preset_sets_albedo_and_its_own_phase(scene_path):
+    scene = load_scene(scene_path)
+    s = ViewState.from_scene(scene).update({"preset": "jade"})
+    m = s.medium(scene.medium)
+    assert m.albedo == (0.92, 0.99, 0.94) and len(m.phase.lobes) == 2
+    # Moving g afterwards replaces the two lobes by one HG lobe of that g.
+    m2 = s.update({"g": 0.3}).medium(scene.medium)
+    assert len(m2.phase.lobes) == 1 and m2.phase.lobes[0].g == 0.3
+
+
+def test_limits_cover_every_numeric_field():
+    numeric = {"azimuth", "elevation", "distance", "sun_azimuth", "sun_elevation", "g",
+               "density_scale", "exposure", "albedo"}
+    assert numeric == set(LIMITS)
+
+
+# ------------------------------------------------------------------ the server process
+
+def _start_server(scene_path, tmp_path, *extra):
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "clvol", "view", str(scene_path), "--port", "0", "--no-browser",
+         "--save-dir", str(tmp_path), *extra],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    line = proc.stdout.readline()
+    if "serving" not in line:
+        proc.kill()
+        raise AssertionError(f"server did not start: {line!r} {proc.stderr.read()}")
+    url = line.split("serving ", 1)[1].split()[0]
+    assert url.startswith("http://127.0.0.")       # loopback only
+    return proc, url
+
+
+@pytest.fixture(scope="module")
+def server(scene_path, tmp_path_factory):
+    pytest.importorskip("aiohttp")
+    save = tmp_path_factory.mktemp("saved")
+    proc, url = _start_server(scene_path, save)
+    yield url, save
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
+def _parse_frame(data: bytes) -> tuple[dict, bytes]:
+    n = struct.unpack("<I", data[:4])[0]
+    return json.loads(data[4:4 + n]), data[4 + n:]
+
+
+async def _next_frame(ws, timeout=60):
+    import aiohttp
+    while True:
+        msg = await asyncio.wait_for(ws.receive(), timeout)
+        if msg.type == aiohttp.WSMsgType.BINARY:
+            return _parse_frame(msg.data)
+        if msg.type != aiohttp.WSMsgType.TEXT:
+            raise AssertionError(f"socket ended: {msg}")
+
+
+def test_server_protocol_errors_frames_and_save(server):
+    import aiohttp
+    url, save_dir = server
+
+    async def run():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(url + "ws") as ws:
+                hello = await ws.receive_json()
+                assert hello["type"] == "hello" and hello["state"]["method"] == "network"
+                meta, png = await _next_frame(ws)
+                assert png[:8] == b"\x89PNG\r\n\x1a\n" and meta["width"] == 64
+                assert meta["header"], "the frame carries the render header"
+                for bad in ("{not json", json.dumps([1]), json.dumps({"type": "fly"}),
+                            json.dumps({"type": "state", "state": {"g": 7}})):
+                    await ws.send_str(bad)
+                    reply = await ws.receive_json()
+                    assert reply["type"] == "error" and reply["message"]
+                # Still serving after the bad messages: a valid change gives a new frame.
+                await ws.send_str(json.dumps({"type": "state", "state": {"azimuth": 30.0}}))
+                meta2, _ = await _next_frame(ws)
+                assert meta2["state"]["azimuth"] == 30.0 and meta2["id"] > meta["id"]
+                await ws.send_str(json.dumps({"type": "save"}))
+                while True:
+                    msg = await ws.receive()
+                    if msg.type == aiohttp.WSMsgType.TEXT:
+                        saved = json.loads(msg.data)
+                        break
+                assert saved["type"] == "saved"
+                return Path(saved["path"])
+
+    path = asyncio.run(run())
+    assert path.parent == save_dir and path.suffix == ".exr"
+    from clvol.image import read_exr
+    img = read_exr(path)
+    assert np.isfinite(img.rgb).all() and img.rgb.shape == (64, 64, 3)
+    assert img.header.get("method") == "network" and "viewer_state" in img.header
+
+
+def test_newest_request_wins_and_a_dropped_client_leaves_nothing(server):
+    import aiohttp
+    url, _ = server
+
+    async def status(session):
+        async with session.get(url + "status") as r:
+            return await r.json()
+
+    async def run():
+        async with aiohttp.ClientSession() as session:
+            before = (await status(session))["frames_rendered"]
+            async with session.ws_connect(url + "ws") as ws:
+                await ws.receive_json()
+                # A burst of 20 orbit steps while the first frame renders.
+                for i in range(20):
+                    await ws.send_str(json.dumps({"type": "state", "state": {"azimuth": float(i)}}))
+                metas = []
+                while not metas or metas[-1]["state"]["azimuth"] != 19.0:
+                    metas.append((await _next_frame(ws))[0])
+            rendered = (await status(session))["frames_rendered"] - before
+            # Far fewer frames than requests: stale states were skipped, the newest shown.
+            assert len(metas) <= 4 and rendered <= 4, (len(metas), rendered)
+            # A client that goes away mid-frame.
+            ws = await session.ws_connect(url + "ws")
+            await ws.receive_json()
+            await ws.send_str(json.dumps({"type": "state", "state": {"azimuth": 123.0}}))
+            await ws.close()
+            for _ in range(100):
+                if (await status(session))["connections"] == 0:
+                    break
+                await asyncio.sleep(0.1)
+            assert (await status(session))["connections"] == 0
+
+    asyncio.run(run())
+
+
+def test_loopback_check():
+    from clvol.viewer.server import is_loopback
+    assert is_loopback("127.0.0.1") and is_loopback("127.0.0.2") and is_loopback("::1")
+    assert is_loopback("localhost")
+    assert not is_loopback("0.0.0.0") and not is_loopback("10.1.2.3") and not is_loopback("example.org")
+
+
+def test_ctrl_c_stops_cleanly(scene_path, tmp_path):
+    pytest.importorskip("aiohttp")
+    proc, _ = _start_server(scene_path, tmp_path)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0 and "stopped" in err and "Traceback" not in err
+    # Another loopback address is not loopback-only by name, but is by address: no warning.
+    proc, url = _start_server(scene_path, tmp_path, "--host", "127.0.0.2")
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert url.startswith("http://127.0.0.2:") and "no authentication" not in err
+
+
+def test_bad_port_exits_2(scene_path):
+    proc = subprocess.run([sys.executable, "-m", "clvol", "view", str(scene_path), "--port",
+                           "70000", "--no-browser"], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 2 and "--port 70000" in proc.stderr
+
+
+# ------------------------------------------------------------------ the page in Chromium
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+
+PIXEL_DIGEST_JS = """
+const img = document.getElementById('frame');
+const c = document.createElement('canvas');
+c.width = img.naturalWidth; c.height = img.naturalHeight;
+const g = c.getContext('2d'); g.drawImage(img, 0, 0);
+const d = g.getImageData(0, 0, c.width, c.height).data;
+let lo = 255, hi = 0, h = 0;
+for (let i = 0; i < d.length; i += 4) {
+  const v = d[i] + d[i + 1] + d[i + 2];
+  lo = Math.min(lo, d[i]); hi = Math.max(hi, d[i]);
+  h = (h * 31 + v) >>> 0;
+}
+return [lo, hi, h, c.width];
+"""
+
+
+@pytest.fixture
+def browser():
+    webdriver = pytest.importorskip("selenium.webdriver")
+    if not (os.path.exists(CHROMIUM) and os.path.exists(CHROMEDRIVER)):
+        pytest.skip("Debian's chromium and chromium-driver are not installed (scripts/setup.sh "
+                    "installs them)")
+    import tempfile
+    from selenium.webdriver.chrome.service import Service
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    profile = tempfile.mkdtemp(prefix="clvol-chrome-")
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--window-size=1000,800",
+                 f"--user-data-dir={profile}"):
+        opts.add_argument(flag)
+    os.environ.setdefault("SE_OFFLINE", "true")     # never let Selenium Manager download
+    driver = webdriver.Chrome(options=opts, service=Service(executable_path=CHROMEDRIVER))
+    driver.set_script_timeout(60)
+    yield driver
+    driver.quit()
+    shutil.rmtree(profile, ignore_errors=True)
+
+
+def _wait(driver, predicate, what, timeout=45.0):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}; page errors: "
+                         f"{driver.execute_script('return window.clvol.errors')}")
+
+
+def _frames(driver) -> int:
+    return int(driver.execute_script("return window.clvol.framesReceived"))
+
+
+def _meta(driver) -> dict:
+    return driver.execute_script("return window.clvol.lastMeta")
+
+
+def test_page_in_headless_chromium(server, browser, tmp_path):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    url, _ = server
+    d = browser
+    d.get(url)
+    _wait(d, lambda: _frames(d) >= 1, "the first frame")
+    _wait(d, lambda: d.execute_script("return document.getElementById('frame').complete"), "decode")
+    shot = tmp_path / "page.png"
+    d.save_screenshot(str(shot))
+    assert shot.stat().st_size > 1000
+    lo, hi, digest0, width = d.execute_script(PIXEL_DIGEST_JS)
+    assert width == 64 and hi - lo > 20, "the frame is not blank"
+
+    # Drag: the camera orbits and a different frame arrives.
+    n = _frames(d)
+    img = d.find_element(By.ID, "frame")
+    ActionChains(d).move_to_element(img).click_and_hold().move_by_offset(60, 0).release().perform()
+    _wait(d, lambda: _frames(d) > n and _meta(d)["state"]["azimuth"] != 0.0, "a frame after the drag")
+    _wait(d, lambda: d.execute_script(PIXEL_DIGEST_JS)[2] != digest0, "a different image")
+
+    # The albedo slider changes the frame.
+    n = _frames(d)
+    digest1 = d.execute_script(PIXEL_DIGEST_JS)[2]
+    d.execute_script("const s = document.getElementById('albedo0'); s.value = 0.3;"
+                     "s.dispatchEvent(new Event('input'));")
+    _wait(d, lambda: _frames(d) > n and _meta(d)["state"]["albedo"][0] == 0.3, "albedo frame")
+    _wait(d, lambda: d.execute_script(PIXEL_DIGEST_JS)[2] != digest1, "a darker image")
+
+    # A malformed message gets an error reply, and frames still arrive afterwards.
+    d.execute_script("window.clvol.socket.send('{oops');")
+    _wait(d, lambda: any("error" in e for e in d.execute_script("return window.clvol.errors")),
+          "the error reply")
+    n = _frames(d)
+    d.execute_script("const s = document.getElementById('g'); s.value = 0.2;"
+                     "s.dispatchEvent(new Event('input'));")
+    _wait(d, lambda: _frames(d) > n, "a frame after the error")
+
+    # The path tracer accumulates while the view is still: spp grows.
+    d.execute_script("const m = document.getElementById('method'); m.value = 'pathtrace';"
+                     "m.dispatchEvent(new Event('change'));")
+    _wait(d, lambda: _meta(d)["method"] == "pathtrace", "a path-traced frame")
+    spp0 = _meta(d)["spp"]
+    _wait(d, lambda: _meta(d)["spp"] >= spp0 + 2, "spp to grow")
+    # ... and the page shows the count.
+    _wait(d, lambda: (lambda t: t.isdigit() and int(t) >= spp0 + 2)(d.find_element(By.ID, "spp").text),
+          "the spp display")
+
+    # Frames per second at 256^2 with the paper's method while orbiting: every frame that
+    # arrives triggers the next camera step, as a user dragging continuously would.
+    d.execute_script("const m = document.getElementById('method'); m.value = 'network';"
+                     "m.dispatchEvent(new Event('change'));"
+                     "const r = document.getElementById('resolution'); r.value = '256';"
+                     "r.dispatchEvent(new Event('change'));")
+    _wait(d, lambda: _meta(d)["method"] == "network" and _meta(d)["width"] == 256, "256^2 frames")
+    fps = d.execute_async_script("""
+        const done = arguments[0];
+        const start = performance.now(), n0 = window.clvol.framesReceived;
+        let az = 0;
+        const step = () => {
+          const t = performance.now() - start;
+          if (t > 4000) { done((window.clvol.framesReceived - n0) / (t / 1000)); return; }
+          const seen = window.clvol.framesReceived;
+          az += 3;
+          window.clvol.socket.send(JSON.stringify({type: 'state', state: {azimuth: az}}));
+          const wait = () => (window.clvol.framesReceived > seen ? step() : setTimeout(wait, 2));
+          wait();
+        };
+        step();""")
+    print(f"\nviewer: {fps:.2f} frames/s at 256x256 while orbiting (paper's method, "
+          f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f})")
+    assert fps > 0
