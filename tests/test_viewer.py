@@ -191,7 +191,8 @@ def test_server_protocol_errors_frames_and_save(server):
     from clvol.image import read_exr
     img = read_exr(path)
     assert np.isfinite(img.rgb).all() and img.rgb.shape == (64, 64, 3)
-    assert img.header.get("method") == "network" and "viewer_state" in img.header
+    assert img.header.get("viewer.method") == "network" and "viewer.state" in img.header
+    assert img.header.get("method") == "raymarch"      # the render header is kept
 
 
 def test_newest_request_wins_and_a_dropped_client_leaves_nothing(server):

@@ -183,8 +183,9 @@ class Connection:
             raise ViewerMessageError("save: no frame yet")
         name = time.strftime("clvol_view_%Y%m%d_%H%M%S") + f"_{self.frame_id}.exr"
         path = self.save_dir / name
-        header = {"method": self.last.state.method, "viewer_state": json.dumps(self.last.state.to_json()),
-                  **{k: v for k, v in self.last.header.items() if isinstance(v, (str, int, float))}}
+        header = {**{k: v for k, v in self.last.header.items() if isinstance(v, (str, int, float))},
+                  "viewer.method": self.last.state.method,
+                  "viewer.state": json.dumps(self.last.state.to_json())}
         if self.last.spp:
             header["spp"] = self.last.spp
         loop = asyncio.get_running_loop()
