@@ -393,3 +393,10 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
     print(f"\nviewer: {fps:.2f} frames/s at 256x256 while orbiting (paper's method, "
           f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f})")
     assert fps > 0
+
+
+def test_stage_times_come_from_the_header_seconds_entries():
+    from clvol.viewer.server import stage_times
+    header = {"seconds": 0.5, "seconds.march": 0.0125, "seconds.gather": 2, "method": "raymarch",
+              "seconds.flag": True, "raymarch.step": 0.01}
+    assert stage_times(header) == {"march": 12.5, "gather": 2000.0}
