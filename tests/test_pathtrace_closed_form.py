@@ -90,8 +90,9 @@ def test_single_scattering_homogeneous_box(light):
     f1, se = out["F1"], out["F1_se"]
     np.testing.assert_array_equal(f1[:, 0], f1[:, 1])        # grey: no albedo in F1
     np.testing.assert_array_equal(f1[:, 0], f1[:, 2])
-    assert np.all(se[:, 0] < 2.5e-3 * f1[:, 0])
     z = check("homogeneous", f1[:, 0], se[:, 0], want)
+    # the precision the power below relies on (binary ratio-tracking estimate: 0.09-0.25%)
+    assert np.all(se[:, 0] < 3e-3 * f1[:, 0])
     # Power: a 1% extinction bias would shift F1 by want (1 - e^(-0.01 tau)); pooled over the
     # points that is far beyond the allowance (an expected pooled z of 8+).
     shift = want * -np.expm1(-0.01 * tau) / se[:, 0]
