@@ -144,7 +144,7 @@ def test_phase_features_match_world_space_definition(setup, light):
         f"phase feature off its world-space definition: query {worst[0]} point {worst[1]}: "
         f"{got[worst]:.5f} vs {ref[worst]:.5f} (bound {bound[worst]:.2e})")
     # The bound is tight enough to matter (measured: median 2.4e-5, worst 0.04 at a steep
-    # forward-peak slope), against features of O(0.1-1).
+    # forward-peak slope), against the ~1 a wrong frame moves features by.
     assert np.median(bound) < 2e-3 and bound.max() < 0.1
     # Power check, the planted bug in world space: the templates placed in the frame of the
     # camera reflected across the light axis (omega' = 2 (omega.l) l - omega, i.e. x -> -x),
