@@ -169,6 +169,7 @@ ray.init(address="127.0.0.2:6379", logging_level="WARNING")
 print("NODES " + json.dumps([[n["NodeManagerAddress"], n["Alive"]] for n in ray.nodes()]))
 '
 "$PY" -m clvol dataset make "$OUT" --address 127.0.0.2:6379 "$@"
+"$PY" -m clvol dataset make "$OUT_CLIENT" --address ray://127.0.0.2:10001 "$@"
 """
 
 
@@ -182,12 +183,14 @@ def _unshare_works() -> bool:
 @pytest.mark.skipif(not _unshare_works(), reason="needs unshare (net+pid namespaces) to keep "
                     "the cluster on loopback and its `ray stop` away from other Ray processes")
 def test_two_node_loopback_cluster_makes_the_serial_bytes(serial, tmp_path):
+    """`ray start` a head on 127.0.0.2 and a worker node on 127.0.0.3, then `clvol dataset
+    make` through the GCS address and through Ray Client (ray://)."""
     pytest.importorskip("ray")
-    out, logs = tmp_path / "data", tmp_path / "logs"
+    out, out_client, logs = tmp_path / "data", tmp_path / "data_client", tmp_path / "logs"
     logs.mkdir()
     env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0",
            "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
-           "PY": sys.executable, "OUT": str(out), "LOGS": str(logs)}
+           "PY": sys.executable, "OUT": str(out), "OUT_CLIENT": str(out_client), "LOGS": str(logs)}
     env.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)     # a real (multi-node) cluster
     p = subprocess.run(["unshare", "--net", "--pid", "--fork", "--mount-proc", "bash", "-c",
                         CLUSTER, "cluster", *SPEC_ARGS], env=env, cwd=tmp_path,
@@ -197,8 +200,9 @@ def test_two_node_loopback_cluster_makes_the_serial_bytes(serial, tmp_path):
                             if line.startswith("NODES "))[6:])
     assert sorted(nodes) == [["127.0.0.2", True], ["127.0.0.3", True]]
     assert all(ipaddress.ip_address(ip) in ipaddress.ip_network("127.0.0.0/8") for ip, _ in nodes)
-    assert "made 4 shards" in p.stdout and "(ray)" in p.stdout
+    assert p.stdout.count("made 4 shards") == 2 and "(ray)" in p.stdout
     assert shard_files(out) == serial
+    assert shard_files(out_client) == serial           # through Ray Client (ray://)
     log = [json.loads(line) for line in (out / ds.TIMINGS_FILE).read_text().splitlines()]
     # one CPU per node and four tasks in flight: both nodes make shards
     assert {x["node"] for x in log} == {"127.0.0.2", "127.0.0.3"}
