@@ -120,6 +120,9 @@ def make_dataset_ray(spec: ds.DatasetSpec, out_dir, address: str | None = None,
     out = Path(out_dir)
     todo = ds.pending_shards(spec, out)
     started = False
+    if ray.is_initialized() and workers is not None:
+        raise DistributedError("workers: Ray is already running in this process; its size "
+                               "was set when it was started")
     if not ray.is_initialized():
         try:
             if address is None:
