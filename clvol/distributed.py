@@ -90,6 +90,7 @@ _MAKER = None     # one per worker process: keeps its OpenCL runtime and last vo
 
 def shard_task(spec_dict: dict, v: int, c: int, fault: tuple | None = None) -> dict:
     """Body of a Ray task (runs in a worker): shard (v, c) as file bytes."""
+    import ray
     global _MAKER
     if _MAKER is None:
         _MAKER = ds.ShardMaker()
@@ -101,7 +102,6 @@ def shard_task(spec_dict: dict, v: int, c: int, fault: tuple | None = None) -> d
             if marker is not None:
                 Path(marker).write_text(str(os.getpid()))
             os.kill(os.getpid(), signal.SIGKILL)     # mid-task: the result is never returned
-    import ray
     return {"bytes": data, "contract": meta["contract"],
             "log": {**(meta.get("seconds") or {}), "node": ray.util.get_node_ip_address()}}
 

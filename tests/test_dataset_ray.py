@@ -124,6 +124,23 @@ def test_cli_without_ray_runs_serially_and_says_how_to_get_it(serial, tmp_path, 
     assert "--serial runs in this process" in capsys.readouterr().err
 
 
+def test_make_dataset_script_is_the_cli(serial, tmp_path):
+    """scripts/make_dataset.py runs `clvol dataset make`: on a finished folder it checks the
+    spec and skips every shard (no shard is computed, so this stays cheap)."""
+    out = tmp_path / "data"
+    ds.pending_shards(SPEC, out)                                    # spec.json
+    for name, data in serial.items():
+        (out / name).write_bytes(data)
+    script = [sys.executable, str(ROOT / "scripts" / "make_dataset.py"), str(out), *SPEC_ARGS]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.run([*script, "--serial"], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert "made 0 shards (0 labels), skipped 4 finished ones" in p.stdout
+    p = subprocess.run([*script, "--serial", "--paths", "17"], capture_output=True, text=True,
+                       env=env)
+    assert p.returncode == 2 and "['n_paths']" in p.stderr
+
+
 def test_progress_bar_shows_shards_labels_per_second_and_eta(monkeypatch):
     import io
     import time
