@@ -315,13 +315,6 @@ def shard_bytes(arrays: dict, meta: dict) -> bytes:
     return buf.getvalue()
 
 
-def write_atomic_npz(path: Path, arrays: dict, meta: dict) -> None:
-    """A shard file through clvol.atomic (temporary file, fsync, os.replace): a reader (or a
-    resumed run) sees either no file or the whole file."""
-    with atomic_open(path, "wb") as f:
-        f.write(shard_bytes(arrays, meta))
-
-
 def _write_json_atomic(path: Path, obj) -> None:
     with atomic_open(path, "w") as f:
         json.dump(obj, f, indent=1, sort_keys=True)

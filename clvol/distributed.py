@@ -42,11 +42,9 @@ class DistributedError(ClvolError):
 
 
 def ray_available() -> bool:
-    try:
-        import ray  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    # find_spec, not import: ray's settings (_LOCAL_ENV) are read when it is first imported
+    import importlib.util
+    return importlib.util.find_spec("ray") is not None
 
 
 def import_ray(local: bool):
