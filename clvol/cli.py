@@ -2,7 +2,8 @@
 
 Subcommands: ``info`` (OpenCL platforms and the chosen device), ``volume`` (inspect,
 generate and convert density grids), ``render`` (a scene to EXR with one of the render
-methods), ``compare`` (image error metrics). Bad input exits with status 2 and one line
+methods), ``compare`` (image error metrics), ``dataset make`` (training data, on Ray if
+installed). Bad input exits with status 2 and one line
 on stderr; ``CLVOL_TRACEBACK=1`` shows the traceback instead.
 """
 from __future__ import annotations
@@ -116,6 +117,46 @@ def _cmd_render(args) -> int:
     return 0
 
 
+def _cmd_dataset_make(args) -> int:
+    import time
+    from .dataset import DatasetSpec
+    from .distributed import generate
+    if args.workers is not None and args.workers < 1:
+        raise ClvolError(f"--workers {args.workers}: must be >= 1")
+    spec = DatasetSpec(seed=args.seed, n_volumes=args.volumes, n_solids=args.solids,
+                       configs_per_volume=args.configs, points_per_config=args.points,
+                       n_paths=args.paths, resolution=args.resolution, base_resolution=args.base)
+    t0 = time.perf_counter()
+    r = generate(spec, args.out, address=args.address, serial=args.serial, workers=args.workers,
+                 progress=not args.no_progress)
+    dt = time.perf_counter() - t0
+    print(f"{args.out}: made {r['made']} shards ({r['made'] * spec.points_per_config} labels), "
+          f"skipped {r['skipped']} finished ones, {spec.n_shards} in the spec, {dt:.1f} s "
+          f"({r['engine']})", flush=True)
+    return 0
+
+
+def add_dataset_make_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of `clvol dataset make` (also scripts/make_dataset.py)."""
+    from .dataset import DatasetSpec
+    d = DatasetSpec()
+    p.add_argument("out", help="data set folder (e.g. runs/data; runs/ is ignored by git)")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--volumes", type=int, default=d.n_volumes)
+    p.add_argument("--solids", type=int, default=d.n_solids)
+    p.add_argument("--configs", type=int, default=d.configs_per_volume, help="per volume")
+    p.add_argument("--points", type=int, default=d.points_per_config, help="labels per shard")
+    p.add_argument("--paths", type=int, default=d.n_paths, help="paths per label")
+    p.add_argument("--resolution", type=int, default=d.resolution)
+    p.add_argument("--base", type=int, default=d.base_resolution, help="pyramid base resolution")
+    g = p.add_argument_group("where it runs (default: a local Ray on all cores, if installed)")
+    g.add_argument("--address", metavar="auto|HOST:PORT|ray://HOST:PORT",
+                   help="join a running Ray cluster instead of starting a local one")
+    g.add_argument("--workers", type=int, metavar="N", help="CPUs of the local Ray (default all)")
+    g.add_argument("--serial", action="store_true", help="no Ray: one shard after another here")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .render import METHODS, available_methods
     parser = argparse.ArgumentParser(
@@ -171,6 +212,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("reference", help="reference .exr")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_compare)
+
+    pd = sub.add_parser("dataset", help="training data for the network")
+    dsub = pd.add_subparsers(dest="dataset_command", required=True, metavar="ACTION")
+    p = dsub.add_parser(
+        "make", help="make (or finish) a data set folder; resumable",
+        description="Procedural volumes, random configurations, path-traced labels "
+                    "(docs/dataset.md). Rerun the same command to resume; the folder's "
+                    "spec.json must match the options.")
+    add_dataset_make_arguments(p)
+    p.set_defaults(func=_cmd_dataset_make)
     return parser
 
 
