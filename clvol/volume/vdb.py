@@ -684,3 +684,137 @@ def read_vdb(path, grid: str | None = None, max_resolution: int | None = None,
     """
     with VdbFile(path) as vf:
         return vf.read(vf.choose(grid), max_resolution, max_bytes)
+
+
+# --------------------------------------------------------------------------- writing
+
+# The layout written below is OpenVDB 10's (file version 224); the library version fields say
+# which OpenVDB's reader rules apply to the file, so they name that release too.
+_WRITE_VERSION, _WRITE_LIBRARY = 224, (10, 0)
+
+
+def _mask_bytes(bits: np.ndarray) -> bytes:
+    return np.packbits(bits.astype(bool), bitorder="little").tobytes()
+
+
+def _zip_chunk(raw: bytes) -> bytes:
+    """An int64 size and a zlib chunk, or a negative size and the raw bytes when zlib does not
+    make them smaller (as OpenVDB's ``zipToStream``)."""
+    packed = zlib.compress(raw, 6)
+    if len(packed) < len(raw):
+        return struct.pack("<q", len(packed)) + packed
+    return struct.pack("<q", -len(raw)) + raw
+
+
+def _string(s: str) -> bytes:
+    b = s.encode("utf-8")
+    return struct.pack("<I", len(b)) + b
+
+
+def write_vdb(path, grid: Grid, name: str = "density") -> None:
+    """Write ``grid`` as a one-grid .vdb file (float, zip + active-mask compression).
+
+    Voxels with density > 0 are active, the background is 0; voxel ``[z][y][x]`` gets index
+    ``(x, y, z)`` and the transform puts its centre where clvol has it. The voxels must be cubic
+    (OpenVDB transforms with different sizes per axis are what clvol refuses to read).
+    """
+    import uuid
+    path = Path(path)
+    cell = grid.cell_size
+    if np.abs(cell - cell.mean()).max() > 1e-9 * cell.mean():
+        raise VolumeError(f"{path}: .vdb needs cubic voxels; this grid's voxel size is "
+                          f"{cell.tolist()} (x, y, z); resample it or change its box")
+    h = float(cell.mean())
+    t = grid.bbox_min + 0.5 * h                     # world position of index (0, 0, 0)
+    nz, ny, nx = grid.density.shape
+    pad = [(0, -n % LEAF_DIM) for n in (nz, ny, nx)]
+    d = np.pad(grid.density, pad)
+    bz, by, bx = (n // LEAF_DIM for n in d.shape)
+    # leaves[bx, by, bz, x, y, z]: one row of 512 values per 8^3 block, in OpenVDB's leaf order.
+    leaves = d.reshape(bz, 8, by, 8, bx, 8).transpose(4, 2, 0, 5, 3, 1).reshape(-1, 512)
+    block = np.stack(np.meshgrid(np.arange(bx), np.arange(by), np.arange(bz), indexing="ij"),
+                     axis=-1).reshape(-1, 3)
+    keep = np.flatnonzero((leaves != 0).any(axis=1))
+    leaves, block = leaves[keep], block[keep]
+    # Tree position of each leaf: upper node, lower slot, leaf slot (both in x, y, z order).
+    upper = block // (1 << (LOG2_UPPER + LOG2_LOWER))
+    lower = (block >> LOG2_LOWER) & ((1 << LOG2_UPPER) - 1)
+    slot = block & ((1 << LOG2_LOWER) - 1)
+    order = np.lexsort((slot[:, 2], slot[:, 1], slot[:, 0], lower[:, 2], lower[:, 1],
+                        lower[:, 0], upper[:, 2], upper[:, 1], upper[:, 0]))
+    leaves, upper, lower, slot = leaves[order], upper[order], lower[order], slot[order]
+    empty_values = b"\x00" + struct.pack("<q", 0)       # all tiles inactive background: none stored
+
+    topo, bufs = [], []
+    groups = {}
+    for i, (u, lo_) in enumerate(zip(map(tuple, upper), map(tuple, lower))):
+        groups.setdefault(u, {}).setdefault(lo_, []).append(i)
+    topo.append(struct.pack("<f", 0.0) + struct.pack("<II", 0, len(groups)))
+    for u, lows in groups.items():                       # dict order = sorted order here
+        topo.append(struct.pack("<3i", *(int(c) * UPPER_SPAN for c in u)))
+        child = np.zeros(1 << (3 * LOG2_UPPER), bool)
+        for lo_ in lows:
+            child[(lo_[0] << 10) | (lo_[1] << 5) | lo_[2]] = True
+        topo += [_mask_bytes(child), _mask_bytes(np.zeros_like(child)), empty_values]
+        for lo_, idx in lows.items():
+            child = np.zeros(1 << (3 * LOG2_LOWER), bool)
+            s = slot[idx]
+            child[(s[:, 0] << 8) | (s[:, 1] << 4) | s[:, 2]] = True
+            topo += [_mask_bytes(child), _mask_bytes(np.zeros_like(child)), empty_values]
+            for i in idx:
+                mask = leaves[i] != 0
+                mb = _mask_bytes(mask)
+                topo.append(mb)
+                vals = leaves[i][mask].astype("<f4").tobytes()
+                bufs.append(mb + b"\x00" + _zip_chunk(vals))
+    xform = (_string("UniformScaleTranslateMap") + struct.pack("<3d", *t)
+             + struct.pack("<3d", h, h, h) * 2 + struct.pack("<3d", *(1 / np.full(3, h)))
+             + struct.pack("<3d", *(1 / np.full(3, h * h))) + struct.pack("<3d", *(0.5 / np.full(3, h))))
+    meta = (struct.pack("<I", 2) + _string("class") + _string("string") + _string("fog volume")
+            + _string("name") + _string("string") + _string(name))
+    body_head = (struct.pack("<I", COMPRESS_ZIP | COMPRESS_ACTIVE_MASK) + meta + xform
+                 + struct.pack("<i", 1) + b"".join(topo))
+    buffers = b"".join(bufs)
+    header = (struct.pack("<qIII", VDB_MAGIC, _WRITE_VERSION, *_WRITE_LIBRARY) + b"\x01"
+              + str(uuid.uuid4()).encode() + struct.pack("<I", 0) + struct.pack("<i", 1))
+    desc = _string(name) + _string("Tree_float_5_4_3") + _string("")
+    grid_pos = len(header) + len(desc) + 24
+    block_pos = grid_pos + len(body_head)
+    end_pos = block_pos + len(buffers)
+    from ..atomic import atomic_open
+    with atomic_open(path) as f:
+        f.write(header + desc + struct.pack("<3q", grid_pos, block_pos, end_pos))
+        f.write(body_head)
+        f.write(buffers)
+
+
+def format_vdb_info(path) -> str:
+    """What ``clvol volume info x.vdb`` prints: every grid with its type, active voxel count,
+    index and world boxes of the active voxels, and voxel size (topology only, no values)."""
+    def vec(v, fmt="{:.6g}"):
+        return "(" + ", ".join(fmt.format(float(x)) for x in v) + ")"
+
+    with VdbFile(path) as vf:
+        lines = [f"{vf.path}: OpenVDB file version {vf.version} (library "
+                 f"{vf.library[0]}.{vf.library[1]}), {len(vf.grids)} grid(s)"]
+        for g in vf.grids:
+            lines.append(f"  grid {g.name!r}: {g.type_label}, class {g.grid_class}")
+            if g.value_type not in _VALUE_TYPES:
+                lines.append("    (tree type not read by clvol)")
+                continue
+            lines.append(f"    active voxels: {g.active_voxels}")
+            if g.index_min is not None:
+                lo, hi = g.world_box()
+                lines.append(f"    index bbox: {vec(g.index_min, '{:.0f}')} .. "
+                             f"{vec(g.index_max, '{:.0f}')} (inclusive)")
+                lines.append(f"    world bbox: {vec(lo)} .. {vec(hi)} (active cells)")
+                if g.is_scalar:
+                    n = [int(v) for v in vf.dense_layout(g)[2]]
+                    gib = 4 * n[0] * n[1] * n[2] / 2**30
+                    lines.append(f"    clvol dense grid: {n[0]} x {n[1]} x {n[2]} voxels with its "
+                                 f"1-voxel border ({gib:.3g} GiB float32 at full resolution)")
+            lines.append(f"    voxel size: {vec(g.voxel_size)}, index (0, 0, 0) at world "
+                         f"{vec(g.translation)}")
+            if g.transform_problem:
+                lines.append(f"    not readable as a density: {g.transform_problem}")
+    return "\n".join(lines)
