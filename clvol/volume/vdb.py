@@ -83,8 +83,8 @@ class _Stream:
 
     def seek(self, pos: int, what: str) -> None:
         if not 0 <= pos <= self.size:
-            raise VolumeError(f"{self.path}: truncated .vdb file: {what} starts at byte {pos}, "
-                              f"the file has {self.size} bytes")
+            raise VolumeError(f"{self.path}: truncated .vdb file: {what} is at byte {pos}, "
+                              f"past the end of the file ({self.size} bytes)")
         self.f.seek(pos)
 
     def read(self, n: int, what: str) -> bytes:
@@ -317,10 +317,13 @@ def _read_transform(s: _Stream, what: str):
         if np.abs(off).max() > 1e-9 * np.abs(scale).max():
             return scale, trans, (f"{kind} rotates or shears the grid; clvol's box is "
                                   f"axis-aligned")
-    elif kind == "NonlinearFrustumMap" or ":" in kind:
+    elif kind == "NonlinearFrustumMap":
+        # bbox (6 doubles), taper, depth, then the frustum's own linear map: read to skip it.
+        s.read(8 * 8, f"{what} frustum")
+        _read_transform(s, what)
         return np.ones(3), np.zeros(3), f"{kind} is not a linear transform"
-    else:
-        return np.ones(3), np.zeros(3), f"unknown transform {kind!r}"
+    else:   # no other map types exist; their size is unknown, so the grid cannot be read on
+        raise VolumeError(f"{s.path}: {what} has unknown map type {kind!r}")
     if not (np.isfinite(scale).all() and np.isfinite(trans).all()) or (scale <= 0).any():
         return scale, trans, f"voxel size {scale.tolist()} must be finite and > 0"
     # Stored voxel sizes of a uniform map are equal; 1e-6 allows a float32 round trip.
@@ -482,7 +485,7 @@ class VdbFile:
             parent = s.string(f"grid {i} instance parent")
             grid_pos, block_pos, end_pos = s.unpack("qqq", f"grid {i} offsets")
             descriptors.append((unique, tree_type, parent, grid_pos, block_pos, end_pos))
-            s.seek(end_pos, f"grid {i} end")
+            s.seek(end_pos, f"the end of grid {unique.split(chr(0x1e))[0]!r}")
         for unique, tree_type, parent, grid_pos, block_pos, end_pos in descriptors:
             self.grids.append(self._read_grid(unique, tree_type, parent, grid_pos, block_pos))
 
@@ -805,6 +808,11 @@ def format_vdb_info(path) -> str:
             lines.append(f"    active voxels: {g.active_voxels}")
             if g.index_min is not None:
                 lo, hi = g.world_box()
+                if g.transform_problem:     # the world box below would be meaningless
+                    lines.append(f"    index bbox: {vec(g.index_min, '{:.0f}')} .. "
+                                 f"{vec(g.index_max, '{:.0f}')} (inclusive)")
+                    lines.append(f"    not readable as a density: {g.transform_problem}")
+                    continue
                 lines.append(f"    index bbox: {vec(g.index_min, '{:.0f}')} .. "
                              f"{vec(g.index_max, '{:.0f}')} (inclusive)")
                 lines.append(f"    world bbox: {vec(lo)} .. {vec(hi)} (active cells)")
@@ -815,6 +823,4 @@ def format_vdb_info(path) -> str:
                                  f"1-voxel border ({gib:.3g} GiB float32 at full resolution)")
             lines.append(f"    voxel size: {vec(g.voxel_size)}, index (0, 0, 0) at world "
                          f"{vec(g.translation)}")
-            if g.transform_problem:
-                lines.append(f"    not readable as a density: {g.transform_problem}")
     return "\n".join(lines)
