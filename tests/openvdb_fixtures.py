@@ -29,11 +29,13 @@ def openvdb_missing() -> str | None:
     return None
 
 
-def run_openvdb(code: str, cwd) -> str:
+def run_openvdb(code: str, cwd, args=()) -> str:
     """Run ``code`` (with ``pyopenvdb as vdb`` and ``numpy as np`` imported) in the system
-    Python inside ``cwd``; return its stdout, or raise with its stderr."""
+    Python inside ``cwd``, with ``args`` as sys.argv[1:]; return its stdout, or raise with its
+    stderr."""
     prog = "import pyopenvdb as vdb\nimport numpy as np\n" + textwrap.dedent(code)
-    r = subprocess.run([SYSTEM_PYTHON, "-c", prog], cwd=str(cwd), capture_output=True, text=True)
+    r = subprocess.run([SYSTEM_PYTHON, "-c", prog, *map(str, args)], cwd=str(cwd),
+                       capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"OpenVDB script failed ({r.returncode}):\n{r.stderr}")
     return r.stdout

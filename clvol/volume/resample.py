@@ -54,10 +54,12 @@ class BoxAccumulator:
         # Pad the block out to whole coarse cells, then sum each f^3 group.
         pre = rel - c0 * f
         ncell = -(-(pre + np.asarray(b.shape)) // f)
-        padded = np.zeros(tuple(ncell * f), dtype=np.float64)
+        padded = np.zeros(tuple(ncell * f), dtype=b.dtype)
         padded[pre[0]:pre[0] + b.shape[0], pre[1]:pre[1] + b.shape[1],
                pre[2]:pre[2] + b.shape[2]] = b
-        sums = padded.reshape(ncell[0], f, ncell[1], f, ncell[2], f).sum(axis=(1, 3, 5))
+        # float64 accumulation without a float64 copy of the block (the reduction buffers it).
+        sums = padded.reshape(ncell[0], f, ncell[1], f, ncell[2], f).sum(axis=(1, 3, 5),
+                                                                         dtype=np.float64)
         c1 = c0 + ncell
         self._sum[c0[2]:c1[2], c0[1]:c1[1], c0[0]:c1[0]] += sums.transpose(2, 1, 0)
 

@@ -90,9 +90,9 @@ class _Stream:
     def read(self, n: int, what: str) -> bytes:
         if n < 0:
             raise VolumeError(f"{self.path}: corrupt .vdb file: {what} has size {n}")
-        pos = self.f.tell()
         b = self.f.read(n)
         if len(b) != n:
+            pos = self.f.tell() - len(b)
             raise VolumeError(f"{self.path}: truncated .vdb file: {what} needs {n} bytes at byte "
                               f"{pos}, the file has {self.size} bytes")
         return b
@@ -623,12 +623,25 @@ class VdbFile:
         what = f"grid {g.name!r} leaf"
         k = len(low.leaf_masks)
         masks = _bits(low.leaf_masks).reshape(k, 512) if k else np.zeros((0, 512), bool)
-        data = np.empty((k, 512), np.float64)
+        slots = np.flatnonzero(low.child | (low.values != bg))
+        if len(slots) == 0:
+            return None, None
+        # The block spans the slots that hold a leaf or a non-background tile; tiles first.
+        loc = np.stack([slots >> 8, (slots >> 4) & 15, slots & 15], axis=1)
+        l0, l1 = loc.min(0), loc.max(0) + 1
+        nl = l1 - l0
+        # float32 for float and half grids (exact), float64 for double ones.
+        dtype = np.float64 if vals.full.itemsize == 8 else np.float32
+        block = np.empty((nl[0], 8, nl[1], 8, nl[2], 8), dtype)
+        tiles = low.values.reshape(16, 16, 16)[l0[0]:l1[0], l0[1]:l1[1], l0[2]:l1[2]]
+        block[...] = tiles[:, None, :, None, :, None]
+        ci = np.flatnonzero(low.child)
+        cx, cy, cz = (ci >> 8) - l0[0], ((ci >> 4) & 15) - l0[1], (ci & 15) - l0[2]
+        row = np.empty(512, dtype)
         s = self.s
         for i in range(k):
             s.read(64, f"{what} value mask")
             in0, in1, sel, v, active_only = vals.read_raw(512, masks[i], what)
-            row = data[i]
             row[:] = in0
             if sel is not None:
                 row[sel] = in1
@@ -636,19 +649,7 @@ class VdbFile:
                 row[masks[i]] = v[:, 0]
             else:
                 row[:] = v[:, 0]
-        slots = np.flatnonzero(low.child | (low.values != bg))
-        if len(slots) == 0:
-            return None, None
-        loc = np.stack([slots >> 8, (slots >> 4) & 15, slots & 15], axis=1)
-        l0, l1 = loc.min(0), loc.max(0) + 1
-        nl = l1 - l0
-        block = np.empty((nl[0], 8, nl[1], 8, nl[2], 8), np.float64)
-        tiles = low.values.reshape(16, 16, 16)[l0[0]:l1[0], l0[1]:l1[1], l0[2]:l1[2]]
-        block[...] = tiles[:, None, :, None, :, None]
-        if k:
-            ci = np.flatnonzero(low.child)
-            cx, cy, cz = (ci >> 8) - l0[0], ((ci >> 4) & 15) - l0[1], (ci & 15) - l0[2]
-            block[cx, :, cy, :, cz, :] = data.reshape(k, 8, 8, 8)
+            block[cx[i], :, cy[i], :, cz[i], :] = row.reshape(8, 8, 8)
         block = block.reshape(nl[0] * 8, nl[1] * 8, nl[2] * 8)
         origin = low.origin + l0 * LEAF_DIM
         bad = ~(np.isfinite(block) & (block >= 0))
