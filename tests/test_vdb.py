@@ -79,6 +79,9 @@ for name, m in [("nonuniform", [[0.1, 0, 0, 0], [0, 0.2, 0, 0], [0, 0, 0.1, 0], 
 q = g.deepCopy()
 q.transform = vdb.createFrustumTransform(xyzMin=(0, 0, 0), xyzMax=(10, 10, 10), taper=0.5, depth=2.0)
 vdb.write("frustum.vdb", grids=[q])
+neg = a.copy(); neg[2, 3, 4] = -0.5
+q = vdb.FloatGrid(); q.copyFromArray(neg, ijk=(-3, 2, -17)); q.name = "density"
+vdb.write("negative.vdb", grids=[q])
 ls = vdb.createLevelSetSphere(radius=3.0, voxelSize=0.5); ls.name = "density"
 vdb.write("levelset.vdb", grids=[ls])
 """
@@ -281,6 +284,7 @@ def _grid_pos(path: Path) -> int:
     ("rotated", ["rotates or shears"]),
     ("frustum", ["NonlinearFrustumMap is not a linear transform"]),
     ("levelset", ["level set"]),
+    ("negative", ["NaN, infinite or negative", "first at index (-1, 5, -13) = -0.5"]),
 ])
 def test_malformed_files_exit_2_with_one_line(vdbdir, tmp_path, capsys, case, words):
     src = (vdbdir / "float.vdb").read_bytes()
@@ -488,3 +492,16 @@ def test_read_volume_refuses_vdb_options_for_other_formats(tmp_path):
     with pytest.raises(VolumeError, match="max_resolution applies to .vdb files only"):
         read_volume(tmp_path / "d.npy", max_resolution=8)
     write_volume(tmp_path / "d.npz", read_volume(tmp_path / "d.npy"))
+
+
+def test_scene_load_checks_the_device_buffer_limit(vdbdir, tmp_path):
+    """VolumeSpec.load refuses a grid above max_bytes, and by default takes the limit from
+    the OpenCL device (CL_DEVICE_MAX_MEM_ALLOC_SIZE)."""
+    from clvol.runtime import get_runtime
+    from clvol.scene import _device_buffer_limit
+    assert _device_buffer_limit() == int(get_runtime().device.max_mem_alloc_size)
+    grid = read_vdb(vdbdir / "sparse.vdb")
+    s = load_scene(_write_scene(tmp_path / "s.toml", f'file = "{vdbdir / "sparse.vdb"}"', grid))
+    with pytest.raises(VolumeError, match=r"more than the .* GiB the OpenCL device allows"):
+        s.volume.load(max_bytes=grid.density.nbytes - 1)
+    assert s.volume.load(max_bytes=grid.density.nbytes).density.shape == grid.density.shape
