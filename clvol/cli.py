@@ -30,12 +30,17 @@ def _cmd_volume_info(args) -> int:
     from .volume.stats import format_stats, volume_stats
     for path in args.files:
         if Path(path).suffix.lower() == ".vdb":
+            if args.density_scale is not None:
+                raise ClvolError(f"{path}: --density-scale is for the statistics of a dense "
+                                 f"grid; a .vdb gets its grid listing (convert it to .npz for "
+                                 f"statistics)")
             from .volume.vdb import format_vdb_info
             print(format_vdb_info(path))
             continue
         grid = read_volume(path)
         print(f"{path}:")
-        print(format_stats(volume_stats(grid, args.density_scale)))
+        scale = 1.0 if args.density_scale is None else args.density_scale
+        print(format_stats(volume_stats(grid, scale)))
     return 0
 
 
@@ -136,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     vsub = pv.add_subparsers(dest="volume_command", required=True, metavar="ACTION")
     p = vsub.add_parser("info", help="resolution, bbox, density range, occupancy, optical thickness")
     p.add_argument("files", nargs="+", help=".vol, .npy, .npz or .vdb files (a .vdb: its grids)")
-    p.add_argument("--density-scale", type=float, default=1.0,
+    p.add_argument("--density-scale", type=float, default=None,
                    help="sigma_t = density * scale, for the optical thickness figures (default 1)")
     p.set_defaults(func=_cmd_volume_info)
     p = vsub.add_parser("generate", help="make a procedural volume (cloud, smoke, solids)")

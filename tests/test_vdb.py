@@ -157,6 +157,7 @@ def test_sparse_cloud_with_tiles(vdbdir):
         assert len(g.uppers) >= 2
         assert any((~u.child & u.active).any() for u in g.uppers)
         assert any((~low.child & low.active).any() for u in g.uppers for low in u.lowers)
+        assert any(len(low.tile_slots) for u in g.uppers for low in u.lowers)
         assert g.active_voxels == count
         grid = vf.read(g)
     np.testing.assert_array_equal(grid.density[1:-1, 1:-1, 1:-1], a)
@@ -505,3 +506,8 @@ def test_scene_load_checks_the_device_buffer_limit(vdbdir, tmp_path):
     with pytest.raises(VolumeError, match=r"more than the .* GiB the OpenCL device allows"):
         s.volume.load(max_bytes=grid.density.nbytes - 1)
     assert s.volume.load(max_bytes=grid.density.nbytes).density.shape == grid.density.shape
+
+
+def test_volume_info_refuses_density_scale_for_vdb(vdbdir, capsys):
+    code, out, err = cli(["volume", "info", vdbdir / "float.vdb", "--density-scale", "8"], capsys)
+    assert code == 2 and "--density-scale is for the statistics of a dense grid" in err

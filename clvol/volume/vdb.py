@@ -132,12 +132,24 @@ def _skip_metadata(s: _Stream, what: str) -> dict:
 
 @dataclass
 class _Lower:
-    """An internal node of 16^3 slots, each a leaf (8^3 voxels) or a constant tile."""
+    """An internal node of 16^3 slots, each a leaf (8^3 voxels) or a constant tile.
+
+    Kept compact (masks as words, only the tiles that differ from the background), because a
+    large cloud has one per 128^3 voxels and all of them are held while the leaves are read."""
     origin: np.ndarray          # int64 (3,) index of voxel [0, 0, 0], x, y, z
-    child: np.ndarray           # bool (4096,): slot holds a leaf
-    active: np.ndarray          # bool (4096,): value mask (active tiles)
-    values: np.ndarray          # (4096,) tile values (scalar grids; None otherwise)
+    child_words: np.ndarray     # uint64 (64,): slot holds a leaf
+    active_words: np.ndarray    # uint64 (64,): value mask (active tiles)
+    tile_slots: np.ndarray      # slots of tiles whose value is not the background (scalar grids)
+    tile_values: np.ndarray     # their values
     leaf_masks: np.ndarray      # uint64 (k, 8): value masks of the k leaves, in slot order
+
+    @property
+    def child(self) -> np.ndarray:
+        return _bits(self.child_words)
+
+    @property
+    def active(self) -> np.ndarray:
+        return _bits(self.active_words)
 
 
 @dataclass
@@ -191,7 +203,7 @@ class VdbGrid:
 def _bits(mask_words: np.ndarray) -> np.ndarray:
     """uint64 mask words -> bool array of their bits, bit n = word n // 64, bit n % 64."""
     return np.unpackbits(np.ascontiguousarray(mask_words, dtype="<u8").view(np.uint8),
-                         bitorder="little").astype(bool)
+                         bitorder="little").view(bool)
 
 
 class _Values:
@@ -266,7 +278,9 @@ class _Values:
             vals = np.zeros((0, nc), self.full)
         else:
             raw = self._chunk(n * nc * self.stored.itemsize, f"{what} values")
-            vals = np.frombuffer(raw, dtype=self.stored).astype(self.full).reshape(n, nc)
+            vals = np.frombuffer(raw, dtype=self.stored).reshape(n, nc)   # read-only view
+            if self.stored != self.full:
+                vals = vals.astype(self.full)
         return in0, in1, sel, vals, active_only
 
     def read(self, count: int, mask: np.ndarray, what: str) -> np.ndarray:
@@ -362,8 +376,9 @@ def _read_topology(s: _Stream, g: dict, vals: _Values | None, path: Path):
 
 def _read_internal(s: _Stream, vals: _Values, origin, log2: int, what: str, keep: bool):
     n = 1 << (3 * log2)
-    child = _bits(s.array("<u8", n // 64, f"{what} child mask"))
-    active = _bits(s.array("<u8", n // 64, f"{what} value mask"))
+    child_words = s.array("<u8", n // 64, f"{what} child mask")
+    active_words = s.array("<u8", n // 64, f"{what} value mask")
+    child, active = _bits(child_words), _bits(active_words)
     values = vals.read(n, active, f"{what} node values")
     values = values if keep else None
     idx = np.flatnonzero(child)
@@ -376,7 +391,12 @@ def _read_internal(s: _Stream, vals: _Values, origin, log2: int, what: str, keep
                                               what, keep))
         return node
     masks = s.array("<u8", 8 * len(idx), f"{what} leaf masks").reshape(len(idx), 8)
-    return _Lower(origin, child, active, values, masks)
+    if keep:
+        tiles = np.flatnonzero(~child & (values != vals.background))
+        tile_values = values[tiles]
+    else:
+        tiles, tile_values = np.zeros(0, np.int64), np.zeros(0)
+    return _Lower(origin, child_words, active_words, tiles, tile_values, masks)
 
 
 def _slot_origins(node_origin, idx: np.ndarray, log2: int, span: int) -> np.ndarray:
@@ -623,18 +643,20 @@ class VdbFile:
         what = f"grid {g.name!r} leaf"
         k = len(low.leaf_masks)
         masks = _bits(low.leaf_masks).reshape(k, 512) if k else np.zeros((0, 512), bool)
-        slots = np.flatnonzero(low.child | (low.values != bg))
+        ci = np.flatnonzero(low.child)
+        slots = np.concatenate([ci, low.tile_slots])
         if len(slots) == 0:
             return None, None
-        # The block spans the slots that hold a leaf or a non-background tile; tiles first.
+        # The block spans the slots that hold a leaf or a non-background tile.
         loc = np.stack([slots >> 8, (slots >> 4) & 15, slots & 15], axis=1)
         l0, l1 = loc.min(0), loc.max(0) + 1
         nl = l1 - l0
         # float32 for float and half grids (exact), float64 for double ones.
         dtype = np.float64 if vals.full.itemsize == 8 else np.float32
-        block = np.empty((nl[0], 8, nl[1], 8, nl[2], 8), dtype)
-        tiles = low.values.reshape(16, 16, 16)[l0[0]:l1[0], l0[1]:l1[1], l0[2]:l1[2]]
-        block[...] = tiles[:, None, :, None, :, None]
+        block = np.full((nl[0], 8, nl[1], 8, nl[2], 8), bg, dtype)
+        t = low.tile_slots
+        block[(t >> 8) - l0[0], :, ((t >> 4) & 15) - l0[1], :, (t & 15) - l0[2], :] = \
+            low.tile_values[:, None, None, None]
         ci = np.flatnonzero(low.child)
         cx, cy, cz = (ci >> 8) - l0[0], ((ci >> 4) & 15) - l0[1], (ci & 15) - l0[2]
         row = np.empty(512, dtype)
@@ -652,8 +674,8 @@ class VdbFile:
             block[cx[i], :, cy[i], :, cz[i], :] = row.reshape(8, 8, 8)
         block = block.reshape(nl[0] * 8, nl[1] * 8, nl[2] * 8)
         origin = low.origin + l0 * LEAF_DIM
-        bad = ~(np.isfinite(block) & (block >= 0))
-        if bad.any():
+        if not (np.isfinite(block).all() and block.min() >= 0):
+            bad = ~(np.isfinite(block) & (block >= 0))
             i = np.argwhere(bad)[0]
             raise VolumeError(f"{self.path}: grid {g.name!r}: {int(bad.sum())} voxel(s) of the "
                               f"node at {tuple(int(x) for x in low.origin)} are NaN, infinite or "
