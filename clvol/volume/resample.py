@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+_SLAB = 32   # fine voxels per slab along x in add_block (rounded to whole coarse cells)
+
 
 class BoxAccumulator:
     """Sums of fine voxels per coarse cell over ``shape`` = (mx, my, mz) cells.
@@ -45,12 +47,25 @@ class BoxAccumulator:
         b = block_xyz[lo[0] - o[0]:hi[0] - o[0], lo[1] - o[1]:hi[1] - o[1],
                       lo[2] - o[2]:hi[2] - o[2]]
         f = self.f
-        rel = lo - self.base
-        c0 = rel // f
         if f == 1:
+            c0 = lo - self.base
             c1 = c0 + np.asarray(b.shape)
             self._sum[c0[2]:c1[2], c0[1]:c1[1], c0[0]:c1[0]] += b.transpose(2, 1, 0)
             return
+        # In slabs of whole coarse cells along x, so the temporaries stay a fraction of the
+        # block (memory is the point of reading this way).
+        step = max(1, _SLAB // f)
+        cx0 = (lo[0] - self.base[0]) // f
+        cx1 = (hi[0] - 1 - self.base[0]) // f + 1
+        for ca in range(int(cx0), int(cx1), step):
+            x0 = max(lo[0], self.base[0] + ca * f)
+            x1 = min(hi[0], self.base[0] + (ca + step) * f)
+            self._add_cells(b[x0 - lo[0]:x1 - lo[0]], np.array([x0, lo[1], lo[2]]))
+
+    def _add_cells(self, b: np.ndarray, lo: np.ndarray) -> None:
+        f = self.f
+        rel = lo - self.base
+        c0 = rel // f
         # Pad the block out to whole coarse cells, then sum each f^3 group.
         pre = rel - c0 * f
         ncell = -(-(pre + np.asarray(b.shape)) // f)

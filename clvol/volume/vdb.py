@@ -6,7 +6,7 @@ to a full-resolution dense array. Reading the format ourselves needs only ``zlib
 ``blosc`` wheel, and lets ``max_resolution`` box-filter each 128^3 node as it is read. The tests
 check it against files OpenVDB itself writes.
 
-The parts of the format read here (file versions 222-225, OpenVDB 3.0 to 12; little-endian;
+The parts of the format read here (file versions 222-225; OpenVDB 10 writes 224; little-endian;
 ``string`` = uint32 length + bytes)::
 
     header      int64 magic 0x56444220, uint32 file version, uint32 library major, minor,
@@ -50,7 +50,7 @@ from .resample import BoxAccumulator, box_factor
 
 VDB_MAGIC = 0x56444220
 MIN_FILE_VERSION = 222      # per-grid compression flags and mask-compressed internal nodes
-MAX_FILE_VERSION = 225      # OpenVDB 11 and 12 write 225; the layout read here is unchanged
+MAX_FILE_VERSION = 225      # the newest format (native half grids); the layout read is unchanged
 COMPRESS_ZIP, COMPRESS_ACTIVE_MASK, COMPRESS_BLOSC = 0x1, 0x2, 0x4
 _KNOWN_COMPRESSION = COMPRESS_ZIP | COMPRESS_ACTIVE_MASK | COMPRESS_BLOSC
 HALF_SUFFIX = "_HalfFloat"
@@ -487,8 +487,8 @@ class VdbFile:
         if not MIN_FILE_VERSION <= self.version <= MAX_FILE_VERSION:
             raise VolumeError(
                 f"{self.path}: OpenVDB file format version {self.version} (library {major}.{minor}) "
-                f"is not read; versions {MIN_FILE_VERSION}-{MAX_FILE_VERSION} are (OpenVDB 3 to "
-                f"12); re-save it with a current OpenVDB")
+                f"is not read; versions {MIN_FILE_VERSION}-{MAX_FILE_VERSION} are; re-save it "
+                f"with a current OpenVDB")
         (has_offsets,) = s.unpack("?", "header flags")
         s.read(36, "header uuid")
         if not has_offsets:
