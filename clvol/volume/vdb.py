@@ -141,7 +141,12 @@ class _Lower:
     active_words: np.ndarray    # uint64 (64,): value mask (active tiles)
     tile_slots: np.ndarray      # slots of tiles whose value is not the background (scalar grids)
     tile_values: np.ndarray     # their values
-    leaf_masks: np.ndarray      # uint64 (k, 8): value masks of the k leaves, in slot order
+    n_leaves: int
+    # Active voxels of its leaves: count and inclusive index box (None if none). The leaves'
+    # masks are not kept: the buffers repeat each one in front of its values.
+    leaf_active: int
+    leaf_min: np.ndarray | None
+    leaf_max: np.ndarray | None
 
     @property
     def child(self) -> np.ndarray:
@@ -391,18 +396,39 @@ def _read_internal(s: _Stream, vals: _Values, origin, log2: int, what: str, keep
                                               what, keep))
         return node
     masks = s.array("<u8", 8 * len(idx), f"{what} leaf masks").reshape(len(idx), 8)
+    count, lo, hi = _leaf_extent(masks, _slot_origins(origin, idx, LOG2_LOWER, LEAF_DIM))
     if keep:
         tiles = np.flatnonzero(~child & (values != vals.background))
         tile_values = values[tiles]
     else:
         tiles, tile_values = np.zeros(0, np.int64), np.zeros(0)
-    return _Lower(origin, child_words, active_words, tiles, tile_values, masks)
+    return _Lower(origin, child_words, active_words, tiles, tile_values, len(idx), count, lo, hi)
 
 
 def _slot_origins(node_origin, idx: np.ndarray, log2: int, span: int) -> np.ndarray:
     local = np.stack([idx >> (2 * log2), (idx >> log2) & ((1 << log2) - 1),
                       idx & ((1 << log2) - 1)], axis=1)
     return node_origin + local * span
+
+
+def _leaf_extent(masks: np.ndarray, origins: np.ndarray):
+    """(active count, index min, index max) of leaves with value masks ``masks`` (k, 8) uint64
+    at ``origins`` (k, 3); (0, None, None) when none is active."""
+    if len(masks) == 0:
+        return 0, None, None
+    bits = _bits(masks).reshape(-1, 8, 8, 8)                     # [leaf][x][y][z]
+    count = int(np.count_nonzero(bits))
+    if count == 0:
+        return 0, None, None
+    lo, hi = np.zeros(3, np.int64), np.zeros(3, np.int64)
+    for axis, other in ((0, (2, 3)), (1, (1, 3)), (2, (1, 2))):
+        along = bits.any(axis=other)                               # (k, 8)
+        has = along.any(axis=1)
+        first = np.argmax(along, axis=1)
+        last = 7 - np.argmax(along[:, ::-1], axis=1)
+        lo[axis] = int((origins[has, axis] + first[has]).min())
+        hi[axis] = int((origins[has, axis] + last[has]).max())
+    return count, lo, hi
 
 
 def _active_extent(tiles, uppers):
@@ -432,20 +458,9 @@ def _active_extent(tiles, uppers):
                 count += len(t) * LEAF_DIM ** 3
                 o = _slot_origins(low.origin, t, LOG2_LOWER, LEAF_DIM)
                 grow(o.min(0), o.max(0) + LEAF_DIM - 1)
-            if len(low.leaf_masks):
-                bits = _bits(low.leaf_masks).reshape(-1, 8, 8, 8)      # [leaf][x][y][z]
-                count += int(np.count_nonzero(bits))
-                leaf_o = _slot_origins(low.origin, np.flatnonzero(low.child), LOG2_LOWER,
-                                       LEAF_DIM)
-                for axis, other in ((0, (2, 3)), (1, (1, 3)), (2, (1, 2))):
-                    along = bits.any(axis=other)                       # (k, 8)
-                    has = along.any(axis=1)
-                    if not has.any():
-                        continue
-                    first = np.argmax(along, axis=1)
-                    last = 7 - np.argmax(along[:, ::-1], axis=1)
-                    lo[axis] = min(lo[axis], int((leaf_o[has, axis] + first[has]).min()))
-                    hi[axis] = max(hi[axis], int((leaf_o[has, axis] + last[has]).max()))
+            if low.leaf_active:
+                count += low.leaf_active
+                grow(low.leaf_min, low.leaf_max)
     if count == 0:
         return 0, None, None
     return count, lo, hi
@@ -481,12 +496,14 @@ class VdbFile:
         head = self._f.read(8)
         if len(head) < 8 or struct.unpack("<q", head)[0] != VDB_MAGIC:
             raise VolumeError(f"{self.path}: not an OpenVDB file: the first 8 bytes are "
-                              f"{head!r}, expected the magic number 0x56444220 (b' BDV\\0\\0\\0\\0')")
+                              f"{head!r}, expected the magic number 0x56444220 "
+                              f"(b' BDV\\0\\0\\0\\0')")
         self.version, major, minor = s.unpack("III", "header version")
         self.library = (major, minor)
         if not MIN_FILE_VERSION <= self.version <= MAX_FILE_VERSION:
             raise VolumeError(
-                f"{self.path}: OpenVDB file format version {self.version} (library {major}.{minor}) "
+                f"{self.path}: OpenVDB file format version {self.version} (library "
+                f"{major}.{minor}) "
                 f"is not read; versions {MIN_FILE_VERSION}-{MAX_FILE_VERSION} are; re-save it "
                 f"with a current OpenVDB")
         (has_offsets,) = s.unpack("?", "header flags")
@@ -641,8 +658,7 @@ class VdbFile:
     def _lower_block(self, g: VdbGrid, vals: _Values, low: _Lower, bg: float):
         """Read the leaves of one lower node; return its dense block [x][y][z] and origin."""
         what = f"grid {g.name!r} leaf"
-        k = len(low.leaf_masks)
-        masks = _bits(low.leaf_masks).reshape(k, 512) if k else np.zeros((0, 512), bool)
+        k = low.n_leaves
         ci = np.flatnonzero(low.child)
         slots = np.concatenate([ci, low.tile_slots])
         if len(slots) == 0:
@@ -662,13 +678,13 @@ class VdbFile:
         row = np.empty(512, dtype)
         s = self.s
         for i in range(k):
-            s.read(64, f"{what} value mask")
-            in0, in1, sel, v, active_only = vals.read_raw(512, masks[i], what)
+            mask = _bits(s.array("<u8", 8, f"{what} value mask"))
+            in0, in1, sel, v, active_only = vals.read_raw(512, mask, what)
             row[:] = in0
             if sel is not None:
                 row[sel] = in1
             if active_only:
-                row[masks[i]] = v[:, 0]
+                row[mask] = v[:, 0]
             else:
                 row[:] = v[:, 0]
             block[cx[i], :, cy[i], :, cz[i], :] = row.reshape(8, 8, 8)
@@ -793,9 +809,10 @@ def write_vdb(path, grid: Grid, name: str = "density") -> None:
                 topo.append(mb)
                 vals = leaves[i][mask].astype("<f4").tobytes()
                 bufs.append(mb + b"\x00" + _zip_chunk(vals))
+    # translation, scale, voxel size, then the cached 1/scale, 1/scale^2, 1/(2 scale)
     xform = (_string("UniformScaleTranslateMap") + struct.pack("<3d", *t)
-             + struct.pack("<3d", h, h, h) * 2 + struct.pack("<3d", *(1 / np.full(3, h)))
-             + struct.pack("<3d", *(1 / np.full(3, h * h))) + struct.pack("<3d", *(0.5 / np.full(3, h))))
+             + struct.pack("<3d", h, h, h) * 2 + struct.pack("<3d", *([1 / h] * 3))
+             + struct.pack("<3d", *([1 / (h * h)] * 3)) + struct.pack("<3d", *([0.5 / h] * 3)))
     meta = (struct.pack("<I", 2) + _string("class") + _string("string") + _string("fog volume")
             + _string("name") + _string("string") + _string(name))
     body_head = (struct.pack("<I", COMPRESS_ZIP | COMPRESS_ACTIVE_MASK) + meta + xform
