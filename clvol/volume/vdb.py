@@ -59,6 +59,7 @@ LOG2_UPPER, LOG2_LOWER, LOG2_LEAF = 5, 4, 3
 LEAF_DIM = 1 << LOG2_LEAF                                   # 8 voxels
 LOWER_SPAN = LEAF_DIM << LOG2_LOWER                         # 128 voxels
 UPPER_SPAN = LOWER_SPAN << LOG2_UPPER                       # 4096 voxels
+_SLAB_LEAVES = 4            # leaf columns per block handed to the box filter (32 voxels)
 # value type name -> (NumPy scalar type, components); scalars are what a density can be.
 _VALUE_TYPES = {"float": ("<f4", 1), "double": ("<f8", 1), "half": ("<f2", 1),
                 "vec3s": ("<f4", 3), "vec3d": ("<f8", 3), "vec3i": ("<i4", 3),
@@ -618,8 +619,7 @@ class VdbFile:
                             up.values[tiles]):
                 acc.add_constant(o, o + LOWER_SPAN, self._tile(g, v, o))
             for low in up.lowers:
-                block, origin = self._lower_block(g, vals, low, bg)
-                if block is not None:
+                for block, origin in self._lower_blocks(g, vals, low, bg):
                     acc.add_block(block, origin)
         density = acc.density()
         vs = g.voxel_size[0] * f
@@ -655,49 +655,55 @@ class VdbFile:
                               f"must be finite and >= 0")
         return v
 
-    def _lower_block(self, g: VdbGrid, vals: _Values, low: _Lower, bg: float):
-        """Read the leaves of one lower node; return its dense block [x][y][z] and origin."""
+    def _lower_blocks(self, g: VdbGrid, vals: _Values, low: _Lower, bg: float):
+        """Read the leaves of one lower node; yield dense blocks [x][y][z] and their origins,
+        one per slab of ``_SLAB_LEAVES`` leaf columns along x (leaves arrive in x order), so
+        only a slab, not the node's 128^3 block, is held at a time."""
         what = f"grid {g.name!r} leaf"
-        k = low.n_leaves
         ci = np.flatnonzero(low.child)
         slots = np.concatenate([ci, low.tile_slots])
         if len(slots) == 0:
-            return None, None
-        # The block spans the slots that hold a leaf or a non-background tile.
+            return
+        # The blocks span the slots that hold a leaf or a non-background tile.
         loc = np.stack([slots >> 8, (slots >> 4) & 15, slots & 15], axis=1)
         l0, l1 = loc.min(0), loc.max(0) + 1
-        nl = l1 - l0
         # float32 for float and half grids (exact), float64 for double ones.
         dtype = np.float64 if vals.full.itemsize == 8 else np.float32
-        block = np.full((nl[0], 8, nl[1], 8, nl[2], 8), bg, dtype)
         t = low.tile_slots
-        block[(t >> 8) - l0[0], :, ((t >> 4) & 15) - l0[1], :, (t & 15) - l0[2], :] = \
-            low.tile_values[:, None, None, None]
-        ci = np.flatnonzero(low.child)
-        cx, cy, cz = (ci >> 8) - l0[0], ((ci >> 4) & 15) - l0[1], (ci & 15) - l0[2]
+        tx, ty, tz = t >> 8, ((t >> 4) & 15) - l0[1], (t & 15) - l0[2]
+        cx, cy, cz = ci >> 8, ((ci >> 4) & 15) - l0[1], (ci & 15) - l0[2]
         row = np.empty(512, dtype)
         s = self.s
-        for i in range(k):
-            mask = _bits(s.array("<u8", 8, f"{what} value mask"))
-            in0, in1, sel, v, active_only = vals.read_raw(512, mask, what)
-            row[:] = in0
-            if sel is not None:
-                row[sel] = in1
-            if active_only:
-                row[mask] = v[:, 0]
-            else:
-                row[:] = v[:, 0]
-            block[cx[i], :, cy[i], :, cz[i], :] = row.reshape(8, 8, 8)
-        block = block.reshape(nl[0] * 8, nl[1] * 8, nl[2] * 8)
-        origin = low.origin + l0 * LEAF_DIM
-        if not (np.isfinite(block).all() and block.min() >= 0):
-            bad = ~(np.isfinite(block) & (block >= 0))
-            i = np.argwhere(bad)[0]
-            raise VolumeError(f"{self.path}: grid {g.name!r}: {int(bad.sum())} voxel(s) of the "
-                              f"node at {tuple(int(x) for x in low.origin)} are NaN, infinite or "
-                              f"negative; first at index {tuple(int(x) for x in origin + i)} = "
-                              f"{float(block[tuple(i)])!r}")
-        return block, origin
+        i = 0
+        for x0 in range(int(l0[0]), int(l1[0]), _SLAB_LEAVES):
+            x1 = min(x0 + _SLAB_LEAVES, int(l1[0]))
+            nl = (x1 - x0, *(l1[1:] - l0[1:]))
+            block = np.full((nl[0], 8, nl[1], 8, nl[2], 8), bg, dtype)
+            sel_t = (tx >= x0) & (tx < x1)
+            block[tx[sel_t] - x0, :, ty[sel_t], :, tz[sel_t], :] = \
+                low.tile_values[sel_t][:, None, None, None]
+            while i < len(ci) and cx[i] < x1:
+                mask = _bits(s.array("<u8", 8, f"{what} value mask"))
+                in0, in1, sel, v, active_only = vals.read_raw(512, mask, what)
+                row[:] = in0
+                if sel is not None:
+                    row[sel] = in1
+                if active_only:
+                    row[mask] = v[:, 0]
+                else:
+                    row[:] = v[:, 0]
+                block[cx[i] - x0, :, cy[i], :, cz[i], :] = row.reshape(8, 8, 8)
+                i += 1
+            block = block.reshape(nl[0] * 8, nl[1] * 8, nl[2] * 8)
+            origin = low.origin + np.array([x0, l0[1], l0[2]]) * LEAF_DIM
+            if not (np.isfinite(block).all() and block.min() >= 0):
+                bad = ~(np.isfinite(block) & (block >= 0))
+                j = np.argwhere(bad)[0]
+                raise VolumeError(
+                    f"{self.path}: grid {g.name!r}: {int(bad.sum())} voxel(s) of the node at "
+                    f"{tuple(int(x) for x in low.origin)} are NaN, infinite or negative; first "
+                    f"at index {tuple(int(x) for x in origin + j)} = {float(block[tuple(j)])!r}")
+            yield block, origin
 
     def _too_big(self, g, shape, nbytes, max_bytes, max_resolution) -> str:
         # The largest max_resolution whose grid fits: try factors until the buffer fits.
