@@ -6,7 +6,7 @@
                                            [--compare]
 
 Reports load + downsample time (median of the repeats, each in a fresh process so that peak
-memory is per load) and peak memory two ways: tracemalloc's peak of Python and NumPy
+memory is per load; wall and CPU time) and peak memory two ways: tracemalloc's peak of Python and NumPy
 allocations, and the growth of the process's maximum resident set (ru_maxrss) over the
 interpreter with NumPy and clvol imported. Target: peak <= 2x the dense output array.
 ``--compare`` also times the other candidates on the same file at full resolution of a smaller
@@ -71,12 +71,12 @@ import clvol.volume.vdb as v
 path, maxres = sys.argv[1], (int(sys.argv[2]) if sys.argv[2] != "none" else None)
 rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 tracemalloc.start()
-t = time.perf_counter()
+t, c = time.perf_counter(), time.process_time()
 g = v.read_vdb(path, max_resolution=maxres)
-dt = time.perf_counter() - t
+dt, cpu = time.perf_counter() - t, time.process_time() - c
 _, peak = tracemalloc.get_traced_memory()
 rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps(dict(seconds=dt, tracemalloc_peak=peak, rss_before=rss0 * 1024,
+print(json.dumps(dict(seconds=dt, cpu=cpu, tracemalloc_peak=peak, rss_before=rss0 * 1024,
                       rss_after=rss1 * 1024, out_bytes=g.density.nbytes,
                       shape=list(g.density.shape), mass=float(g.density.sum(dtype=np.float64)
                       * np.prod(g.cell_size)))))
@@ -182,7 +182,9 @@ def main() -> int:
         print(f"load + downsample to max_resolution {args.max_resolution}: output "
               f"{'x'.join(map(str, r0['shape'][::-1]))} (x, y, z) = {mib(out)}")
         each = ", ".join(f"{r['seconds']:.2f}" for r in runs)
-        print(f"  time: {secs:.2f} s median of {args.repeats} ({each})")
+        cpu = statistics.median(r["cpu"] for r in runs)
+        print(f"  time: {secs:.2f} s median of {args.repeats} ({each}); CPU time of the "
+              f"process {cpu:.2f} s (what the load costs on a machine shared with others)")
         print(f"  peak tracemalloc: {mib(tm)} = {tm / out:.2f}x the output array (target <= 2x)")
         print(f"  peak RSS growth over the imported interpreter: {mib(rss)} = {rss / out:.2f}x "
               f"(interpreter + NumPy + clvol before loading: {mib(r0['rss_before'])})")
