@@ -80,6 +80,8 @@ q = g.deepCopy()
 q.transform = vdb.createFrustumTransform(xyzMin=(0, 0, 0), xyzMax=(10, 10, 10), taper=0.5,
                                          depth=2.0)
 vdb.write("frustum.vdb", grids=[q])
+inst = g.copy(); inst.name = "copy"                     # shares g's tree: saved as an instance
+vdb.write("instance.vdb", grids=[g, inst])
 neg = a.copy(); neg[2, 3, 4] = -0.5
 q = vdb.FloatGrid(); q.copyFromArray(neg, ijk=(-3, 2, -17)); q.name = "density"
 vdb.write("negative.vdb", grids=[q])
@@ -240,6 +242,9 @@ def test_grid_choice(vdbdir):
     np.testing.assert_array_equal(read_vdb(vdbdir / "multi.vdb").density[1:-1, 1:-1, 1:-1], dens)
     np.testing.assert_array_equal(
         read_vdb(vdbdir / "multi.vdb", grid="temperature").density[1:-1, 1:-1, 1:-1], temp)
+    # an instanced grid next to it does not stop the density from loading
+    a, *_ = expected(vdbdir, "float")
+    np.testing.assert_array_equal(read_vdb(vdbdir / "instance.vdb").density[1:-1, 1:-1, 1:-1], a)
     # the only scalar grid, whatever its name
     np.testing.assert_array_equal(read_vdb(vdbdir / "smoke.vdb").density[1:-1, 1:-1, 1:-1], temp)
 
@@ -248,6 +253,7 @@ def test_grid_choice(vdbdir):
     ("two.vdb", None, ["cannot choose", "'a' (float)", "'b' (float)", "[volume] grid"]),
     ("multi.vdb", "nope", ["no grid named 'nope'", "'temperature' (float)", "'vel' (vec3s)"]),
     ("multi.vdb", "vel", ["'vel' is a vector grid"]),
+    ("instance.vdb", "copy", ["an instance of grid 'density'", "not read"]),
 ])
 def test_grid_choice_refusals(vdbdir, fname, grid, words):
     with pytest.raises(VolumeError) as e:

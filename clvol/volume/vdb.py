@@ -178,7 +178,7 @@ class VdbGrid:
     compression: int
     voxel_size: np.ndarray      # float64 (3,), x, y, z
     translation: np.ndarray     # float64 (3,): world position of index (0, 0, 0)
-    transform_problem: str | None   # why this transform cannot place a clvol box, or None
+    transform_problem: str | None   # why this grid cannot become a clvol box, or None
     background: object
     root_tiles: list            # (origin (3,), value, active)
     uppers: list
@@ -547,14 +547,14 @@ class VdbFile:
         base["grid_class"] = meta.get("class", "unknown")
         (base["voxel_size"], base["translation"],
          base["transform_problem"]) = _read_transform(s, f"{what} transform")
-        if parent:
-            raise VolumeError(f"{path}: grid {name!r} is an instance of grid {parent!r} (it "
-                              f"shares its tree); instanced grids are not read")
+        if parent:      # its tree is another grid's: listed, never read
+            base["transform_problem"] = (f"an instance of grid {parent!r} (it shares that "
+                                         f"grid's tree); instanced grids are not read")
+            return VdbGrid(**base)
         if value_type not in _VALUE_TYPES:
             return VdbGrid(**base)      # listed by name and type, never read
         vals = _Values(s, name, value_type, half, comp, None)
-        g = dict(base)
-        bg, tiles, uppers = _read_topology(s, g, vals, path)
+        bg, tiles, uppers = _read_topology(s, base, vals, path)
         count, lo, hi = _active_extent(tiles, uppers)
         base.update(background=bg, root_tiles=tiles, uppers=uppers, buffers_pos=s.tell(),
                     active_voxels=count, index_min=lo, index_max=hi)
@@ -869,4 +869,6 @@ def format_vdb_info(path) -> str:
                                  f"1-voxel border ({gib:.3g} GiB float32 at full resolution)")
             lines.append(f"    voxel size: {vec(g.voxel_size)}, index (0, 0, 0) at world "
                          f"{vec(g.translation)}")
+            if g.transform_problem:
+                lines.append(f"    not readable as a density: {g.transform_problem}")
     return "\n".join(lines)
