@@ -186,6 +186,7 @@ class VdbGrid:
     active_voxels: int
     index_min: np.ndarray | None    # inclusive index box of the active voxels, or None if empty
     index_max: np.ndarray | None
+    instance_of: str = ""       # the grid whose tree this one shares, if any
 
     @property
     def is_scalar(self) -> bool:
@@ -550,7 +551,7 @@ class VdbFile:
         if parent:      # its tree is another grid's: listed, never read
             base["transform_problem"] = (f"an instance of grid {parent!r} (it shares that "
                                          f"grid's tree); instanced grids are not read")
-            return VdbGrid(**base)
+            return VdbGrid(**base, instance_of=parent)
         if value_type not in _VALUE_TYPES:
             return VdbGrid(**base)      # listed by name and type, never read
         vals = _Values(s, name, value_type, half, comp, None)
@@ -851,7 +852,10 @@ def format_vdb_info(path) -> str:
             if g.value_type not in _VALUE_TYPES:
                 lines.append("    (tree type not read by clvol)")
                 continue
-            lines.append(f"    active voxels: {g.active_voxels}")
+            if g.instance_of:
+                lines.append(f"    shares the tree of grid {g.instance_of!r}")
+            else:
+                lines.append(f"    active voxels: {g.active_voxels}")
             if g.index_min is not None:
                 lo, hi = g.world_box()
                 if g.transform_problem:     # the world box below would be meaningless
