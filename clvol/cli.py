@@ -30,9 +30,18 @@ def _cmd_volume_info(args) -> int:
     from .volume.io import read_volume
     from .volume.stats import format_stats, volume_stats
     for path in args.files:
+        if Path(path).suffix.lower() == ".vdb":
+            if args.density_scale is not None:
+                raise ClvolError(f"{path}: --density-scale is for the statistics of a dense "
+                                 f"grid; a .vdb gets its grid listing (convert it to .npz for "
+                                 f"statistics)")
+            from .volume.vdb import format_vdb_info
+            print(format_vdb_info(path))
+            continue
         grid = read_volume(path)
         print(f"{path}:")
-        print(format_stats(volume_stats(grid, args.density_scale)))
+        scale = 1.0 if args.density_scale is None else args.density_scale
+        print(format_stats(volume_stats(grid, scale)))
     return 0
 
 
@@ -72,7 +81,8 @@ def _cmd_volume_generate(args) -> int:
 
 def _cmd_volume_convert(args) -> int:
     from .volume.io import read_volume, write_volume
-    write_volume(args.output, read_volume(args.input))
+    write_volume(args.output, read_volume(args.input, grid=args.grid,
+                                          max_resolution=args.max_resolution))
     print(f"wrote {args.output}")
     return 0
 
@@ -171,8 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
     pv = sub.add_parser("volume", help="inspect, generate and convert density grids")
     vsub = pv.add_subparsers(dest="volume_command", required=True, metavar="ACTION")
     p = vsub.add_parser("info", help="resolution, bbox, density range, occupancy, optical thickness")
-    p.add_argument("files", nargs="+", help=".vol, .npy or .npz files")
-    p.add_argument("--density-scale", type=float, default=1.0,
+    p.add_argument("files", nargs="+", help=".vol, .npy, .npz or .vdb files (a .vdb: its grids)")
+    p.add_argument("--density-scale", type=float, default=None,
                    help="sigma_t = density * scale, for the optical thickness figures (default 1)")
     p.set_defaults(func=_cmd_volume_info)
     p = vsub.add_parser("generate", help="make a procedural volume (cloud, smoke, solids)")
@@ -186,9 +196,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--density-scale", type=float, default=1.0)
     p.add_argument("--list", action="store_true", help="list generators and their parameters")
     p.set_defaults(func=_cmd_volume_generate)
-    p = vsub.add_parser("convert", help="convert between .vol, .npy and .npz")
+    p = vsub.add_parser("convert", help="convert between .vol, .npy, .npz and .vdb")
     p.add_argument("input")
     p.add_argument("output")
+    p.add_argument("--grid", help=".vdb input: the grid to read (default: density, else the "
+                   "only scalar grid)")
+    p.add_argument("--max-resolution", type=int, metavar="N",
+                   help=".vdb input: box-filter while reading to at most N voxels per axis")
     p.set_defaults(func=_cmd_volume_convert)
 
     methods = "; ".join(f"{k}: {v[1]}" for k, v in METHODS.items())
