@@ -398,21 +398,88 @@ static void describe_device(clvol_host *h) {
     h->is_cpu = (t & CL_DEVICE_TYPE_CPU) != 0;
 }
 
-static void build_program(clvol_host *h, int idx, const char *name) {
+/* Kernel sources with their quoted #includes pasted in from the include folder (each header
+ * once; they have include guards too), so the build options hold no file paths: the same
+ * program then hits the OpenCL driver's build cache from any bundle folder (PoCL keys its
+ * cache on the source and the options), and the build does not depend on the working folder. */
+typedef struct {
+    char *s;
+    size_t len, cap;
+} strbuf;
+
+static void sb_add(strbuf *b, const char *s, size_t n) {
+    if (b->len + n + 1 > b->cap) {
+        b->cap = 2 * (b->len + n + 1);
+        char *t = realloc(b->s, b->cap);
+        if (!t) fail("out of host memory");
+        b->s = t;
+    }
+    memcpy(b->s + b->len, s, n);
+    b->len += n;
+    b->s[b->len] = 0;
+}
+
+#define MAX_HEADERS 32
+static void expand_source(const char *path, const char *label, const char *inc_dir, strbuf *out,
+                          char **seen, int *n_seen, int depth) {
+    if (depth > 8) fail("%s: #include nesting deeper than 8", path);
+    char *text = read_file(path, NULL), line_dir[600];
+    int line_no = 0;
+    snprintf(line_dir, sizeof line_dir, "#line 1 \"%s\"\n", label);
+    sb_add(out, line_dir, strlen(line_dir));
+    for (char *p = text; *p;) {
+        char *end = strchr(p, '\n');
+        size_t n = end ? (size_t)(end - p) + 1 : strlen(p);
+        ++line_no;
+        const char *q = p;
+        while (*q == ' ' || *q == '\t') ++q;
+        if (strncmp(q, "#include \"", 10) == 0) {
+            const char *name = q + 10, *close = strchr(name, '"');
+            if (!close || close > p + n) fail("%s:%d: malformed #include", path, line_no);
+            char hdr[256];
+            snprintf(hdr, sizeof hdr, "%.*s", (int)(close - name), name);
+            int done = 0;
+            for (int i = 0; i < *n_seen; ++i) done |= strcmp(seen[i], hdr) == 0;
+            if (!done) {
+                if (*n_seen == MAX_HEADERS) fail("more than %d headers", MAX_HEADERS);
+                seen[(*n_seen)++] = strdup(hdr);
+                char *hp = path_join(inc_dir, hdr);
+                expand_source(hp, hdr, inc_dir, out, seen, n_seen, depth + 1);
+                free(hp);
+            }
+            snprintf(line_dir, sizeof line_dir, "#line %d \"%s\"\n", line_no + 1, label);
+            sb_add(out, line_dir, strlen(line_dir));
+        } else {
+            sb_add(out, p, n);
+        }
+        p += n;
+    }
+    sb_add(out, "\n", 1);
+    free(text);
+}
+
+static cl_program build_program_at(clvol_host *h, const char *dir, const manifest *m,
+                                   const char *name) {
     char key[96];
     snprintf(key, sizeof key, "program.%s", name);
-    char *path = path_join(h->dir, mf_str(&h->mf, key));
-    char *src = read_file(path, NULL);
+    const char *rel = mf_str(m, key);
+    char *path = path_join(dir, rel);
+    char *inc = path_join(dir, mf_str(m, "include_dir"));
+    strbuf src = {NULL, 0, 0};
+    char *seen[MAX_HEADERS];
+    int n_seen = 0;
+    const char *label = strrchr(rel, '/') ? strrchr(rel, '/') + 1 : rel;
+    expand_source(path, label, inc, &src, seen, &n_seen, 0);
+    for (int i = 0; i < n_seen; ++i) free(seen[i]);
     snprintf(key, sizeof key, "program.%s.options", name);
-    const char *opts = mf_str(&h->mf, key);
+    const char *opts = mf_str(m, key);
     snprintf(key, sizeof key, "program.%s.options_pocl", name);
-    const char *pocl = h->is_pocl ? mf_find(&h->mf, key) : NULL;
-    char *inc = path_join(h->dir, mf_str(&h->mf, "include_dir"));
-    size_t n = strlen(inc) + strlen(opts) + (pocl ? strlen(pocl) : 0) + 16;
+    const char *pocl = h->is_pocl ? mf_find(m, key) : NULL;
+    size_t n = strlen(opts) + (pocl ? strlen(pocl) : 0) + 4;
     char *options = xmalloc(n);
-    snprintf(options, n, "-I %s %s %s", inc, opts, pocl ? pocl : "");
+    snprintf(options, n, "%s %s", opts, pocl ? pocl : "");
     cl_int err;
-    const char *srcs[1] = {src};
+    const char *srcs[1] = {src.s};
     cl_program p = clCreateProgramWithSource(h->ctx, 1, srcs, NULL, &err);
     CLE(err, "clCreateProgramWithSource");
     err = clBuildProgram(p, 1, &h->device, options, NULL, NULL);
@@ -426,11 +493,15 @@ static void build_program(clvol_host *h, int idx, const char *name) {
         fprintf(stderr, "%s\n", log);
         fail("%s failed to build (%s) with options %s", path, cl_error_name(err), options);
     }
-    h->prog[idx] = p;
     free(options);
     free(inc);
-    free(src);
+    free(src.s);
     free(path);
+    return p;
+}
+
+static void build_program(clvol_host *h, int idx, const char *name) {
+    h->prog[idx] = build_program_at(h, h->dir, &h->mf, name);
 }
 
 /* ---------------------------------------------------------- resampling to the cube (host)
