@@ -274,6 +274,7 @@ typedef struct {
     cl_mem d_points, d_omegas, d_order, d_feats, d_config, d_tenter, d_fms, d_planes;
     cl_mem d_out[6];
     int width, height;
+    double light_dir[3], cam_origin[3], cam_fwd[3], cam_right[3], cam_up[3], tan_half;
     double t_light, t_volume;
 } clvol_host;
 
@@ -922,12 +923,16 @@ static void bake(clvol_host *h) {
     }
 }
 
-/* Per light: the light field and the graded transmittance + bake for the gather. */
-static void set_light(clvol_host *h) {
+/* Per light: the light field and the graded transmittance + bake for the gather, for a light
+ * toward `dir` (normalised here). Scratch buffers are released before returning. */
+void clvol_host_set_light(clvol_host *h, const double dir[3]) {
+    double norm = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    if (!(norm > 0.0) || !isfinite(norm)) fail("light direction must be a finite non-zero vector");
+    double l[3] = {dir[0] / norm, dir[1] / norm, dir[2] / norm};
+    memcpy(h->light_dir, l, sizeof l);
     if (!h->lit) return;
     double t0 = now_seconds();
-    double l[3];
-    mf_doubles(&h->mf, "light.direction", l, 3);
+    int mark = h->n_mems;
     sweep_geom g = sweep_geometry(l);
     long s_off[MAX_LEVELS];
     long zero = 0;
@@ -945,7 +950,20 @@ static void set_light(clvol_host *h) {
     }
     bake(h);
     CL(clFinish(h->queue));
+    for (int i = mark; i < h->n_mems; ++i) CL(clReleaseMemObject(h->mems[i]));
+    h->n_mems = mark;
     h->t_light = now_seconds() - t0;
+}
+
+/* Per camera: a pinhole at `origin` with an orthonormal basis (forward, right, up) and
+ * tan(fov_y / 2); the image size is the bundle's. */
+void clvol_host_set_camera(clvol_host *h, const double origin[3], const double forward[3],
+                           const double right[3], const double up[3], double tan_half) {
+    memcpy(h->cam_origin, origin, sizeof h->cam_origin);
+    memcpy(h->cam_fwd, forward, sizeof h->cam_fwd);
+    memcpy(h->cam_right, right, sizeof h->cam_right);
+    memcpy(h->cam_up, up, sizeof h->cam_up);
+    h->tan_half = tan_half;
 }
 
 static uint32_t spread_bits(uint32_t v, int bits) {
@@ -954,15 +972,13 @@ static uint32_t spread_bits(uint32_t v, int bits) {
     return out;
 }
 
-/* Per frame: F_ms lattice (gather + MLP) and the march; `rgb` gets [height][width][3]. */
-static void render_frame(clvol_host *h, float *rgb) {
+/* Per frame: F_ms lattice (gather + MLP) and the march for the current camera and light;
+ * `rgb` gets the total radiance, [height][width][3] float, top row first. */
+void clvol_host_render(clvol_host *h, float *rgb) {
     const manifest *m = &h->mf;
-    double origin[3], fwd[3], right[3], up[3], l[3], irr[3], alb[3], bg[3], abc[3];
-    mf_doubles(m, "camera.origin", origin, 3);
-    mf_doubles(m, "camera.forward", fwd, 3);
-    mf_doubles(m, "camera.right", right, 3);
-    mf_doubles(m, "camera.up", up, 3);
-    mf_doubles(m, "light.direction", l, 3);
+    double irr[3], alb[3], bg[3], abc[3];
+    const double *origin = h->cam_origin, *fwd = h->cam_fwd, *right = h->cam_right,
+                 *up = h->cam_up, *l = h->light_dir;
     mf_doubles(m, "light.irradiance", irr, 3);
     mf_doubles(m, "medium.albedo", alb, 3);
     mf_doubles(m, "light.background", bg, 3);
@@ -1102,7 +1118,7 @@ static void render_frame(clvol_host *h, float *rgb) {
              h->d_majorant, h->mx, h->my, h->mz, h->block,
              h->lit ? h->d_light : h->d_dummy, ln, &cmin4, h->lit ? h->cube_size : 1.0,
              planes, gres[0], gres[1], gres[2], &gmin4, &gmax4,
-             &o4, &fw4, &r4, &u4, mf_double(m, "camera.tan_half"), W, H,
+             &o4, &fw4, &r4, &u4, h->tan_half, W, H,
              &l4, &e4, &a4, &rg, &rw, &bg4, abc[0], abc[1], abc[2],
              mf_double(m, "raymarch.step"), mf_double(m, "raymarch.threshold"),
              h->d_out[0], h->d_out[1], h->d_out[2], h->d_out[3], h->d_out[4], h->d_out[5]);
@@ -1143,7 +1159,12 @@ clvol_host *clvol_host_create(const char *bundle_dir, cl_context context, cl_com
     }
     describe_device(h);
     setup_volume(h);
-    set_light(h);
+    double v[4][3], l[3];
+    const char *cam[4] = {"camera.origin", "camera.forward", "camera.right", "camera.up"};
+    for (int i = 0; i < 4; ++i) mf_doubles(&h->mf, cam[i], v[i], 3);
+    clvol_host_set_camera(h, v[0], v[1], v[2], v[3], mf_double(&h->mf, "camera.tan_half"));
+    mf_doubles(&h->mf, "light.direction", l, 3);
+    clvol_host_set_light(h, l);
     return h;
 }
 
@@ -1423,7 +1444,7 @@ int main(int argc, char **argv) {
     double *ft = xmalloc(sizeof(double) * (size_t)frames);
     for (int f = 0; f < frames; ++f) {
         double s = now_seconds();
-        render_frame(h, rgb);
+        clvol_host_render(h, rgb);
         ft[f] = now_seconds() - s;
     }
     double total = now_seconds() - t0;
