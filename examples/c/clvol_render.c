@@ -275,7 +275,7 @@ typedef struct {
     cl_mem d_out[6];
     int width, height;
     double light_dir[3], cam_origin[3], cam_fwd[3], cam_right[3], cam_up[3], tan_half;
-    double t_light, t_volume;
+    double t_light, t_volume, t_build;
 } clvol_host;
 
 static cl_mem track(clvol_host *h, cl_mem m) {
@@ -774,6 +774,7 @@ static void setup_volume(clvol_host *h) {
     for (int a = 0; a < 3; ++a) h->cube_min[a] = 0.5 * (h->bmin[a] + h->bmax[a]) - 0.5 * ext;
 
     for (int p = 0; p < N_PROGRAMS; ++p) build_program(h, p, PROGRAM_NAMES[p]);
+    h->t_build = now_seconds() - t0;
     h->k_mip = kernel(h, P_PYRAMID, "mip_reduce");
     h->k_majorant = kernel(h, P_MAJORANT, "majorant_build");
     h->k_layout = kernel(h, P_TRANS, "sweep_layout");
@@ -1451,8 +1452,9 @@ int main(int argc, char **argv) {
     write_pfm(paths[1], rgb, h->width, h->height);
     qsort(ft, (size_t)frames, sizeof(double), cmp_double);
     fprintf(stderr, "clvol-render: %dx%d, setup (build + volume) %.3f s, light %.3f s, "
-                    "frame median %.4f s over %d, total %.3f s\n",
-            h->width, h->height, h->t_volume, h->t_light, ft[frames / 2], frames, total);
+                    "frame median %.4f s over %d, total %.3f s (of the setup: build %.3f s)\n",
+            h->width, h->height, h->t_volume, h->t_light, ft[frames / 2], frames, total,
+            h->t_build);
     free(ft);
     free(rgb);
     clvol_host_destroy(h);
