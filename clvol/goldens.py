@@ -142,26 +142,29 @@ def write_goldens(out_dir) -> Path:
             "packed weights (clvol/kernels/mlp.py pack_params; docs/embedding.md)")
     k.array("channel_albedo", alb, np.float32, "float4 argument (w = 0) for MLP_CHANNELS = 3")
     k.scalar("n", len(f), "int", "number of queries")
-    k.array("y", rmlp.forward(w.params, arch, f, c), np.float32,
-            "[n] output of program mlp_y (1 channel, config's albedo, no decode)", output=True)
+    y = rmlp.forward(w.params, arch, f, c)
+    k.array("y", rmlp.decode(y, c[:, layout.CONFIG_FIELDS.index("albedo")]), np.float32,
+            "[n] output of program mlp_y (1 channel, config's albedo, decoded F: the grey "
+            "medium's program)", output=True)
     k.array("F", rmlp.radiance(w.params, arch, f, c, alb), np.float32,
             "[n][3] output of program mlp_F (3 channels, channel_albedo, decoded)", output=True)
     pocl = {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}
-    k.program(km.kernel_defines(arch, 1, False), pocl, "mlp_y")
+    k.program(km.kernel_defines(arch, 1, True), pocl, "mlp_y")
     k.program(km.kernel_defines(arch, 3, True), pocl, "mlp_F")
     k.info["work_size"] = (f"ceil(n / {km.QUERIES_PER_ITEM}) work-items; local size 1 on CPU "
                            f"devices (private arrays), else any")
     k.kv["host.mlp_queries_per_item"] = km.QUERIES_PER_ITEM
-    k.tolerance("mlp_y", 1e-5, 1e-5, "atol x max|y|: float32 vs the float64 twin over ~86k "
-                "multiply-adds (tests/test_mlp.py)")
+    k.tolerance("mlp_y", 1e-4, 1e-6, "atol x max|F|: float32 vs the float64 twin over ~86k "
+                "multiply-adds, amplified by the decode exp(y) - 1 (tests/test_mlp.py)")
     k.tolerance("mlp_F", 1e-4, 1e-6, "atol x max|F|: the decode exp(y) - 1 amplifies y's error "
                 "(tests/test_mlp.py)")
     k.write()
 
-    # ---- gather (render mode) and its bake, on a 16^3 pyramid with an empty half
-    base = 16
+    # ---- gather (render mode) and its bake, on a 64^3 pyramid (the shipped weights' base, so
+    # the programs are the ones a bundle builds) with an empty slab
+    base = 64
     d0 = rng.uniform(0, 1.5, (base, base, base)).astype(np.float32)
-    d0[:, :, :6] = 0.0                                       # empty slab: T = 1, t_enter edges
+    d0[:, :, :24] = 0.0                                      # empty slab: T = 1, t_enter edges
     cube_min, cube_size = np.array([-0.5, -0.4, -0.6]), 1.2
     pyr = _Levels(d0, cube_min, cube_size, rpyramid)
     L = pyr.n_levels
