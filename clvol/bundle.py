@@ -158,6 +158,8 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
         "mlp": ("mlp", mlp_defs, {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}),
         "raymarch": ("raymarch", rm_defs, {}),
     }
+    if not plan.lit:    # nothing lit: no light field, no network (the Python host builds none)
+        programs = {k: v for k, v in programs.items() if k in ("majorant", "raymarch")}
     m["programs"] = list(programs)
     for name, (stem, defs, pocl) in programs.items():
         m[f"program.{name}"] = f"cl/{stem}.cl"

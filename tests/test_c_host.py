@@ -75,15 +75,21 @@ def run(cmd, **kw):
     return subprocess.run([str(c) for c in cmd], capture_output=True, text=True, **kw)
 
 
-def small(name):
+def small(name, overrides=None):
     return load_scene(ROOT / "examples" / name).with_overrides(
-        {"camera.width": SIZE, "camera.height": SIZE})
+        dict(overrides or {}, **{"camera.width": SIZE, "camera.height": SIZE}))
 
 
-@pytest.mark.parametrize("name, grey, lobes", [("cloud.toml", True, 1), ("jade.toml", False, 2)])
-def test_c_render_matches_python(host, tmp_path, monkeypatch, name, grey, lobes):
+# cloud: grey, one lobe; jade: chromatic, two lobes; smoke at albedo 0 with an environment:
+# nothing lit (no light field, no network; the kernels get placeholder buffers)
+UNLIT = {"medium.albedo": [0.0, 0.0, 0.0], "light.environment": [0.2, 0.3, 0.4]}
+
+
+@pytest.mark.parametrize("name, overrides, grey, lobes", [
+    ("cloud.toml", None, True, 1), ("jade.toml", None, False, 2), ("smoke.toml", UNLIT, True, 1)])
+def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, grey, lobes):
     from clvol import runtime as rtm
-    scene = small(name)
+    scene = small(name, overrides)
     assert scene.medium.is_grey == grey and len(scene.medium.phase.lobes) == lobes
     bundle = write_bundle(scene, tmp_path / "b", ms_resolution=MS_RES)
     r = run([host / "clvol-render", bundle, tmp_path / "c.pfm"])

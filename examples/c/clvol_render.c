@@ -773,18 +773,22 @@ static void setup_volume(clvol_host *h) {
     h->cube_size = ext;
     for (int a = 0; a < 3; ++a) h->cube_min[a] = 0.5 * (h->bmin[a] + h->bmax[a]) - 0.5 * ext;
 
-    for (int p = 0; p < N_PROGRAMS; ++p) build_program(h, p, PROGRAM_NAMES[p]);
+    /* unlit scenes (albedo x irradiance = 0) need only the majorant and the march */
+    for (int p = 0; p < N_PROGRAMS; ++p)
+        if (h->lit || p == P_MAJORANT || p == P_RAYMARCH) build_program(h, p, PROGRAM_NAMES[p]);
     h->t_build = now_seconds() - t0;
-    h->k_mip = kernel(h, P_PYRAMID, "mip_reduce");
     h->k_majorant = kernel(h, P_MAJORANT, "majorant_build");
-    h->k_layout = kernel(h, P_TRANS, "sweep_layout");
-    h->k_sweep1 = kernel(h, P_TRANS_W1, "transmittance_sweep_block");
-    h->k_sweep16 = kernel(h, P_TRANS_W16, "transmittance_sweep_block");
-    h->k_xpass = kernel(h, P_BAKE, "bake_xpass");
-    h->k_rows = kernel(h, P_BAKE, "bake_rows");
-    h->k_small = kernel(h, P_BAKE, "bake_small");
-    h->k_gather = kernel(h, P_GATHER, "gather");
-    h->k_mlp = kernel(h, P_MLP, "mlp_forward");
+    if (h->lit) {
+        h->k_mip = kernel(h, P_PYRAMID, "mip_reduce");
+        h->k_layout = kernel(h, P_TRANS, "sweep_layout");
+        h->k_sweep1 = kernel(h, P_TRANS_W1, "transmittance_sweep_block");
+        h->k_sweep16 = kernel(h, P_TRANS_W16, "transmittance_sweep_block");
+        h->k_xpass = kernel(h, P_BAKE, "bake_xpass");
+        h->k_rows = kernel(h, P_BAKE, "bake_rows");
+        h->k_small = kernel(h, P_BAKE, "bake_small");
+        h->k_gather = kernel(h, P_GATHER, "gather");
+        h->k_mlp = kernel(h, P_MLP, "mlp_forward");
+    }
     h->k_raymarch = kernel(h, P_RAYMARCH, "raymarch");
 
     h->d_dummy = buffer(h, 4, NULL);
