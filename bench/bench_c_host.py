@@ -106,8 +106,8 @@ def main() -> None:
               f"{c['total']:>8.2f} s")
         print(f"{'':<10} {'':>7} {'Python':<7} {frame * 1e3:>12.1f} ms {light:>11.3f} s "
               f"{whole:>8.2f} s")
-        print(f"{'':<10} {'':>7} {'C/Py':<7} {c['frame'] / frame:>15.2f} {c['light'] / light:>13.2f} "
-              f"{c['total'] / whole:>10.2f}")
+        print(f"{'':<10} {'':>7} {'C/Py':<7} {c['frame'] / frame:>15.2f} "
+              f"{c['light'] / light:>13.2f} {c['total'] / whole:>10.2f}")
     print(machine(rt).split("; ")[-2])
     shutil.rmtree(work)
 

@@ -101,7 +101,8 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     w = load_network_weights(weights)
     grid = scene.volume.load()
     medium, light, cam = scene.medium, scene.light, scene.camera
-    res = (ms_resolution,) * 3 if np.isscalar(ms_resolution) else tuple(int(v) for v in ms_resolution)
+    res = ((ms_resolution,) * 3 if np.isscalar(ms_resolution)
+           else tuple(int(v) for v in ms_resolution))
     if int(np.prod(res)) > NETWORK_CHUNK:
         # The Python host splits bigger lattices into chunks; the C host runs one launch.
         raise ClvolError(f"bundle option ms_resolution = {ms_resolution!r}: at most "

@@ -112,12 +112,10 @@ def write_goldens(out_dir) -> Path:
     from .export import load_weights
     from .kernels import gather as kg
     from .kernels import mlp as km
-    from .kernels import raymarch as kr
     from .kernels.phase import lobe_vectors, phase_defines
     from .raymarch import shipped_weights
     from .runtime import DEFAULT_PAD, cl_source_dir, include_dir
     rgather, rmajorant, rmlp, rpyramid, rtrans = _reference()
-    del kr
     root = Path(out_dir)
     (root / "cl" / "include").mkdir(parents=True, exist_ok=True)
     for p in cl_source_dir().glob("*.cl"):
@@ -177,7 +175,7 @@ def write_goldens(out_dir) -> Path:
     n = 29
     pts = rng.uniform(-0.8, 0.8, (n, 3)).astype(np.float32)              # some outside the cube
     om = _unit(rng.normal(size=(n, 3)))
-    om[0] = -light                                          # omega antiparallel to l: frame fallback
+    om[0] = -light                                    # omega antiparallel to l: frame fallback
     om[1] = light
     om = om.astype(np.float32)
     baked_levels = rgather.baked_grid(pyr, graded, scale, lw.astype(np.float64), float(bias))
@@ -198,7 +196,8 @@ def write_goldens(out_dir) -> Path:
     k.scalar("n0", base, "int", "base resolution")
     k.scalar("cmin", list(cube_min), "float4", "cube corner (world)")
     k.scalar("csize", cube_size, "float", "cube edge (world)")
-    k.info["args"].append({"name": "taufac", "type": "buffer", "doc": "train mode only (any 4 bytes)"})
+    k.info["args"].append({"name": "taufac", "type": "buffer",
+                           "doc": "train mode only (any 4 bytes)"})
     k.array("tpl", tpl, np.float32, "template points [3][NPAD], x, y, z rows")
     k.array("pinfo", pinfo, np.int32, "level >= 0 (diffuse) or -(k+1) (highlight layer k)")
     k.array("hl_spacing", hl, np.float32, "highlight spacing per unit t_enter")

@@ -206,4 +206,5 @@ def test_goldens_match_the_python_kernels(goldens):
     np.testing.assert_array_equal(rt.from_device(buf, data.shape),
                                   np.load(goldens / "pyramid" / "data_out.npy"))
     dens = np.load(goldens / "majorant" / "density.npy")
-    np.testing.assert_array_equal(build_majorant(dens, 4), np.load(goldens / "majorant" / "maj.npy"))
+    np.testing.assert_array_equal(build_majorant(dens, 4),
+                                  np.load(goldens / "majorant" / "maj.npy"))
