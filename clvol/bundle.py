@@ -136,7 +136,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m.comment("clvol bundle: key = value, lists space-separated; format in docs/embedding.md")
     m["format"] = FORMAT
     m["format_version"] = FORMAT_VERSION
-    m["scene"] = str(scene.path.name) if scene.path else "-"
+    m["scene"] = "_".join(str(scene.path.name).split()).replace("#", "_") if scene.path else "-"
     m["sources"] = ["cl/" + n for n in cl_files]
     m["headers"] = ["cl/include/" + n for n in headers]
     m["include_dir"] = "cl/include"

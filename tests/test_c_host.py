@@ -92,7 +92,9 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
     scene = small(name, overrides)
     assert scene.medium.is_grey == grey and len(scene.medium.phase.lobes) == lobes
     bundle = write_bundle(scene, tmp_path / "b", ms_resolution=MS_RES)
-    r = run([host / "clvol-render", bundle, tmp_path / "c.pfm"])
+    # jade goes through the embedding path (a context and queue handed in)
+    attach = ["--external-context"] if name == "jade.toml" else []
+    r = run([host / "clvol-render", bundle, tmp_path / "c.pfm"] + attach)
     assert r.returncode == 0, r.stderr
     got = read_pfm(tmp_path / "c.pfm")
 
@@ -134,19 +136,20 @@ def tiny_bundle(tmp_path) -> Path:
 
 
 def test_asan_no_leaks_or_errors(host, tmp_path):
-    """Run twice: the first run (memory errors checked, leaks not) fills PoCL's kernel cache,
-    because PoCL's compiler (LLVM) leaks on every build; the second, which builds nothing,
-    must report no error and no leak."""
+    """The first run (memory errors checked, leaks not) fills PoCL's kernel cache, because
+    PoCL's compiler (LLVM) leaks on every build; the next ones build nothing and must report
+    no error and no leak, with the host's own context and with one handed in (the caller's
+    context and queue outlive the host; --external-context)."""
     bundle = tiny_bundle(tmp_path)
-    for leaks in (0, 1):
+    for leaks, extra in ((0, []), (1, []), (1, ["--external-context"])):
         env = dict(os.environ, ASAN_OPTIONS=f"detect_leaks={leaks}:exitcode=23",
                    UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1")
-        r = run([host / "clvol-render-asan", bundle, tmp_path / "t.pfm"], env=env)
+        r = run([host / "clvol-render-asan", bundle, tmp_path / "t.pfm"] + extra, env=env)
         report = r.stdout + r.stderr
         assert r.returncode == 0, report
         for marker in ("AddressSanitizer", "LeakSanitizer", "runtime error"):
             assert marker not in report, report
-    assert np.all(np.isfinite(read_pfm(tmp_path / "t.pfm")))
+        assert np.all(np.isfinite(read_pfm(tmp_path / "t.pfm")))
 
 
 def test_bad_bundle_exits_nonzero_with_a_message(host, tmp_path):

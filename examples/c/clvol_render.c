@@ -29,6 +29,19 @@
 #include <string.h>
 #include <time.h>
 
+/* ------------------------------------------------------------------------------ API
+ * (docs/embedding.md). One clvol_host renders one bundle; all work goes to one in-order queue. */
+typedef struct clvol_host clvol_host;
+/* context and queue: the caller's (both non-NULL; the caller keeps them) or NULL, NULL to make
+ * a context and queue on `device` ("gpu", "cpu", "P:D", NULL: first GPU, else first CPU). */
+clvol_host *clvol_host_create(const char *bundle_dir, cl_context context, cl_command_queue queue,
+                              const char *device);
+void clvol_host_set_light(clvol_host *h, const double dir[3]);          /* toward the light */
+void clvol_host_set_camera(clvol_host *h, const double origin[3], const double forward[3],
+                           const double right[3], const double up[3], double tan_half);
+void clvol_host_render(clvol_host *h, float *rgb);   /* [height][width][3], top row first */
+void clvol_host_destroy(clvol_host *h);
+
 /* ------------------------------------------------------------------------------ errors */
 
 static void fail(const char *fmt, ...) {
@@ -238,7 +251,7 @@ static const char *const PROGRAM_NAMES[N_PROGRAMS] = {
 #define MAX_MEMS 256
 #define MAX_LEVELS 12
 
-typedef struct {
+struct clvol_host {
     /* OpenCL */
     cl_context ctx;
     cl_command_queue queue;
@@ -276,7 +289,7 @@ typedef struct {
     int width, height;
     double light_dir[3], cam_origin[3], cam_fwd[3], cam_right[3], cam_up[3], tan_half;
     double t_light, t_volume, t_build;
-} clvol_host;
+};
 
 static cl_mem track(clvol_host *h, cl_mem m) {
     if (h->n_mems == MAX_MEMS) fail("internal: more than %d buffers", MAX_MEMS);
@@ -1415,7 +1428,7 @@ static int cmp_double(const void *a, const void *b) {
 
 int main(int argc, char **argv) {
     const char *device = NULL, *golden = NULL, *paths[2] = {NULL, NULL};
-    int frames = 1, np = 0;
+    int frames = 1, np = 0, external = 0;
     for (int i = 1; i < argc; ++i) {
         if (strcmp(argv[i], "--frames") == 0 && i + 1 < argc) {
             char *end;
@@ -1424,10 +1437,12 @@ int main(int argc, char **argv) {
             frames = (int)v;
         } else if (strcmp(argv[i], "--device") == 0 && i + 1 < argc) {
             device = argv[++i];
+        } else if (strcmp(argv[i], "--external-context") == 0) {
+            external = 1;   /* exercise the embedding path: a context and queue made here */
         } else if (strcmp(argv[i], "--golden") == 0 && i + 1 < argc) {
             golden = argv[++i];
         } else if (argv[i][0] == '-' || np == 2) {
-            fprintf(stderr, "usage: clvol-render BUNDLE OUT.pfm [--frames N] [--device gpu|cpu|P:D]\n"
+            fprintf(stderr, "usage: clvol-render BUNDLE OUT.pfm [--frames N] [--device gpu|cpu|P:D] [--external-context]\n"
                             "       clvol-render --golden GOLDEN_DIR [--device ...]\n");
             return 2;
         } else {
@@ -1444,7 +1459,18 @@ int main(int argc, char **argv) {
         return 2;
     }
     double t0 = now_seconds();
-    clvol_host *h = clvol_host_create(paths[0], NULL, NULL, device);
+    cl_context ctx = NULL;
+    cl_command_queue queue = NULL;
+    if (external) {   /* what a renderer that already holds OpenCL objects does */
+        clvol_host probe = {0};
+        cl_int err;
+        choose_device(&probe, device);
+        ctx = clCreateContext(NULL, 1, &probe.device, NULL, NULL, &err);
+        CLE(err, "clCreateContext");
+        queue = clCreateCommandQueue(ctx, probe.device, 0, &err);
+        CLE(err, "clCreateCommandQueue");
+    }
+    clvol_host *h = clvol_host_create(paths[0], ctx, queue, device);
     float *rgb = xmalloc(12 * (size_t)h->width * h->height);
     double *ft = xmalloc(sizeof(double) * (size_t)frames);
     for (int f = 0; f < frames; ++f) {
@@ -1462,5 +1488,9 @@ int main(int argc, char **argv) {
     free(ft);
     free(rgb);
     clvol_host_destroy(h);
+    if (external) {   /* the caller's objects outlive the host */
+        CL(clReleaseCommandQueue(queue));
+        CL(clReleaseContext(ctx));
+    }
     return 0;
 }
