@@ -303,6 +303,9 @@ def add_arguments(p) -> None:
                         f"at most 32)")
     p.add_argument("--light-resolution", type=int, default=None,
                    help="light field resolution (power of two; default as clvol render)")
+    p.add_argument("--light-interp", choices=["transmittance", "optical_depth"],
+                   default="transmittance",
+                   help="what the light field holds and is blended (as clvol render)")
     p.add_argument("--step", type=float, default=None, help="march step in voxels (default 1)")
     p.add_argument("--threshold", type=float, default=None,
                    help="early termination transmittance (default 1e-3)")
@@ -319,6 +322,6 @@ def run(args) -> int:
         scene = scene.with_overrides(over, source=str(args.scene))
     out = write_bundle(scene, args.dir, weights=args.weights, ms_resolution=args.ms_resolution,
                        step=args.step, threshold=args.threshold,
-                       light_resolution=args.light_resolution)
+                       light_resolution=args.light_resolution, light_interp=args.light_interp)
     print(f"wrote {out}/manifest.txt")
     return 0
