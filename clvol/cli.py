@@ -3,7 +3,8 @@
 Subcommands: ``info`` (OpenCL platforms and the chosen device), ``volume`` (inspect,
 generate and convert density grids), ``render`` (a scene to EXR with one of the render
 methods), ``compare`` (image error metrics), ``dataset make`` (training data, on Ray if
-installed). Bad input exits with status 2 and one line
+installed), ``bundle`` and ``goldens`` (for C hosts and ports, docs/embedding.md). Bad input
+exits with status 2 and one line
 on stderr; ``CLVOL_TRACEBACK=1`` shows the traceback instead.
 """
 from __future__ import annotations
@@ -220,6 +221,16 @@ def build_parser() -> argparse.ArgumentParser:
         if hasattr(module, "add_arguments"):
             module.add_arguments(p.add_argument_group(f"{name} options"))
     p.set_defaults(func=_cmd_render)
+
+    from . import bundle, goldens
+    p = sub.add_parser("bundle", help="write what a C host needs to render a scene "
+                                      "(docs/embedding.md)")
+    bundle.add_arguments(p)
+    p.set_defaults(func=bundle.run)
+    p = sub.add_parser("goldens", help="write golden inputs and outputs of every kernel "
+                                       "(docs/embedding.md)")
+    goldens.add_arguments(p)
+    p.set_defaults(func=goldens.run)
 
     p = sub.add_parser("compare", help="error metrics of a test image against a reference")
     p.add_argument("test", help="test .exr")

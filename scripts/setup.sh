@@ -6,7 +6,9 @@
 #   3. OpenVDB's own writer for the .vdb tests and benchmark: Debian's python3-openvdb (for the
 #      system /usr/bin/python3, not ours) and vdb_tool (libopenvdb-tools); clvol reads .vdb
 #      without them (docs/volumes.md);
-#   4. clvol itself (editable) with its test extra, the scale extra (Ray 2.60.0: data set
+#   4. a C compiler, make and the OpenCL headers + ICD loader for the C host in examples/c/
+#      (tests/test_c_host.py builds it; docs/embedding.md);
+#   5. clvol itself (editable) with its test extra, the scale extra (Ray 2.60.0: data set
 #      generation on all cores or a cluster) and the training extra (torch 2.13.0, CPU).
 # Set CLVOL_NO_TRAIN=1 to skip torch (rendering never imports it).
 set -euo pipefail
@@ -21,6 +23,9 @@ if ! have_icd; then apt_pkgs+=(pocl-opencl-icd ocl-icd-libopencl1); fi
 if ! command -v oclgrind >/dev/null 2>&1; then apt_pkgs+=(oclgrind); fi
 if ! /usr/bin/python3 -c "import pyopenvdb" >/dev/null 2>&1; then apt_pkgs+=(python3-openvdb); fi
 if ! command -v vdb_tool >/dev/null 2>&1; then apt_pkgs+=(libopenvdb-tools); fi
+if ! command -v cc >/dev/null 2>&1; then apt_pkgs+=(gcc libc6-dev); fi
+if ! command -v make >/dev/null 2>&1; then apt_pkgs+=(make); fi
+if [ ! -f /usr/include/CL/cl.h ]; then apt_pkgs+=(opencl-headers ocl-icd-opencl-dev); fi
 if [ ${#apt_pkgs[@]} -gt 0 ]; then
   echo "setup: installing ${apt_pkgs[*]}"
   $SUDO apt-get update -qq
