@@ -47,10 +47,11 @@ def golden_ms_grid(scene):
 
 
 def render_raymarch_golden(name: str, ms: str) -> dict:
-    from clvol.raymarch import render_raymarch
+    from clvol.render.renderer import Renderer
     sc = golden_scene(name)
-    kw = {"ms_grid": golden_ms_grid(sc)} if ms == "grid" else {}
-    res = render_raymarch(sc, ms=ms, **kw)
+    kw = {"none": {}, "wrenninge": {}, "grid": {"ms_grid": golden_ms_grid(sc)},
+          "network": {"no_domain_fallback": True}}[ms]
+    res = Renderer(sc, "raymarch", ms=ms, **kw).render()
     return {k: res.layers[k] for k in LAYERS}
 
 

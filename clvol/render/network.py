@@ -1,0 +1,242 @@
+"""The trained network as the ray marcher's multiple-scattering source (the paper's method).
+
+``NetworkSource`` holds one weight file and one volume on the device (the MLP's packed
+weights, the density pyramid at the weights' base resolution) and fills an F_ms lattice for a
+camera position, a light and a medium: graded transmittance toward the light, render-mode
+template gather at the lattice points, the fused OpenCL MLP. ``NetworkMs`` is the marcher's
+source built on it: it refills the lattice only when the camera position, the light or the
+medium changed.
+
+The weight file states the domain it was trained on (``domain_of``); ``check_domain`` says
+whether a medium is inside it.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ClvolError, WeightsError
+from ..runtime import Stopwatch, get_runtime
+from .sources import GridMs, MsGrid, MsPlan, check_ms_grid, ms_lattice, register
+
+DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
+NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
+# The domain of a weight file without meta["domain"] (how cloud_small.npz was made:
+# clvol/data/weights/cloud_small.md).
+DEFAULT_DOMAIN = {"albedo": [0.8, 0.999], "g": [0.0, 0.9], "max_lobes": 3}
+# The source used outside the domain (measured: docs/raymarch.md, "Validity domain").
+FALLBACK = "wrenninge"
+
+
+def shipped_weights():
+    """The model that ships with clvol, trained on procedural clouds and solids (albedo
+    0.8-0.999; how it was made and how well it does: clvol/data/weights/cloud_small.md)."""
+    import importlib.resources
+    from pathlib import Path
+    return Path(str(importlib.resources.files("clvol") / "data" / "weights" / "cloud_small.npz"))
+
+
+def load_network_weights(path):
+    """A weight file checked against the contract of the gather that will feed it: this
+    code's layout and packaged templates (hash, level map) at the file's base resolution and
+    lambda (the pyramid is built to match those). Raises WeightsError naming the field."""
+    from ..export import MlpWeights, gather_contract, load_weights, read_meta
+    if isinstance(path, MlpWeights):
+        path = path.path
+    c = read_meta(path)["contract"]
+    base, lam = c.get("base_resolution"), c.get("lambda")
+    if not (isinstance(base, int) and 2 <= base <= 512 and base & (base - 1) == 0):
+        raise WeightsError(f"{path}: [contract.base_resolution] = {base!r}: must be a power of two "
+                           f"from 2 to 512")
+    if not (isinstance(lam, (int, float)) and 0 < lam <= 1):
+        raise WeightsError(f"{path}: [contract.lambda] = {lam!r}: must be in (0, 1]")
+    return load_weights(path, expect_contract=gather_contract(base, float(lam)))
+
+
+def check_ms_resolution(r):
+    ok = (isinstance(r, (int, np.integer)) and not isinstance(r, bool) and 2 <= r <= 256) or (
+        not np.isscalar(r) and len(r) == 3 and all(isinstance(v, (int, np.integer)) and 2 <= v <= 256
+                                                   for v in r))
+    if not ok:
+        raise ClvolError(f"raymarch option ms_resolution = {r!r}: an integer (or three) from 2 to 256")
+    return r
+
+
+# --------------------------------------------------------------------------- domain
+
+def domain_of(weights) -> dict:
+    """The validity domain a weight file records (meta["domain"]), or DEFAULT_DOMAIN."""
+    meta = getattr(weights, "meta", None) or {}
+    d = meta.get("domain")
+    return dict(DEFAULT_DOMAIN) if not isinstance(d, dict) else d
+
+
+def check_domain(domain: dict, medium, optical_thickness: float | None = None) -> list[str]:
+    """The ways ``medium`` lies outside ``domain`` (empty: inside). Channels of albedo 0 are
+    not checked (the network is not evaluated there)."""
+    out = []
+    alb = [a for a in medium.albedo if a > 0]
+    lo, hi = domain.get("albedo", [0.0, 1.0])
+    bad = [a for a in alb if not lo <= a <= hi]
+    if bad:
+        out.append(f"albedo {bad[0]:g} outside [{lo:g}, {hi:g}]")
+    lo, hi = domain.get("g", [-1.0, 1.0])
+    gs = [l.g for l in medium.phase.lobes if l.weight > 0]
+    bad = [g for g in gs if not lo <= g <= hi]
+    if bad:
+        out.append(f"phase g {bad[0]:g} outside [{lo:g}, {hi:g}]")
+    n = domain.get("max_lobes")
+    if n is not None and len(medium.phase.lobes) > n:
+        out.append(f"{len(medium.phase.lobes)} phase lobes > {n}")
+    ot = domain.get("optical_thickness")
+    if ot is not None and optical_thickness is not None and not ot[0] <= optical_thickness <= ot[1]:
+        out.append(f"optical thickness {optical_thickness:.3g} outside [{ot[0]:g}, {ot[1]:g}]")
+    return out
+
+
+# --------------------------------------------------------------------------- the lattice
+
+class NetworkSource:
+    """The network's F_ms lattice for one volume: weights and pyramid on the device.
+
+    ``fill`` makes the graded transmittance for the light (cached per light direction and
+    density scale), gathers render-mode features (the weights' level combination baked by the
+    gather) at an F_ms lattice and evaluates the network there: one evaluation per point for a
+    grey albedo (``grey_shortcut``), else one per distinct non-zero channel albedo.
+    """
+
+    def __init__(self, weights, grid, medium, runtime=None):
+        from ..kernels.mlp import MlpKernel
+        from ..kernels.pyramid import build_pyramid
+        self.rt = runtime or get_runtime()
+        self.weights = load_network_weights(weights)
+        self.grid, self.medium = grid, medium
+        self.mlp = MlpKernel(self.weights, self.rt)
+        self.base = int(self.weights.contract["base_resolution"])
+        self.lam = float(self.weights.contract["lambda"])
+        self.pyramid = build_pyramid(grid, self.base, self.rt)
+        self._graded = (None, None)
+        self.graded_builds = 0
+
+    def graded(self, light_dir, density_scale=None):
+        from ..kernels.transmittance import check_light_dir, graded_transmittance
+        l = check_light_dir(light_dir)
+        s = float(self.medium.density_scale if density_scale is None else density_scale)
+        key = (tuple(l), s)
+        if self._graded[0] != key:
+            self._graded = (key, graded_transmittance(self.pyramid, s, l, lam=self.lam))
+            self.graded_builds += 1
+        return self._graded[1]
+
+    def fill(self, scene, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
+             bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None):
+        """(MsGrid, info): F_ms at the lattice (``ms_lattice``) for the camera at ``origin``
+        (default the scene camera's) and a light toward ``light_dir``; info has seconds
+        "light" (graded fields), "gather", "network", and "evaluations" (network evaluations
+        per lattice point)."""
+        from ..kernels.gather import gather
+        from ..kernels.transmittance import check_light_dir
+        rt = self.rt
+        medium = self.medium if medium is None else medium
+        if bbox_min is None or bbox_max is None:
+            bbox_min, bbox_max = self.grid.bbox_min, self.grid.bbox_max
+        res, lo, hi, pts, om = ms_lattice(scene, resolution, bbox_min, bbox_max, origin)
+        alb = np.asarray(medium.albedo, np.float64)
+        grey = grey_shortcut and medium.is_grey
+        l = check_light_dir(light_dir)
+        info = {"light": 0.0, "gather": 0.0, "network": 0.0}
+        with Stopwatch() as sw:
+            graded = self.graded(l, medium.density_scale)
+            rt.finish()
+        info["light"] = sw.seconds
+        out = np.zeros((len(pts),) if grey else (len(pts), 3), np.float32)
+        reuse = None
+        for i in range(0, len(pts), NETWORK_CHUNK):
+            sl = slice(i, i + NETWORK_CHUNK)
+            with Stopwatch() as sw:
+                g = gather(self.pyramid, graded, pts[sl], om[sl], l, medium, float(alb[0]),
+                           mode="render", level_weights=self.weights.level_weights,
+                           bias=self.weights.level_bias, as_buffers=True, reuse=reuse)
+                rt.finish()
+            info["gather"] += sw.seconds
+            reuse = g
+            with Stopwatch() as sw:
+                if grey:     # the config's albedo is the medium's: one evaluation per point
+                    out[sl] = self.mlp.forward(g["features"], g["config"], decode=True, n=g["n"])
+                else:        # one per distinct non-zero channel albedo (the kernel dedupes)
+                    out[sl] = self.mlp.forward(g["features"], g["config"], channel_albedo=alb,
+                                               decode=True, n=g["n"])
+            info["network"] += sw.seconds
+        info["evaluations"] = 1 if grey else len(set(float(a) for a in alb if a > 0))
+        vals = out.reshape((res[2], res[1], res[0]) + (() if grey else (3,)))
+        if not np.all(np.isfinite(vals)):
+            raise ClvolError(f"{self.weights.path}: the network produced non-finite F_ms")
+        return check_ms_grid(MsGrid(np.maximum(vals, 0.0), tuple(lo), tuple(hi))), info
+
+
+@register
+class NetworkMs(GridMs):
+    """The network's lattice marched like a precomputed grid. The lattice depends on the
+    camera position (omega toward it), the light direction and the medium; ``prepare``
+    refills it only when one of those changed."""
+    name = "network"
+    options = ("weights", "ms_resolution", "no_domain_fallback")
+
+    @property
+    def label(self) -> str:
+        from pathlib import Path
+        return f"network multiple scattering (weights {Path(str(self.weights_path)).name})"
+
+    what = "network-filled F_ms lattice"
+
+    def __init__(self, weights=None, ms_resolution=DEFAULT_NETWORK_RESOLUTION, runtime=None):
+        super().__init__(None, runtime)
+        self.weights_path = shipped_weights() if weights is None else weights
+        self.resolution = check_ms_resolution(ms_resolution)
+        self.net: NetworkSource | None = None
+        self.info = None
+        self.setup_seconds = 0.0
+        self._key = None
+
+    def prepare(self, frame) -> None:
+        self.count = frame.count
+        if self.net is None or self.net.grid is not frame.grid:
+            with Stopwatch() as sw:
+                self.net = NetworkSource(self.weights_path, frame.grid, frame.medium,
+                                         frame.runtime)
+                frame.runtime.finish()
+            self.setup_seconds = sw.seconds
+            frame.count("network_setup")
+            self._key = None
+        m = frame.medium
+        key = (tuple(frame.camera.origin), tuple(frame.light.direction), m.density_scale,
+               tuple(m.albedo), m.phase, bool(frame.shortcuts))
+        if key == self._key:
+            return
+        builds = self.net.graded_builds
+        self.ms_grid, self.info = self.net.fill(
+            None, frame.light.direction, self.resolution, grey_shortcut=frame.shortcuts,
+            medium=m, origin=frame.camera.origin)
+        if self.net.graded_builds != builds:
+            frame.count("graded_transmittance")
+        frame.count("ms_lattice")
+        self._key = key
+
+    def plan(self, medium, shortcuts: bool) -> MsPlan:
+        p = super().plan(medium, shortcuts)
+        if medium.is_grey and shortcuts:
+            p.skipped.append("network evaluations for colour channels 2 and 3 (grey albedo: "
+                             "one per lattice point)")
+        return p
+
+    def header(self) -> dict:
+        info = self.info
+        return {
+            "raymarch.weights": str(self.net.weights.path) if self.net else str(self.weights_path),
+            "raymarch.ms_resolution": str(self.resolution),
+            "raymarch.network_base_resolution": self.net.base if self.net else 0,
+            "raymarch.network_evaluations_per_point": info["evaluations"] if info else 0,
+            "seconds.network_setup": round(self.setup_seconds, 4) if info else 0.0,
+            "seconds.graded_transmittance": round(info["light"], 4) if info else 0.0,
+            "seconds.gather": round(info["gather"], 4) if info else 0.0,
+            "seconds.network": round(info["network"], 4) if info else 0.0,
+        }
