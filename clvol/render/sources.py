@@ -126,7 +126,9 @@ def ms_lattice(scene, resolution, bbox_min=None, bbox_max=None, origin=None):
     z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     pts = np.stack([x, y, z], axis=-1).reshape(-1, 3)
     om = np.asarray(scene.camera.origin if origin is None else origin, np.float64) - pts
-    om /= np.maximum(np.linalg.norm(om, axis=1, keepdims=True), 1e-30)
+    norm = np.linalg.norm(om, axis=1, keepdims=True)
+    # A point at the camera has no direction toward it: any unit vector will do (+z).
+    om = np.where(norm > 0, om / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
     return res, lo, hi, pts, om
 
 
