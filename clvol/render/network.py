@@ -95,6 +95,37 @@ def check_domain(domain: dict, medium, optical_thickness: float | None = None) -
 
 # --------------------------------------------------------------------------- the lattice
 
+def lattice_reach_mask(grid, resolution, reach: float) -> np.ndarray:
+    """Boolean mask over the F_ms lattice points ([z][y][x], the volume's box): True where
+    some voxel of non-zero density has its centre within one lattice cell plus ``reach``
+    (world units, per axis) of the point. The march reads a lattice point only at samples
+    inside its trilinear support (one lattice cell) and adds F_ms weighted by the density
+    there (a trilinear read: non-zero only within one voxel of an occupied centre), so F_ms at
+    the other points never reaches the image: they need no network evaluation.
+    ``reach`` must cover one voxel plus the distance between the density sample and the F_ms
+    sample of a march segment (one step)."""
+    res = (resolution,) * 3 if np.isscalar(resolution) else tuple(resolution)
+    occ = (np.asarray(grid.density) > 0).astype(np.int32)
+    # 3-D summed-area table: occupied voxels in any index box in O(1).
+    sat = np.zeros(tuple(n + 1 for n in occ.shape), np.int64)
+    sat[1:, 1:, 1:] = occ.cumsum(0).cumsum(1).cumsum(2)
+    lo_ix, hi_ix = [], []
+    for a in range(3):                      # a = x, y, z; density axis 2 - a
+        n = occ.shape[2 - a]
+        ext = float(grid.bbox_max[a] - grid.bbox_min[a])
+        cell_l, cell_d = ext / res[a], ext / n
+        p = (np.arange(res[a]) + 0.5) * cell_l                     # lattice centres, from bbox_min
+        r = cell_l + reach
+        lo_ix.append(np.clip(np.ceil((p - r) / cell_d - 0.5), 0, n).astype(np.int64))
+        hi_ix.append(np.clip(np.floor((p + r) / cell_d - 0.5) + 1, 0, n).astype(np.int64))
+    z0, y0, x0 = np.meshgrid(lo_ix[2], lo_ix[1], lo_ix[0], indexing="ij")
+    z1, y1, x1 = np.meshgrid(hi_ix[2], hi_ix[1], hi_ix[0], indexing="ij")
+    count = (sat[z1, y1, x1] - sat[z0, y1, x1] - sat[z1, y0, x1] - sat[z1, y1, x0]
+             + sat[z0, y0, x1] + sat[z0, y1, x0] + sat[z1, y0, x0] - sat[z0, y0, x0])
+    return (count > 0).ravel()
+
+
+
 class NetworkSource:
     """The network's F_ms lattice for one volume: weights and pyramid on the device.
 
@@ -128,18 +159,23 @@ class NetworkSource:
         return self._graded[1]
 
     def fill(self, scene, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
-             bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None):
+             bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None, active=None):
         """(MsGrid, info): F_ms at the lattice (``ms_lattice``) for the camera at ``origin``
         (default the scene camera's) and a light toward ``light_dir``; info has seconds
-        "light" (graded fields), "gather", "network", and "evaluations" (network evaluations
-        per lattice point)."""
+        "light" (graded fields), "gather", "network", "evaluations" (network evaluations
+        per lattice point) and "points" (lattice points evaluated). ``active``: a boolean
+        mask over the lattice points ([z][y][x] order); the others get F_ms = 0."""
         from ..kernels.gather import gather
         from ..kernels.transmittance import check_light_dir
         rt = self.rt
         medium = self.medium if medium is None else medium
         if bbox_min is None or bbox_max is None:
             bbox_min, bbox_max = self.grid.bbox_min, self.grid.bbox_max
-        res, lo, hi, pts, om = ms_lattice(scene, resolution, bbox_min, bbox_max, origin)
+        res, lo, hi, pts_all, om_all = ms_lattice(scene, resolution, bbox_min, bbox_max, origin)
+        if active is None:
+            active = np.ones(len(pts_all), bool)
+        active = np.asarray(active, bool).ravel()
+        pts, om = pts_all[active], om_all[active]
         alb = np.asarray(medium.albedo, np.float64)
         grey = grey_shortcut and medium.is_grey
         l = check_light_dir(light_dir)
@@ -167,7 +203,10 @@ class NetworkSource:
                                                decode=True, n=g["n"])
             info["network"] += sw.seconds
         info["evaluations"] = 1 if grey else len(set(float(a) for a in alb if a > 0))
-        vals = out.reshape((res[2], res[1], res[0]) + (() if grey else (3,)))
+        info["points"] = int(len(pts))
+        full = np.zeros((len(pts_all),) + out.shape[1:], np.float32)
+        full[active] = out
+        vals = full.reshape((res[2], res[1], res[0]) + (() if grey else (3,)))
         if not np.all(np.isfinite(vals)):
             raise ClvolError(f"{self.weights.path}: the network produced non-finite F_ms")
         return check_ms_grid(MsGrid(np.maximum(vals, 0.0), tuple(lo), tuple(hi))), info
@@ -212,10 +251,17 @@ class NetworkMs(GridMs):
                tuple(m.albedo), m.phase, bool(frame.shortcuts))
         if key == self._key:
             return
+        active = None
+        if frame.shortcuts:
+            mkey = ("network_active", self.resolution, frame.reach)
+            cache = frame.cache if frame.cache is not None else {}
+            if mkey not in cache:
+                cache[mkey] = lattice_reach_mask(frame.grid, self.resolution, frame.reach)
+            active = cache[mkey]
         builds = self.net.graded_builds
         self.ms_grid, self.info = self.net.fill(
             None, frame.light.direction, self.resolution, grey_shortcut=frame.shortcuts,
-            medium=m, origin=frame.camera.origin)
+            medium=m, origin=frame.camera.origin, active=active)
         if self.net.graded_builds != builds:
             frame.count("graded_transmittance")
         frame.count("ms_lattice")
@@ -226,6 +272,9 @@ class NetworkMs(GridMs):
         if medium.is_grey and shortcuts:
             p.skipped.append("network evaluations for colour channels 2 and 3 (grey albedo: "
                              "one per lattice point)")
+        if shortcuts:
+            p.skipped.append("network evaluations at lattice points with no density within "
+                             "reach (their F_ms never reaches the image)")
         return p
 
     def header(self) -> dict:
@@ -235,6 +284,7 @@ class NetworkMs(GridMs):
             "raymarch.ms_resolution": str(self.resolution),
             "raymarch.network_base_resolution": self.net.base if self.net else 0,
             "raymarch.network_evaluations_per_point": info["evaluations"] if info else 0,
+            "raymarch.network_points": info["points"] if info else 0,
             "seconds.network_setup": round(self.setup_seconds, 4) if info else 0.0,
             "seconds.graded_transmittance": round(info["light"], 4) if info else 0.0,
             "seconds.gather": round(info["gather"], 4) if info else 0.0,

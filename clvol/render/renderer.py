@@ -162,7 +162,10 @@ class Renderer:
                 cam = dataclasses.replace(cam, width=cam.width * s, height=cam.height * s)
             source, warning = self._active_source(medium, grid)
             if is_lit(medium, light) or not shortcuts:
-                source.prepare(Frame(grid, cam, light, medium, self.rt, shortcuts, self._count))
+                cell = float(np.max(grid.cell_size))
+                reach = cell + float(o["step"]) * float(np.min(grid.cell_size))
+                source.prepare(Frame(grid, cam, light, medium, self.rt, shortcuts, self._count,
+                                     reach, rm.dm.cache))
             with Stopwatch() as sw_light:
                 if is_lit(medium, light) or not shortcuts:
                     if rm.ensure_light(light.direction):

@@ -174,6 +174,8 @@ class Frame:
     runtime: object
     shortcuts: bool = True
     count: object = None
+    reach: float = 0.0        # world distance from a density sample to the F_ms read, + 1 voxel
+    cache: dict | None = None  # the DeviceMedium's cache (data that lives as long as the volume)
 
 
 class MsSource:
