@@ -12,6 +12,8 @@ whether a medium is inside it.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..errors import ClvolError, WeightsError
@@ -95,6 +97,15 @@ def check_domain(domain: dict, medium, optical_thickness: float | None = None) -
 
 # --------------------------------------------------------------------------- the lattice
 
+def fibonacci_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * i
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
 def lattice_reach_mask(grid, resolution, reach: float) -> np.ndarray:
     """Boolean mask over the F_ms lattice points ([z][y][x], the volume's box): True where
     some voxel of non-zero density has its centre within one lattice cell plus ``reach``
@@ -159,19 +170,24 @@ class NetworkSource:
         return self._graded[1]
 
     def fill(self, scene, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
-             bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None, active=None):
+             bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None, active=None,
+             omegas=None):
         """(MsGrid, info): F_ms at the lattice (``ms_lattice``) for the camera at ``origin``
         (default the scene camera's) and a light toward ``light_dir``; info has seconds
         "light" (graded fields), "gather", "network", "evaluations" (network evaluations
         per lattice point) and "points" (lattice points evaluated). ``active``: a boolean
-        mask over the lattice points ([z][y][x] order); the others get F_ms = 0."""
+        mask over the lattice points ([z][y][x] order); the others get F_ms = 0. ``omegas``:
+        one unit direction (3,) for every point instead of toward the camera."""
         from ..kernels.gather import gather
         from ..kernels.transmittance import check_light_dir
         rt = self.rt
         medium = self.medium if medium is None else medium
         if bbox_min is None or bbox_max is None:
             bbox_min, bbox_max = self.grid.bbox_min, self.grid.bbox_max
-        res, lo, hi, pts_all, om_all = ms_lattice(scene, resolution, bbox_min, bbox_max, origin)
+        res, lo, hi, pts_all, om_all = ms_lattice(scene, resolution, bbox_min, bbox_max,
+                                                  (0.0, 0.0, 0.0) if omegas is not None else origin)
+        if omegas is not None:
+            om_all = np.broadcast_to(np.asarray(omegas, np.float64), om_all.shape)
         if active is None:
             active = np.ones(len(pts_all), bool)
         active = np.asarray(active, bool).ravel()
@@ -218,7 +234,7 @@ class NetworkMs(GridMs):
     camera position (omega toward it), the light direction and the medium; ``prepare``
     refills it only when one of those changed."""
     name = "network"
-    options = ("weights", "ms_resolution", "no_domain_fallback")
+    options = ("weights", "ms_resolution", "no_domain_fallback", "ms_directions")
 
     @property
     def label(self) -> str:
@@ -227,8 +243,15 @@ class NetworkMs(GridMs):
 
     what = "network-filled F_ms lattice"
 
-    def __init__(self, weights=None, ms_resolution=DEFAULT_NETWORK_RESOLUTION, runtime=None):
+    def __init__(self, weights=None, ms_resolution=DEFAULT_NETWORK_RESOLUTION, runtime=None,
+                 directions: int = 0):
         super().__init__(None, runtime)
+        if isinstance(directions, bool) or not isinstance(directions, (int, np.integer)) or \
+                not (directions == 0 or 6 <= directions <= 256):
+            raise ClvolError(f"raymarch option ms_directions = {directions!r}: 0 (a lattice per "
+                             f"camera position) or an integer from 6 to 256")
+        self.directions = int(directions)
+        self._table = None
         self.weights_path = shipped_weights() if weights is None else weights
         self.resolution = check_ms_resolution(ms_resolution)
         self.net: NetworkSource | None = None
@@ -259,13 +282,47 @@ class NetworkMs(GridMs):
                 cache[mkey] = lattice_reach_mask(frame.grid, self.resolution, frame.reach)
             active = cache[mkey]
         builds = self.net.graded_builds
-        self.ms_grid, self.info = self.net.fill(
-            None, frame.light.direction, self.resolution, grey_shortcut=frame.shortcuts,
-            medium=m, origin=frame.camera.origin, active=active)
+        if self.directions:
+            self._prepare_directional(frame, key[1:], active)
+        else:
+            self.ms_grid, self.info = self.net.fill(
+                None, frame.light.direction, self.resolution, grey_shortcut=frame.shortcuts,
+                medium=m, origin=frame.camera.origin, active=active)
+            frame.count("ms_lattice")
         if self.net.graded_builds != builds:
             frame.count("graded_transmittance")
-        frame.count("ms_lattice")
         self._key = key
+
+    def _prepare_directional(self, frame, light_key, active) -> None:
+        """View-independent cache: F_ms at ``directions`` fixed directions per lattice point,
+        filled once per light and medium; each camera position then blends them (a normalised
+        von Mises-Fisher kernel over the directions, width ~ their spacing) toward omega."""
+        dirs = fibonacci_directions(self.directions)
+        if self._table is None or self._table[0] != light_key:
+            tables, info = [], None
+            for d in dirs:
+                g, i = self.net.fill(None, frame.light.direction, self.resolution,
+                                     grey_shortcut=frame.shortcuts, medium=frame.medium,
+                                     active=active, omegas=d)
+                tables.append(np.asarray(g.values, np.float32))
+                if info is None:
+                    info = dict(i)
+                else:
+                    for k in ("light", "gather", "network"):
+                        info[k] += i[k]
+            self._table = (light_key, np.stack(tables), g.bbox_min, g.bbox_max, info)
+            frame.count("ms_directional_fill")
+        _, table, lo, hi, info = self._table
+        _, _, _, _, om = ms_lattice(None, self.resolution, lo, hi, frame.camera.origin)
+        spacing = math.sqrt(4 * math.pi / len(dirs))
+        kappa = 2.0 / (1.0 - math.cos(spacing))
+        w = np.exp(kappa * (om @ dirs.T - 1.0))                  # (N, K)
+        w /= w.sum(axis=1, keepdims=True)
+        flat = table.reshape(len(dirs), w.shape[0], -1)          # (K, N, C)
+        vals = np.einsum("nk,knc->nc", w, flat).astype(np.float32)
+        self.ms_grid = MsGrid(vals.reshape(table.shape[1:]), lo, hi)
+        self.info = info
+        frame.count("ms_lattice")
 
     def plan(self, medium, shortcuts: bool) -> MsPlan:
         p = super().plan(medium, shortcuts)

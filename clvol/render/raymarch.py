@@ -216,7 +216,7 @@ class RayMarcher:
 
 
 def make_source(ms: str, *, octaves=None, ms_grid=None, weights=None, ms_resolution=None,
-                runtime=None) -> MsSource:
+                runtime=None, ms_directions: int = 0) -> MsSource:
     """The source named ``ms`` (``--ms``) with its options."""
     from .network import DEFAULT_NETWORK_RESOLUTION
     from .sources import SOURCES, GridMs, Octaves, OctavesMs
@@ -235,7 +235,7 @@ def make_source(ms: str, *, octaves=None, ms_grid=None, weights=None, ms_resolut
         return cls(ms_grid, runtime)
     if ms == "network":
         return cls(weights, DEFAULT_NETWORK_RESOLUTION if ms_resolution is None else ms_resolution,
-                   runtime)
+                   runtime, ms_directions)
     return cls()
 
 
@@ -304,6 +304,10 @@ def add_arguments(group) -> None:
                             f"{DEFAULT_NETWORK_RESOLUTION})")
     group.add_argument("--ms-grid", metavar="FILE.npz",
                        help="precomputed F_ms grid (arrays values, bbox_min, bbox_max) for --ms grid")
+    group.add_argument("--ms-directions", type=int, default=0, metavar="K",
+                       help="network: fill F_ms at K fixed directions per lattice point once per "
+                            "light and blend them for each camera (camera motion then costs no "
+                            "network evaluation; 0 = a lattice per camera position, default)")
     group.add_argument("--no-domain-fallback", action="store_true",
                        help="use the network even for a scene outside the domain its weight "
                             "file was trained on (default: warn and use the measured fallback, "
