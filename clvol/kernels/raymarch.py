@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
@@ -29,11 +30,11 @@ def _device(x, rt) -> DeviceArray:
 def ms_defines(source: str, octaves: int = 1, channels: int = 1) -> dict:
     """The -D defines of one multiple-scattering source of cl/raymarch.cl (see its header)."""
     if source not in SOURCES:
-        raise ValueError(f"unknown multiple-scattering source {source!r}; one of {sorted(SOURCES)}")
+        raise ClvolError(f"unknown multiple-scattering source {source!r}; one of {sorted(SOURCES)}")
     if not 1 <= octaves <= MAX_OCTAVES:
-        raise ValueError(f"octaves must be 1..{MAX_OCTAVES}, got {octaves}")
+        raise ClvolError(f"octaves must be 1..{MAX_OCTAVES}, got {octaves}")
     if channels not in (1, 3):
-        raise ValueError(f"ms grid channels must be 1 or 3, got {channels}")
+        raise ClvolError(f"ms grid channels must be 1 or 3, got {channels}")
     return {"MS_SOURCE": SOURCES[source],
             "MS_OCTAVES": int(octaves) if source == "wrenninge" else 1,
             "MS_CHANNELS": int(channels) if source == "grid" else 1}
@@ -80,7 +81,7 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     if source == "grid":
         ms = _device(ms_grid, rt)
         if len(ms.shape) != 4 or ms.shape[0] not in (1, 3):
-            raise ValueError(f"ms_grid must be (C, gz, gy, gx) with C = 1 or 3, got {ms.shape}")
+            raise ClvolError(f"ms_grid must be (C, gz, gy, gx) with C = 1 or 3, got {ms.shape}")
         channels = ms.shape[0]
     else:
         ms, channels = None, 1
@@ -104,7 +105,7 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
     DeviceArray or None. Returns what ``raymarch`` returns."""
     rt = runtime or get_runtime()
     if step is None or not step > 0:
-        raise ValueError(f"step must be > 0 (world units), got {step}")
+        raise ClvolError(f"step must be > 0 (world units), got {step}")
     dens = _device(density, rt)
     maj = _device(majorant, rt)
     nz, ny, nx = dens.shape
@@ -114,7 +115,7 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
         light = _device(light, rt)
         ln = light.shape[0]
         if light.shape != (ln, ln, ln):
-            raise ValueError(f"light must be a cube [n][n][n], got {light.shape}")
+            raise ClvolError(f"light must be a cube [n][n][n], got {light.shape}")
     else:
         dummy = dummy or rt.empty(1)
         light, ln = DeviceArray(dummy, (1, 1, 1)), 1
@@ -130,7 +131,7 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
     if stats:
         defines["RAYMARCH_STATS"] = 1
     if light_quantity not in LIGHT_QUANTITIES:
-        raise ValueError(f"light_quantity {light_quantity!r}: one of {LIGHT_QUANTITIES}")
+        raise ClvolError(f"light_quantity {light_quantity!r}: one of {LIGHT_QUANTITIES}")
     defines["LIGHT_TAU"] = int(light_quantity == "optical_depth")
     prog = rt.program("raymarch", defines)
     k = prog.kernel("raymarch", _SCALARS)

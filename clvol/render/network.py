@@ -25,8 +25,19 @@ NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100
 # The domain of a weight file without meta["domain"] (how cloud_small.npz was made:
 # clvol/data/weights/cloud_small.md).
 DEFAULT_DOMAIN = {"albedo": [0.8, 0.999], "g": [0.0, 0.9], "max_lobes": 3}
-# The source used outside the domain (measured: docs/raymarch.md, "Validity domain").
-FALLBACK = "wrenninge"
+# Outside the domain the network is still the best source measured, except for strongly
+# backward phases (docs/raymarch.md, "Validity domain"; bench/domain_fallback.py).
+BACKWARD_LIMIT = -0.8          # mean cosine below this: an analytic source instead
+BACKWARD_ALBEDO = 0.9          # ... Wrenninge octaves at albedo >= this, else single only
+
+
+def fallback_for(medium) -> str | None:
+    """The source to use instead of the network for a medium outside its domain, or None to
+    keep the network (with a warning)."""
+    if medium.phase.mean_cosine >= BACKWARD_LIMIT:
+        return None
+    alb = [a for a in medium.albedo if a > 0]
+    return "wrenninge" if alb and min(alb) >= BACKWARD_ALBEDO else "none"
 
 
 def shipped_weights():

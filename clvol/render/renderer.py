@@ -119,10 +119,10 @@ class Renderer:
             self.domain = domain_of(load_network_weights(self.source.weights_path))
 
     def _active_source(self, medium, grid):
-        """The configured source, or the measured fallback when the medium lies outside the
-        network's training domain (one warning per distinct reason)."""
-        from .network import FALLBACK, NetworkMs, check_domain
-        from .sources import OctavesMs
+        """The configured source, or the measured alternative when the medium lies outside
+        the network's training domain (one warning per distinct reason)."""
+        from .network import NetworkMs, check_domain, fallback_for
+        from .raymarch import make_source
         if not isinstance(self.source, NetworkMs):
             return self.source, None
         ot = None
@@ -132,17 +132,20 @@ class Renderer:
         out = check_domain(self.domain, medium, ot)
         if not out:
             return self.source, None
-        keep = self.options["no_domain_fallback"]
-        msg = (f"scene outside the network's training domain ({'; '.join(out)}): " +
-               ("network used all the same (--no-domain-fallback)" if keep else
-                f"multiple scattering from --ms {FALLBACK} instead (docs/raymarch.md)"))
+        alt = None if self.options["no_domain_fallback"] else fallback_for(medium)
+        what = ("the network is used all the same (--no-domain-fallback)"
+                if self.options["no_domain_fallback"] else
+                "the network is used all the same (measured better than the analytic sources "
+                "there)" if alt is None else f"multiple scattering from --ms {alt} instead")
+        msg = (f"scene outside the network's training domain ({'; '.join(out)}): {what} "
+               f"(docs/raymarch.md)")
         if msg not in self._warned:
             print(f"clvol: warning: {msg}", file=sys.stderr)
             self._warned.add(msg)
-        if keep:
+        if alt is None:
             return self.source, msg
-        if self.fallback is None:
-            self.fallback = OctavesMs()
+        if self.fallback is None or self.fallback.name != alt:
+            self.fallback = make_source(alt, runtime=self.rt)
         return self.fallback, msg
 
     def _render_raymarch(self, cam, light, medium) -> RenderResult:
