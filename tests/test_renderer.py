@@ -247,3 +247,23 @@ def test_albedo_zero_runs_no_network_and_equals_the_general_path():
     general = clvol.Renderer(sc, ms_resolution=8, no_shortcuts=True).render()
     np.testing.assert_array_equal(fast.total, general.total)
     assert fast.alpha.max() > 0.5 and fast.single.max() == 0 and fast.multiple.max() == 0
+
+
+def test_view_independent_cache_fills_once_per_light():
+    """--ms-directions K: K fills per light and medium, then camera positions cost a blend
+    (no network evaluation); the blend is a convex combination of the K directions' values."""
+    sc = small_scene()
+    r = clvol.Renderer(sc, ms_resolution=8, ms_directions=6)
+    r.render()
+    assert r.counts["ms_directional_fill"] == 1
+    table = r.source._table[1]                          # (K, gz, gy, gx)
+    moved = dataclasses.replace(sc.camera, origin=(-1.0, 0.8, 1.5))
+    img = r.render(camera=moved)
+    assert r.counts["ms_directional_fill"] == 1 and r.counts["ms_lattice"] == 2
+    v = r.source.ms_grid.values
+    assert np.all(v >= table.min(axis=0) * (1 - 1e-6)) and np.all(v <= table.max(axis=0) * (1 + 1e-6))
+    assert np.all(np.isfinite(img.total)) and img.multiple.max() > 0
+    r.render(light=dataclasses.replace(sc.light, direction=(0.0, 1.0, 0.0)))
+    assert r.counts["ms_directional_fill"] == 2
+    with pytest.raises(ClvolError, match="ms_directions = 3"):
+        clvol.Renderer(sc, ms_directions=3)

@@ -39,25 +39,11 @@ class RenderResult:
     layers: dict[str, np.ndarray]
     header: dict[str, str | int | float] = field(default_factory=dict)
 
-    @property
-    def total(self) -> np.ndarray:
-        return self.layers["total"]
-
-    @property
-    def single(self) -> np.ndarray:
-        return self.layers["single"]
-
-    @property
-    def multiple(self) -> np.ndarray:
-        return self.layers["multiple"]
-
-    @property
-    def alpha(self) -> np.ndarray:
-        return self.layers["alpha"]
-
-    @property
-    def depth(self) -> np.ndarray:
-        return self.layers["depth"]
+    total = property(lambda self: self.layers["total"])
+    single = property(lambda self: self.layers["single"])
+    multiple = property(lambda self: self.layers["multiple"])
+    alpha = property(lambda self: self.layers["alpha"])
+    depth = property(lambda self: self.layers["depth"])
 
 
 def method_module(name: str):
