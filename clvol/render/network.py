@@ -12,6 +12,7 @@ whether a medium is inside it.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -107,6 +108,24 @@ def check_domain(domain: dict, medium, optical_thickness: float | None = None) -
 
 
 # --------------------------------------------------------------------------- the lattice
+
+def spherical_barycentric(dirs: np.ndarray, omegas: np.ndarray):
+    """For each unit vector in ``omegas`` (N, 3): the three ``dirs`` of the triangle of their
+    convex hull that it passes through, and barycentric weights (N, 3) summing to 1 (exact at
+    the directions, linear in between on the triangle's plane)."""
+    tri = _hull(np.ascontiguousarray(dirs, np.float64).tobytes(), len(dirs))
+    inv = np.linalg.inv(np.transpose(dirs[tri], (0, 2, 1)))  # b = inv @ omega per triangle
+    b = (omegas @ inv.reshape(-1, 3).T).reshape(len(omegas), -1, 3)
+    t = np.argmax(b.min(axis=2), axis=1)
+    w = np.maximum(b[np.arange(len(omegas)), t], 0.0)
+    return tri[t], w / w.sum(axis=1, keepdims=True)
+
+
+@functools.lru_cache(maxsize=8)
+def _hull(key: bytes, n: int) -> np.ndarray:
+    from scipy.spatial import ConvexHull
+    return ConvexHull(np.frombuffer(key).reshape(n, 3)).simplices
+
 
 def fibonacci_directions(n: int) -> np.ndarray:
     """(n, 3) unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
@@ -306,8 +325,8 @@ class NetworkMs(GridMs):
 
     def _prepare_directional(self, frame, light_key, active) -> None:
         """View-independent cache: F_ms at ``directions`` fixed directions per lattice point,
-        filled once per light and medium; each camera position then blends them (a normalised
-        von Mises-Fisher kernel over the directions, width ~ their spacing) toward omega."""
+        filled once per light and medium; each camera position then interpolates them toward
+        omega (barycentric on the directions' spherical triangulation)."""
         dirs = fibonacci_directions(self.directions)
         if self._table is None or self._table[0] != light_key:
             tables, info = [], None
@@ -325,12 +344,11 @@ class NetworkMs(GridMs):
             frame.count("ms_directional_fill")
         _, table, lo, hi, info = self._table
         _, _, _, _, om = ms_lattice(None, self.resolution, lo, hi, frame.camera.origin)
-        spacing = math.sqrt(4 * math.pi / len(dirs))
-        kappa = 2.0 / (1.0 - math.cos(spacing))
-        w = np.exp(kappa * (om @ dirs.T - 1.0))                  # (N, K)
-        w /= w.sum(axis=1, keepdims=True)
-        flat = table.reshape(len(dirs), w.shape[0], -1)          # (K, N, C)
-        vals = np.einsum("nk,knc->nc", w, flat).astype(np.float32)
+        flat = table.reshape(len(dirs), om.shape[0], -1)          # (K, N, C)
+        vals = np.zeros(flat.shape[1:], np.float32)
+        act = np.flatnonzero(active) if active is not None else np.arange(om.shape[0])
+        idx, w = spherical_barycentric(dirs, om[act])
+        vals[act] = (flat[idx, act[:, None]] * w[..., None]).sum(axis=1)   # (n, 3, C) -> (n, C)
         self.ms_grid = MsGrid(vals.reshape(table.shape[1:]), lo, hi)
         self.info = info
         frame.count("ms_lattice")
