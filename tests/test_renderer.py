@@ -267,3 +267,23 @@ def test_view_independent_cache_fills_once_per_light():
     assert r.counts["ms_directional_fill"] == 2
     with pytest.raises(ClvolError, match="ms_directions = 3"):
         clvol.Renderer(sc, ms_directions=3)
+
+
+def test_progressive_refresh_converges_to_the_full_lattice():
+    """--ms-refresh K: a camera move refills one of K interleaved subsets per frame; at rest the
+    others follow, and after K frames the image is bit-identical to a full refill's."""
+    sc = small_scene()
+    moved = dataclasses.replace(sc.camera, origin=(0.9, 0.5, 1.9))
+    r = clvol.Renderer(sc, ms_resolution=8, ms_refresh=3)
+    r.render()
+    full_points = r.source.info["points"]
+    first = r.render(camera=moved)
+    assert r.source.info["points"] < full_points / 2          # one subset of the active points
+    want = _fresh(sc, camera=moved, ms_resolution=8).total
+    assert not np.array_equal(first.total, want)              # two subsets still stale
+    r.render(camera=moved)
+    last = r.render(camera=moved)
+    np.testing.assert_array_equal(last.total, want)
+    n = r.counts["ms_lattice"]
+    r.render(camera=moved)
+    assert r.counts["ms_lattice"] == n                        # converged: nothing left to refill

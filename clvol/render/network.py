@@ -264,7 +264,7 @@ class NetworkMs(GridMs):
     camera position (omega toward it), the light direction and the medium; ``prepare``
     refills it only when one of those changed."""
     name = "network"
-    options = ("weights", "ms_resolution", "no_domain_fallback", "ms_directions")
+    options = ("weights", "ms_resolution", "no_domain_fallback", "ms_directions", "ms_refresh")
 
     @property
     def label(self) -> str:
@@ -274,7 +274,7 @@ class NetworkMs(GridMs):
     what = "network-filled F_ms lattice"
 
     def __init__(self, weights=None, ms_resolution=DEFAULT_NETWORK_RESOLUTION, runtime=None,
-                 directions: int = 0):
+                 directions: int = 0, refresh: int = 1):
         super().__init__(None, runtime)
         if isinstance(directions, bool) or not isinstance(directions, (int, np.integer)) or \
                 not (directions == 0 or 6 <= directions <= 256):
@@ -282,6 +282,11 @@ class NetworkMs(GridMs):
                              f"camera position) or an integer from 6 to 256")
         self.directions = int(directions)
         self._table = None
+        if isinstance(refresh, bool) or not isinstance(refresh, (int, np.integer)) or \
+                not 1 <= refresh <= 64:
+            raise ClvolError(f"raymarch option ms_refresh = {refresh!r}: an integer from 1 (the "
+                             f"whole lattice every camera position) to 64")
+        self.refresh, self._phase, self._todo = int(refresh), 0, 0
         self.weights_path = shipped_weights() if weights is None else weights
         self.resolution = check_ms_resolution(ms_resolution)
         self.net: NetworkSource | None = None
@@ -302,7 +307,7 @@ class NetworkMs(GridMs):
         m = frame.medium
         key = (tuple(frame.camera.origin), tuple(frame.light.direction), m.density_scale,
                tuple(m.albedo), m.phase, bool(frame.shortcuts))
-        if key == self._key:
+        if key == self._key and not self._todo:
             return
         active = None
         if frame.shortcuts:
@@ -315,13 +320,41 @@ class NetworkMs(GridMs):
         if self.directions:
             self._prepare_directional(frame, key[1:], active)
         else:
-            self.ms_grid, self.info = self.net.fill(
-                None, frame.light.direction, self.resolution, grey_shortcut=frame.shortcuts,
-                medium=m, origin=frame.camera.origin, active=active)
-            frame.count("ms_lattice")
+            self._prepare_lattice(frame, key, active)
         if self.net.graded_builds != builds:
             frame.count("graded_transmittance")
         self._key = key
+
+    def _prepare_lattice(self, frame, key, active) -> None:
+        """The lattice for the camera position: all of it when the light or the medium changed
+        (or ``refresh`` is 1); else, when only the camera moved, one of ``refresh`` interleaved
+        subsets of the active points per frame (the others keep the values of the positions
+        they were last filled for), continuing at rest until every subset is current."""
+        fill = dict(grey_shortcut=frame.shortcuts, medium=frame.medium,
+                    origin=frame.camera.origin)
+        light = frame.light.direction
+        if (self.refresh == 1 or self._key is None or self.ms_grid is None
+                or key[1:] != self._key[1:]):
+            self.ms_grid, self.info = self.net.fill(None, light, self.resolution, active=active,
+                                                    **fill)
+            self._todo = 0
+        else:
+            if key[0] != self._key[0]:           # the camera moved: every subset is stale
+                self._todo = self.refresh
+            part = self._phase % self.refresh
+            self._phase += 1
+            n = self.ms_grid.values.shape[0] * self.ms_grid.values.shape[1] * \
+                self.ms_grid.values.shape[2]
+            idx = np.flatnonzero(active) if active is not None else np.arange(n)
+            subset = np.zeros(n, bool)
+            subset[idx[part::self.refresh]] = True
+            g, self.info = self.net.fill(None, light, self.resolution, active=subset, **fill)
+            vals = np.array(self.ms_grid.values, np.float32, copy=True)
+            flat, new = vals.reshape(n, -1), np.asarray(g.values).reshape(n, -1)
+            flat[subset] = new[subset]
+            self.ms_grid = MsGrid(vals, g.bbox_min, g.bbox_max)
+            self._todo = max(self._todo - 1, 0)
+        frame.count("ms_lattice")
 
     def _prepare_directional(self, frame, light_key, active) -> None:
         """View-independent cache: F_ms at ``directions`` fixed directions per lattice point,

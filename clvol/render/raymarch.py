@@ -216,7 +216,7 @@ class RayMarcher:
 
 
 def make_source(ms: str, *, octaves=None, ms_grid=None, weights=None, ms_resolution=None,
-                runtime=None, ms_directions: int = 0) -> MsSource:
+                runtime=None, ms_directions: int = 0, ms_refresh: int = 1) -> MsSource:
     """The source named ``ms`` (``--ms``) with its options."""
     from .network import DEFAULT_NETWORK_RESOLUTION
     from .sources import SOURCES, GridMs, Octaves, OctavesMs
@@ -235,7 +235,7 @@ def make_source(ms: str, *, octaves=None, ms_grid=None, weights=None, ms_resolut
         return cls(ms_grid, runtime)
     if ms == "network":
         return cls(weights, DEFAULT_NETWORK_RESOLUTION if ms_resolution is None else ms_resolution,
-                   runtime, ms_directions)
+                   runtime, ms_directions, ms_refresh)
     return cls()
 
 
@@ -308,6 +308,10 @@ def add_arguments(group) -> None:
                        help="network: fill F_ms at K fixed directions per lattice point once per "
                             "light and blend them for each camera (camera motion then costs no "
                             "network evaluation; 0 = a lattice per camera position, default)")
+    group.add_argument("--ms-refresh", type=int, default=1, metavar="K",
+                       help="network: when only the camera moves, refill 1/K of the lattice per "
+                            "frame (interleaved; the rest keeps earlier positions' values until "
+                            "its turn; default 1 = all of it)")
     group.add_argument("--no-domain-fallback", action="store_true",
                        help="use the network even for a scene outside the domain its weight "
                             "file was trained on (default: warn and use the measured fallback, "

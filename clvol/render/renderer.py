@@ -112,7 +112,7 @@ class Renderer:
         oct_ = Octaves(o["octaves"], float(o["ms_a"]), float(o["ms_b"]), float(o["ms_c"]))
         self.source = make_source(ms, octaves=oct_, ms_grid=o["ms_grid"], weights=o["weights"],
                                   ms_resolution=o["ms_resolution"], runtime=self.rt,
-                                  ms_directions=o["ms_directions"])
+                                  ms_directions=o["ms_directions"], ms_refresh=o["ms_refresh"])
         self.source.count = self._count
         if ms == "network":
             from .network import domain_of, load_network_weights
