@@ -96,12 +96,15 @@ def main(argv=None) -> int:
                     help="network lattice points per side (default: the Renderer's)")
     ap.add_argument("--ms-directions", type=int, default=None,
                     help="network view-independent cache directions (default: the Renderer's)")
+    ap.add_argument("--ms-refresh", type=int, default=None,
+                    help="network progressive refresh, 1/K of the lattice per camera move "
+                         "(default: the Renderer's)")
     args = ap.parse_args(argv)
     rt = get_runtime()
     print(machine(rt))
     print(f"medians over {args.frames} frames, one change per frame; ms = milliseconds; "
           f"default method options: ms_resolution={args.ms_resolution or 'default'}, "
-          f"ms_directions={args.ms_directions or 0}")
+          f"ms_directions={args.ms_directions or 0}, ms_refresh={args.ms_refresh or 1}")
     print(f"{'volume':9s} {'size':>5s} {'motion':7s} {'default':>8s} {'plain':>7s} {'ratio':>6s} "
           + " ".join(f"{s[:12]:>12s}" for s in STAGES) + "  lattice points")
     verdicts = []
@@ -112,7 +115,8 @@ def main(argv=None) -> int:
             for motion in args.motions:
                 todo = frames(sc, motion, args.frames)
                 kw = {k: v for k, v in (("ms_resolution", args.ms_resolution),
-                                        ("ms_directions", args.ms_directions)) if v is not None}
+                                        ("ms_directions", args.ms_directions),
+                                        ("ms_refresh", args.ms_refresh)) if v is not None}
                 d = Renderer(sc, grid=grid, **kw)
                 td, st = run(d, todo)
                 tp, _ = run(Renderer(sc, ms="none", grid=grid), todo)
