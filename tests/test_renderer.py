@@ -287,3 +287,22 @@ def test_progressive_refresh_converges_to_the_full_lattice():
     n = r.counts["ms_lattice"]
     r.render(camera=moved)
     assert r.counts["ms_lattice"] == n                        # converged: nothing left to refill
+
+
+def test_optically_thin_media_skip_the_network():
+    """Largest optical thickness < 0.5: single scattering only (measured at least as accurate
+    as the network there, docs/raymarch.md); the image is the --ms none image, no network is
+    set up; --no-shortcuts runs the network."""
+    from clvol.volume.stats import volume_stats
+    sc = small_scene()
+    tau1 = volume_stats(sc.volume.load(), 1.0)["max_optical_thickness"]
+    thin = small_scene(density_scale=0.3 / tau1)
+    r = clvol.Renderer(thin, ms_resolution=8)
+    res = r.render()
+    assert "network_setup" not in r.counts and "optically thin" in res.header["skipped"]
+    np.testing.assert_array_equal(res.total, clvol.Renderer(thin, ms="none").render().total)
+    general = clvol.Renderer(thin, ms_resolution=8, no_shortcuts=True)
+    assert general.render().multiple.max() > 0 and general.counts["network_setup"] == 1
+    thick = clvol.Renderer(small_scene(density_scale=0.6 / tau1), ms_resolution=8)
+    thick.render()
+    assert thick.counts["network_setup"] == 1

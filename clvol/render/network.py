@@ -32,6 +32,13 @@ BACKWARD_LIMIT = -0.8          # mean cosine below this: an analytic source inst
 BACKWARD_ALBEDO = 0.9          # ... Wrenninge octaves at albedo >= this, else single only
 
 
+# Below this largest optical thickness (along an axis, clvol/volume/stats.py) the network is
+# not run: single scattering alone measured at least as accurate against the path tracer
+# (the network's share of the image is far above the true one in thin media, outside its
+# training data; docs/raymarch.md, "Validity domain").
+THIN_OPTICAL_THICKNESS = 0.5
+
+
 def fallback_for(medium) -> str | None:
     """The source to use instead of the network for a medium outside its domain, or None to
     keep the network (with a warning)."""

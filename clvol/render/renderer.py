@@ -68,6 +68,7 @@ class Renderer:
         self._marcher = None
         self._warned: set = set()
         self.source = self.fallback = None
+        self._tau1 = self.thin = None
         if self.method == "raymarch":
             self._setup_raymarch()
 
@@ -121,14 +122,17 @@ class Renderer:
     def _active_source(self, medium, grid):
         """The configured source, or the measured alternative when the medium lies outside
         the network's training domain (one warning per distinct reason)."""
-        from .network import NetworkMs, check_domain, fallback_for
-        from .raymarch import make_source
+        from .network import THIN_OPTICAL_THICKNESS, NetworkMs, check_domain, fallback_for
         if not isinstance(self.source, NetworkMs):
             return self.source, None
-        ot = None
-        if "optical_thickness" in self.domain:
+        if self._tau1 is None:                 # optical thickness at density scale 1
             from ..volume.stats import volume_stats
-            ot = volume_stats(grid, medium.density_scale)["max_optical_thickness"]
+            self._tau1 = volume_stats(grid, 1.0)["max_optical_thickness"]
+        ot = self._tau1 * medium.density_scale
+        if ot < THIN_OPTICAL_THICKNESS and not self.options["no_shortcuts"]:
+            self.thin = ot
+            return self._other("none"), None
+        self.thin = None
         out = check_domain(self.domain, medium, ot)
         if not out:
             return self.source, None
@@ -144,9 +148,13 @@ class Renderer:
             self._warned.add(msg)
         if alt is None:
             return self.source, msg
-        if self.fallback is None or self.fallback.name != alt:
-            self.fallback = make_source(alt, runtime=self.rt)
-        return self.fallback, msg
+        return self._other(alt), msg
+
+    def _other(self, name):
+        from .raymarch import make_source
+        if self.fallback is None or self.fallback.name != name:
+            self.fallback = make_source(name, runtime=self.rt)
+        return self.fallback
 
     def _render_raymarch(self, cam, light, medium) -> RenderResult:
         from .raymarch import RayMarcher, downsample, is_lit
@@ -207,6 +215,11 @@ class Renderer:
         }
         if warning:
             header["warning"] = warning
+        if self.thin is not None and source is not self.source:
+            header["skipped"] = ("; ".join(s for s in plan.skipped if "--ms none" not in s) +
+                                 f"; multiple scattering (optically thin: largest optical "
+                                 f"thickness {self.thin:.3g} < 0.5, where single scattering "
+                                 f"alone measured as accurate; docs/raymarch.md)").lstrip("; ")
         header.update(source.header())
         return RenderResult(layers, header)
 
