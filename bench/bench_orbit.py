@@ -8,8 +8,9 @@ generator at 128^3 and 256^3. Motions, one change every frame: ``camera`` (an or
 per frame), ``light`` (the light turns 5 degrees per frame), ``medium`` (albedo and g
 alternate). Each (volume, size, motion) keeps one ``Renderer`` per method, renders one
 untimed warm-up frame (kernel builds), then ``--frames`` timed frames. Printed per row:
-median frame time of each method and their ratio, and the default method's median split by
-stage (light field, graded transmittance, gather, network, march; a stage the change did not
+median frame time of each method and their ratio (wall clock and this process's CPU time), and
+the default method's median split by stage (light field, graded transmittance, gather,
+network, interpolation of the view-independent cache, march; a stage the change did not
 invalidate costs 0). Targets (docs/raymarch.md): camera motion at 256^2 costs <= 1.5x the
 plain march; a light change costs <= 250 ms at 128^3.
 """
@@ -32,7 +33,7 @@ from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import Phase, load_scene  # noqa: E402
 
-STAGES = ("light_field", "graded_transmittance", "gather", "network", "march")
+STAGES = ("light_field", "graded_transmittance", "gather", "network", "ms_interpolate", "march")
 
 
 def base_scene(volume: str, size: int):
@@ -69,11 +70,13 @@ def frames(scene, motion: str, n: int) -> list[dict]:
 def run(renderer: Renderer, todo: list[dict]) -> tuple[list[float], dict]:
     renderer.render()                                  # warm-up: builds, uploads, first fill
     times, stages = [], {s: [] for s in STAGES}
+    cpu = []
     for change in todo:
         before = dict(renderer.counts)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = renderer.render(**change)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
         h = res.header
         grew = {k for k in renderer.counts if renderer.counts[k] != before.get(k, 0)}
         stages["light_field"].append(h["seconds.light_field"] if "light_field" in grew else 0.0)
@@ -82,8 +85,11 @@ def run(renderer: Renderer, todo: list[dict]) -> tuple[list[float], dict]:
             h.get("seconds.graded_transmittance", 0.0) if "graded_transmittance" in grew else 0.0)
         stages["gather"].append(h.get("seconds.gather", 0.0) if filled else 0.0)
         stages["network"].append(h.get("seconds.network", 0.0) if filled else 0.0)
+        stages["ms_interpolate"].append(h.get("seconds.ms_interpolate", 0.0) if filled else 0.0)
         stages["march"].append(h["seconds.march"])
-    return times, {k: float(np.median(v)) for k, v in stages.items()}
+    out = {k: float(np.median(v)) for k, v in stages.items()}
+    out["cpu"] = float(np.median(cpu))
+    return times, out
 
 
 def main(argv=None) -> int:
@@ -105,7 +111,10 @@ def main(argv=None) -> int:
     print(f"medians over {args.frames} frames, one change per frame; ms = milliseconds; "
           f"default method options: ms_resolution={args.ms_resolution or 'default'}, "
           f"ms_directions={args.ms_directions or 0}, ms_refresh={args.ms_refresh or 1}")
+    print("default/plain: wall-clock ms per frame; cpu: CPU time of this process (host + PoCL "
+          "threads) per frame, less sensitive to other processes' load")
     print(f"{'volume':9s} {'size':>5s} {'motion':7s} {'default':>8s} {'plain':>7s} {'ratio':>6s} "
+          f"{'cpu def':>8s} {'cpu pl':>7s} {'ratio':>6s} "
           + " ".join(f"{s[:12]:>12s}" for s in STAGES) + "  lattice points")
     verdicts = []
     for volume in args.volumes:
@@ -119,19 +128,21 @@ def main(argv=None) -> int:
                                         ("ms_refresh", args.ms_refresh)) if v is not None}
                 d = Renderer(sc, grid=grid, **kw)
                 td, st = run(d, todo)
-                tp, _ = run(Renderer(sc, ms="none", grid=grid), todo)
+                tp, sp = run(Renderer(sc, ms="none", grid=grid), todo)
                 md, mp = float(np.median(td)), float(np.median(tp))
                 pts = d.source.info["points"] if d.source.info else 0
+                cd, cp = st["cpu"], sp["cpu"]
                 print(f"{volume:9s} {size:5d} {motion:7s} {md * 1e3:8.1f} {mp * 1e3:7.1f} "
-                      f"{md / mp:6.2f} " + " ".join(f"{st[s] * 1e3:12.1f}" for s in STAGES)
+                      f"{md / mp:6.2f} {cd * 1e3:8.1f} {cp * 1e3:7.1f} {cd / cp:6.2f} " + " ".join(f"{st[s] * 1e3:12.1f}" for s in STAGES)
                       + f"  {pts}", flush=True)
                 if motion == "camera" and size == 256:
                     verdicts.append(f"camera motion, {volume}, 256^2: default / plain = "
-                                    f"{md / mp:.2f} (target <= 1.5): "
-                                    f"{'met' if md / mp <= 1.5 else 'NOT met'}")
+                                    f"{md / mp:.2f} wall, {cd / cp:.2f} cpu (target <= 1.5): "
+                                    f"{'met' if max(md / mp, cd / cp) <= 1.5 else 'NOT met'}")
                 if motion == "light" and volume == "cloud128":
                     verdicts.append(f"light change, 128^3, {size}^2: {md * 1e3:.0f} ms per frame "
-                                    f"(target <= 250 ms): {'met' if md <= 0.25 else 'NOT met'}")
+                                    f"wall, {cd * 1e3:.0f} ms cpu (target <= 250 ms): "
+                                    f"{'met' if max(md, cd) <= 0.25 else 'NOT met'}")
     print("\n".join(verdicts))
     print(machine(rt))
     return 0

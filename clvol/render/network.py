@@ -382,15 +382,21 @@ class NetworkMs(GridMs):
                         info[k] += i[k]
             self._table = (light_key, np.stack(tables), g.bbox_min, g.bbox_max, info)
             frame.count("ms_directional_fill")
+            filled = True
+        else:
+            filled = False
         _, table, lo, hi, info = self._table
-        _, _, _, _, om = ms_lattice(None, self.resolution, lo, hi, frame.camera.origin)
-        flat = table.reshape(len(dirs), om.shape[0], -1)          # (K, N, C)
-        vals = np.zeros(flat.shape[1:], np.float32)
-        act = np.flatnonzero(active) if active is not None else np.arange(om.shape[0])
-        idx, w = spherical_barycentric(dirs, om[act])
-        vals[act] = (flat[idx, act[:, None]] * w[..., None]).sum(axis=1)   # (n, 3, C) -> (n, C)
-        self.ms_grid = MsGrid(vals.reshape(table.shape[1:]), lo, hi)
-        self.info = info
+        with Stopwatch() as sw:
+            _, _, _, _, om = ms_lattice(None, self.resolution, lo, hi, frame.camera.origin)
+            flat = table.reshape(len(dirs), om.shape[0], -1)          # (K, N, C)
+            vals = np.zeros(flat.shape[1:], np.float32)
+            act = np.flatnonzero(active) if active is not None else np.arange(om.shape[0])
+            idx, w = spherical_barycentric(dirs, om[act])
+            vals[act] = (flat[idx, act[:, None]] * w[..., None]).sum(axis=1)   # (n, 3, C) -> (n, C)
+            self.ms_grid = MsGrid(vals.reshape(table.shape[1:]), lo, hi)
+        # This frame's costs: the K fills only when they ran, and the interpolation.
+        self.info = dict(info) if filled else dict(info, light=0.0, gather=0.0, network=0.0)
+        self.info["interpolate"] = sw.seconds
         frame.count("ms_lattice")
 
     def plan(self, medium, shortcuts: bool) -> MsPlan:
@@ -415,4 +421,6 @@ class NetworkMs(GridMs):
             "seconds.graded_transmittance": round(info["light"], 4) if info else 0.0,
             "seconds.gather": round(info["gather"], 4) if info else 0.0,
             "seconds.network": round(info["network"], 4) if info else 0.0,
+            **({"seconds.ms_interpolate": round(info["interpolate"], 4)}
+               if info and "interpolate" in info else {}),
         }
