@@ -149,6 +149,11 @@ class Camera:
     width: int
     height: int
 
+    @property
+    def tan_half_fov(self) -> float:
+        """tan(fov_y / 2): the image plane's half-height at distance 1."""
+        return math.tan(math.radians(self.fov_y) / 2.0)
+
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(forward, right, up)``: orthonormal float64 vectors of the image plane.
 
@@ -183,7 +188,7 @@ class Camera:
                 raise ValueError("jitter must be in [-0.5, 0.5] pixels")
             col = col + j[..., 0]
             row = row + j[..., 1]
-        tan_half = math.tan(math.radians(self.fov_y) / 2.0)
+        tan_half = self.tan_half_fov
         sx = (2.0 * col / w - 1.0) * tan_half * (w / h)
         sy = (1.0 - 2.0 * row / h) * tan_half
         sx, sy = np.broadcast_arrays(sx, sy)

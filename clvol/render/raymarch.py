@@ -204,7 +204,7 @@ class RayMarcher:
             self.majorant, self.block,
             self.light_field if plan.lit else None, cube_min, cube_size,
             plan.ms.planes, *box,
-            camera.origin, fwd, right, up, math.tan(math.radians(camera.fov_y) / 2),
+            camera.origin, fwd, right, up, camera.tan_half_fov,
             camera.width, camera.height,
             light.direction, light.irradiance, self.medium.albedo, plan.lobes,
             plan.background, a=o.a, b=o.b, c=o.c, step=step * float(np.min(g.cell_size)),
