@@ -113,8 +113,6 @@ def _cmd_render(args) -> int:
         png = args.png or str(Path(args.output).with_suffix(".png"))
         write_png_preview(png, result.layers["total"], exposure=args.exposure)
         print(f"wrote {png}", file=sys.stderr)
-    print(f"  method: {result.header.get('method.description', result.header.get('method'))}",
-          file=sys.stderr)
     for key, value in result.header.items():
         print(f"  {key}: {value}", file=sys.stderr)
     return 0

@@ -110,8 +110,9 @@ def test_cli_default_names_method_and_weights(scene_file, tmp_path, capsys):
     out = tmp_path / "d.exr"
     assert main(["render", str(scene_file), "-o", str(out), "--ms-resolution", "6"]) == 0
     err = capsys.readouterr().err
-    assert "method: ray marching: exact single scattering + network multiple scattering " \
-           "(weights cloud_small.npz)" in err
+    assert "  method: raymarch\n" in err
+    assert "method.description: ray marching: exact single scattering + network multiple " \
+           "scattering (weights cloud_small.npz)" in err
     h = read_exr(out).header
     assert h["method"] == "raymarch" and h["raymarch.ms"] == "network"
     assert str(h["raymarch.weights"]).endswith("cloud_small.npz")
