@@ -107,16 +107,18 @@ def _cmd_compare(args) -> int:
 
 def _cmd_render(args) -> int:
     from .image import write_exr, write_png_preview
-    from .render import method_module
+    from .render import METHODS
+    from .render.options import given_options
+    from .render.renderer import Renderer
     from .runtime import configure, get_runtime
     from .scene import load_scene
     configure(device=args.device, profiling=args.profile)
     scene = load_scene(args.scene)
-    module = method_module(args.method)
-    result = module.render(scene, args)
+    renderer = Renderer(scene, args.method, **given_options(args, list(METHODS)))
+    result = renderer.render()
     if args.profile:
         print("device time per kernel:\n" + get_runtime().timing_report(), file=sys.stderr)
-    header = {"scene": str(args.scene), "method": args.method, **result.header}
+    header = {"scene": str(args.scene), **result.header}
     write_exr(args.output, result.layers, header)
     print(f"wrote {args.output}", file=sys.stderr)
     if args.png is not None:
@@ -170,6 +172,7 @@ def add_dataset_make_arguments(p: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     from .render import METHODS, available_methods
+    from .render.options import add_cli_arguments
     parser = argparse.ArgumentParser(
         prog="clvol",
         description="Render participating media with multiple scattering on any OpenCL device.")
@@ -209,17 +212,17 @@ def build_parser() -> argparse.ArgumentParser:
     methods = "; ".join(f"{k}: {v[1]}" for k, v in METHODS.items())
     p = sub.add_parser("render", help="render a scene to EXR", description=f"Methods: {methods}.")
     p.add_argument("scene", help="scene .toml file")
-    p.add_argument("--method", choices=sorted(METHODS), default="raymarch")
+    p.add_argument("--method", choices=sorted(METHODS), default=None,
+                   help="render method (default: raymarch, with the network's multiple "
+                        "scattering: the paper's method)")
     p.add_argument("-o", "--output", required=True, help="output .exr")
     p.add_argument("--png", nargs="?", const="", default=None, metavar="FILE",
                    help="also write a tonemapped PNG preview (default: next to the EXR)")
     p.add_argument("--exposure", type=float, default=0.0, help="preview exposure in stops")
     p.add_argument("--device", help="OpenCL device: P:D, gpu, cpu or a name substring")
-    p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same image)")
     p.add_argument("--profile", action="store_true", help="print per-kernel device times")
-    for name, module in available_methods().items():
-        if hasattr(module, "add_arguments"):
-            module.add_arguments(p.add_argument_group(f"{name} options"))
+    # Each method's options, bound to it: one the chosen method does not use is refused.
+    add_cli_arguments(p, list(available_methods()))
     p.set_defaults(func=_cmd_render)
 
     from . import bundle, goldens

@@ -14,7 +14,7 @@ with the file name and the dotted field, quotes the bad value and says what is a
 
     examples/x.toml: [medium.albedo] = [1.2, 0.5, 0.5]: each component must be in [0, 1]
 
-``Camera.pixel_directions`` is *the* camera convention of the project (DESIGN.md):
+``Camera.pixel_directions`` is *the* camera convention of the project (docs/conventions.md):
 column 0 is the left edge, row 0 the top, right = normalize(cross(forward, up)).
 OpenCL kernels copy that formula.
 """
@@ -34,7 +34,7 @@ from .errors import SceneError, VolumeError
 
 # --------------------------------------------------------------------------- limits
 
-HG_G_LIMIT = 0.99          # |g| above this makes HG peaks too narrow for our tables (DESIGN.md)
+HG_G_LIMIT = 0.99          # |g| above this makes HG peaks too narrow for our tables (docs/conventions.md)
 MHG_MAX_LOBES = 3
 MHG_WEIGHT_TOL = 1e-4      # lobe weights must sum to 1 within this, then are renormalised
 MAX_RESOLUTION = 1024
@@ -81,7 +81,7 @@ class Phase:
 
     @property
     def mean_cosine(self) -> float:
-        """Mean cosine ``sum(w_k g_k)``: the one number that stands for the phase (DESIGN.md)."""
+        """Mean cosine ``sum(w_k g_k)``: the one number that stands for the phase (docs/conventions.md)."""
         return float(sum(l.weight * l.g for l in self.lobes))
 
     @property
@@ -174,6 +174,11 @@ class Camera:
     width: int
     height: int
 
+    @property
+    def tan_half_fov(self) -> float:
+        """tan(fov_y / 2): the image plane's half-height at distance 1."""
+        return math.tan(math.radians(self.fov_y) / 2.0)
+
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(forward, right, up)``: orthonormal float64 vectors of the image plane.
 
@@ -208,7 +213,7 @@ class Camera:
                 raise ValueError("jitter must be in [-0.5, 0.5] pixels")
             col = col + j[..., 0]
             row = row + j[..., 1]
-        tan_half = math.tan(math.radians(self.fov_y) / 2.0)
+        tan_half = self.tan_half_fov
         sx = (2.0 * col / w - 1.0) * tan_half * (w / h)
         sy = (1.0 - 2.0 * row / h) * tan_half
         sx, sy = np.broadcast_arrays(sx, sy)
@@ -297,7 +302,7 @@ class Scene:
 
 # --------------------------------------------------------------------------- presets
 
-# Artistic defaults from DESIGN.md, not measured data. A preset gives albedo and phase;
+# Artistic defaults from docs/conventions.md, not measured data. A preset gives albedo and phase;
 # density_scale depends on the world size of the volume and is always given by the user.
 PRESETS: dict[str, tuple[tuple[float, float, float], Phase]] = {
     "cloud": ((0.999, 0.999, 0.999), Phase.hg(0.857)),
