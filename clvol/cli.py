@@ -112,6 +112,11 @@ def _cmd_render(args) -> int:
     from .render.renderer import Renderer
     from .runtime import configure, get_runtime
     from .scene import load_scene
+    if args.png is None:
+        for name in ("exposure", "tone"):
+            if getattr(args, name) is not None:
+                raise ClvolError(f"--{name} sets the PNG preview: give --png too")
+    tone = args.tone or "filmic"
     configure(device=args.device, profiling=args.profile)
     scene = load_scene(args.scene)
     renderer = Renderer(scene, args.method, **given_options(args, list(METHODS)))
@@ -123,8 +128,11 @@ def _cmd_render(args) -> int:
     print(f"wrote {args.output}", file=sys.stderr)
     if args.png is not None:
         png = args.png or str(Path(args.output).with_suffix(".png"))
-        write_png_preview(png, result.layers["total"], exposure=args.exposure)
-        print(f"wrote {png}", file=sys.stderr)
+        used = write_png_preview(png, result.layers["total"], exposure=args.exposure,
+                                 curve=tone)
+        how = "chosen from the image" if args.exposure is None else "given"
+        print(f"wrote {png} (exposure {used:+.2f} stops, {how}; {tone} tone curve)",
+              file=sys.stderr)
     for key, value in result.header.items():
         print(f"  {key}: {value}", file=sys.stderr)
     return 0
@@ -234,7 +242,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output .exr")
     p.add_argument("--png", nargs="?", const="", default=None, metavar="FILE",
                    help="also write a tonemapped PNG preview (default: next to the EXR)")
-    p.add_argument("--exposure", type=float, default=0.0, help="preview exposure in stops")
+    p.add_argument("--exposure", type=float, default=None,
+                   help="preview exposure in stops (default: chosen from the image so its bright "
+                        "parts sit below white; the EXR is never changed)")
+    p.add_argument("--tone", choices=["filmic", "linear"], default=None,
+                   help="preview tone curve: filmic (default; highlights roll off) or linear "
+                        "(clamp to [0, 1], then sRGB)")
     p.add_argument("--device", help="OpenCL device: P:D, gpu, cpu or a name substring")
     p.add_argument("--profile", action="store_true", help="print per-kernel device times")
     # Each method's options, bound to it: one the chosen method does not use is refused.
