@@ -8,8 +8,11 @@
 #      without them (docs/volumes.md);
 #   4. a C compiler, make and the OpenCL headers + ICD loader for the C host in examples/c/
 #      (tests/test_c_host.py builds it; docs/embedding.md);
-#   5. clvol itself (editable) with its test extra, the scale extra (Ray 2.60.0: data set
-#      generation on all cores or a cluster) and the training extra (torch 2.13.0, CPU).
+#   5. Debian's chromium and chromium-driver for the browser test of `clvol view` (browser
+#      downloads by test tools fail on these machines);
+#   6. clvol itself (editable) with its test extra (pytest, selenium), the view extra (aiohttp),
+#      the scale extra (Ray 2.60.0: data set generation on all cores or a cluster) and the
+#      training extra (torch 2.13.0, CPU).
 # Set CLVOL_NO_TRAIN=1 to skip torch (rendering never imports it).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -26,6 +29,8 @@ if ! command -v vdb_tool >/dev/null 2>&1; then apt_pkgs+=(libopenvdb-tools); fi
 if ! command -v cc >/dev/null 2>&1; then apt_pkgs+=(gcc libc6-dev); fi
 if ! command -v make >/dev/null 2>&1; then apt_pkgs+=(make); fi
 if [ ! -f /usr/include/CL/cl.h ]; then apt_pkgs+=(opencl-headers ocl-icd-opencl-dev); fi
+if ! command -v chromium >/dev/null 2>&1; then apt_pkgs+=(chromium); fi
+if ! command -v chromedriver >/dev/null 2>&1; then apt_pkgs+=(chromium-driver); fi
 if [ ${#apt_pkgs[@]} -gt 0 ]; then
   echo "setup: installing ${apt_pkgs[*]}"
   $SUDO apt-get update -qq
@@ -33,8 +38,8 @@ if [ ${#apt_pkgs[@]} -gt 0 ]; then
 fi
 
 PY=${PYTHON:-python3}
-extras="test,scale"
-if [ "${CLVOL_NO_TRAIN:-0}" != 1 ]; then extras="test,scale,train"; fi
+extras="test,view,scale"
+if [ "${CLVOL_NO_TRAIN:-0}" != 1 ]; then extras="test,view,scale,train"; fi
 echo "setup: pip install -e .[$extras]"
 $PY -m pip install -q --disable-pip-version-check -e ".[$extras]"
 clvol info
