@@ -303,6 +303,11 @@ class NetworkMs(GridMs):
 
     def prepare(self, frame) -> None:
         self.count = frame.count
+        # The header's seconds.* are this frame's costs: 0 for work an earlier frame did.
+        self.setup_seconds = 0.0
+        if self.info:
+            self.info = dict(self.info, light=0.0, gather=0.0, network=0.0,
+                             **({"interpolate": 0.0} if "interpolate" in self.info else {}))
         if self.net is None or self.net.grid is not frame.grid:
             with Stopwatch() as sw:
                 self.net = NetworkSource(self.weights_path, frame.grid, frame.medium,
