@@ -1,10 +1,12 @@
 """The C host (examples/c/) against the Python host, its memory check, and the golden vectors.
 
 - Images: ``clvol bundle`` of two shipped examples (cloud: grey albedo, one lobe; jade:
-  chromatic albedo, two lobes) rendered by clvol-render and by ``render_raymarch(...,
-  ms="network")`` with the same options: relative RMS difference of the total <= 1e-3 (the
-  issue's bar; both hosts launch the same kernels with the same arguments on one device, so
-  the difference is in practice 0).
+  chromatic albedo, two lobes) rendered by clvol-render and by ``clvol.Renderer`` with the
+  same options and otherwise its defaults (what ``clvol render`` runs: the network at the
+  lattice points with density within reach, domain fallback on): relative RMS difference of
+  the total <= 1e-3 (the issue's bar; both hosts launch the same kernels with the same
+  arguments on one device, so the difference is in practice 0). Also the scenes the renderer
+  gives another source: unlit, optically thin (--ms none) and strongly backward (wrenninge).
 - The -D defines a bundle records equal the ones the Python render builds with (same device).
 - AddressSanitizer + LeakSanitizer + UBSan build on a tiny bundle: exit 0, no report. No
   suppression file is used: a cl_mem the host forgets to release is reported (its allocation
@@ -27,7 +29,7 @@ import pytest
 
 from clvol.bundle import write_bundle
 from clvol.cli import main
-from clvol.raymarch import render_raymarch
+from clvol.render.renderer import Renderer
 from clvol.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,15 +85,30 @@ def small(name, overrides=None):
 # cloud: grey, one lobe; jade: chromatic, two lobes; smoke at albedo 0 with an environment:
 # nothing lit (no light field, no network; the kernels get placeholder buffers)
 UNLIT = {"medium.albedo": [0.0, 0.0, 0.0], "light.environment": [0.2, 0.3, 0.4]}
+# cloud at density scale 0.5: largest optical thickness 0.4 < 0.5, the renderer's thin-medium
+# shortcut (--ms none); smoke with a strongly backward phase at albedo 0.95: outside the
+# network's domain, the renderer's fallback is Wrenninge octaves (clvol/render/network.py)
+THIN = {"medium.density_scale": 0.5}
+BACKWARD = {"medium.albedo": [0.95, 0.95, 0.95], "medium.phase": {"type": "hg", "g": -0.85}}
 
 
-@pytest.mark.parametrize("name, overrides, grey, lobes", [
-    ("cloud.toml", None, True, 1), ("jade.toml", None, False, 2), ("smoke.toml", UNLIT, True, 1)])
-def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, grey, lobes):
+@pytest.mark.parametrize("name, overrides, grey, lobes, source", [
+    ("cloud.toml", None, True, 1, "network"), ("jade.toml", None, False, 2, "network"),
+    ("smoke.toml", UNLIT, True, 1, "none"), ("cloud.toml", THIN, True, 1, "none"),
+    ("smoke.toml", BACKWARD, True, 1, "wrenninge")])
+def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, grey, lobes,
+                                 source):
     from clvol import runtime as rtm
     scene = small(name, overrides)
     assert scene.medium.is_grey == grey and len(scene.medium.phase.lobes) == lobes
     bundle = write_bundle(scene, tmp_path / "b", ms_resolution=MS_RES)
+    lines = dict(l.split(" = ", 1) for l in (bundle / "manifest.txt").read_text().splitlines()
+                 if " = " in l and not l.startswith("#"))
+    assert lines["raymarch.ms_source"] == source
+    if source == "network":
+        # the lattice points with no density within reach are skipped, as in Python
+        n_active = int(lines["network.active_points"])
+        assert 0 < n_active < MS_RES ** 3
     # jade goes through the embedding path (a context and queue handed in)
     attach = ["--external-context"] if name == "jade.toml" else []
     r = run([host / "clvol-render", bundle, tmp_path / "c.pfm"] + attach)
@@ -106,8 +123,13 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
         built.add((stem, tuple(rtm._define_flags(defines))))
         return orig(stem, defines, extra_options)
     monkeypatch.setattr(rt, "program", recording)
-    want = render_raymarch(scene, ms="network", ms_resolution=MS_RES, runtime=rt).layers["total"]
+    res = Renderer(scene, "raymarch", ms_resolution=MS_RES, runtime=rt).render()
+    want = res.layers["total"]
     monkeypatch.undo()
+    if scene.medium.albedo[0] > 0:
+        assert res.header["raymarch.ms"] == source
+    if source == "network":
+        assert res.header["raymarch.network_points"] == n_active
 
     assert got.shape == want.shape == (SIZE, SIZE, 3)
     assert np.all(np.isfinite(got)) and want.max() > 0
@@ -117,8 +139,6 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
 
     # the defines the bundle records are the ones Python built with
     recorded = set()
-    lines = dict(l.split(" = ", 1) for l in (bundle / "manifest.txt").read_text().splitlines()
-                 if " = " in l and not l.startswith("#"))
     for name_ in lines["programs"].split():
         stem = Path(lines[f"program.{name_}"]).stem
         opts = [o for o in lines[f"program.{name_}.options"].split()
