@@ -1,18 +1,21 @@
-"""``clvol bundle SCENE.toml DIR``: everything a C host needs to render a scene with the
-network method (light field, graded transmittance, bake, gather, MLP, F_ms lattice, ray
-march), in plain files that need no Python to read. The format is docs/embedding.md; the C
-host that reads it is examples/c/.
+"""``clvol bundle SCENE.toml DIR``: everything a C host needs to render a scene as ``clvol
+render`` does by default (the network method: light field, graded transmittance, bake,
+gather, MLP, F_ms lattice, ray march; or the analytic source the renderer falls back to), in
+plain files that need no Python to read. The format is docs/embedding.md; the C host that
+reads it is examples/c/.
 
     from clvol.bundle import write_bundle
     write_bundle(load_scene("examples/jade.toml"), "jade.bundle", ms_resolution=32)
 
 DIR/manifest.txt is ``key = value`` lines (``#`` starts a comment; lists are space-separated;
 strings have no spaces). Every binary file is raw little-endian float32 or int32, C order.
-The ``-D`` defines are computed by the same functions the Python host calls
-(``raymarch_defines``, ``mlp.kernel_defines``, ``phase_defines``, ``coarse_level``) and
-formatted by the runtime's own ``_define_flags``; the host constants (padding, tile and chunk
-sizes) are read from the Python modules that launch the kernels, so the C host hard-codes none.
-tests/test_c_host.py checks the recorded defines against the ones a Python render builds.
+The options, the source, the ``-D`` defines and the lattice points the network evaluates come
+from a ``clvol.Renderer`` and the functions it calls (``Renderer.active_source``,
+``Plan.make``, ``lattice_reach_mask``, ``mlp.kernel_defines``, ``phase_defines``,
+``coarse_level``), formatted by the runtime's own ``_define_flags``; the host constants
+(padding, tile and chunk sizes) are read from the Python modules that launch the kernels, so
+the C host hard-codes none. tests/test_c_host.py checks the image, the source, the network's
+point count and the recorded defines against a Python render.
 """
 from __future__ import annotations
 
@@ -339,7 +342,7 @@ def _packed_tensors(w, pad8) -> list:
 
 
 def add_arguments(p) -> None:
-    from .raymarch import DEFAULT_NETWORK_RESOLUTION
+    from .render.network import DEFAULT_NETWORK_RESOLUTION
     p.add_argument("scene", help="scene .toml file")
     p.add_argument("dir", help="output folder (created)")
     p.add_argument("--weights", metavar="FILE.npz", help="network weights (default: shipped)")

@@ -194,6 +194,19 @@ def test_bundle_cli_refuses_bad_options(tmp_path, capsys):
     assert "step = 0.0" in capsys.readouterr().err
 
 
+def test_bundle_refuses_a_source_the_c_host_lacks(tmp_path, capsys, monkeypatch):
+    """A scene the renderer would render with a source the C host does not run (none does
+    today: the fallbacks are none and wrenninge) is refused with exit 2, naming it."""
+    from clvol.render.sources import GridMs, MsGrid
+    grid = GridMs(MsGrid(np.zeros((2, 2, 2), np.float32), (-1, -1, -1), (1, 1, 1)))
+    monkeypatch.setattr(Renderer, "active_source", lambda self, medium=None: (grid, None))
+    scene = ROOT / "examples" / "cloud.toml"
+    assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms-resolution", "4"]) == 2
+    err = capsys.readouterr().err
+    assert "cloud.toml" in err and "--ms grid" in err and "does not implement" in err
+    assert not (tmp_path / "b").exists()
+
+
 @pytest.fixture(scope="module")
 def goldens(tmp_path_factory):
     gold = tmp_path_factory.mktemp("goldens") / "gold"
