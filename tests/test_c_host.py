@@ -152,19 +152,30 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
 def tiny_bundle(tmp_path) -> Path:
     scene = load_scene(ROOT / "examples" / "jade.toml").with_overrides(
         {"volume.resolution": 12, "camera.width": 8, "camera.height": 8})
-    return write_bundle(scene, tmp_path / "tiny", ms_resolution=4, light_resolution=16)
+    # an 8^3 lattice: some points have no density within reach (the network skips them)
+    return write_bundle(scene, tmp_path / "tiny", ms_resolution=8, light_resolution=16)
 
 
 def test_asan_no_leaks_or_errors(host, tmp_path):
     """The first run (memory errors checked, leaks not) fills PoCL's kernel cache, because
     PoCL's compiler (LLVM) leaks on every build; the next ones build nothing and must report
     no error and no leak, with the host's own context and with one handed in (the caller's
-    context and queue outlive the host; --external-context)."""
+    context and queue outlive the host; --external-context); the same for a bundle whose
+    scene falls back to an analytic source."""
     bundle = tiny_bundle(tmp_path)
-    for leaks, extra in ((0, []), (1, []), (1, ["--external-context"])):
+    mf = (bundle / "manifest.txt").read_text()
+    assert "raymarch.ms_source = network" in mf
+    assert 0 < int(mf.split("network.active_points = ")[1].split()[0]) < 8 ** 3
+    # and a scene the renderer gives Wrenninge octaves (light field and march only)
+    scene = load_scene(ROOT / "examples" / "smoke.toml").with_overrides(
+        dict(BACKWARD, **{"volume.resolution": 12, "camera.width": 8, "camera.height": 8}))
+    octaves = write_bundle(scene, tmp_path / "octaves", ms_resolution=8, light_resolution=16)
+    assert "raymarch.ms_source = wrenninge" in (octaves / "manifest.txt").read_text()
+    for b, leaks, extra in ((bundle, 0, []), (bundle, 1, []), (bundle, 1, ["--external-context"]),
+                            (octaves, 0, []), (octaves, 1, [])):
         env = dict(os.environ, ASAN_OPTIONS=f"detect_leaks={leaks}:exitcode=23",
                    UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1")
-        r = run([host / "clvol-render-asan", bundle, tmp_path / "t.pfm"] + extra, env=env)
+        r = run([host / "clvol-render-asan", b, tmp_path / "t.pfm"] + extra, env=env)
         report = r.stdout + r.stderr
         assert r.returncode == 0, report
         for marker in ("AddressSanitizer", "LeakSanitizer", "runtime error"):
