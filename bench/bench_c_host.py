@@ -6,16 +6,18 @@
 A frame is what a moving camera costs with the volume and light fixed: the F_ms lattice
 toward the camera (host), gather, MLP, reading F_ms back, the ray march and reading the
 image back. C: ``clvol-render --frames N`` (median of N frames in one process, after one
-warm-up process that fills PoCL's kernel cache). Python: ``NetworkSource.fill`` +
-``RayMarcher.march`` on resident objects (graded fields and bake cached, as in C), median of
-N. Also printed: the light change (light field + graded fields + bake) and the whole run
-of one frame (C: one process incl. reading the bundle and building the programs from PoCL's
-cache; Python: render_raymarch in a warm process, programs built). Both hosts
+warm-up process that fills PoCL's kernel cache). Python: ``clvol.Renderer.render`` with the
+camera moved by 1e-9 per frame (so the lattice is refilled at the same points, as in C; graded
+fields and bake cached), median of N. Both run the network at the bundle's active lattice
+points only. Also printed: the light change (light field + graded fields + bake) and the
+whole run of one frame (C: one process incl. reading the bundle and building the programs
+from PoCL's cache; Python: a new Renderer in a warm process, programs built). Both hosts
 run side by side in one session; compare ratios, not absolute times (machine line).
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 import shutil
 import subprocess
@@ -32,8 +34,9 @@ sys.path.insert(0, str(ROOT))
 from _common import machine  # noqa: E402  (bench/ is on sys.path)
 from clvol.bundle import write_bundle  # noqa: E402
 from clvol.kernels.gather import bake_render_grid  # noqa: E402
-from clvol.raymarch import (NetworkSource, Octaves, RayMarcher, render_raymarch,  # noqa: E402
-                            shipped_weights)
+from clvol.render.network import NetworkSource, shipped_weights  # noqa: E402
+from clvol.render.raymarch import RayMarcher  # noqa: E402
+from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 
@@ -62,12 +65,17 @@ def python_frames(scene, ms_res, frames):
     bake_render_grid(src.pyramid, graded, scene.medium.density_scale, w.level_weights, w.level_bias)
     rt.finish()
     light = time.perf_counter() - t0
+    r = Renderer(scene, "raymarch", ms_resolution=ms_res, runtime=rt)
+    r.render()
     times = []
-    for _ in range(frames):
+    for i in range(frames):
+        o = np.asarray(scene.camera.origin, np.float64) + 1e-9 * (i + 1)
+        cam = dataclasses.replace(scene.camera, origin=tuple(o))
         t0 = time.perf_counter()
-        ms_grid, _ = src.fill(scene, scene.light.direction, ms_res)
-        rm.march(scene.camera, scene.light, ms="network", octaves=Octaves(), ms_grid=ms_grid)
+        res = r.render(camera=cam)
         times.append(time.perf_counter() - t0)
+        assert res.header["raymarch.ms"] == "network"
+    assert r.counts["ms_lattice"] == frames + 1       # every frame refilled the lattice
     return light, float(np.median(times))
 
 
@@ -94,12 +102,12 @@ def main() -> None:
         bundle = write_bundle(scene, work / name.replace(".toml", ""),
                               ms_resolution=args.ms_resolution)
         c_run(exe, bundle, 1)                                   # warm PoCL's kernel cache
-        render_raymarch(scene, ms="network", ms_resolution=args.ms_resolution)   # warm Python
+        Renderer(scene, "raymarch", ms_resolution=args.ms_resolution).render()  # warm Python
         c = c_run(exe, bundle, args.frames)
         c["total"] = c_run(exe, bundle, 1)["total"]
         light, frame = python_frames(scene, args.ms_resolution, args.frames)
         t0 = time.perf_counter()
-        render_raymarch(scene, ms="network", ms_resolution=args.ms_resolution)
+        Renderer(scene, "raymarch", ms_resolution=args.ms_resolution).render()
         whole = time.perf_counter() - t0
         size = f"{scene.camera.width}^2"
         print(f"{name:<10} {size:>7} {'C':<7} {c['frame'] * 1e3:>12.1f} ms {c['light']:>11.3f} s "

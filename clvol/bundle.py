@@ -1,18 +1,21 @@
-"""``clvol bundle SCENE.toml DIR``: everything a C host needs to render a scene with the
-network method (light field, graded transmittance, bake, gather, MLP, F_ms lattice, ray
-march), in plain files that need no Python to read. The format is docs/embedding.md; the C
-host that reads it is examples/c/.
+"""``clvol bundle SCENE.toml DIR``: everything a C host needs to render a scene as ``clvol
+render`` does by default (the network method: light field, graded transmittance, bake,
+gather, MLP, F_ms lattice, ray march; or the analytic source the renderer falls back to), in
+plain files that need no Python to read. The format is docs/embedding.md; the C host that
+reads it is examples/c/.
 
     from clvol.bundle import write_bundle
     write_bundle(load_scene("examples/jade.toml"), "jade.bundle", ms_resolution=32)
 
 DIR/manifest.txt is ``key = value`` lines (``#`` starts a comment; lists are space-separated;
 strings have no spaces). Every binary file is raw little-endian float32 or int32, C order.
-The ``-D`` defines are computed by the same functions the Python host calls
-(``raymarch_defines``, ``mlp.kernel_defines``, ``phase_defines``, ``coarse_level``) and
-formatted by the runtime's own ``_define_flags``; the host constants (padding, tile and chunk
-sizes) are read from the Python modules that launch the kernels, so the C host hard-codes none.
-tests/test_c_host.py checks the recorded defines against the ones a Python render builds.
+The options, the source, the ``-D`` defines and the lattice points the network evaluates come
+from a ``clvol.Renderer`` and the functions it calls (``Renderer.active_source``,
+``Plan.make``, ``lattice_reach_mask``, ``mlp.kernel_defines``, ``phase_defines``,
+``coarse_level``), formatted by the runtime's own ``_define_flags``; the host constants
+(padding, tile and chunk sizes) are read from the Python modules that launch the kernels, so
+the C host hard-codes none. tests/test_c_host.py checks the image, the source, the network's
+point count and the recorded defines against a Python render.
 """
 from __future__ import annotations
 
@@ -72,53 +75,79 @@ def program_options(stem: str, defines: dict) -> str:
 
 def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
                  threshold=None, block=None, light_resolution=None,
-                 light_interp: str = "transmittance", skip_empty: bool = True) -> Path:
-    """Write the bundle of ``scene`` (a clvol Scene) rendered with --method raymarch
-    --ms network and these options (defaults: the ray marcher's). Returns DIR."""
+                 light_interp: str = "transmittance", skip_empty: bool = True,
+                 runtime=None) -> Path:
+    """Write the bundle of ``scene`` (a clvol Scene) as ``clvol render`` renders it by default
+    (--method raymarch --ms network, with its domain fallback and shortcuts) with these
+    options (None: the renderer's defaults). Returns DIR.
+
+    The options, the source actually used (the network, or the analytic source the renderer
+    falls back to: none or wrenninge), the kernel defines and the lattice points the network
+    evaluates are all taken from a ``clvol.Renderer`` built for the scene; nothing is
+    rendered. ``runtime``: the OpenCL runtime it is built on (default: clvol's)."""
     from .kernels import gather as kg
     from .kernels import mlp as km
     from .kernels import pyramid as kp
     from .kernels import raymarch as kr
     from .kernels import transmittance as kt
     from .kernels.phase import lobe_vectors, phase_defines
-    from .raymarch import (DEFAULT_BLOCK, DEFAULT_NETWORK_RESOLUTION, DEFAULT_STEP,
-                           DEFAULT_THRESHOLD, NETWORK_CHUNK, Octaves, Plan, MsGrid,
-                           _check_network_options, _check_options, auto_light_resolution,
-                           load_network_weights, shipped_weights)
+    from .render.medium import majorant_block
+    from .render.network import (NETWORK_CHUNK, NetworkMs, lattice_reach, lattice_reach_mask,
+                                 load_network_weights)
+    from .render.raymarch import Plan, auto_light_resolution, is_lit
+    from .render.renderer import Renderer
+    from .render.sources import GridMs, MsGrid
     from .runtime import DEFAULT_PAD, cl_source_dir, include_dir
 
-    step = DEFAULT_STEP if step is None else float(step)
-    threshold = DEFAULT_THRESHOLD if threshold is None else float(threshold)
-    block = DEFAULT_BLOCK if block is None else block
-    ms_resolution = DEFAULT_NETWORK_RESOLUTION if ms_resolution is None else ms_resolution
-    octaves = Octaves()
-    _check_options("network", octaves, step, threshold, block, light_resolution, 1, None)
-    weights = shipped_weights() if weights is None else weights
-    _check_network_options(weights, ms_resolution)
-    if light_interp not in kr.LIGHT_QUANTITIES:
-        raise ClvolError(f"bundle option light_interp = {light_interp!r}: choose one of "
-                         f"{list(kr.LIGHT_QUANTITIES)}")
-    w = load_network_weights(weights)
+    given = dict(weights=weights, ms_resolution=ms_resolution, step=step, threshold=threshold,
+                 majorant_block=block, light_resolution=light_resolution,
+                 light_interp=light_interp, no_skip_empty=not skip_empty)
     grid = scene.volume.load()
-    medium, light, cam = scene.medium, scene.light, scene.camera
-    res = ((ms_resolution,) * 3 if np.isscalar(ms_resolution)
-           else tuple(int(v) for v in ms_resolution))
+    # The renderer validates and completes the options exactly as `clvol render` does.
+    r = Renderer(scene, "raymarch", grid=grid, runtime=runtime, ms="network",
+                 **{k: v for k, v in given.items() if v is not None})
+    o = r.options
+    res = ((o["ms_resolution"],) * 3 if np.isscalar(o["ms_resolution"])
+           else tuple(int(v) for v in o["ms_resolution"]))
     if int(np.prod(res)) > NETWORK_CHUNK:
         # The Python host splits bigger lattices into chunks; the C host runs one launch.
-        raise ClvolError(f"bundle option ms_resolution = {ms_resolution!r}: at most "
+        raise ClvolError(f"bundle option ms_resolution = {o['ms_resolution']!r}: at most "
                          f"{NETWORK_CHUNK} lattice points (32^3) in a bundle")
-    light_res = light_resolution or auto_light_resolution(grid)
+    medium, light, cam = scene.medium, scene.light, scene.camera
+    step, threshold = float(o["step"]), float(o["threshold"])
+    skip_empty, light_interp = not o["no_skip_empty"], o["light_interp"]
+    block = majorant_block(o["majorant_block"], grid.density.shape)
+    w = load_network_weights(r.source.weights_path)
+    light_res = o["light_resolution"] or auto_light_resolution(grid)
     base = int(w.contract["base_resolution"])
     lam = float(w.contract["lambda"])
     L = kp.n_levels(base)
 
-    # The plan the Python host would make: which lobes the ray marcher evaluates, how many
-    # colour planes the F_ms lattice has (a stand-in grid of the right channel count).
-    grey = medium.is_grey
-    stand_in = MsGrid(np.zeros((1, 1, 1) if grey else (1, 1, 1, 3), np.float32),
-                      tuple(grid.bbox_min), tuple(grid.bbox_max))
-    plan = Plan.make(medium, light, "network", octaves, stand_in, True)
+    # The source the renderer uses for this medium: the network, or its fallback (none,
+    # wrenninge) outside the network's domain or in an optically thin medium. The C host
+    # runs the network, none and wrenninge; another source is refused by name.
+    lit = is_lit(medium, light)
+    source, _ = r.active_source(medium)
+    network = isinstance(source, NetworkMs)
+    if lit and not network and source.name not in ("none", "wrenninge"):
+        raise ClvolError(f"{scene.path or 'scene'}: the renderer would use --ms {source.name} "
+                         f"for this medium, which the C host (examples/c/) does not implement")
+    if network:
+        # The network source's plan for a lattice of the colour layout it fills (grey: one
+        # plane; else three), as a stand-in grid of that layout (the plan reads only that).
+        grey_fill = medium.is_grey         # NetworkSource.fill with shortcuts on
+        stand_in = MsGrid(np.zeros((1, 1, 1) if grey_fill else (1, 1, 1, 3), np.float32),
+                          tuple(grid.bbox_min), tuple(grid.bbox_max))
+        plan = Plan.make(medium, light, GridMs(stand_in, r.rt), True, skip_empty)
+        # Lattice points the network evaluates (the others hold F_ms = 0): the renderer's
+        # mask for this volume and step.
+        active = np.flatnonzero(lattice_reach_mask(grid, res, lattice_reach(grid, step)))
+    else:
+        plan = Plan.make(medium, light, source, True, skip_empty)
+        active = None
+    network = network and plan.lit
     channels = plan.channels if plan.lit else 1
+    grey = medium.is_grey
     med_lobes = kg._lobes(medium)
 
     out = Path(out_dir)
@@ -145,9 +174,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     mlp_defs = km.kernel_defines(w.arch, 1 if grey else 3, True)
     gather_defs = dict(phase_defines(med_lobes), NP=layout.N_POINTS,
                        COARSE_LEVEL=kg.coarse_level(base), GATHER_RENDER=1)
-    rm_defs = kr.raymarch_defines(plan.lobes, plan.lit, plan.source, octaves.n, channels,
-                                  skip_empty)
-    rm_defs["LIGHT_TAU"] = int(light_interp == "optical_depth")
+    rm_defs = dict(plan.defines, LIGHT_TAU=int(light_interp == "optical_depth"))
     programs = {
         "pyramid": ("pyramid", {}, {}),
         "majorant": ("majorant", {}, {}),
@@ -159,8 +186,20 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
         "mlp": ("mlp", mlp_defs, {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}),
         "raymarch": ("raymarch", rm_defs, {}),
     }
-    if not plan.lit:    # nothing lit: no light field, no network (the Python host builds none)
-        programs = {k: v for k, v in programs.items() if k in ("majorant", "raymarch")}
+    # What the Python host builds: nothing lit, no light field and no source; an analytic
+    # source, the light field (its cube's mips, the sweeps) but no network.
+    if not plan.lit:
+        keep = ("majorant", "raymarch")
+    else:
+        # the sweeps' widths: float16 columns on levels of at least VECTOR_MIN_N voxels
+        # (clvol/kernels/transmittance.py), for the light field and the network's pyramid
+        sizes = [light_res] + ([base >> lv for lv in range(L)] if network else [])
+        widths = {16 if n >= kt.VECTOR_MIN_N else 1 for n in sizes}
+        keep = ["pyramid", "majorant", "transmittance", "raymarch"]
+        keep += [f"transmittance_w{wd}" for wd in sorted(widths)]
+        if network:
+            keep += ["gather", "gather_bake", "mlp"]
+    programs = {k: v for k, v in programs.items() if k in keep}
     m["programs"] = list(programs)
     for name, (stem, defs, pocl) in programs.items():
         m[f"program.{name}"] = f"cl/{stem}.cl"
@@ -223,6 +262,9 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
 
     m.comment("ray march (step in world units = step_voxels x smallest cell side)")
     m["raymarch.lit"] = plan.lit
+    # the multiple-scattering source: network (the lattice below), none or wrenninge (the
+    # kernel's octaves: raymarch.octave_abc); only the network reads the network.* keys
+    m["raymarch.ms_source"] = source.name if plan.lit else "none"
     m["raymarch.step"] = step * float(np.min(grid.cell_size))
     m["raymarch.threshold"] = threshold
     m["raymarch.block"] = int(block)
@@ -233,7 +275,8 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     rg, rw = lobe_vectors(plan.lobes)
     m["raymarch.lobe_g"] = rg.tolist()
     m["raymarch.lobe_w"] = rw.tolist()
-    m["raymarch.octave_abc"] = [octaves.a, octaves.b, octaves.c]
+    oc = plan.ms.octaves
+    m["raymarch.octave_abc"] = [oc.a, oc.b, oc.c]
 
     m.comment("network: feature contract, lattice, weights (network.bin, float32)")
     c = w.contract
@@ -245,6 +288,11 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["network.ms_resolution"] = list(res)
     m["network.ms_bbox_min"] = [float(v) for v in grid.bbox_min]
     m["network.ms_bbox_max"] = [float(v) for v in grid.bbox_max]
+    # the lattice points the network evaluates ([z][y][x] indices, ascending); the others
+    # hold F_ms = 0 (no density within reach: their F_ms never reaches the image)
+    m["network.active_points"] = int(len(active)) if network else 0
+    m["network.active_file"] = "active.i32"
+    _write_raw(out / "active.i32", active if network else np.zeros(0), np.int32)
     m["network.file"] = "network.bin"
     packed = km.pack_params(w)
     lw = np.asarray(w.level_weights, np.float32)
@@ -294,7 +342,7 @@ def _packed_tensors(w, pad8) -> list:
 
 
 def add_arguments(p) -> None:
-    from .raymarch import DEFAULT_NETWORK_RESOLUTION
+    from .render.network import DEFAULT_NETWORK_RESOLUTION
     p.add_argument("scene", help="scene .toml file")
     p.add_argument("dir", help="output folder (created)")
     p.add_argument("--weights", metavar="FILE.npz", help="network weights (default: shipped)")

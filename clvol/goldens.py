@@ -113,7 +113,7 @@ def write_goldens(out_dir) -> Path:
     from .kernels import gather as kg
     from .kernels import mlp as km
     from .kernels.phase import lobe_vectors, phase_defines
-    from .raymarch import shipped_weights
+    from .render.network import shipped_weights
     from .runtime import DEFAULT_PAD, cl_source_dir, include_dir
     rgather, rmajorant, rmlp, rpyramid, rtrans = _reference()
     root = Path(out_dir)

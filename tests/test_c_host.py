@@ -1,10 +1,12 @@
 """The C host (examples/c/) against the Python host, its memory check, and the golden vectors.
 
 - Images: ``clvol bundle`` of two shipped examples (cloud: grey albedo, one lobe; jade:
-  chromatic albedo, two lobes) rendered by clvol-render and by ``render_raymarch(...,
-  ms="network")`` with the same options: relative RMS difference of the total <= 1e-3 (the
-  issue's bar; both hosts launch the same kernels with the same arguments on one device, so
-  the difference is in practice 0).
+  chromatic albedo, two lobes) rendered by clvol-render and by ``clvol.Renderer`` with the
+  same options and otherwise its defaults (what ``clvol render`` runs: the network at the
+  lattice points with density within reach, domain fallback on): relative RMS difference of
+  the total <= 1e-3 (the issue's bar; both hosts launch the same kernels with the same
+  arguments on one device, so the difference is in practice 0). Also the scenes the renderer
+  gives another source: unlit, optically thin (--ms none) and strongly backward (wrenninge).
 - The -D defines a bundle records equal the ones the Python render builds with (same device).
 - AddressSanitizer + LeakSanitizer + UBSan build on a tiny bundle: exit 0, no report. No
   suppression file is used: a cl_mem the host forgets to release is reported (its allocation
@@ -27,7 +29,7 @@ import pytest
 
 from clvol.bundle import write_bundle
 from clvol.cli import main
-from clvol.raymarch import render_raymarch
+from clvol.render.renderer import Renderer
 from clvol.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,15 +85,30 @@ def small(name, overrides=None):
 # cloud: grey, one lobe; jade: chromatic, two lobes; smoke at albedo 0 with an environment:
 # nothing lit (no light field, no network; the kernels get placeholder buffers)
 UNLIT = {"medium.albedo": [0.0, 0.0, 0.0], "light.environment": [0.2, 0.3, 0.4]}
+# cloud at density scale 0.5: largest optical thickness 0.4 < 0.5, the renderer's thin-medium
+# shortcut (--ms none); smoke with a strongly backward phase at albedo 0.95: outside the
+# network's domain, the renderer's fallback is Wrenninge octaves (clvol/render/network.py)
+THIN = {"medium.density_scale": 0.5}
+BACKWARD = {"medium.albedo": [0.95, 0.95, 0.95], "medium.phase": {"type": "hg", "g": -0.85}}
 
 
-@pytest.mark.parametrize("name, overrides, grey, lobes", [
-    ("cloud.toml", None, True, 1), ("jade.toml", None, False, 2), ("smoke.toml", UNLIT, True, 1)])
-def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, grey, lobes):
+@pytest.mark.parametrize("name, overrides, grey, lobes, source", [
+    ("cloud.toml", None, True, 1, "network"), ("jade.toml", None, False, 2, "network"),
+    ("smoke.toml", UNLIT, True, 1, "none"), ("cloud.toml", THIN, True, 1, "none"),
+    ("smoke.toml", BACKWARD, True, 1, "wrenninge")])
+def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, grey, lobes,
+                                 source):
     from clvol import runtime as rtm
     scene = small(name, overrides)
     assert scene.medium.is_grey == grey and len(scene.medium.phase.lobes) == lobes
     bundle = write_bundle(scene, tmp_path / "b", ms_resolution=MS_RES)
+    lines = dict(l.split(" = ", 1) for l in (bundle / "manifest.txt").read_text().splitlines()
+                 if " = " in l and not l.startswith("#"))
+    assert lines["raymarch.ms_source"] == source
+    if source == "network":
+        # the lattice points with no density within reach are skipped, as in Python
+        n_active = int(lines["network.active_points"])
+        assert 0 < n_active < MS_RES ** 3
     # jade goes through the embedding path (a context and queue handed in)
     attach = ["--external-context"] if name == "jade.toml" else []
     r = run([host / "clvol-render", bundle, tmp_path / "c.pfm"] + attach)
@@ -106,8 +123,13 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
         built.add((stem, tuple(rtm._define_flags(defines))))
         return orig(stem, defines, extra_options)
     monkeypatch.setattr(rt, "program", recording)
-    want = render_raymarch(scene, ms="network", ms_resolution=MS_RES, runtime=rt).layers["total"]
+    res = Renderer(scene, "raymarch", ms_resolution=MS_RES, runtime=rt).render()
+    want = res.layers["total"]
     monkeypatch.undo()
+    if scene.medium.albedo[0] > 0:
+        assert res.header["raymarch.ms"] == source
+    if source == "network":
+        assert res.header["raymarch.network_points"] == n_active
 
     assert got.shape == want.shape == (SIZE, SIZE, 3)
     assert np.all(np.isfinite(got)) and want.max() > 0
@@ -117,8 +139,6 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
 
     # the defines the bundle records are the ones Python built with
     recorded = set()
-    lines = dict(l.split(" = ", 1) for l in (bundle / "manifest.txt").read_text().splitlines()
-                 if " = " in l and not l.startswith("#"))
     for name_ in lines["programs"].split():
         stem = Path(lines[f"program.{name_}"]).stem
         opts = [o for o in lines[f"program.{name_}.options"].split()
@@ -132,19 +152,30 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
 def tiny_bundle(tmp_path) -> Path:
     scene = load_scene(ROOT / "examples" / "jade.toml").with_overrides(
         {"volume.resolution": 12, "camera.width": 8, "camera.height": 8})
-    return write_bundle(scene, tmp_path / "tiny", ms_resolution=4, light_resolution=16)
+    # an 8^3 lattice: some points have no density within reach (the network skips them)
+    return write_bundle(scene, tmp_path / "tiny", ms_resolution=8, light_resolution=16)
 
 
 def test_asan_no_leaks_or_errors(host, tmp_path):
     """The first run (memory errors checked, leaks not) fills PoCL's kernel cache, because
     PoCL's compiler (LLVM) leaks on every build; the next ones build nothing and must report
     no error and no leak, with the host's own context and with one handed in (the caller's
-    context and queue outlive the host; --external-context)."""
+    context and queue outlive the host; --external-context); the same for a bundle whose
+    scene falls back to an analytic source."""
     bundle = tiny_bundle(tmp_path)
-    for leaks, extra in ((0, []), (1, []), (1, ["--external-context"])):
+    mf = (bundle / "manifest.txt").read_text()
+    assert "raymarch.ms_source = network" in mf
+    assert 0 < int(mf.split("network.active_points = ")[1].split()[0]) < 8 ** 3
+    # and a scene the renderer gives Wrenninge octaves (light field and march only)
+    scene = load_scene(ROOT / "examples" / "smoke.toml").with_overrides(
+        dict(BACKWARD, **{"volume.resolution": 12, "camera.width": 8, "camera.height": 8}))
+    octaves = write_bundle(scene, tmp_path / "octaves", ms_resolution=8, light_resolution=16)
+    assert "raymarch.ms_source = wrenninge" in (octaves / "manifest.txt").read_text()
+    for b, leaks, extra in ((bundle, 0, []), (bundle, 1, []), (bundle, 1, ["--external-context"]),
+                            (octaves, 0, []), (octaves, 1, [])):
         env = dict(os.environ, ASAN_OPTIONS=f"detect_leaks={leaks}:exitcode=23",
                    UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1")
-        r = run([host / "clvol-render-asan", bundle, tmp_path / "t.pfm"] + extra, env=env)
+        r = run([host / "clvol-render-asan", b, tmp_path / "t.pfm"] + extra, env=env)
         report = r.stdout + r.stderr
         assert r.returncode == 0, report
         for marker in ("AddressSanitizer", "LeakSanitizer", "runtime error"):
@@ -172,6 +203,19 @@ def test_bundle_cli_refuses_bad_options(tmp_path, capsys):
     assert "ms_resolution = 64: at most 32768 lattice points" in capsys.readouterr().err
     assert main(["bundle", str(scene), str(tmp_path / "b"), "--step", "0"]) == 2
     assert "step = 0.0" in capsys.readouterr().err
+
+
+def test_bundle_refuses_a_source_the_c_host_lacks(tmp_path, capsys, monkeypatch):
+    """A scene the renderer would render with a source the C host does not run (none does
+    today: the fallbacks are none and wrenninge) is refused with exit 2, naming it."""
+    from clvol.render.sources import GridMs, MsGrid
+    grid = GridMs(MsGrid(np.zeros((2, 2, 2), np.float32), (-1, -1, -1), (1, 1, 1)))
+    monkeypatch.setattr(Renderer, "active_source", lambda self, medium=None: (grid, None))
+    scene = ROOT / "examples" / "cloud.toml"
+    assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms-resolution", "4"]) == 2
+    err = capsys.readouterr().err
+    assert "cloud.toml" in err and "--ms grid" in err and "does not implement" in err
+    assert not (tmp_path / "b").exists()
 
 
 @pytest.fixture(scope="module")

@@ -143,6 +143,12 @@ def fibonacci_directions(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
+def lattice_reach(grid, step_voxels: float) -> float:
+    """The ``reach`` of ``lattice_reach_mask`` for a march of ``step_voxels`` (the ray
+    marcher's step option): one voxel (largest cell side) plus one step (smallest side)."""
+    return float(np.max(grid.cell_size)) + float(step_voxels) * float(np.min(grid.cell_size))
+
+
 def lattice_reach_mask(grid, resolution, reach: float) -> np.ndarray:
     """Boolean mask over the F_ms lattice points ([z][y][x], the volume's box): True where
     some voxel of non-zero density has its centre within one lattice cell plus ``reach``

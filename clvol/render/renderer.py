@@ -150,6 +150,12 @@ class Renderer:
             return self.source, msg
         return self._other(alt), msg
 
+    def active_source(self, medium=None):
+        """(source, warning): the multiple-scattering source a render of ``medium`` (default
+        the scene's) uses -- the configured one, or the alternative for a medium outside the
+        network's domain or optically thin -- and the domain warning, if any."""
+        return self._active_source(medium or self.scene.medium, self.grid)
+
     def _other(self, name):
         from .raymarch import make_source
         if self.fallback is None or self.fallback.name != name:
@@ -174,8 +180,8 @@ class Renderer:
                 cam = dataclasses.replace(cam, width=cam.width * s, height=cam.height * s)
             source, warning = self._active_source(medium, grid)
             if is_lit(medium, light) or not shortcuts:
-                cell = float(np.max(grid.cell_size))
-                reach = cell + float(o["step"]) * float(np.min(grid.cell_size))
+                from .network import lattice_reach
+                reach = lattice_reach(grid, o["step"])
                 source.prepare(Frame(grid, cam, light, medium, self.rt, shortcuts, self._count,
                                      reach, rm.dm.cache))
             with Stopwatch() as sw_light:

@@ -4,12 +4,16 @@
  *   clvol-render BUNDLE OUT.pfm [--frames N] [--device gpu|cpu|P:D]
  *   clvol-render --golden GOLDEN_DIR          (check the MLP and the gather against golden vectors)
  *
- * Steps (the Python host's, clvol/raymarch.py, in the same order and with the same launches):
+ * Steps (the Python host's, clvol/render/, in the same order and with the same launches):
  *   per volume   upload the density, majorant grid, resample the density to the light field's
  *                cube and to the network's pyramid base (host), mip chain (device);
  *   per light    light field (transmittance sweep, lambda = 1), graded transmittance (every
  *                pyramid level), bake of (tau, C) per level for the gather;
- *   per frame    F_ms lattice points toward the camera, gather, MLP, ray march, read back.
+ *   per frame    F_ms at the bundle's active lattice points toward the camera (gather, MLP;
+ *                the other points hold 0), ray march, read back.
+ * A bundle whose scene the Python host renders with an analytic source instead of the network
+ * (raymarch.ms_source = none or wrenninge: outside the network's domain, optically thin) runs
+ * the light field and the march only.
  *
  * Embedding: clvol_host_create(dir, context, queue) takes an existing context and queue (or NULL,
  * NULL to make its own); every OpenCL call is checked, and a failure prints the call, the error
@@ -234,6 +238,20 @@ static int mf_int(const manifest *m, const char *key) {
     return v;
 }
 
+/* Whether the space-separated list `key` holds `word`. */
+static int mf_has_word(const manifest *m, const char *key, const char *word) {
+    const char *s = mf_str(m, key);
+    size_t n = strlen(word);
+    while (*s) {
+        while (isspace((unsigned char)*s)) ++s;
+        size_t k = 0;
+        while (s[k] && !isspace((unsigned char)s[k])) ++k;
+        if (k == n && strncmp(s, word, n) == 0) return 1;
+        s += k;
+    }
+    return 0;
+}
+
 static void mf_float4(const manifest *m, const char *key, int n, cl_float4 *out) {
     double d[4] = {0, 0, 0, 0};
     mf_doubles(m, key, d, n);
@@ -271,7 +289,7 @@ struct clvol_host {
     int nx, ny, nz;
     double bmin[3], bmax[3], cube_min[3], cube_size, density_scale;
     float *density;
-    int lit, grey, channels, light_res, light_tau, block, skip_empty;
+    int lit, network, grey, channels, light_res, light_tau, block, skip_empty;
     cl_mem d_density, d_majorant, d_light_pyr, d_light, d_dummy;
     int mx, my, mz;
     /* network */
@@ -283,7 +301,8 @@ struct clvol_host {
     cl_mem d_pyr, d_loff, d_graded, d_baked, d_params, d_tpl, d_pinfo, d_hl, d_ptab, d_wbuf,
         d_taufac;
     /* frame */
-    int n_lattice;
+    int n_active;     /* lattice points the network evaluates; the others hold F_ms = 0 */
+    int *active;      /* their [z][y][x] indices, ascending */
     cl_mem d_points, d_omegas, d_order, d_feats, d_config, d_tenter, d_fms, d_planes;
     cl_mem d_out[6];
     int width, height;
@@ -677,6 +696,7 @@ static void sweep_level(clvol_host *h, cl_mem layout, long s_off, int n, double 
     sweep_geom g = sweep_geometry(l);
     int width = n >= h->sweep_vmin ? 16 : 1;
     cl_kernel k = width == 16 ? h->k_sweep16 : h->k_sweep1;
+    if (!k) fail("%s: program transmittance_w%d is not in the bundle's programs", h->mf.where, width);
     int *stab = xmalloc(sizeof(int) * 3 * (size_t)n);
     float *sftab = xmalloc(sizeof(float) * 2 * (size_t)n);
     int umin_all = 0, umax_all = 0, vmin_all = 0, vmax_all = 0;
@@ -772,6 +792,11 @@ static void setup_volume(clvol_host *h) {
     h->density = read_raw4(h->dir, mf_str(m, "density.file"), count);
     h->density_scale = mf_double(m, "medium.density_scale");
     h->lit = mf_int(m, "raymarch.lit");
+    const char *src = mf_str(m, "raymarch.ms_source");
+    if (strcmp(src, "network") != 0 && strcmp(src, "none") != 0 && strcmp(src, "wrenninge") != 0)
+        fail("%s: raymarch.ms_source = %s: this host runs network, none or wrenninge", m->where, src);
+    /* none and wrenninge are the kernel's own (raymarch.cl's -D MS_SOURCE): no network */
+    h->network = h->lit && strcmp(src, "network") == 0;
     h->grey = mf_int(m, "medium.grey");
     h->channels = mf_int(m, "raymarch.channels");
     h->light_res = mf_int(m, "raymarch.light_resolution");
@@ -786,16 +811,20 @@ static void setup_volume(clvol_host *h) {
     h->cube_size = ext;
     for (int a = 0; a < 3; ++a) h->cube_min[a] = 0.5 * (h->bmin[a] + h->bmax[a]) - 0.5 * ext;
 
-    /* unlit scenes (albedo x irradiance = 0) need only the majorant and the march */
+    /* the programs the bundle lists (what the Python host builds for this scene: unlit scenes
+     * need only the majorant and the march, analytic sources no network) */
     for (int p = 0; p < N_PROGRAMS; ++p)
-        if (h->lit || p == P_MAJORANT || p == P_RAYMARCH) build_program(h, p, PROGRAM_NAMES[p]);
+        if (mf_has_word(m, "programs", PROGRAM_NAMES[p])) build_program(h, p, PROGRAM_NAMES[p]);
     h->t_build = now_seconds() - t0;
     h->k_majorant = kernel(h, P_MAJORANT, "majorant_build");
     if (h->lit) {
-        h->k_mip = kernel(h, P_PYRAMID, "mip_reduce");
         h->k_layout = kernel(h, P_TRANS, "sweep_layout");
-        h->k_sweep1 = kernel(h, P_TRANS_W1, "transmittance_sweep_block");
-        h->k_sweep16 = kernel(h, P_TRANS_W16, "transmittance_sweep_block");
+        /* the widths the bundle's levels use (one of them when only the light field is swept) */
+        if (h->prog[P_TRANS_W1]) h->k_sweep1 = kernel(h, P_TRANS_W1, "transmittance_sweep_block");
+        if (h->prog[P_TRANS_W16]) h->k_sweep16 = kernel(h, P_TRANS_W16, "transmittance_sweep_block");
+    }
+    if (h->network) {
+        h->k_mip = kernel(h, P_PYRAMID, "mip_reduce");
         h->k_xpass = kernel(h, P_BAKE, "bake_xpass");
         h->k_rows = kernel(h, P_BAKE, "bake_rows");
         h->k_small = kernel(h, P_BAKE, "bake_small");
@@ -823,7 +852,9 @@ static void setup_volume(clvol_host *h) {
         resample_to_cube(h, n, lv0);
         h->d_light_pyr = buffer(h, 4 * (size_t)n * n * n, lv0);
         free(lv0);
-
+        h->d_light = buffer(h, 4 * (size_t)n * n * n, NULL);
+    }
+    if (h->network) {
         /* network pyramid: base^3 on the host, the mip chain on the device */
         h->base = mf_int(m, "network.base_resolution");
         h->L = mf_int(m, "network.n_levels");
@@ -894,7 +925,19 @@ static void setup_volume(clvol_host *h) {
         const cl_float z = 0.0f;
         CL(clEnqueueFillBuffer(h->queue, h->d_baked, &z, sizeof z, 4 * (size_t)(2 * h->pyr_size),
                                4 * (size_t)h->bake_pad, 0, NULL, NULL));
-        h->d_light = buffer(h, 4 * (size_t)n * n * n, NULL);
+        /* the lattice points the network evaluates */
+        mf_ints(m, "network.ms_resolution", h->res, 3);
+        long N = (long)h->res[0] * h->res[1] * h->res[2];
+        if (h->res[0] < 1 || h->res[1] < 1 || h->res[2] < 1 || N > 1L << 24)
+            fail("%s: network.ms_resolution out of range", m->where);
+        h->n_active = mf_int(m, "network.active_points");
+        if (h->n_active < 0 || h->n_active > N)
+            fail("%s: network.active_points = %d: must be in [0, %ld]", m->where, h->n_active, N);
+        h->active = read_raw4(h->dir, mf_str(m, "network.active_file"), (size_t)h->n_active);
+        for (int k = 0; k < h->n_active; ++k)
+            if (h->active[k] < 0 || h->active[k] >= N || (k && h->active[k] <= h->active[k - 1]))
+                fail("%s: network.active_file: index %d at %d is out of range or not ascending",
+                     m->where, h->active[k], k);
     }
     CL(clFinish(h->queue));
     h->t_volume = now_seconds() - t0;
@@ -959,14 +1002,16 @@ void clvol_host_set_light(clvol_host *h, const double dir[3]) {
     cl_mem lay = sweep_layout(h, h->d_light_pyr, &zero, n, 1, g.a, s_off);
     sweep_level(h, lay, s_off[0], n, h->density_scale * (h->cube_size / n), l, h->light_tau,
                 h->d_light, 0);
-    /* graded transmittance: every level l with lambda^(l+1) */
-    cl_mem glay = sweep_layout(h, h->d_pyr, h->loff, h->base, h->L, g.a, s_off);
-    for (int lv = 0; lv < h->L; ++lv) {
-        int nl = h->base >> lv;
-        double scale = pow(h->lam, lv + 1) * h->density_scale * (h->cube_size / nl);
-        sweep_level(h, glay, s_off[lv], nl, scale, l, 0, h->d_graded, h->loff[lv]);
+    if (h->network) {
+        /* graded transmittance: every level l with lambda^(l+1) */
+        cl_mem glay = sweep_layout(h, h->d_pyr, h->loff, h->base, h->L, g.a, s_off);
+        for (int lv = 0; lv < h->L; ++lv) {
+            int nl = h->base >> lv;
+            double scale = pow(h->lam, lv + 1) * h->density_scale * (h->cube_size / nl);
+            sweep_level(h, glay, s_off[lv], nl, scale, l, 0, h->d_graded, h->loff[lv]);
+        }
+        bake(h);
     }
-    bake(h);
     CL(clFinish(h->queue));
     for (int i = mark; i < h->n_mems; ++i) CL(clReleaseMemObject(h->mems[i]));
     h->n_mems = mark;
@@ -1005,8 +1050,7 @@ void clvol_host_render(clvol_host *h, float *rgb) {
     int C = 1;
     cl_mem planes = h->d_dummy;
     double gmin[3] = {0, 0, 0}, gmax[3] = {1, 1, 1};
-    if (h->lit) {
-        mf_ints(m, "network.ms_resolution", h->res, 3);
+    if (h->network) {
         mf_doubles(m, "network.ms_bbox_min", h->ms_min, 3);
         mf_doubles(m, "network.ms_bbox_max", h->ms_max, 3);
         for (int a = 0; a < 3; ++a) {
@@ -1016,95 +1060,101 @@ void clvol_host_render(clvol_host *h, float *rgb) {
         }
         C = h->channels;
         int N = h->res[0] * h->res[1] * h->res[2];
+        /* the network runs at the active points only (n queries, in ascending lattice order:
+         * the Python host's order); the others get F_ms = 0 */
+        int n = h->n_active, nq = n > 0 ? n : 1;   /* nq: buffers are never empty */
         double cphase[7];
         mf_doubles(m, "medium.config_phase", cphase, 7);
         /* lattice: voxel centres over the box, [z][y][x], omega toward the camera */
-        float *pts = xmalloc(sizeof(float) * 3 * (size_t)N);
-        float *oms = xmalloc(sizeof(float) * 3 * (size_t)N);
-        float *cfg = xmalloc(sizeof(float) * 9 * (size_t)N);
-        int *order = xmalloc(sizeof(int) * (size_t)N);
-        uint32_t *key = xmalloc(sizeof(uint32_t) * (size_t)N);
+        float *pts = xmalloc(sizeof(float) * 3 * (size_t)nq);
+        float *oms = xmalloc(sizeof(float) * 3 * (size_t)nq);
+        float *cfg = xmalloc(sizeof(float) * 9 * (size_t)nq);
+        int *order = xmalloc(sizeof(int) * (size_t)nq);
+        uint32_t *key = xmalloc(sizeof(uint32_t) * (size_t)nq);
         int cells = 1 << h->sort_bits;
         long nkeys = 1L << (3 * h->sort_bits);
         int *count = calloc((size_t)nkeys + 1, sizeof(int));
         if (!count) fail("out of host memory");
-        int q = 0;
-        for (int z = 0; z < h->res[2]; ++z)
-            for (int y = 0; y < h->res[1]; ++y)
-                for (int x = 0; x < h->res[0]; ++x, ++q) {
-                    int idx[3] = {x, y, z};
-                    double p[3], w[3], norm = 0.0;
-                    for (int a = 0; a < 3; ++a) {
-                        p[a] = h->ms_min[a] + ((double)idx[a] + 0.5) * (h->ms_max[a] - h->ms_min[a]) / h->res[a];
-                        w[a] = origin[a] - p[a];
-                        norm += w[a] * w[a];
-                    }
-                    norm = fmax(sqrt(norm), 1e-30);
-                    double mu = 0.0;
-                    uint32_t kk = 0;
-                    for (int a = 0; a < 3; ++a) {
-                        pts[3 * q + a] = (float)p[a];
-                        oms[3 * q + a] = (float)(w[a] / norm);
-                        mu -= (double)oms[3 * q + a] * l[a];
-                        double gcell = (p[a] - h->cube_min[a]) * (cells / h->cube_size);
-                        uint32_t c = (uint32_t)clampd(gcell, 0.0, cells - 1);
-                        kk |= spread_bits(c, h->sort_bits) << a;
-                    }
-                    key[q] = kk;
-                    count[kk + 1]++;
-                    for (int f = 0; f < 7; ++f) cfg[9 * q + f] = (float)cphase[f];
-                    cfg[9 * q + 7] = (float)alb[0];
-                    cfg[9 * q + 8] = (float)acos(clampd(mu, -1.0, 1.0));
-                }
+        for (int q = 0; q < n; ++q) {
+            int i = h->active[q];
+            int idx[3] = {i % h->res[0], (i / h->res[0]) % h->res[1],
+                          i / (h->res[0] * h->res[1])};
+            double p[3], w[3], norm = 0.0;
+            for (int a = 0; a < 3; ++a) {
+                p[a] = h->ms_min[a] + ((double)idx[a] + 0.5) * (h->ms_max[a] - h->ms_min[a]) / h->res[a];
+                w[a] = origin[a] - p[a];
+                norm += w[a] * w[a];
+            }
+            norm = fmax(sqrt(norm), 1e-30);
+            double mu = 0.0;
+            uint32_t kk = 0;
+            for (int a = 0; a < 3; ++a) {
+                pts[3 * q + a] = (float)p[a];
+                oms[3 * q + a] = (float)(w[a] / norm);
+                mu -= (double)oms[3 * q + a] * l[a];
+                double gcell = (p[a] - h->cube_min[a]) * (cells / h->cube_size);
+                uint32_t c = (uint32_t)clampd(gcell, 0.0, cells - 1);
+                kk |= spread_bits(c, h->sort_bits) << a;
+            }
+            key[q] = kk;
+            count[kk + 1]++;
+            for (int f = 0; f < 7; ++f) cfg[9 * q + f] = (float)cphase[f];
+            cfg[9 * q + 7] = (float)alb[0];
+            cfg[9 * q + 8] = (float)acos(clampd(mu, -1.0, 1.0));
+        }
         /* queries in Morton order of their coarse cell (stable counting sort): only speed */
         for (long i = 0; i < nkeys; ++i) count[i + 1] += count[i];
-        for (int i = 0; i < N; ++i) order[count[key[i]]++] = i;
+        for (int i = 0; i < n; ++i) order[count[key[i]]++] = i;
         free(count);
         free(key);
         if (!h->d_points) {   /* made once, rewritten every frame */
-            h->d_points = buffer(h, sizeof(float) * 3 * (size_t)N, NULL);
-            h->d_omegas = buffer(h, sizeof(float) * 3 * (size_t)N, NULL);
-            h->d_order = buffer(h, sizeof(int) * (size_t)N, NULL);
-            h->d_config = buffer(h, sizeof(float) * 9 * (size_t)N, NULL);
-            h->d_feats = buffer(h, sizeof(float) * 3 * (size_t)h->np_ * N, NULL);
-            h->d_tenter = buffer(h, sizeof(float) * (size_t)N, NULL);
-            h->d_fms = buffer(h, sizeof(float) * (size_t)C * N, NULL);
+            h->d_points = buffer(h, sizeof(float) * 3 * (size_t)nq, NULL);
+            h->d_omegas = buffer(h, sizeof(float) * 3 * (size_t)nq, NULL);
+            h->d_order = buffer(h, sizeof(int) * (size_t)nq, NULL);
+            h->d_config = buffer(h, sizeof(float) * 9 * (size_t)nq, NULL);
+            h->d_feats = buffer(h, sizeof(float) * 3 * (size_t)h->np_ * nq, NULL);
+            h->d_tenter = buffer(h, sizeof(float) * (size_t)nq, NULL);
+            h->d_fms = buffer(h, sizeof(float) * (size_t)C * nq, NULL);
             h->d_planes = buffer(h, sizeof(float) * (size_t)C * N, NULL);
         }
-        CL(clEnqueueWriteBuffer(h->queue, h->d_points, CL_FALSE, 0, 12 * (size_t)N, pts, 0, NULL, NULL));
-        CL(clEnqueueWriteBuffer(h->queue, h->d_omegas, CL_FALSE, 0, 12 * (size_t)N, oms, 0, NULL, NULL));
-        CL(clEnqueueWriteBuffer(h->queue, h->d_order, CL_FALSE, 0, 4 * (size_t)N, order, 0, NULL, NULL));
-        CL(clEnqueueWriteBuffer(h->queue, h->d_config, CL_FALSE, 0, 36 * (size_t)N, cfg, 0, NULL, NULL));
-        /* gather, render mode */
-        cl_float4 cmin = f4(h->cube_min), light4 = f4(l), lg, lw;
-        mf_float4(m, "medium.lobe_g", 4, &lg);
-        mf_float4(m, "medium.lobe_w", 4, &lw);
-        double wsum = h->level_bias;
-        for (int i = 0; i < h->L; ++i) wsum += h->level_w[i];
-        set_args(h->k_gather, "mmmmii4fmmmmmimm444fmimmm", h->d_pyr, h->d_graded, h->d_baked,
-                 h->d_loff, h->L, h->base, &cmin, h->cube_size, h->d_dummy, h->d_tpl, h->d_pinfo,
-                 h->d_hl, h->d_ptab, h->n_alpha, h->d_points, h->d_omegas, &light4, &lg, &lw,
-                 (double)(float)wsum, h->d_order, N, h->d_feats, h->d_dummy, h->d_tenter);
-        launch(h, h->k_gather, padded((size_t)N, (size_t)h->pad), 0);
-        /* MLP: 16 queries per work-item; groups of one work-item on a CPU (private arrays
-         * of ~105 KB each overflow PoCL's stack in bigger groups) */
-        cl_float4 ca = {{0, 0, 0, 0}};
-        if (C == 3)
-            for (int c = 0; c < 3; ++c) ca.s[c] = (float)alb[c];
-        set_args(h->k_mlp, "mmm4im", h->d_feats, h->d_config, h->d_params, &ca, N, h->d_fms);
-        size_t items = (size_t)(N + h->mlp_qpi - 1) / (size_t)h->mlp_qpi;
-        if (h->is_cpu)
-            launch(h, h->k_mlp, items, 1);
-        else
-            launch(h, h->k_mlp, padded(items, (size_t)h->pad), 0);
-        /* F_ms: clamp at 0, refuse non-finite, planes [C][gz][gy][gx] */
-        float *fms = xmalloc(sizeof(float) * (size_t)C * N);
-        float *pl = xmalloc(sizeof(float) * (size_t)C * N);
-        CL(clEnqueueReadBuffer(h->queue, h->d_fms, CL_TRUE, 0, sizeof(float) * (size_t)C * N, fms,
-                               0, NULL, NULL));
-        for (int i = 0; i < N; ++i)
+        float *fms = xmalloc(sizeof(float) * (size_t)C * nq);
+        float *pl = calloc((size_t)C * N, sizeof(float));
+        if (!pl) fail("out of host memory");
+        if (n > 0) {
+            CL(clEnqueueWriteBuffer(h->queue, h->d_points, CL_FALSE, 0, 12 * (size_t)n, pts, 0, NULL, NULL));
+            CL(clEnqueueWriteBuffer(h->queue, h->d_omegas, CL_FALSE, 0, 12 * (size_t)n, oms, 0, NULL, NULL));
+            CL(clEnqueueWriteBuffer(h->queue, h->d_order, CL_FALSE, 0, 4 * (size_t)n, order, 0, NULL, NULL));
+            CL(clEnqueueWriteBuffer(h->queue, h->d_config, CL_FALSE, 0, 36 * (size_t)n, cfg, 0, NULL, NULL));
+            /* gather, render mode */
+            cl_float4 cmin = f4(h->cube_min), light4 = f4(l), lg, lw;
+            mf_float4(m, "medium.lobe_g", 4, &lg);
+            mf_float4(m, "medium.lobe_w", 4, &lw);
+            double wsum = h->level_bias;
+            for (int i = 0; i < h->L; ++i) wsum += h->level_w[i];
+            set_args(h->k_gather, "mmmmii4fmmmmmimm444fmimmm", h->d_pyr, h->d_graded, h->d_baked,
+                     h->d_loff, h->L, h->base, &cmin, h->cube_size, h->d_dummy, h->d_tpl, h->d_pinfo,
+                     h->d_hl, h->d_ptab, h->n_alpha, h->d_points, h->d_omegas, &light4, &lg, &lw,
+                     (double)(float)wsum, h->d_order, n, h->d_feats, h->d_dummy, h->d_tenter);
+            launch(h, h->k_gather, padded((size_t)n, (size_t)h->pad), 0);
+            /* MLP: 16 queries per work-item; groups of one work-item on a CPU (private arrays
+             * of ~105 KB each overflow PoCL's stack in bigger groups) */
+            cl_float4 ca = {{0, 0, 0, 0}};
+            if (C == 3)
+                for (int c = 0; c < 3; ++c) ca.s[c] = (float)alb[c];
+            set_args(h->k_mlp, "mmm4im", h->d_feats, h->d_config, h->d_params, &ca, n, h->d_fms);
+            size_t items = (size_t)(n + h->mlp_qpi - 1) / (size_t)h->mlp_qpi;
+            if (h->is_cpu)
+                launch(h, h->k_mlp, items, 1);
+            else
+                launch(h, h->k_mlp, padded(items, (size_t)h->pad), 0);
+            /* F_ms: clamp at 0, refuse non-finite, planes [C][gz][gy][gx] */
+            CL(clEnqueueReadBuffer(h->queue, h->d_fms, CL_TRUE, 0, sizeof(float) * (size_t)C * n, fms,
+                                   0, NULL, NULL));
+        }
+        for (int q = 0; q < n; ++q)
             for (int c = 0; c < C; ++c) {
-                float v = fms[(size_t)i * C + c];
+                float v = fms[(size_t)q * C + c];
+                int i = h->active[q];
                 if (!isfinite(v)) fail("the network produced a non-finite F_ms at lattice point %d", i);
                 pl[(size_t)c * N + i] = v > 0.0f ? v : 0.0f;
             }
@@ -1202,6 +1252,7 @@ void clvol_host_destroy(clvol_host *h) {
     }
     manifest_free(&h->mf);
     free(h->density);
+    free(h->active);
     free(h->dir);
     free(h);
 }
