@@ -30,7 +30,9 @@
  *
  * Defines: PHASE_LOBES / PHASE_ISOTROPIC (phase.h); PT_GREY (scalar throughput);
  * PT_ENV (a constant environment); PT_NO_SUN (no sun); PT_SINGLE_ONLY (stop after vertex
- * 1); PT_RR_START, PT_MAX_VERTICES; PT_TEST_BIAS (tests only: scales sun NEE by its value).
+ * 1); PT_RR_START, PT_MAX_VERTICES; PT_TEST_BIAS (tests only: scales sun NEE by its value);
+ * PT_LANES (8 or 16 paths per work-item), PT_BATCH (lanes waiting before the vertex code
+ * runs), PT_STATS (loop counts in next[1..4], benchmarks only).
  *
  * Kernels (grid and majorant arguments first, then light, then the per-kernel ones):
  *   density   float [nz][ny][nx]    raw density; sigma_t = density * scale (1/length)
@@ -42,12 +44,15 @@
  *   sun       float4                sun irradiance E (RGB, power / area perpendicular to l)
  *   env       float4                environment radiance (RGB), used with PT_ENV
  * pt_render: cam_o, cam_f, cam_r, cam_u float4, tan_half, width, height; seed ulong;
- *   sample0 uint; spl int (samples per launch; work-item g: pixel g % npix, sample
+ *   sample0 uint; spl int (samples per launch; path g: pixel g % npix, sample
  *   sample0 + g / npix); max_order int; out float [spl*npix][PT_OUT]:
- *   (background rgb, order-1 rgb, orders>=2 rgb, vertices, tracking steps, truncated, 0, 0)
+ *   (background rgb, order-1 rgb, orders>=2 rgb, vertices, tracking steps, truncated);
+ *   next uint [1] (5 with PT_STATS), zero at launch: the next path to start.
  * pt_query: points, omegas float [nq][3]; nq; seed; sample0; ppl (paths per launch,
- *   work-item g: query g % nq, path sample0 + g / nq); max_order; out as pt_render with
- *   background 0 (sun irradiance 1 and no environment are the caller's arguments).
+ *   path g: query g % nq, path sample0 + g / nq); max_order; out as pt_render with
+ *   background 0 (sun irradiance 1 and no environment are the caller's arguments); next.
+ * Any number of work-items (local size 1) runs all paths of a launch: each takes paths
+ * from *next until none are left.
  */
 #include "rng.h"
 #include "grid.h"
@@ -121,17 +126,21 @@ __attribute__((always_inline)) pt_rgb pt_div3(pt_rgb c, float q) {
  * PT_LANES paths run side by side in one work-item, one path per lane (PoCL vectorises
  * explicit vector types, not this divergent loop across work-items: docs/pathtrace.md).
  * The state of every lane lives in the arrays of pt_lanes (structure of arrays). One
- * loop, shared by images and point queries, advances every tracking lane by one event per
- * iteration in vector code: either one majorant-grid cell (DDA) or one tentative collision
- * (trilinear lookup, accept test or ratio-tracking update). What happens between rays
- * (scattering vertex, sun NEE set-up, roulette, phase sampling, escape, writing a finished
- * path and starting the next one) is rarer and runs per lane in scalar code, pt_lane_event.
- * A lane whose path ends takes the next path of the launch from a global counter, so
- * lanes stay busy until the launch runs out of paths. Each path still reads its own
- * Philox stream in the documented order and writes its own output row: which lane or
- * work-item ran it changes nothing. */
+ * loop, pt_run, shared by images and point queries, moves every tracking lane to its next
+ * tentative collision (majorant cells walked in a vector inner loop) and processes the
+ * collisions together (trilinear lookups, accept test or ratio-tracking update). A lane
+ * whose ray ends gets a pending step; once PT_BATCH lanes wait (or none tracks),
+ * pt_events runs the steps between rays (vertex, sun NEE set-up, roulette, phase
+ * sampling, escape, writing a finished path, starting the next one) for all of them at
+ * once under masks. A lane whose path ends takes the next path of the launch from a
+ * global counter, so lanes stay busy until the launch runs out of paths. Each path still
+ * reads its own Philox stream in the documented order and writes its own output row:
+ * which lane or work-item ran it changes nothing. */
 #ifndef PT_LANES
 #define PT_LANES 8
+#endif
+#if PT_LANES != 8 && PT_LANES != 16
+#error "PT_LANES must be 8 or 16"
 #endif
 #define PT_CAT_(a, b) a##b
 #define PT_CAT(a, b) PT_CAT_(a, b)
@@ -340,7 +349,8 @@ void pt_phase_sample_v(vf *wx, vf *wy, vf *wz, float4 lobe_g, float4 lobe_w, vf 
     vf b = nx * ny * ia;
     vf b1x = 1.0f + sgn * nx * nx * ia, b1y = sgn * b, b1z = -sgn * nx;
     vf b2x = b, b2y = sgn + ny * ny * ia, b2z = -ny;
-    vf sc = s * cos(phi), ss = s * sin(phi);
+    vf cphi, sphi = sincos(phi, &cphi);
+    vf sc = s * cphi, ss = s * sphi;
     vf vx = sc * b1x + ss * b2x + mu * nx;
     vf vy = sc * b1y + ss * b2y + mu * ny;
     vf vz = sc * b1z + ss * b2z + mu * nz;
@@ -510,19 +520,34 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
         }
         e = h == H_START;
         if (any(e)) {
-            int st[PT_LANES];
+            /* Per lane: the path index, its stream and sample, the query's point or the
+             * pixel (integer division has no vector instruction here). */
+            int st[PT_LANES], col[PT_LANES], row[PT_LANES];
             VSTORE(e, st);
-            for (int j = 0; j < PT_LANES; ++j)
-                if (st[j]) S->path[j] = (int)min(atomic_inc(J->next), (uint)J->n);
-            vi g = VLOAD(S->path);
-            vi none = e & (g >= J->n);
+            for (int j = 0; j < PT_LANES; ++j) {
+                col[j] = row[j] = 0;
+                if (!st[j]) continue;
+                int g = (int)min(atomic_inc(J->next), (uint)J->n);
+                S->path[j] = g;
+                if (g >= J->n) continue;
+                int sj = g / J->nstream, stream = g - sj * J->nstream;
+                S->slo[j] = (uint)stream;
+                S->sample[j] = J->sample0 + (uint)sj;
+                if (J->is_query) {
+                    /* Vertex 1 at p with beta = 1, w = -omega. */
+                    float3 p = vload3(stream, J->points), w = -vload3(stream, J->omegas);
+                    S->ox[j] = p.x; S->oy[j] = p.y; S->oz[j] = p.z;
+                    S->wx[j] = w.x; S->wy[j] = w.y; S->wz[j] = w.z;
+                } else {
+                    row[j] = stream / J->width;
+                    col[j] = stream - row[j] * J->width;
+                }
+            }
+            vi none = e & (VLOAD(S->path) >= J->n);
             VSTORE(select(VLOAD(S->mode), (vi)(PT_IDLE), none), S->mode);
             h = select(h, (vi)(H_NONE), none);
             e &= ~none;
-            vi sj = g / J->nstream, stream = g - sj * J->nstream;
-            VSTORE(select(VLOAD(S->slo), as_vu(stream), e), S->slo);
             VSTORE(select(VLOAD(S->shi), (vu)(0u), e), S->shi);
-            VSTORE(select(VLOAD(S->sample), J->sample0 + as_vu(sj), e), S->sample);
             VSTORE(select(VLOAD(S->block), (vu)(0u), e), S->block);
             VSTORE(select(VLOAD(S->used), (vi)(4), e), S->used);
             for (int c = 0; c < 9; ++c) VSTORE(select(VLOAD(S->acc[c]), (vf)(0.0f), e), S->acc[c]);
@@ -531,24 +556,13 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             VSTORE(select(VLOAD(S->truncated), (vi)(0), e), S->truncated);
             pt_set_beta_v(S, e, (vf)(1.0f), (vf)(1.0f), (vf)(1.0f));
             if (J->is_query) {
-                /* Vertex 1 at p with beta = 1, w = -omega. */
-                int sa[PT_LANES], go[PT_LANES];
-                VSTORE(stream, sa);
-                VSTORE(e, go);
-                for (int j = 0; j < PT_LANES; ++j) {
-                    if (!go[j]) continue;
-                    float3 p = vload3(sa[j], J->points), w = -vload3(sa[j], J->omegas);
-                    S->ox[j] = p.x; S->oy[j] = p.y; S->oz[j] = p.z;
-                    S->wx[j] = w.x; S->wy[j] = w.y; S->wz[j] = w.z;
-                }
                 VSTORE(select(VLOAD(S->k), (vi)(1), e), S->k);
                 h = select(h, (vi)(H_VERTEX), e);
             } else {
                 /* Camera ray through the jittered pixel (camera_ray of grid.h); k = 0
                  * until its first real collision (then beta = albedo). */
-                vi row = stream / J->width, col = stream - row * J->width;
-                vf px = VCONVERT_F(col) + pt_lanes_next(S, e, key);
-                vf py = VCONVERT_F(row) + pt_lanes_next(S, e, key);
+                vf px = VCONVERT_F(VLOAD(col)) + pt_lanes_next(S, e, key);
+                vf py = VCONVERT_F(VLOAD(row)) + pt_lanes_next(S, e, key);
                 float fw = (float)J->width, fh = (float)J->height;
                 vf sx = (2.0f * px / fw - 1.0f) * J->tan_half * (fw / fh);
                 vf sy = (1.0f - 2.0f * py / fh) * J->tan_half;
