@@ -225,9 +225,10 @@ from bench_pathtrace import bench_scene
 from clvol.pathtrace import mitsuba_scene_dict
 scene = bench_scene(density_scale, 256)
 grid = scene.volume.load()
-mi.render(mi.load_dict(mitsuba_scene_dict(scene, grid, 1)))  # warm-up / JIT
+mscene = mi.load_dict(mitsuba_scene_dict(scene, grid, spp))
+mi.render(mscene)  # warm-up: the LLVM variant compiles its kernels on the first render
 t0 = time.perf_counter()
-img = np.asarray(mi.render(mi.load_dict(mitsuba_scene_dict(scene, grid, spp))))
+img = np.asarray(mi.render(mscene))
 secs = time.perf_counter() - t0
 print(json.dumps({"variant": variant, "seconds": secs, "samples_s": 256 * 256 * spp / secs,
                   "mean": float(img[..., :3].mean())}))

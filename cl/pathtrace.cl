@@ -179,6 +179,7 @@ typedef struct {
     /* path */
     float br[PT_LANES], bg[PT_LANES], bb[PT_LANES];   /* throughput (PT_GREY: br only) */
     float f[PT_LANES];                                /* phase value of the pending NEE */
+    int pend[PT_LANES];                               /* pending step (H_*), 0 = none */
     float acc[9][PT_LANES];                           /* background, order 1, orders >= 2 */
     int k[PT_LANES], vertices[PT_LANES], truncated[PT_LANES], path[PT_LANES];
 } pt_lanes;
@@ -244,12 +245,13 @@ vf pt_sigma_lanes(const pt_medium *m, vf px, vf py, vf pz, vi mask) {
     vf gx = select((vf)(0.0f), (px - m->bmin.x) * m->inv_cell.x - 0.5f, in);
     vf gy = select((vf)(0.0f), (py - m->bmin.y) * m->inv_cell.y - 0.5f, in);
     vf gz = select((vf)(0.0f), (pz - m->bmin.z) * m->inv_cell.z - 0.5f, in);
-    vf x = clamp(gx, 0.0f, (float)(m->nx - 1));
-    vf y = clamp(gy, 0.0f, (float)(m->ny - 1));
-    vf z = clamp(gz, 0.0f, (float)(m->nz - 1));
+    /* Builtins get vector arguments only (Oclgrind mis-runs min(int8, int) and kin). */
+    vf x = clamp(gx, (vf)(0.0f), (vf)((float)(m->nx - 1)));
+    vf y = clamp(gy, (vf)(0.0f), (vf)((float)(m->ny - 1)));
+    vf z = clamp(gz, (vf)(0.0f), (vf)((float)(m->nz - 1)));
     vi x0 = VCONVERT_I(x), y0 = VCONVERT_I(y), z0 = VCONVERT_I(z);
     vi dx = select((vi)(0), (vi)(1), x0 < m->nx - 1);
-    vi y1 = min(y0 + 1, m->ny - 1), z1 = min(z0 + 1, m->nz - 1);
+    vi y1 = min(y0 + 1, (vi)(m->ny - 1)), z1 = min(z0 + 1, (vi)(m->nz - 1));
     vf fx = x - VCONVERT_F(x0), fy = y - VCONVERT_F(y0), fz = z - VCONVERT_F(z0);
     int sz = m->nx * m->ny;
     vi r00 = z0 * sz + y0 * m->nx + x0, r01 = z0 * sz + y1 * m->nx + x0;
@@ -337,20 +339,21 @@ void pt_phase_sample_v(vf *wx, vf *wy, vf *wz, float4 lobe_g, float4 lobe_w, vf 
     vf ga = fabs(g);
     vf a = 1.0f - ga + 2.0f * ga * u1;
     vf omg = 1.0f - ga;
-    vf omm = clamp(omg * omg * (1.0f - u1) * (2.0f + 2.0f * ga * u1) / (a * a), 0.0f, 2.0f);
+    vf omm = clamp(omg * omg * (1.0f - u1) * (2.0f + 2.0f * ga * u1) / (a * a), (vf)(0.0f),
+                    (vf)(2.0f));
     vi neg = g < 0.0f;   /* sample the mirrored lobe about -w */
     vf nx = select(*wx, -*wx, neg), ny = select(*wy, -*wy, neg), nz = select(*wz, -*wz, neg);
 #endif
     vf mu = 1.0f - omm;
-    vf s = sqrt(fmax(0.0f, omm * (2.0f - omm)));
+    vf s = sqrt(fmax((vf)(0.0f), omm * (2.0f - omm)));
     vf phi = 2.0f * CLVOL_PI * u2;
     vf sgn = select((vf)(-1.0f), (vf)(1.0f), nz >= 0.0f);
     vf ia = -1.0f / (sgn + nz);
     vf b = nx * ny * ia;
     vf b1x = 1.0f + sgn * nx * nx * ia, b1y = sgn * b, b1z = -sgn * nx;
     vf b2x = b, b2y = sgn + ny * ny * ia, b2z = -ny;
-    vf cphi, sphi = sincos(phi, &cphi);
-    vf sc = s * cphi, ss = s * sphi;
+    /* cos and sin, not sincos: Oclgrind's checker cannot follow sincos's private pointer. */
+    vf sc = s * cos(phi), ss = s * sin(phi);
     vf vx = sc * b1x + ss * b2x + mu * nx;
     vf vy = sc * b1y + ss * b2y + mu * ny;
     vf vz = sc * b1z + ss * b2z + mu * nz;
@@ -396,9 +399,10 @@ vi pt_rays_v(pt_lanes *S, vi mask, const pt_medium *m, const pt_light *L, uint2 
     pt_slab_v(oz, dz, m->bmin.z, m->bmax.z, &lo, &hi, &ok);
     ok &= lo < hi;   /* box_intersect's lo <= hi, then maj_dda_init's t0 < t1 */
     if (any(ok)) {
-        vi cx = VCONVERT_I(clamp((ox + lo * dx - m->bmin.x) / m->bsize.x, 0.0f, (float)(m->mx - 1)));
-        vi cy = VCONVERT_I(clamp((oy + lo * dy - m->bmin.y) / m->bsize.y, 0.0f, (float)(m->my - 1)));
-        vi cz = VCONVERT_I(clamp((oz + lo * dz - m->bmin.z) / m->bsize.z, 0.0f, (float)(m->mz - 1)));
+        vf zero = (vf)(0.0f);
+        vi cx = VCONVERT_I(clamp((ox + lo * dx - m->bmin.x) / m->bsize.x, zero, (vf)((float)(m->mx - 1))));
+        vi cy = VCONVERT_I(clamp((oy + lo * dy - m->bmin.y) / m->bsize.y, zero, (vf)((float)(m->my - 1))));
+        vi cz = VCONVERT_I(clamp((oz + lo * dz - m->bmin.z) / m->bsize.z, zero, (vf)((float)(m->mz - 1))));
         vi sx, sy, sz;
         vf tnx, tny, tnz, tdx, tdy, tdz;
         pt_dda_axis_v(ox, dx, m->bmin.x, m->bsize.x, cx, &sx, &tnx, &tdx);
@@ -630,7 +634,7 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             if (any(rr)) {
                 vf br, bg, bb;
                 pt_beta_v(S, &br, &bg, &bb);
-                vf q = fmin(1.0f, fmax(fmax(br, bg), bb));
+                vf q = fmin((vf)(1.0f), fmax(fmax(br, bg), bb));
                 vi die = rr & (pt_lanes_next(S, rr, key) >= q);
                 stop |= die;
                 e &= ~die;
@@ -669,42 +673,45 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
 #define PT_BATCH (PT_LANES / 2)
 #endif
 
-/* Number of lanes set in mask. */
+/* Number of lanes set in mask. (A sum over an array: Oclgrind's uninitialised-value
+ * checker crashes on the .lo / .hi halving of a vector.) */
 __attribute__((always_inline))
 int pt_count(vi mask) {
-    vi c = -mask;
-#if PT_LANES == 16
-    int8 c8 = c.lo + c.hi;
-#else
-    int8 c8 = c;
-#endif
-    int4 c4 = c8.lo + c8.hi;
-    int2 c2 = c4.lo + c4.hi;
-    return c2.x + c2.y;
+    int a[PT_LANES], n = 0;
+    VSTORE(mask, a);
+    for (int j = 0; j < PT_LANES; ++j) n -= a[j];
+    return n;
 }
 
 /* The one tracking loop (images and point queries). */
 __attribute__((always_inline))
 void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
-    pt_lanes S = {{0.0f}};
+    pt_lanes S;
+    {   /* zero every lane's state word by word (all lanes are loaded from the start) */
+        __private int *w = (__private int *)&S;
+        for (uint i = 0; i < sizeof(pt_lanes) / sizeof(int); ++i) w[i] = 0;
+    }
     uint2 key = (uint2)((uint)J->seed, (uint)(J->seed >> 32));
     const int mx = m->mx, my = m->my, mz = m->mz;
     const float scale = m->scale;
-    vi pend = (vi)(H_START);
+    VSTORE((vi)(H_START), S.pend);
 #ifdef PT_STATS
     uint n_it = 0, n_act = 0, n_ev = 0, n_cross = 0;
 #endif
     for (;;) {
         /* Lanes between rays wait until PT_BATCH of them do (or nothing else tracks), so
          * the event code runs for several lanes at once. */
+        vi pend = VLOAD(S.pend);
         vi waiting = pend != H_NONE;
         vi tracking = (VLOAD(S.mode) != PT_IDLE) & ~waiting;
-        if (any(waiting) && (!any(tracking) || pt_count(waiting) >= PT_BATCH)) {
+        /* Bitwise, not && / ||: LLVM turns those into a 'freeze' that Oclgrind cannot run. */
+        if (any(waiting) & (!any(tracking) | (pt_count(waiting) >= PT_BATCH))) {
 #ifdef PT_STATS
             n_ev += 1;
 #endif
             pt_events(&S, pend, m, L, J, key);
             pend = (vi)(H_NONE);
+            VSTORE(pend, S.pend);
         }
         vi mode = VLOAD(S.mode);
         vi act = (mode != PT_IDLE) & (pend == H_NONE);
@@ -772,7 +779,7 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
             if (any(sh)) {
                 /* sm > 0 at a tentative collision; rounding can put sigma a hair above sm. */
                 vf T = VLOAD(S.T);
-                T = select(T, T * fmax(0.0f, 1.0f - sigma / sm), sh);
+                T = select(T, T * fmax((vf)(0.0f), 1.0f - sigma / sm), sh);
                 vi low = sh & (T < PT_T_RR);
                 if (any(low)) {
                     /* Roulette: T survives with probability T / PT_T_RR, then is PT_T_RR. */
@@ -789,7 +796,7 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
         }
         VSTORE(t, S.t);
         VSTORE(tau, S.tau);
-        pend = select(pend, ev, act);
+        VSTORE(select(pend, ev, act), S.pend);
 #ifdef PT_STATS
         n_it += 1;
         n_act += pt_count(act);
