@@ -70,9 +70,7 @@
 #define PT_T_RR 0.1f
 #define PT_OUT 12
 
-/* Colours are structs of three floats, and every value carried around a loop is a scalar:
- * Oclgrind's uninitialised-value checker (run in CI) crashes on loop-carried float3 /
- * float4 values (LLVM keeps a float3 in a 4-lane register with an undefined lane). */
+/* Colours are structs of three floats (lane vectors in pt_lanes). */
 typedef struct {
     float r, g, b;
 } pt_rgb;
@@ -84,41 +82,13 @@ pt_rgb pt_rgb_of(float4 v) {
     return c;
 }
 
-/* *acc += a * s */
-__attribute__((always_inline))
-void pt_rgb_add(pt_rgb *acc, pt_rgb a, float s) {
-    acc->r += a.r * s; acc->g += a.g * s; acc->b += a.b * s;
-}
-
-/* Throughput and albedo: one float when the albedo is grey (PT_GREY), else RGB. */
+/* Albedo: one float when it is grey (PT_GREY; the throughput is then one float too). */
 #ifdef PT_GREY
 typedef float spec_t;
 #define SPEC_OF(v4) ((v4).x)
-#define SPEC_ONE 1.0f
-#define SPEC_MAX(b) (b)
-#define SPEC_MUL(b, a) ((b) * (a))
-#define SPEC_DIV(b, q) ((b) / (q))
-#define SPEC_TINT(c, b) pt_tint1((c), (b))
-__attribute__((always_inline)) pt_rgb pt_tint1(pt_rgb c, float b) {
-    c.r *= b; c.g *= b; c.b *= b;
-    return c;
-}
 #else
 typedef pt_rgb spec_t;
 #define SPEC_OF(v4) pt_rgb_of(v4)
-#define SPEC_ONE pt_rgb_of((float4)(1.0f))
-#define SPEC_MAX(v) fmax(fmax((v).r, (v).g), (v).b)
-#define SPEC_MUL(b, a) pt_tint3((b), (a))
-#define SPEC_DIV(b, q) pt_div3((b), (q))
-#define SPEC_TINT(c, b) pt_tint3((c), (b))
-__attribute__((always_inline)) pt_rgb pt_tint3(pt_rgb c, pt_rgb b) {
-    c.r *= b.r; c.g *= b.g; c.b *= b.b;
-    return c;
-}
-__attribute__((always_inline)) pt_rgb pt_div3(pt_rgb c, float q) {
-    c.r /= q; c.g /= q; c.b /= q;
-    return c;
-}
 #endif
 
 /* ------------------------------------------------------------------ lanes
@@ -183,22 +153,6 @@ typedef struct {
     float acc[9][PT_LANES];                           /* background, order 1, orders >= 2 */
     int k[PT_LANES], vertices[PT_LANES], truncated[PT_LANES], path[PT_LANES];
 } pt_lanes;
-
-#ifdef PT_GREY
-#define BETA_GET(S, j) ((S)->br[j])
-#define BETA_SET(S, j, v) ((S)->br[j] = (v))
-#else
-#define BETA_GET(S, j) pt_beta_get((S), (j))
-#define BETA_SET(S, j, v) pt_beta_set((S), (j), (v))
-__attribute__((always_inline)) pt_rgb pt_beta_get(const pt_lanes *S, int j) {
-    pt_rgb c;
-    c.r = S->br[j]; c.g = S->bg[j]; c.b = S->bb[j];
-    return c;
-}
-__attribute__((always_inline)) void pt_beta_set(pt_lanes *S, int j, pt_rgb c) {
-    S->br[j] = c.r; S->bg[j] = c.g; S->bb[j] = c.b;
-}
-#endif
 
 /* Next uniform of every lane in mask (vector code); other lanes draw nothing. */
 __attribute__((always_inline))
