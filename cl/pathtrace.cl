@@ -142,9 +142,10 @@ typedef struct {
     float T[PT_LANES];     /* ratio-tracking transmittance */
     int mode[PT_LANES];
     int steps[PT_LANES];
-    /* random stream (pt_rng of one lane): counter words, 4 buffered uniforms */
+    /* random stream of the path: counter words; the next 8 uniforms of the stream are
+     * u[used..7] (two Philox blocks; block = the next block to generate) */
     uint slo[PT_LANES], shi[PT_LANES], sample[PT_LANES], block[PT_LANES];
-    float b0[PT_LANES], b1[PT_LANES], b2[PT_LANES], b3[PT_LANES];
+    float u[8][PT_LANES];
     int used[PT_LANES];
     /* path */
     float br[PT_LANES], bg[PT_LANES], bb[PT_LANES];   /* throughput (PT_GREY: br only) */
@@ -154,26 +155,36 @@ typedef struct {
     int k[PT_LANES], vertices[PT_LANES], truncated[PT_LANES], path[PT_LANES];
 } pt_lanes;
 
-/* Next uniform of every lane in mask (vector code); other lanes draw nothing. */
+/* Make at least 4 uniforms ready in every lane of mask: a lane with 4 or fewer left moves
+ * its second block to the first and generates the next block of its stream. One Philox
+ * (for all lanes) serves up to 4 draws after it, not one per draw. */
 __attribute__((always_inline))
-vf pt_lanes_next(pt_lanes *S, vi mask, uint2 key) {
+void pt_lanes_refill(pt_lanes *S, vi mask, uint2 key) {
     vi used = VLOAD(S->used);
-    vf b0 = VLOAD(S->b0), b1 = VLOAD(S->b1), b2 = VLOAD(S->b2), b3 = VLOAD(S->b3);
-    vi need = mask & (used == 4);
-    if (any(need)) {
-        vu blk = VLOAD(S->block);
-        vu c0 = VLOAD(S->slo), c1 = VLOAD(S->shi), c2 = VLOAD(S->sample), c3 = blk;
-        VPHILOX(&c0, &c1, &c2, &c3, key);
-        const float s = 1.0f / 16777216.0f;   /* top 24 bits, as u01x4 of rng.h */
-        b0 = select(b0, VCONVERT_F(c0 >> 8) * s, need);
-        b1 = select(b1, VCONVERT_F(c1 >> 8) * s, need);
-        b2 = select(b2, VCONVERT_F(c2 >> 8) * s, need);
-        b3 = select(b3, VCONVERT_F(c3 >> 8) * s, need);
-        VSTORE(b0, S->b0); VSTORE(b1, S->b1); VSTORE(b2, S->b2); VSTORE(b3, S->b3);
-        VSTORE(select(blk, blk + 1u, need), S->block);
-        used = select(used, (vi)(0), need);
+    vi need = mask & (used >= 4);
+    if (!any(need)) return;
+    vu blk = VLOAD(S->block);
+    vu c0 = VLOAD(S->slo), c1 = VLOAD(S->shi), c2 = VLOAD(S->sample), c3 = blk;
+    VPHILOX(&c0, &c1, &c2, &c3, key);
+    const float s = 1.0f / 16777216.0f;   /* top 24 bits, as u01x4 of rng.h */
+    vf fresh[4] = {VCONVERT_F(c0 >> 8) * s, VCONVERT_F(c1 >> 8) * s,
+                   VCONVERT_F(c2 >> 8) * s, VCONVERT_F(c3 >> 8) * s};
+    for (int i = 0; i < 4; ++i) {
+        vf second = VLOAD(S->u[i + 4]);
+        VSTORE(select(VLOAD(S->u[i]), second, need), S->u[i]);
+        VSTORE(select(second, fresh[i], need), S->u[i + 4]);
     }
-    vf u = select(select(select(b3, b2, used == 2), b1, used == 1), b0, used == 0);
+    VSTORE(select(blk, blk + 1u, need), S->block);
+    VSTORE(select(used, used - 4, need), S->used);
+}
+
+/* Next uniform of every lane in mask (after pt_lanes_refill: at most 4 draws per refill);
+ * other lanes draw nothing. */
+__attribute__((always_inline))
+vf pt_lanes_take(pt_lanes *S, vi mask) {
+    vi used = VLOAD(S->used);
+    vf u = VLOAD(S->u[7]);
+    for (int i = 6; i >= 0; --i) u = select(u, VLOAD(S->u[i]), used == i);
     VSTORE(used - mask, S->used);   /* mask lanes are -1: one more used */
     return u;
 }
@@ -377,7 +388,8 @@ vi pt_rays_v(pt_lanes *S, vi mask, const pt_medium *m, const pt_light *L, uint2 
         VSTORE(select(VLOAD(S->tdy), tdy, ok), S->tdy);
         VSTORE(select(VLOAD(S->tdz), tdz, ok), S->tdz);
         /* Exponential optical depth: 1 - u is in (0, 1], no log(0). */
-        vf tau = -log(1.0f - pt_lanes_next(S, ok, key));
+        pt_lanes_refill(S, ok, key);
+        vf tau = -log(1.0f - pt_lanes_take(S, ok));
         VSTORE(select(VLOAD(S->tau), tau, ok), S->tau);
     }
     return mask & ~ok;
@@ -507,7 +519,7 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             e &= ~none;
             VSTORE(select(VLOAD(S->shi), (vu)(0u), e), S->shi);
             VSTORE(select(VLOAD(S->block), (vu)(0u), e), S->block);
-            VSTORE(select(VLOAD(S->used), (vi)(4), e), S->used);
+            VSTORE(select(VLOAD(S->used), (vi)(8), e), S->used);   /* nothing buffered */
             for (int c = 0; c < 9; ++c) VSTORE(select(VLOAD(S->acc[c]), (vf)(0.0f), e), S->acc[c]);
             VSTORE(select(VLOAD(S->steps), (vi)(0), e), S->steps);
             VSTORE(select(VLOAD(S->vertices), (vi)(0), e), S->vertices);
@@ -519,8 +531,9 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             } else {
                 /* Camera ray through the jittered pixel (camera_ray of grid.h); k = 0
                  * until its first real collision (then beta = albedo). */
-                vf px = VCONVERT_F(VLOAD(col)) + pt_lanes_next(S, e, key);
-                vf py = VCONVERT_F(VLOAD(row)) + pt_lanes_next(S, e, key);
+                pt_lanes_refill(S, e, key);
+                vf px = VCONVERT_F(VLOAD(col)) + pt_lanes_take(S, e);
+                vf py = VCONVERT_F(VLOAD(row)) + pt_lanes_take(S, e);
                 float fw = (float)J->width, fh = (float)J->height;
                 vf sx = (2.0f * px / fw - 1.0f) * J->tan_half * (fw / fh);
                 vf sy = (1.0f - 2.0f * py / fh) * J->tan_half;
@@ -584,12 +597,13 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
                    S->truncated);
             stop |= e & (k >= PT_MAX_VERTICES);
             e &= ~stop;
+            pt_lanes_refill(S, e, key);   /* roulette + 3 for the direction: <= 4 draws */
             vi rr = e & (k >= PT_RR_START);
             if (any(rr)) {
                 vf br, bg, bb;
                 pt_beta_v(S, &br, &bg, &bb);
                 vf q = fmin((vf)(1.0f), fmax(fmax(br, bg), bb));
-                vi die = rr & (pt_lanes_next(S, rr, key) >= q);
+                vi die = rr & (pt_lanes_take(S, rr) >= q);
                 stop |= die;
                 e &= ~die;
                 rr &= ~die;
@@ -597,9 +611,9 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             }
             h = select(h, (vi)(H_FINISH), stop);
             if (any(e)) {
-                vf u0 = pt_lanes_next(S, e, key);   /* in this order */
-                vf u1 = pt_lanes_next(S, e, key);
-                vf u2 = pt_lanes_next(S, e, key);
+                vf u0 = pt_lanes_take(S, e);   /* in this order */
+                vf u1 = pt_lanes_take(S, e);
+                vf u2 = pt_lanes_take(S, e);
                 vf wx = VLOAD(S->wx), wy = VLOAD(S->wy), wz = VLOAD(S->wz);
                 vf nx = wx, ny = wy, nz = wz;
                 pt_phase_sample_v(&nx, &ny, &nz, L->lobe_g, L->lobe_w, u0, u1, u2);
@@ -722,13 +736,14 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
             vf dx = select(VLOAD(S.wx), (vf)(L->dir.x), shadow);
             vf dy = select(VLOAD(S.wy), (vf)(L->dir.y), shadow);
             vf dz = select(VLOAD(S.wz), (vf)(L->dir.z), shadow);
+            pt_lanes_refill(&S, hit, key);   /* accept or roulette, then tau: <= 2 draws */
             vf sigma = pt_sigma_lanes(m, VLOAD(S.ox) + th * dx, VLOAD(S.oy) + th * dy,
                                       VLOAD(S.oz) + th * dz, hit);
             vi fl = hit & ~shadow, sh = hit & shadow;
             vi accept = (vi)(0), kill = (vi)(0);
             if (any(fl)) {
                 /* Real with probability sigma / sigma_maj (u * sm < sigma: no division). */
-                accept = fl & (pt_lanes_next(&S, fl, key) * sm < sigma);
+                accept = fl & (pt_lanes_take(&S, fl) * sm < sigma);
             }
             if (any(sh)) {
                 /* sm > 0 at a tentative collision; rounding can put sigma a hair above sm. */
@@ -737,14 +752,14 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
                 vi low = sh & (T < PT_T_RR);
                 if (any(low)) {
                     /* Roulette: T survives with probability T / PT_T_RR, then is PT_T_RR. */
-                    kill = low & (pt_lanes_next(&S, low, key) * PT_T_RR >= T);
+                    kill = low & (pt_lanes_take(&S, low) * PT_T_RR >= T);
                     T = select(T, (vf)(PT_T_RR), low);
                     T = select(T, (vf)(0.0f), kill);
                 }
                 VSTORE(T, S.T);
             }
             vi more = hit & ~accept & ~kill;
-            if (any(more)) tau = select(tau, -log(1.0f - pt_lanes_next(&S, more, key)), more);
+            if (any(more)) tau = select(tau, -log(1.0f - pt_lanes_take(&S, more)), more);
             ev = select(ev, (vi)(H_ACCEPT), accept);
             ev = select(ev, (vi)(H_NEE_DONE), kill);
         }
