@@ -30,7 +30,9 @@
  *
  * Defines: PHASE_LOBES / PHASE_ISOTROPIC (phase.h); PT_GREY (scalar throughput);
  * PT_ENV (a constant environment); PT_NO_SUN (no sun); PT_SINGLE_ONLY (stop after vertex
- * 1); PT_RR_START, PT_MAX_VERTICES; PT_TEST_BIAS (tests only: scales sun NEE by its value).
+ * 1); PT_RR_START, PT_MAX_VERTICES; PT_TEST_BIAS (tests only: scales sun NEE by its value);
+ * PT_LANES (8 or 16 paths per work-item), PT_BATCH (lanes waiting before the vertex code
+ * runs), PT_STATS (loop counts in next[1..4], benchmarks only).
  *
  * Kernels (grid and majorant arguments first, then light, then the per-kernel ones):
  *   density   float [nz][ny][nx]    raw density; sigma_t = density * scale (1/length)
@@ -42,17 +44,21 @@
  *   sun       float4                sun irradiance E (RGB, power / area perpendicular to l)
  *   env       float4                environment radiance (RGB), used with PT_ENV
  * pt_render: cam_o, cam_f, cam_r, cam_u float4, tan_half, width, height; seed ulong;
- *   sample0 uint; spl int (samples per launch; work-item g: pixel g % npix, sample
+ *   sample0 uint; spl int (samples per launch; path g: pixel g % npix, sample
  *   sample0 + g / npix); max_order int; out float [spl*npix][PT_OUT]:
- *   (background rgb, order-1 rgb, orders>=2 rgb, vertices, tracking steps, truncated, 0, 0)
+ *   (background rgb, order-1 rgb, orders>=2 rgb, vertices, tracking steps, truncated);
+ *   next uint [1] (5 with PT_STATS), zero at launch: the next path to start.
  * pt_query: points, omegas float [nq][3]; nq; seed; sample0; ppl (paths per launch,
- *   work-item g: query g % nq, path sample0 + g / nq); max_order; out as pt_render with
- *   background 0 (sun irradiance 1 and no environment are the caller's arguments).
+ *   path g: query g % nq, path sample0 + g / nq); max_order; out as pt_render with
+ *   background 0 (sun irradiance 1 and no environment are the caller's arguments); next.
+ * Any number of work-items (local size 1) runs all paths of a launch: each takes paths
+ * from *next until none are left.
  */
 #include "rng.h"
 #include "grid.h"
 #include "phase.h"
 #include "majorant.h"
+#include "lanes.h"
 
 #ifndef PT_RR_START
 #define PT_RR_START 8
@@ -64,9 +70,7 @@
 #define PT_T_RR 0.1f
 #define PT_OUT 12
 
-/* Colours are structs of three floats, and every value carried around a loop is a scalar:
- * Oclgrind's uninitialised-value checker (run in CI) crashes on loop-carried float3 /
- * float4 values (LLVM keeps a float3 in a 4-lane register with an undefined lane). */
+/* Colours are structs of three floats (lane vectors in pt_lanes). */
 typedef struct {
     float r, g, b;
 } pt_rgb;
@@ -78,74 +82,111 @@ pt_rgb pt_rgb_of(float4 v) {
     return c;
 }
 
-/* *acc += a * s */
-__attribute__((always_inline))
-void pt_rgb_add(pt_rgb *acc, pt_rgb a, float s) {
-    acc->r += a.r * s; acc->g += a.g * s; acc->b += a.b * s;
-}
-
-/* Throughput and albedo: one float when the albedo is grey (PT_GREY), else RGB. */
+/* Albedo: one float when it is grey (PT_GREY; the throughput is then one float too). */
 #ifdef PT_GREY
 typedef float spec_t;
 #define SPEC_OF(v4) ((v4).x)
-#define SPEC_ONE 1.0f
-#define SPEC_MAX(b) (b)
-#define SPEC_MUL(b, a) ((b) * (a))
-#define SPEC_DIV(b, q) ((b) / (q))
-#define SPEC_TINT(c, b) pt_tint1((c), (b))
-__attribute__((always_inline)) pt_rgb pt_tint1(pt_rgb c, float b) {
-    c.r *= b; c.g *= b; c.b *= b;
-    return c;
-}
 #else
 typedef pt_rgb spec_t;
 #define SPEC_OF(v4) pt_rgb_of(v4)
-#define SPEC_ONE pt_rgb_of((float4)(1.0f))
-#define SPEC_MAX(v) fmax(fmax((v).r, (v).g), (v).b)
-#define SPEC_MUL(b, a) pt_tint3((b), (a))
-#define SPEC_DIV(b, q) pt_div3((b), (q))
-#define SPEC_TINT(c, b) pt_tint3((c), (b))
-__attribute__((always_inline)) pt_rgb pt_tint3(pt_rgb c, pt_rgb b) {
-    c.r *= b.r; c.g *= b.g; c.b *= b.b;
-    return c;
-}
-__attribute__((always_inline)) pt_rgb pt_div3(pt_rgb c, float q) {
-    c.r /= q; c.g /= q; c.b /= q;
-    return c;
-}
 #endif
 
-/* ------------------------------------------------------------------ random stream */
+/* ------------------------------------------------------------------ lanes
+ *
+ * PT_LANES paths run side by side in one work-item, one path per lane (PoCL vectorises
+ * explicit vector types, not this divergent loop across work-items: docs/pathtrace.md).
+ * The state of every lane lives in the arrays of pt_lanes (structure of arrays). One
+ * loop, pt_run, shared by images and point queries, moves every tracking lane to its next
+ * tentative collision (majorant cells walked in a vector inner loop) and processes the
+ * collisions together (trilinear lookups, accept test or ratio-tracking update). A lane
+ * whose ray ends gets a pending step; once PT_BATCH lanes wait (or none tracks),
+ * pt_events runs the steps between rays (vertex, sun NEE set-up, roulette, phase
+ * sampling, escape, writing a finished path, starting the next one) for all of them at
+ * once under masks. A lane whose path ends takes the next path of the launch from a
+ * global counter, so lanes stay busy until the launch runs out of paths. Each path still
+ * reads its own Philox stream in the documented order and writes its own output row:
+ * which lane or work-item ran it changes nothing. */
+#ifndef PT_LANES
+#define PT_LANES 8
+#endif
+#if PT_LANES != 8 && PT_LANES != 16
+#error "PT_LANES must be 8 or 16"
+#endif
+#define PT_CAT_(a, b) a##b
+#define PT_CAT(a, b) PT_CAT_(a, b)
+typedef PT_CAT(float, PT_LANES) vf;
+typedef PT_CAT(int, PT_LANES) vi;
+typedef PT_CAT(uint, PT_LANES) vu;
+#define VLOAD(a) PT_CAT(vload, PT_LANES)(0, a)
+#define VSTORE(v, a) PT_CAT(vstore, PT_LANES)(v, 0, a)
+#define VGATHER(p, i) PT_CAT(gather, PT_LANES)(p, i)
+#define VCONVERT_F(x) PT_CAT(convert_float, PT_LANES)(x)
+#define VCONVERT_I(x) PT_CAT(convert_int, PT_LANES)(x)
+RNG_DEFINE_LANES(PT_LANES)
+#define VPHILOX PT_CAT(philox4x32_10_x, PT_LANES)
+#define as_vu(x) PT_CAT(as_uint, PT_LANES)(x)
 
-/* Scalar members: Oclgrind's uninitialised-value checker mis-handles vector members
- * of private structs updated in parts. */
+#define PT_IDLE 0
+#define PT_FLIGHT 1     /* delta tracking: a real collision is a scattering vertex */
+#define PT_SHADOW 2     /* ratio tracking toward the sun */
+
 typedef struct {
-    ulong seed, stream;
-    uint sample, block;
-    float b0, b1, b2, b3;
-    int used;
-} pt_rng;
+    /* ray: origin o (current vertex or camera), path direction w (the flight's direction;
+     * a shadow ray goes along the light), majorant DDA of maj_dda (majorant.h) */
+    float ox[PT_LANES], oy[PT_LANES], oz[PT_LANES];
+    float wx[PT_LANES], wy[PT_LANES], wz[PT_LANES];
+    float t[PT_LANES], te[PT_LANES], tnx[PT_LANES], tny[PT_LANES], tnz[PT_LANES];
+    float tdx[PT_LANES], tdy[PT_LANES], tdz[PT_LANES];
+    int cx[PT_LANES], cy[PT_LANES], cz[PT_LANES], sx[PT_LANES], sy[PT_LANES], sz[PT_LANES];
+    float tau[PT_LANES];   /* optical depth left to the next tentative collision */
+    float T[PT_LANES];     /* ratio-tracking transmittance */
+    int mode[PT_LANES];
+    int steps[PT_LANES];
+    /* random stream of the path: counter words; the next 8 uniforms of the stream are
+     * u[used..7] (two Philox blocks; block = the next block to generate) */
+    uint slo[PT_LANES], shi[PT_LANES], sample[PT_LANES], block[PT_LANES];
+    float u[8][PT_LANES];
+    int used[PT_LANES];
+    /* path */
+    float br[PT_LANES], bg[PT_LANES], bb[PT_LANES];   /* throughput (PT_GREY: br only) */
+    float f[PT_LANES];                                /* phase value of the pending NEE */
+    int pend[PT_LANES];                               /* pending step (H_*), 0 = none */
+    float acc[9][PT_LANES];                           /* background, order 1, orders >= 2 */
+    int k[PT_LANES], vertices[PT_LANES], truncated[PT_LANES], path[PT_LANES];
+} pt_lanes;
 
+/* Make at least 4 uniforms ready in every lane of mask: a lane with 4 or fewer left moves
+ * its second block to the first and generates the next block of its stream. One Philox
+ * (for all lanes) serves up to 4 draws after it, not one per draw. */
 __attribute__((always_inline))
-void pt_rng_init(pt_rng *r, ulong seed, ulong stream, uint sample) {
-    r->seed = seed;
-    r->stream = stream;
-    r->sample = sample;
-    r->block = 0;
-    r->b0 = r->b1 = r->b2 = r->b3 = 0.0f;
-    r->used = 4;
+void pt_lanes_refill(pt_lanes *S, vi mask, uint2 key) {
+    vi used = VLOAD(S->used);
+    vi need = mask & (used >= 4);
+    if (!any(need)) return;
+    vu blk = VLOAD(S->block);
+    vu c0 = VLOAD(S->slo), c1 = VLOAD(S->shi), c2 = VLOAD(S->sample), c3 = blk;
+    VPHILOX(&c0, &c1, &c2, &c3, key);
+    const float s = 1.0f / 16777216.0f;   /* top 24 bits, as u01x4 of rng.h */
+    vf fresh[4] = {VCONVERT_F(c0 >> 8) * s, VCONVERT_F(c1 >> 8) * s,
+                   VCONVERT_F(c2 >> 8) * s, VCONVERT_F(c3 >> 8) * s};
+    for (int i = 0; i < 4; ++i) {
+        vf second = VLOAD(S->u[i + 4]);
+        VSTORE(select(VLOAD(S->u[i]), second, need), S->u[i]);
+        VSTORE(select(second, fresh[i], need), S->u[i + 4]);
+    }
+    VSTORE(select(blk, blk + 1u, need), S->block);
+    VSTORE(select(used, used - 4, need), S->used);
 }
 
+/* Next uniform of every lane in mask (after pt_lanes_refill: at most 4 draws per refill);
+ * other lanes draw nothing. */
 __attribute__((always_inline))
-float pt_next(pt_rng *r) {
-    if (r->used == 4) {
-        float4 u = rng_uniform4(r->seed, r->stream, r->sample, r->block);
-        r->b0 = u.x; r->b1 = u.y; r->b2 = u.z; r->b3 = u.w;
-        r->block += 1;
-        r->used = 0;
-    }
-    int k = r->used++;
-    return k == 0 ? r->b0 : k == 1 ? r->b1 : k == 2 ? r->b2 : r->b3;
+vf pt_lanes_take(pt_lanes *S, vi mask) {
+    vi used = VLOAD(S->used);
+    vf u = VLOAD(S->u[7]);
+    for (int i = 6; i >= 0; --i) u = select(u, VLOAD(S->u[i]), used == i);
+    VSTORE(used - mask, S->used);   /* mask lanes are -1: one more used */
+    return u;
 }
 
 /* ------------------------------------------------------------------ medium */
@@ -159,61 +200,34 @@ typedef struct {
     float scale;
 } pt_medium;
 
+/* sigma_t at (px, py, pz) in the lanes of mask (0 elsewhere and outside the box):
+ * grid_lookup of grid.h per lane, the cell size inverted once per launch. */
 __attribute__((always_inline))
-float pt_sigma(const pt_medium *m, float3 p) {
-    /* grid_density of grid.h with the cell size inverted once per launch, not per lookup. */
-    if (any(p < m->bmin) || any(p > m->bmax)) return 0.0f;
-    return grid_lookup(m->density, m->nx, m->ny, m->nz, (p - m->bmin) * m->inv_cell - 0.5f)
-           * m->scale;
-}
-
-/* Exponential optical depth from a uniform in [0, 1): 1 - u is in (0, 1], no log(0). */
-__attribute__((always_inline))
-float pt_tau(pt_rng *r) {
-    return -log(1.0f - pt_next(r));
-}
-
-/* Delta tracking from x along unit w. Returns 1 with *t_hit the distance to a real
- * collision, 0 if the ray leaves the box first. (A distance, not a float3 out-pointer:
- * see the note on colours above.) */
-__attribute__((always_inline))
-int pt_free_flight(const pt_medium *m, float3 x, float3 w, pt_rng *r, float *t_hit,
-                   uint *steps) {
-    maj_dda s;
-    if (!maj_dda_init(&s, x, w, m->bmin, m->bmax, m->bsize, (int3)(m->mx, m->my, m->mz),
-                      0.0f, INFINITY))
-        return 0;
-    for (;;) {
-        float tau = pt_tau(r), t, sm;
-        if (!maj_dda_track(&s, m->maj, m->scale, &tau, &t, &sm)) return 0;
-        *steps += 1;
-        /* Real with probability sigma / sigma_maj (u * sm < sigma: no division). */
-        if (pt_next(r) * sm < pt_sigma(m, x + t * w)) {
-            *t_hit = t;
-            return 1;
-        }
-    }
-}
-
-/* Ratio-tracking transmittance from x along unit w to the box exit. */
-__attribute__((always_inline))
-float pt_transmittance(const pt_medium *m, float3 x, float3 w, pt_rng *r, uint *steps) {
-    maj_dda s;
-    if (!maj_dda_init(&s, x, w, m->bmin, m->bmax, m->bsize, (int3)(m->mx, m->my, m->mz),
-                      0.0f, INFINITY))
-        return 1.0f;
-    float T = 1.0f;
-    for (;;) {
-        float tau = pt_tau(r), t, sm;
-        if (!maj_dda_track(&s, m->maj, m->scale, &tau, &t, &sm)) return T;
-        *steps += 1;
-        /* sm > 0 at a tentative collision; rounding can put sigma a hair above sm. */
-        T *= fmax(0.0f, 1.0f - pt_sigma(m, x + t * w) / sm);
-        if (T < PT_T_RR) {
-            if (pt_next(r) * PT_T_RR >= T) return 0.0f;
-            T = PT_T_RR;
-        }
-    }
+vf pt_sigma_lanes(const pt_medium *m, vf px, vf py, vf pz, vi mask) {
+    vi in = mask & (px >= m->bmin.x) & (px <= m->bmax.x) & (py >= m->bmin.y) &
+            (py <= m->bmax.y) & (pz >= m->bmin.z) & (pz <= m->bmax.z);
+    /* Lanes outside look up voxel 0 (any finite coordinate would do: clamped below). */
+    vf gx = select((vf)(0.0f), (px - m->bmin.x) * m->inv_cell.x - 0.5f, in);
+    vf gy = select((vf)(0.0f), (py - m->bmin.y) * m->inv_cell.y - 0.5f, in);
+    vf gz = select((vf)(0.0f), (pz - m->bmin.z) * m->inv_cell.z - 0.5f, in);
+    /* Builtins get vector arguments only (Oclgrind mis-runs min(int8, int) and kin). */
+    vf x = clamp(gx, (vf)(0.0f), (vf)((float)(m->nx - 1)));
+    vf y = clamp(gy, (vf)(0.0f), (vf)((float)(m->ny - 1)));
+    vf z = clamp(gz, (vf)(0.0f), (vf)((float)(m->nz - 1)));
+    vi x0 = VCONVERT_I(x), y0 = VCONVERT_I(y), z0 = VCONVERT_I(z);
+    vi dx = select((vi)(0), (vi)(1), x0 < m->nx - 1);
+    vi y1 = min(y0 + 1, (vi)(m->ny - 1)), z1 = min(z0 + 1, (vi)(m->nz - 1));
+    vf fx = x - VCONVERT_F(x0), fy = y - VCONVERT_F(y0), fz = z - VCONVERT_F(z0);
+    int sz = m->nx * m->ny;
+    vi r00 = z0 * sz + y0 * m->nx + x0, r01 = z0 * sz + y1 * m->nx + x0;
+    vi r10 = z1 * sz + y0 * m->nx + x0, r11 = z1 * sz + y1 * m->nx + x0;
+    __global const float *d = m->density;
+    vf c00 = mix(VGATHER(d, r00), VGATHER(d, r00 + dx), fx);
+    vf c01 = mix(VGATHER(d, r01), VGATHER(d, r01 + dx), fx);
+    vf c10 = mix(VGATHER(d, r10), VGATHER(d, r10 + dx), fx);
+    vf c11 = mix(VGATHER(d, r11), VGATHER(d, r11 + dx), fx);
+    vf v = mix(mix(c00, c01, fy), mix(c10, c11, fy), fz) * m->scale;
+    return select((vf)(0.0f), v, in);
 }
 
 /* ------------------------------------------------------------------ random walk */
@@ -226,82 +240,541 @@ typedef struct {
     float4 lobe_g, lobe_w;
 } pt_light;
 
-/* Add c to the order-1 sum (k == 1) or to the higher orders. */
+/* What a launch computes: path g of n is (stream g % nstream, sample sample0 + g / nstream). */
+typedef struct {
+    int is_query;
+    ulong seed;
+    uint sample0;
+    int n, nstream, max_order;
+    float3 cam_o, cam_f, cam_r, cam_u;     /* render */
+    float tan_half;
+    int width, height;
+    __global const float *points;          /* query */
+    __global const float *omegas;
+    __global float *out;
+    __global volatile uint *next;          /* next path of the launch to start */
+} pt_job;
+
+/* ------------------------------------------------------------------ lanes of phase.h, grid.h, majorant.h
+ * The same formulas as the scalar helpers, one lane per path (the twin tests compare the
+ * result path by path, so a slip here fails them). */
+
+/* hg_eval of phase.h: f(mu; g), g the same in every lane. */
 __attribute__((always_inline))
-void pt_add_order(int k, pt_rgb c, pt_rgb *l1, pt_rgb *lms) {
-    if (k == 1) pt_rgb_add(l1, c, 1.0f); else pt_rgb_add(lms, c, 1.0f);
+vf pt_hg_eval_v(vf mu, float g) {
+    vf m = g < 0.0f ? -mu : mu;
+    float ga = fabs(g), a = 1.0f - ga;
+    vf denom = a * a + 2.0f * ga * (1.0f - m);
+    return a * (1.0f + ga) * CLVOL_INV_4PI / (denom * sqrt(denom));
 }
 
-/* Continue a path at vertex k (position x, arrival propagation direction w, throughput
- * beta including the albedo of this vertex). Adds order-1 light to *l1 and higher orders
- * to *lms. Position and direction cross iterations as scalars (see pt_rgb). */
+/* phase_eval of phase.h. */
 __attribute__((always_inline))
-void pt_walk(const pt_medium *m, const pt_light *L, float3 x_in, float3 w_in, spec_t beta,
-             int k, int max_order, pt_rng *r, pt_rgb *l1, pt_rgb *lms, uint *vertices,
-             uint *steps, uint *truncated) {
-    float x0 = x_in.x, x1 = x_in.y, x2 = x_in.z;
-    float w0 = w_in.x, w1 = w_in.y, w2 = w_in.z;
+vf pt_phase_eval_v(vf mu, float4 lobe_g, float4 lobe_w) {
+#ifdef PHASE_ISOTROPIC
+    return (vf)(CLVOL_INV_4PI);
+#else
+    vf f = lobe_w.x * pt_hg_eval_v(mu, lobe_g.x);
+#if PHASE_LOBES >= 2
+    f += lobe_w.y * pt_hg_eval_v(mu, lobe_g.y);
+#endif
+#if PHASE_LOBES >= 3
+    f += lobe_w.z * pt_hg_eval_v(mu, lobe_g.z);
+#endif
+    return f;
+#endif
+}
+
+/* phase_sample of phase.h (lobe by u0, hg_sample_one_minus_mu by u1, direction_around
+ * with the onb by u2): the new direction replaces (*wx, *wy, *wz). */
+__attribute__((always_inline))
+void pt_phase_sample_v(vf *wx, vf *wy, vf *wz, float4 lobe_g, float4 lobe_w, vf u0, vf u1,
+                       vf u2) {
+#ifdef PHASE_ISOTROPIC
+    vf omm = 2.0f * (1.0f - u1);
+    vf nx = *wx, ny = *wy, nz = *wz;
+#else
+    vf g = (vf)(lobe_g.x);
+#if PHASE_LOBES >= 2
+    g = select(g, (vf)(lobe_g.y), u0 >= lobe_w.x);
+#endif
+#if PHASE_LOBES >= 3
+    g = select(g, (vf)(lobe_g.z), u0 >= lobe_w.x + lobe_w.y);
+#endif
+    vf ga = fabs(g);
+    vf a = 1.0f - ga + 2.0f * ga * u1;
+    vf omg = 1.0f - ga;
+    vf omm = clamp(omg * omg * (1.0f - u1) * (2.0f + 2.0f * ga * u1) / (a * a), (vf)(0.0f),
+                    (vf)(2.0f));
+    vi neg = g < 0.0f;   /* sample the mirrored lobe about -w */
+    vf nx = select(*wx, -*wx, neg), ny = select(*wy, -*wy, neg), nz = select(*wz, -*wz, neg);
+#endif
+    vf mu = 1.0f - omm;
+    vf s = sqrt(fmax((vf)(0.0f), omm * (2.0f - omm)));
+    vf phi = 2.0f * CLVOL_PI * u2;
+    vf sgn = select((vf)(-1.0f), (vf)(1.0f), nz >= 0.0f);
+    vf ia = -1.0f / (sgn + nz);
+    vf b = nx * ny * ia;
+    vf b1x = 1.0f + sgn * nx * nx * ia, b1y = sgn * b, b1z = -sgn * nx;
+    vf b2x = b, b2y = sgn + ny * ny * ia, b2z = -ny;
+    /* cos and sin, not sincos: Oclgrind's checker cannot follow sincos's private pointer. */
+    vf sc = s * cos(phi), ss = s * sin(phi);
+    vf vx = sc * b1x + ss * b2x + mu * nx;
+    vf vy = sc * b1y + ss * b2y + mu * ny;
+    vf vz = sc * b1z + ss * b2z + mu * nz;
+    vf len = sqrt(vx * vx + vy * vy + vz * vz);
+    *wx = vx / len; *wy = vy / len; *wz = vz / len;
+}
+
+/* One axis of box_intersect (grid.h). */
+__attribute__((always_inline))
+void pt_slab_v(vf o, vf d, float mn, float mx, vf *lo, vf *hi, vi *ok) {
+    vi zero = d == 0.0f;
+    *ok &= ~(zero & ((o < mn) | (o > mx)));
+    vf inv = 1.0f / d;
+    vf ta = (mn - o) * inv, tb = (mx - o) * inv;
+    *lo = select(fmax(*lo, fmin(ta, tb)), *lo, zero);
+    *hi = select(fmin(*hi, fmax(ta, tb)), *hi, zero);
+}
+
+/* One axis of maj_dda_init (majorant.h). */
+__attribute__((always_inline))
+void pt_dda_axis_v(vf o, vf d, float bmin, float bsize, vi cell, vi *step, vf *tn, vf *td) {
+    vi pos = d > 0.0f, any_d = pos | (d < 0.0f);
+    *step = select(select((vi)(0), (vi)(-1), any_d), (vi)(1), pos);
+    vf edge = bmin + VCONVERT_F(cell - pos) * bsize;   /* pos lanes are -1: cell + 1 */
+    *tn = select((vf)(INFINITY), (edge - o) / d, any_d);
+    *td = select((vf)(INFINITY), select(-bsize / d, bsize / d, pos), any_d);
+}
+
+/* Start tracking rays in the lanes of mask (maj_dda_init from S.o along the path
+ * direction, or along the light for PT_SHADOW lanes) and draw their first optical depth.
+ * Returns the lanes whose ray misses the box (nothing drawn there). */
+__attribute__((always_inline))
+vi pt_rays_v(pt_lanes *S, vi mask, const pt_medium *m, const pt_light *L, uint2 key) {
+    vi shadow = VLOAD(S->mode) == PT_SHADOW;
+    vf ox = VLOAD(S->ox), oy = VLOAD(S->oy), oz = VLOAD(S->oz);
+    vf dx = select(VLOAD(S->wx), (vf)(L->dir.x), shadow);
+    vf dy = select(VLOAD(S->wy), (vf)(L->dir.y), shadow);
+    vf dz = select(VLOAD(S->wz), (vf)(L->dir.z), shadow);
+    vf lo = (vf)(0.0f), hi = (vf)(INFINITY);
+    vi ok = mask;
+    pt_slab_v(ox, dx, m->bmin.x, m->bmax.x, &lo, &hi, &ok);
+    pt_slab_v(oy, dy, m->bmin.y, m->bmax.y, &lo, &hi, &ok);
+    pt_slab_v(oz, dz, m->bmin.z, m->bmax.z, &lo, &hi, &ok);
+    ok &= lo < hi;   /* box_intersect's lo <= hi, then maj_dda_init's t0 < t1 */
+    if (any(ok)) {
+        vf zero = (vf)(0.0f);
+        vi cx = VCONVERT_I(clamp((ox + lo * dx - m->bmin.x) / m->bsize.x, zero, (vf)((float)(m->mx - 1))));
+        vi cy = VCONVERT_I(clamp((oy + lo * dy - m->bmin.y) / m->bsize.y, zero, (vf)((float)(m->my - 1))));
+        vi cz = VCONVERT_I(clamp((oz + lo * dz - m->bmin.z) / m->bsize.z, zero, (vf)((float)(m->mz - 1))));
+        vi sx, sy, sz;
+        vf tnx, tny, tnz, tdx, tdy, tdz;
+        pt_dda_axis_v(ox, dx, m->bmin.x, m->bsize.x, cx, &sx, &tnx, &tdx);
+        pt_dda_axis_v(oy, dy, m->bmin.y, m->bsize.y, cy, &sy, &tny, &tdy);
+        pt_dda_axis_v(oz, dz, m->bmin.z, m->bsize.z, cz, &sz, &tnz, &tdz);
+        VSTORE(select(VLOAD(S->t), lo, ok), S->t);
+        VSTORE(select(VLOAD(S->te), hi, ok), S->te);
+        VSTORE(select(VLOAD(S->cx), cx, ok), S->cx);
+        VSTORE(select(VLOAD(S->cy), cy, ok), S->cy);
+        VSTORE(select(VLOAD(S->cz), cz, ok), S->cz);
+        VSTORE(select(VLOAD(S->sx), sx, ok), S->sx);
+        VSTORE(select(VLOAD(S->sy), sy, ok), S->sy);
+        VSTORE(select(VLOAD(S->sz), sz, ok), S->sz);
+        VSTORE(select(VLOAD(S->tnx), tnx, ok), S->tnx);
+        VSTORE(select(VLOAD(S->tny), tny, ok), S->tny);
+        VSTORE(select(VLOAD(S->tnz), tnz, ok), S->tnz);
+        VSTORE(select(VLOAD(S->tdx), tdx, ok), S->tdx);
+        VSTORE(select(VLOAD(S->tdy), tdy, ok), S->tdy);
+        VSTORE(select(VLOAD(S->tdz), tdz, ok), S->tdz);
+        /* Exponential optical depth: 1 - u is in (0, 1], no log(0). */
+        pt_lanes_refill(S, ok, key);
+        vf tau = -log(1.0f - pt_lanes_take(S, ok));
+        VSTORE(select(VLOAD(S->tau), tau, ok), S->tau);
+    }
+    return mask & ~ok;
+}
+
+/* acc += (r, g, b) * s in the slot of order k (0 background, 1 single, else multiple),
+ * lanes of mask. */
+__attribute__((always_inline))
+void pt_add_v(pt_lanes *S, vi mask, vi k, vf r, vf g, vf b) {
+    vi m0 = mask & (k == 0), m1 = mask & (k == 1), m2 = mask & (k >= 2);
+    VSTORE(VLOAD(S->acc[0]) + select((vf)(0.0f), r, m0), S->acc[0]);
+    VSTORE(VLOAD(S->acc[1]) + select((vf)(0.0f), g, m0), S->acc[1]);
+    VSTORE(VLOAD(S->acc[2]) + select((vf)(0.0f), b, m0), S->acc[2]);
+    VSTORE(VLOAD(S->acc[3]) + select((vf)(0.0f), r, m1), S->acc[3]);
+    VSTORE(VLOAD(S->acc[4]) + select((vf)(0.0f), g, m1), S->acc[4]);
+    VSTORE(VLOAD(S->acc[5]) + select((vf)(0.0f), b, m1), S->acc[5]);
+    VSTORE(VLOAD(S->acc[6]) + select((vf)(0.0f), r, m2), S->acc[6]);
+    VSTORE(VLOAD(S->acc[7]) + select((vf)(0.0f), g, m2), S->acc[7]);
+    VSTORE(VLOAD(S->acc[8]) + select((vf)(0.0f), b, m2), S->acc[8]);
+}
+
+/* Throughput as three lane vectors (PT_GREY: one value in all three). */
+__attribute__((always_inline))
+void pt_beta_v(const pt_lanes *S, vf *r, vf *g, vf *b) {
+    *r = VLOAD(S->br);
+#ifdef PT_GREY
+    *g = *r; *b = *r;
+#else
+    *g = VLOAD(S->bg); *b = VLOAD(S->bb);
+#endif
+}
+
+__attribute__((always_inline))
+void pt_set_beta_v(pt_lanes *S, vi mask, vf r, vf g, vf b) {
+    VSTORE(select(VLOAD(S->br), r, mask), S->br);
+#ifndef PT_GREY
+    VSTORE(select(VLOAD(S->bg), g, mask), S->bg);
+    VSTORE(select(VLOAD(S->bb), b, mask), S->bb);
+#endif
+}
+
+/* Steps between rays; a lane's pending step is h[j] (H_NONE while it tracks a ray). */
+#define H_NONE 0
+#define H_ACCEPT 1      /* flight collided for real: the collision becomes vertex k + 1 */
+#define H_ESCAPE 2      /* flight left the box */
+#define H_FINISH 3      /* write the path's row */
+#define H_START 4       /* take the next path of the launch */
+#define H_VERTEX 5      /* scattering vertex at S.o: sun NEE */
+#define H_NEE_DONE 6    /* shadow ray done with transmittance S.T */
+#define H_CONTINUE 7    /* roulette, phase sampling, next flight */
+#define H_RAY 8         /* start the ray of S.mode from S.o */
+
+/* Run every lane with a pending step to its next ray (or to PT_IDLE when the launch has
+ * no paths left), all lanes together, one step kind after the other. A lane's steps (and
+ * its draws) still come in its own path's order. */
+__attribute__((always_inline))
+void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const pt_job *J,
+               uint2 key) {
     for (;;) {
-        float3 x = (float3)(x0, x1, x2), w = (float3)(w0, w1, w2);
-        if (SPEC_MAX(beta) <= 0.0f) return;  /* albedo 0: nothing can arrive any more */
-        *vertices += 1;
+        vi e = h == H_ACCEPT;
+        if (any(e)) {
+            vf t = VLOAD(S->t);
+            VSTORE(select(VLOAD(S->ox), VLOAD(S->ox) + t * VLOAD(S->wx), e), S->ox);
+            VSTORE(select(VLOAD(S->oy), VLOAD(S->oy) + t * VLOAD(S->wy), e), S->oy);
+            VSTORE(select(VLOAD(S->oz), VLOAD(S->oz) + t * VLOAD(S->wz), e), S->oz);
+            vf br, bg, bb;
+            pt_beta_v(S, &br, &bg, &bb);
+#ifdef PT_GREY
+            pt_set_beta_v(S, e, br * L->albedo, br, br);
+#else
+            pt_set_beta_v(S, e, br * L->albedo.r, bg * L->albedo.g, bb * L->albedo.b);
+#endif
+            VSTORE(VLOAD(S->k) - e, S->k);
+            h = select(h, (vi)(H_VERTEX), e);
+        }
+        e = h == H_ESCAPE;
+        if (any(e)) {
+#ifdef PT_ENV
+            vf br, bg, bb;
+            pt_beta_v(S, &br, &bg, &bb);
+            pt_add_v(S, e, VLOAD(S->k), L->env.r * br, L->env.g * bg, L->env.b * bb);
+#endif
+            h = select(h, (vi)(H_FINISH), e);
+        }
+        e = h == H_FINISH;
+        if (any(e)) {
+            int fin[PT_LANES];
+            VSTORE(e, fin);
+            for (int j = 0; j < PT_LANES; ++j) {
+                if (!fin[j]) continue;
+                __global float *o = J->out + PT_OUT * (size_t)S->path[j];
+                for (int c = 0; c < 9; ++c) o[c] = S->acc[c][j];
+                o[9] = (float)S->vertices[j];
+                o[10] = (float)S->steps[j];
+                o[11] = (float)S->truncated[j];
+            }
+            h = select(h, (vi)(H_START), e);
+        }
+        e = h == H_START;
+        if (any(e)) {
+            /* Per lane: the path index, its stream and sample, the query's point or the
+             * pixel (integer division has no vector instruction here). */
+            int st[PT_LANES], col[PT_LANES], row[PT_LANES];
+            VSTORE(e, st);
+            for (int j = 0; j < PT_LANES; ++j) {
+                col[j] = row[j] = 0;
+                if (!st[j]) continue;
+                int g = (int)min(atomic_inc(J->next), (uint)J->n);
+                S->path[j] = g;
+                if (g >= J->n) continue;
+                int sj = g / J->nstream, stream = g - sj * J->nstream;
+                S->slo[j] = (uint)stream;
+                S->sample[j] = J->sample0 + (uint)sj;
+                if (J->is_query) {
+                    /* Vertex 1 at p with beta = 1, w = -omega. */
+                    float3 p = vload3(stream, J->points), w = -vload3(stream, J->omegas);
+                    S->ox[j] = p.x; S->oy[j] = p.y; S->oz[j] = p.z;
+                    S->wx[j] = w.x; S->wy[j] = w.y; S->wz[j] = w.z;
+                } else {
+                    row[j] = stream / J->width;
+                    col[j] = stream - row[j] * J->width;
+                }
+            }
+            vi none = e & (VLOAD(S->path) >= J->n);
+            VSTORE(select(VLOAD(S->mode), (vi)(PT_IDLE), none), S->mode);
+            h = select(h, (vi)(H_NONE), none);
+            e &= ~none;
+            VSTORE(select(VLOAD(S->shi), (vu)(0u), e), S->shi);
+            VSTORE(select(VLOAD(S->block), (vu)(0u), e), S->block);
+            VSTORE(select(VLOAD(S->used), (vi)(8), e), S->used);   /* nothing buffered */
+            for (int c = 0; c < 9; ++c) VSTORE(select(VLOAD(S->acc[c]), (vf)(0.0f), e), S->acc[c]);
+            VSTORE(select(VLOAD(S->steps), (vi)(0), e), S->steps);
+            VSTORE(select(VLOAD(S->vertices), (vi)(0), e), S->vertices);
+            VSTORE(select(VLOAD(S->truncated), (vi)(0), e), S->truncated);
+            pt_set_beta_v(S, e, (vf)(1.0f), (vf)(1.0f), (vf)(1.0f));
+            if (J->is_query) {
+                VSTORE(select(VLOAD(S->k), (vi)(1), e), S->k);
+                h = select(h, (vi)(H_VERTEX), e);
+            } else {
+                /* Camera ray through the jittered pixel (camera_ray of grid.h); k = 0
+                 * until its first real collision (then beta = albedo). */
+                pt_lanes_refill(S, e, key);
+                vf px = VCONVERT_F(VLOAD(col)) + pt_lanes_take(S, e);
+                vf py = VCONVERT_F(VLOAD(row)) + pt_lanes_take(S, e);
+                float fw = (float)J->width, fh = (float)J->height;
+                vf sx = (2.0f * px / fw - 1.0f) * J->tan_half * (fw / fh);
+                vf sy = (1.0f - 2.0f * py / fh) * J->tan_half;
+                vf dx = J->cam_f.x + sx * J->cam_r.x + sy * J->cam_u.x;
+                vf dy = J->cam_f.y + sx * J->cam_r.y + sy * J->cam_u.y;
+                vf dz = J->cam_f.z + sx * J->cam_r.z + sy * J->cam_u.z;
+                vf len = sqrt(dx * dx + dy * dy + dz * dz);
+                VSTORE(select(VLOAD(S->wx), dx / len, e), S->wx);
+                VSTORE(select(VLOAD(S->wy), dy / len, e), S->wy);
+                VSTORE(select(VLOAD(S->wz), dz / len, e), S->wz);
+                VSTORE(select(VLOAD(S->ox), (vf)(J->cam_o.x), e), S->ox);
+                VSTORE(select(VLOAD(S->oy), (vf)(J->cam_o.y), e), S->oy);
+                VSTORE(select(VLOAD(S->oz), (vf)(J->cam_o.z), e), S->oz);
+                VSTORE(select(VLOAD(S->k), (vi)(0), e), S->k);
+                VSTORE(select(VLOAD(S->mode), (vi)(PT_FLIGHT), e), S->mode);
+                h = select(h, (vi)(H_RAY), e);
+            }
+        }
+        e = h == H_VERTEX;
+        if (any(e)) {
+            vf br, bg, bb;
+            pt_beta_v(S, &br, &bg, &bb);
+            vi dead = e & (fmax(fmax(br, bg), bb) <= 0.0f);   /* albedo 0: nothing arrives */
+            h = select(h, (vi)(H_FINISH), dead);
+            e &= ~dead;
+            VSTORE(VLOAD(S->vertices) - e, S->vertices);
+            h = select(h, (vi)(H_CONTINUE), e);
 #ifndef PT_NO_SUN
-        /* Also tested at run time, so the general build of a sunless scene draws the same
-         * random numbers as the PT_NO_SUN build. (fmax, not ||: LLVM turns a float || into
-         * a 'freeze' that Oclgrind cannot run.) */
-        if (fmax(fmax(L->sun.r, L->sun.g), L->sun.b) > 0.0f) {
-            float f = phase_eval(dot(L->dir, w), L->lobe_g, L->lobe_w);
-            float T = pt_transmittance(m, x, L->dir, r, steps);
-            float s = f * T;
+            /* Also tested at run time, so the general build of a sunless scene draws the
+             * same random numbers as the PT_NO_SUN build. (fmax, not ||: LLVM turns a
+             * float || into a 'freeze' that Oclgrind cannot run.) */
+            if (fmax(fmax(L->sun.r, L->sun.g), L->sun.b) > 0.0f) {
+                /* Cosine between propagation directions: dot(-l, -w) = dot(l, w). */
+                vf mu = L->dir.x * VLOAD(S->wx) + L->dir.y * VLOAD(S->wy) + L->dir.z * VLOAD(S->wz);
+                VSTORE(select(VLOAD(S->f), pt_phase_eval_v(mu, L->lobe_g, L->lobe_w), e), S->f);
+                VSTORE(select(VLOAD(S->T), (vf)(1.0f), e), S->T);
+                VSTORE(select(VLOAD(S->mode), (vi)(PT_SHADOW), e), S->mode);
+                h = select(h, (vi)(H_RAY), e);
+            }
+#endif
+        }
+        e = h == H_NEE_DONE;
+        if (any(e)) {
+            vf s = VLOAD(S->f) * VLOAD(S->T);
 #ifdef PT_TEST_BIAS
             s *= PT_TEST_BIAS;
 #endif
-            pt_rgb c = SPEC_TINT(L->sun, beta);
-            c.r *= s; c.g *= s; c.b *= s;
-            pt_add_order(k, c, l1, lms);
+            vf br, bg, bb;
+            pt_beta_v(S, &br, &bg, &bb);
+            pt_add_v(S, e, VLOAD(S->k), L->sun.r * br * s, L->sun.g * bg * s, L->sun.b * bb * s);
+            h = select(h, (vi)(H_CONTINUE), e);
         }
-#endif
+        e = h == H_CONTINUE;
+        if (any(e)) {
 #ifdef PT_SINGLE_ONLY
-        return;
+            h = select(h, (vi)(H_FINISH), e);
 #else
-        if (k == max_order) return;
-        if (k >= PT_MAX_VERTICES) {
-            *truncated = 1;
-            return;
-        }
-        if (k >= PT_RR_START) {
-            float q = fmin(1.0f, SPEC_MAX(beta));
-            if (pt_next(r) >= q) return;
-            beta = SPEC_DIV(beta, q);
-        }
-        float u0 = pt_next(r), u1 = pt_next(r), u2 = pt_next(r);  /* in this order */
-        w = phase_sample(w, L->lobe_g, L->lobe_w, (float3)(u0, u1, u2));
-        float t;
-        if (!pt_free_flight(m, x, w, r, &t, steps)) {
-#ifdef PT_ENV
-            pt_add_order(k, SPEC_TINT(L->env, beta), l1, lms);
+            vi k = VLOAD(S->k);
+            vi stop = e & (k == J->max_order);
+            VSTORE(select(VLOAD(S->truncated), (vi)(1), e & ~stop & (k >= PT_MAX_VERTICES)),
+                   S->truncated);
+            stop |= e & (k >= PT_MAX_VERTICES);
+            e &= ~stop;
+            pt_lanes_refill(S, e, key);   /* roulette + 3 for the direction: <= 4 draws */
+            vi rr = e & (k >= PT_RR_START);
+            if (any(rr)) {
+                vf br, bg, bb;
+                pt_beta_v(S, &br, &bg, &bb);
+                vf q = fmin((vf)(1.0f), fmax(fmax(br, bg), bb));
+                vi die = rr & (pt_lanes_take(S, rr) >= q);
+                stop |= die;
+                e &= ~die;
+                rr &= ~die;
+                pt_set_beta_v(S, rr, br / q, bg / q, bb / q);
+            }
+            h = select(h, (vi)(H_FINISH), stop);
+            if (any(e)) {
+                vf u0 = pt_lanes_take(S, e);   /* in this order */
+                vf u1 = pt_lanes_take(S, e);
+                vf u2 = pt_lanes_take(S, e);
+                vf wx = VLOAD(S->wx), wy = VLOAD(S->wy), wz = VLOAD(S->wz);
+                vf nx = wx, ny = wy, nz = wz;
+                pt_phase_sample_v(&nx, &ny, &nz, L->lobe_g, L->lobe_w, u0, u1, u2);
+                VSTORE(select(wx, nx, e), S->wx);
+                VSTORE(select(wy, ny, e), S->wy);
+                VSTORE(select(wz, nz, e), S->wz);
+                VSTORE(select(VLOAD(S->mode), (vi)(PT_FLIGHT), e), S->mode);
+                h = select(h, (vi)(H_RAY), e);
+            }
 #endif
-            return;
         }
-        x = x + t * w;
-        x0 = x.x; x1 = x.y; x2 = x.z;
-        w0 = w.x; w1 = w.y; w2 = w.z;
-        beta = SPEC_MUL(beta, L->albedo);
-        k += 1;
-#endif
+        e = h == H_RAY;
+        if (any(e)) {
+            vi miss = pt_rays_v(S, e, m, L, key);
+            /* A shadow ray that misses: T = 1 (set at the vertex); a flight: escape. */
+            vi shadow = VLOAD(S->mode) == PT_SHADOW;
+            h = select(h, (vi)(H_NONE), e);
+            h = select(h, select((vi)(H_ESCAPE), (vi)(H_NEE_DONE), shadow), miss);
+        }
+        if (!any(h != H_NONE)) return;
     }
 }
 
+#ifndef PT_BATCH
+#define PT_BATCH (PT_LANES / 2)
+#endif
+
+/* Number of lanes set in mask. (A sum over an array: Oclgrind's uninitialised-value
+ * checker crashes on the .lo / .hi halving of a vector.) */
 __attribute__((always_inline))
-void pt_store(__global float *out, size_t g, pt_rgb bg, pt_rgb a, pt_rgb b, uint vertices,
-              uint steps, uint truncated) {
-    __global float *o = out + PT_OUT * g;
-    o[0] = bg.r; o[1] = bg.g; o[2] = bg.b;
-    o[3] = a.r; o[4] = a.g; o[5] = a.b;
-    o[6] = b.r; o[7] = b.g; o[8] = b.b;
-    o[9] = (float)vertices;
-    o[10] = (float)steps;
-    o[11] = (float)truncated;
+int pt_count(vi mask) {
+    int a[PT_LANES], n = 0;
+    VSTORE(mask, a);
+    for (int j = 0; j < PT_LANES; ++j) n -= a[j];
+    return n;
+}
+
+/* The one tracking loop (images and point queries). */
+__attribute__((always_inline))
+void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
+    pt_lanes S;
+    {   /* zero every lane's state word by word (all lanes are loaded from the start) */
+        __private int *w = (__private int *)&S;
+        for (uint i = 0; i < sizeof(pt_lanes) / sizeof(int); ++i) w[i] = 0;
+    }
+    uint2 key = (uint2)((uint)J->seed, (uint)(J->seed >> 32));
+    const int mx = m->mx, my = m->my, mz = m->mz;
+    const float scale = m->scale;
+    VSTORE((vi)(H_START), S.pend);
+#ifdef PT_STATS
+    uint n_it = 0, n_act = 0, n_ev = 0, n_cross = 0;
+#endif
+    for (;;) {
+        /* Lanes between rays wait until PT_BATCH of them do (or nothing else tracks), so
+         * the event code runs for several lanes at once. */
+        vi pend = VLOAD(S.pend);
+        vi waiting = pend != H_NONE;
+        vi tracking = (VLOAD(S.mode) != PT_IDLE) & ~waiting;
+        /* Bitwise, not && / ||: LLVM turns those into a 'freeze' that Oclgrind cannot run. */
+        if (any(waiting) & (!any(tracking) | (pt_count(waiting) >= PT_BATCH))) {
+#ifdef PT_STATS
+            n_ev += 1;
+#endif
+            pt_events(&S, pend, m, L, J, key);
+            pend = (vi)(H_NONE);
+            VSTORE(pend, S.pend);
+        }
+        vi mode = VLOAD(S.mode);
+        vi act = (mode != PT_IDLE) & (pend == H_NONE);
+        if (!any(act)) {
+            if (any(pend != H_NONE)) continue;
+            break;
+        }
+        vf t = VLOAD(S.t), te = VLOAD(S.te), tau = VLOAD(S.tau);
+        vf tnx = VLOAD(S.tnx), tny = VLOAD(S.tny), tnz = VLOAD(S.tnz);
+        vi cx = VLOAD(S.cx), cy = VLOAD(S.cy), cz = VLOAD(S.cz);
+        /* maj_dda_track of majorant.h: every lane walks cells (cheap) until its next
+         * tentative collision or the box exit; then the collisions are processed together. */
+        vi ev = (vi)(0), hit = (vi)(0), todo = act;
+        vf sm = (vf)(0.0f), tb;
+        for (;;) {
+            tb = fmin(fmin(fmin(tnx, tny), tnz), te);
+            vf s = VGATHER(m->maj, select((vi)(0), (cz * my + cy) * mx + cx, todo)) * scale;
+            vf dtau = s * (tb - t);
+            vi h = todo & (s > 0.0f) & (dtau >= tau);
+            hit |= h;
+            sm = select(sm, s, h);
+            vi cross = todo & ~h;
+#ifdef PT_STATS
+            n_cross += 1;
+#endif
+            if (!any(cross)) break;
+            /* maj_dda_step: leave at t_end, else advance the axis whose boundary is first. */
+            tau = select(tau, tau - dtau, cross);
+            t = select(t, tb, cross);
+            vi mv = cross & (tb < te);
+            vi ax = (tnx <= tny) & (tnx <= tnz);
+            vi ay = ~ax & (tny <= tnz);
+            vi az = ~ax & ~ay;
+            cx = select(cx, cx + VLOAD(S.sx), mv & ax);
+            cy = select(cy, cy + VLOAD(S.sy), mv & ay);
+            cz = select(cz, cz + VLOAD(S.sz), mv & az);
+            tnx = select(tnx, tnx + VLOAD(S.tdx), mv & ax);
+            tny = select(tny, tny + VLOAD(S.tdy), mv & ay);
+            tnz = select(tnz, tnz + VLOAD(S.tdz), mv & az);
+            vi inside = (cx >= 0) & (cx < mx) & (cy >= 0) & (cy < my) & (cz >= 0) & (cz < mz);
+            vi out = cross & ~(mv & inside);
+            ev = select(ev, select((vi)(H_ESCAPE), (vi)(H_NEE_DONE), mode == PT_SHADOW), out);
+            todo = cross & ~out;
+            if (!any(todo)) break;
+        }
+        VSTORE(cx, S.cx); VSTORE(cy, S.cy); VSTORE(cz, S.cz);
+        VSTORE(tnx, S.tnx); VSTORE(tny, S.tny); VSTORE(tnz, S.tnz);
+        if (any(hit)) {
+            /* tau / sm <= tb - t, so the hit stays inside the segment (clamped for rounding). */
+            vf th = fmin(t + tau / sm, tb);
+            t = select(t, th, hit);
+            VSTORE(VLOAD(S.steps) - hit, S.steps);
+            vi shadow = mode == PT_SHADOW;
+            vf dx = select(VLOAD(S.wx), (vf)(L->dir.x), shadow);
+            vf dy = select(VLOAD(S.wy), (vf)(L->dir.y), shadow);
+            vf dz = select(VLOAD(S.wz), (vf)(L->dir.z), shadow);
+            pt_lanes_refill(&S, hit, key);   /* accept or roulette, then tau: <= 2 draws */
+            vf sigma = pt_sigma_lanes(m, VLOAD(S.ox) + th * dx, VLOAD(S.oy) + th * dy,
+                                      VLOAD(S.oz) + th * dz, hit);
+            vi fl = hit & ~shadow, sh = hit & shadow;
+            vi accept = (vi)(0), kill = (vi)(0);
+            if (any(fl)) {
+                /* Real with probability sigma / sigma_maj (u * sm < sigma: no division). */
+                accept = fl & (pt_lanes_take(&S, fl) * sm < sigma);
+            }
+            if (any(sh)) {
+                /* sm > 0 at a tentative collision; rounding can put sigma a hair above sm. */
+                vf T = VLOAD(S.T);
+                T = select(T, T * fmax((vf)(0.0f), 1.0f - sigma / sm), sh);
+                vi low = sh & (T < PT_T_RR);
+                if (any(low)) {
+                    /* Roulette: T survives with probability T / PT_T_RR, then is PT_T_RR. */
+                    kill = low & (pt_lanes_take(&S, low) * PT_T_RR >= T);
+                    T = select(T, (vf)(PT_T_RR), low);
+                    T = select(T, (vf)(0.0f), kill);
+                }
+                VSTORE(T, S.T);
+            }
+            vi more = hit & ~accept & ~kill;
+            if (any(more)) tau = select(tau, -log(1.0f - pt_lanes_take(&S, more)), more);
+            ev = select(ev, (vi)(H_ACCEPT), accept);
+            ev = select(ev, (vi)(H_NEE_DONE), kill);
+        }
+        VSTORE(t, S.t);
+        VSTORE(tau, S.tau);
+        VSTORE(select(pend, ev, act), S.pend);
+#ifdef PT_STATS
+        n_it += 1;
+        n_act += pt_count(act);
+#endif
+    }
+#ifdef PT_STATS
+    atomic_add(J->next + 1, n_it); atomic_add(J->next + 2, n_act);
+    atomic_add(J->next + 3, n_ev); atomic_add(J->next + 4, n_cross);
+#endif
 }
 
 #define PT_MEDIUM_ARGS                                                                    \
@@ -322,50 +795,35 @@ void pt_store(__global float *out, size_t g, pt_rgb bg, pt_rgb a, pt_rgb b, uint
     L.albedo = SPEC_OF(albedo);                                                           \
     L.lobe_g = lobe_g; L.lobe_w = lobe_w;
 
+/* Work-items share the launch's paths through *next (zero at launch); any number of
+ * work-items gives the same rows. */
 __kernel void pt_render(PT_MEDIUM_ARGS, const float4 cam_o, const float4 cam_f,
                         const float4 cam_r, const float4 cam_u, const float tan_half,
                         const int width, const int height, const ulong seed,
                         const uint sample0, const int spl, const int max_order,
-                        __global float *out) {
-    int g = get_global_id(0);
-    int npix = width * height;
-    if (g >= npix * spl) return;
+                        __global float *out, __global volatile uint *next) {
     PT_SETUP
-    int j = g / npix, pix = g - j * npix;
-    int row = pix / width, col = pix - row * width;
-    pt_rng r;
-    pt_rng_init(&r, seed, (ulong)pix, sample0 + (uint)j);
-    float px = (float)col + pt_next(&r), py = (float)row + pt_next(&r);
-    float3 w = camera_ray(cam_f.xyz, cam_r.xyz, cam_u.xyz, tan_half, width, height, px, py);
-    pt_rgb zero = pt_rgb_of((float4)(0.0f));
-    pt_rgb l1 = zero, lms = zero, bg = zero;
-    uint vertices = 0, steps = 0, truncated = 0;
-    float t;
-    if (pt_free_flight(&m, cam_o.xyz, w, &r, &t, &steps)) {
-        pt_walk(&m, &L, cam_o.xyz + t * w, w, L.albedo, 1, max_order, &r, &l1, &lms, &vertices, &steps,
-                &truncated);
-    } else {
-#ifdef PT_ENV
-        bg = L.env;
-#endif
-    }
-    pt_store(out, (size_t)g, bg, l1, lms, vertices, steps, truncated);
+    pt_job J;
+    J.is_query = 0; J.seed = seed; J.sample0 = sample0;
+    J.nstream = width * height; J.n = J.nstream * spl; J.max_order = max_order;
+    J.cam_o = cam_o.xyz; J.cam_f = cam_f.xyz; J.cam_r = cam_r.xyz; J.cam_u = cam_u.xyz;
+    J.tan_half = tan_half; J.width = width; J.height = height;
+    J.points = out; J.omegas = out;   /* unused */
+    J.out = out; J.next = next;
+    pt_run(&m, &L, &J);
 }
 
 __kernel void pt_query(PT_MEDIUM_ARGS, __global const float *points,
                        __global const float *omegas, const int nq, const ulong seed,
                        const uint sample0, const int ppl, const int max_order,
-                       __global float *out) {
-    int g = get_global_id(0);
-    if (g >= nq * ppl) return;
+                       __global float *out, __global volatile uint *next) {
     PT_SETUP
-    int j = g / nq, q = g - j * nq;
-    pt_rng r;
-    pt_rng_init(&r, seed, (ulong)q, sample0 + (uint)j);
-    pt_rgb zero = pt_rgb_of((float4)(0.0f));
-    pt_rgb l1 = zero, lms = zero;
-    uint vertices = 0, steps = 0, truncated = 0;
-    pt_walk(&m, &L, vload3(q, points), -vload3(q, omegas), SPEC_ONE, 1, max_order, &r, &l1,
-            &lms, &vertices, &steps, &truncated);
-    pt_store(out, (size_t)g, zero, l1, lms, vertices, steps, truncated);
+    pt_job J;
+    J.is_query = 1; J.seed = seed; J.sample0 = sample0;
+    J.nstream = nq; J.n = nq * ppl; J.max_order = max_order;
+    J.cam_o = J.cam_f = J.cam_r = J.cam_u = (float3)(0.0f);   /* unused */
+    J.tan_half = 0.0f; J.width = J.height = 1;
+    J.points = points; J.omegas = omegas;
+    J.out = out; J.next = next;
+    pt_run(&m, &L, &J);
 }

@@ -15,4 +15,10 @@ v16 gather16(__global const float *p, i16 i) {
                  p[i.s8], p[i.s9], p[i.sa], p[i.sb], p[i.sc], p[i.sd], p[i.se], p[i.sf]);
 }
 
+/* The same with 8 lanes. */
+__attribute__((always_inline))
+float8 gather8(__global const float *p, int8 i) {
+    return (float8)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7]);
+}
+
 #endif

@@ -46,4 +46,22 @@ float4 rng_uniform4(ulong seed, ulong stream, uint sample, uint block) {
     return u01x4(philox4x32_10(ctr, key));
 }
 
+/* The same Philox on one counter per lane (structure of arrays: c0..c3 hold counter words
+ * 0..3 of every lane), for kernels with explicit lanes: RNG_DEFINE_LANES(8) defines
+ * philox4x32_10_x8 on uint8. Lane i gets exactly philox4x32_10 of its counter. */
+#define RNG_DEFINE_LANES(W) RNG_DEFINE_LANES_(W)   /* expands W first (W may be a macro) */
+#define RNG_DEFINE_LANES_(W)                                                                \
+    __attribute__((always_inline)) void philox4x32_10_x##W(                                 \
+        uint##W *c0, uint##W *c1, uint##W *c2, uint##W *c3, uint2 k) {                      \
+        for (int r = 0; r < 10; ++r) {                                                      \
+            uint##W hi0 = mul_hi((uint##W)(PHILOX_M0), *c0), lo0 = PHILOX_M0 * *c0;         \
+            uint##W hi1 = mul_hi((uint##W)(PHILOX_M1), *c2), lo1 = PHILOX_M1 * *c2;         \
+            *c0 = hi1 ^ *c1 ^ k.x;                                                          \
+            *c1 = lo1;                                                                      \
+            *c2 = hi0 ^ *c3 ^ k.y;                                                          \
+            *c3 = lo0;                                                                      \
+            k += (uint2)(PHILOX_W0, PHILOX_W1);                                             \
+        }                                                                                   \
+    }
+
 #endif

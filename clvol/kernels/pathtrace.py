@@ -26,9 +26,13 @@ MAX_VERTICES = 100_000  # cl/pathtrace.cl PT_MAX_VERTICES default
 _MEDIUM_DTYPES = [None, None, np.int32, np.int32, np.int32, np.int32, np.int32, np.int32,
                   None, None, None, np.float32, None, None, None, None, None, None]
 _RENDER_DTYPES = _MEDIUM_DTYPES + [None, None, None, None, np.float32, np.int32, np.int32,
-                                   np.uint64, np.uint32, np.int32, np.int32, None]
+                                   np.uint64, np.uint32, np.int32, np.int32, None, None]
 _QUERY_DTYPES = _MEDIUM_DTYPES + [None, None, np.int32, np.uint64, np.uint32, np.int32,
-                                  np.int32, None]
+                                  np.int32, None, None]
+# Paths side by side per work-item (cl/pathtrace.cl PT_LANES), measured best on PoCL/AVX-512
+# (docs/pathtrace.md): 8 for images; 16 for point queries, whose long paths spend more of
+# their time in the per-vertex code that 16 lanes share better.
+RENDER_LANES, QUERY_LANES = 8, 16
 
 
 @dataclass
@@ -102,7 +106,8 @@ class PathTracer:
         self._maj, _ = build_majorant_buffer(self._density, d.shape, block, rt)
         (self.mres, self.bsize) = majorant_args(d.shape, med.bbox_min, med.bbox_max, block)
         self.defines, self.simulated, self.skipped = specialisation(med, specialise)
-        self.program = rt.program("pathtrace", self.defines)
+        self.program = rt.program("pathtrace", {"PT_LANES": RENDER_LANES, **self.defines})
+        self._query_program = None
         lobes = med.lobes if med.lobes else [(0.0, 1.0)]
         self.lobe_g, self.lobe_w = kphase.lobe_vectors(lobes)
         env = med.environment if med.environment is not None else (0.0, 0.0, 0.0)
@@ -115,6 +120,29 @@ class PathTracer:
             f4(med.light_dir), f4(med.sun), f4(env))
         self.max_order = int(med.max_order or 0)
 
+    def query_program(self):
+        """The program for point queries (built on first use: see QUERY_LANES)."""
+        if self._query_program is None:
+            self._query_program = self.rt.program(
+                "pathtrace", {"PT_LANES": QUERY_LANES, **self.defines})
+        return self._query_program
+
+    def _launch(self, kernel, n_paths: int, args, lanes: int):
+        """Run n_paths paths: each work-item runs LANES paths at a time and takes the next
+        path of the launch from a shared counter when one ends (cl/pathtrace.cl), so a few
+        work-items per compute unit keep every core busy until the launch runs out."""
+        rt = self.rt
+        lanes = int(self.defines.get("PT_LANES", lanes))
+        items = max(1, min(-(-n_paths // lanes), 4 * rt.device.max_compute_units))
+        # Word 0: next path; 1-4: loop counts with -D PT_STATS (benchmarks).
+        counter = rt.to_device(np.zeros(5, np.uint32), writable=True)
+        rt.launch(kernel, items, args + (counter,), local_size=(1,), pad=1)
+        if "PT_STATS" in self.defines:
+            c = rt.from_device(counter, (5,), np.uint32)
+            self.stats = {"tracking_iterations": int(c[1]), "lane_iterations_busy": int(c[2]),
+                          "event_passes": int(c[3]), "cell_iterations": int(c[4]),
+                          "lanes": lanes, "work_items": items}
+
     def render_batch(self, camera, seed: int, sample0: int, spl: int, wait: bool = True):
         """Rows (spl, H*W, PT_OUT) for samples sample0..sample0+spl-1 of every pixel."""
         rt = self.rt
@@ -123,10 +151,11 @@ class PathTracer:
         n = w * h * spl
         out = rt.empty((n, PT_OUT))
         k = self.program.kernel("pt_render", _RENDER_DTYPES)
-        rt.launch(k, n, self._medium_args + (
+        self._launch(k, n, self._medium_args + (
             f4(camera.origin), f4(fwd), f4(right), f4(up),
             np.float32(np.tan(np.radians(camera.fov_y) / 2)), np.int32(w), np.int32(h),
-            np.uint64(seed), np.uint32(sample0), np.int32(spl), np.int32(self.max_order), out))
+            np.uint64(seed), np.uint32(sample0), np.int32(spl), np.int32(self.max_order), out),
+            RENDER_LANES)
         return rt.from_device(out, (spl, w * h, PT_OUT))
 
     def query_batch(self, points_buf, omegas_buf, nq: int, seed: int, sample0: int, ppl: int):
@@ -134,8 +163,8 @@ class PathTracer:
         rt = self.rt
         n = nq * ppl
         out = rt.empty((n, PT_OUT))
-        k = self.program.kernel("pt_query", _QUERY_DTYPES)
-        rt.launch(k, n, self._medium_args + (
+        k = self.query_program().kernel("pt_query", _QUERY_DTYPES)
+        self._launch(k, n, self._medium_args + (
             points_buf, omegas_buf, np.int32(nq), np.uint64(seed), np.uint32(sample0),
-            np.int32(ppl), np.int32(self.max_order), out))
+            np.int32(ppl), np.int32(self.max_order), out), QUERY_LANES)
         return rt.from_device(out, (ppl, nq, PT_OUT))
