@@ -3,7 +3,8 @@
 #   1. an OpenCL runtime: Debian's PoCL CPU driver, only if no OpenCL platform is installed
 #      (the pip PoCL wheel cannot build kernels on these CPUs; see docs/opencl.md);
 #   2. Oclgrind, the strict OpenCL simulator the test suite runs every kernel on;
-#   3. clvol itself (editable) with its test extra and the training extra (torch 2.13.0, CPU).
+#   3. clvol itself (editable) with its test extra, the quality extra (flip-evaluator, for FLIP in
+#      `clvol compare`) and the training extra (torch 2.13.0, CPU).
 # Set CLVOL_NO_TRAIN=1 to skip torch (rendering never imports it).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -22,8 +23,8 @@ if [ ${#apt_pkgs[@]} -gt 0 ]; then
 fi
 
 PY=${PYTHON:-python3}
-extras="test"
-if [ "${CLVOL_NO_TRAIN:-0}" != 1 ]; then extras="test,train"; fi
+extras="test,quality"
+if [ "${CLVOL_NO_TRAIN:-0}" != 1 ]; then extras="$extras,train"; fi
 echo "setup: pip install -e .[$extras]"
 $PY -m pip install -q --disable-pip-version-check -e ".[$extras]"
 clvol info
