@@ -20,9 +20,9 @@ References: the path tracer at --ref-spp samples per pixel as two independent ha
 --ref-spp / 2 each); the reference is their mean. They are cached in --cache (default
 ~/.cache/clvol/neural_quality, shared by all checkouts) under a key that hashes the resolved scene,
 the density grid's bytes, the image size, spp, seeds and the path tracer's source files, so a
-changed scene, generator or path tracer is rebuilt and never read stale. Each scene's file is
-written atomically when both halves are done, so an interrupted --refs-only run resumes at the
-first scene without a file.
+changed scene, generator or path tracer is rebuilt and never read stale. Each half is written
+atomically when it is done (``NAME.half1.npz``), then the scene's file when both are, so an
+interrupted --refs-only run loses at most the half it was rendering.
 
 Metrics, per scene and method (``scores``), against the reference R = (H1 + H2) / 2:
   rmse100   RMSE x 100 of tonemapped luminance with the reference's noise removed: MRPNN's
@@ -166,33 +166,52 @@ def reference_path(cache: Path, name: str, scene, key: str) -> Path:
     return Path(cache) / f"{name}_{scene.camera.width}x{scene.camera.height}_{key[:16]}.npz"
 
 
-def load_reference(path: Path, key: str):
-    """(h1, h2, meta) from a cache file whose stored key equals ``key``, else None."""
+def load_reference(path: Path, key: str, keys=("h1", "h2")):
+    """((arrays named ``keys``), meta) from a cache file whose stored key equals ``key``,
+    else None."""
     if not path.exists():
         return None
     with np.load(path) as z:
         meta = json.loads(str(z["meta"]))
         if meta.get("key") != key:   # a 16-hex-digit name collision: never use it
             return None
-        return z["h1"], z["h2"], meta
+        return tuple(z[k] for k in keys), meta
+
+
+def _save_npz(path: Path, **arrays) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    with atomic_open(path) as fh:
+        fh.write(buf.getvalue())
 
 
 def make_reference(scene, grid, spp_half: int, path: Path, key: str, name: str,
                    seeds=REF_SEEDS, progress: bool = True):
+    """Render (or take from a finished half file) both halves, write the scene's file, and
+    remove the half files. A half file carries the same key, so it is never mixed in stale."""
     halves, seconds = [], []
     for i, seed in enumerate(seeds):
+        half_path = path.with_name(f"{path.stem}.half{i + 1}.npz")
+        got = load_reference(half_path, key, keys=("h",))
+        if got is not None:
+            print(f"  reference {name}: half {i + 1}/2 from {half_path.name}", flush=True)
+            (img,), meta = got
+            halves.append(img)
+            seconds.append(meta["seconds"])
+            continue
         print(f"  reference {name}: half {i + 1}/2, {spp_half} spp, seed {seed} ...", flush=True)
         res = render_pathtrace(scene, spp=spp_half, seed=seed, grid=grid, progress=progress)
         halves.append(res.layers["total"])
         seconds.append(float(res.header["seconds"]))
+        _save_npz(half_path, h=halves[-1],
+                  meta=np.array(json.dumps({"key": key, "seed": seed, "seconds": seconds[-1]})))
     meta = {"key": key, "scene": name, "spp_half": spp_half, "seeds": list(seeds),
             "seconds": seconds, "made": time.strftime("%Y-%m-%d %H:%M"),
             "machine": machine()}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    buf = io.BytesIO()
-    np.savez(buf, h1=halves[0], h2=halves[1], meta=np.array(json.dumps(meta)))
-    with atomic_open(path) as fh:
-        fh.write(buf.getvalue())
+    _save_npz(path, h1=halves[0], h2=halves[1], meta=np.array(json.dumps(meta)))
+    for i in range(len(seeds)):
+        path.with_name(f"{path.stem}.half{i + 1}.npz").unlink(missing_ok=True)
     print(f"  reference {name}: {sum(seconds):.1f} s, written to {path}", flush=True)
     return halves[0], halves[1], meta
 
@@ -201,11 +220,15 @@ def reference(name, scene, grid, spp_half, cache: Path, rebuild: bool = False,
               progress: bool = True):
     key = reference_key(scene, grid, spp_half)
     path = reference_path(cache, name, scene, key)
-    got = None if rebuild else load_reference(path, key)
+    if rebuild:
+        for old in [path] + [path.with_name(f"{path.stem}.half{i}.npz") for i in (1, 2)]:
+            old.unlink(missing_ok=True)
+    got = load_reference(path, key)
     if got is not None:
-        print(f"  reference {name}: cached {path.name} (made {got[2]['made']}, "
-              f"{sum(got[2]['seconds']):.0f} s)", flush=True)
-        return got
+        (h1, h2), meta = got
+        print(f"  reference {name}: cached {path.name} (made {meta['made']}, "
+              f"{sum(meta['seconds']):.0f} s)", flush=True)
+        return h1, h2, meta
     return make_reference(scene, grid, spp_half, path, key, name, progress=progress)
 
 

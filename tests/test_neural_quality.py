@@ -3,6 +3,7 @@ images whose answer is known, the reference cache key, the target check, and a t
 run (two 16^3 scenes at 16x16 pixels, 8-spp references) that must give the whole table."""
 import csv
 import importlib.util
+import json
 import math
 import sys
 from dataclasses import replace
@@ -174,4 +175,17 @@ def test_tiny_run_writes_the_whole_table(nq, tmp_path, capsys):
     assert nq.main(argv + ["--refs-only"]) == 0
     out = capsys.readouterr().out
     assert out.count("cached") == 2 and "half 1/2" not in out
+    # An interrupted build: one scene's file gone, its first half kept. Only half 2 is
+    # rendered, and the scene's file comes back with the same first half.
+    final = sorted((tmp_path / "cache").glob("sphere_*.npz"))[0]
+    (h1, h2), meta = nq.load_reference(final, json.loads(str(np.load(final)["meta"]))["key"])
+    nq._save_npz(final.with_name(final.stem + ".half1.npz"), h=h1,
+                 meta=np.array(json.dumps({"key": meta["key"], "seconds": 1.0})))
+    final.unlink()
+    assert nq.main(argv + ["--refs-only"]) == 0
+    out = capsys.readouterr().out
+    assert "sphere: half 1/2 from" in out and "sphere: half 2/2, 4 spp" in out
+    assert out.count("cached") == 1
+    (again, _), _ = nq.load_reference(final, meta["key"])
+    assert np.array_equal(again, h1) and not list((tmp_path / "cache").glob("*.half*.npz"))
     assert nq.main(argv + ["--out", str(tmp_path / "t.txt")]) == 2   # refused, one line
