@@ -31,6 +31,8 @@ Metrics, per scene and method (``scores``), against the reference R = (H1 + H2) 
             means "dark for this image" whatever the light's irradiance), noise removed likewise
   flip      LDR-FLIP after the same exposure (clvol/metrics.py ``flip``); not noise-corrected
   mean      image mean over the reference's (all pixels and channels)
+Printed with them: ref_floor_rmse100 (the removed noise) and ref_halves_flip (FLIP of one half
+against the other: how much of a FLIP score the reference's noise alone can make).
 Target (PASS/FAIL each): worst rmse100 <= 1.0, worst relmse <= 0.01, worst FLIP <= 0.05 (network,
 over all scenes), and on every scene the network's rmse100 <= the best of the three baselines.
 Results in docs/neural.md.
@@ -77,7 +79,7 @@ SCENES = {
 METHODS = ("network", "wrenninge", "single", "pt_equal")
 BASELINES = ("wrenninge", "single", "pt_equal")
 COLUMNS = ("scene", "method", "rmse100", "relmse", "flip", "mean", "seconds", "spp",
-           "ref_floor_rmse100")
+           "ref_floor_rmse100", "ref_halves_flip")
 TARGET = {"rmse100": 1.0, "relmse": 0.01, "flip": 0.05}
 REF_SEEDS = (7_000_001, 7_000_002)   # the two halves; test renders use other seeds
 PT_EQUAL_SEED = 11
@@ -288,7 +290,7 @@ def _fmt(v, col):
         return f"{v:.2f}"
     if col == "relmse":
         return f"{v:.2e}"
-    if col in ("flip", "mean"):
+    if col in ("flip", "mean", "ref_halves_flip"):
         return f"{v:.3f}"
     if col == "seconds":
         return f"{v:.3f}"
@@ -395,7 +397,8 @@ def run(args) -> int:
         for method in METHODS:
             img, secs, spp = renders[method]
             s = scores(img, h1, h2)
-            rows.append({"scene": name, "method": method, **s, "seconds": secs, "spp": spp})
+            rows.append({"scene": name, "method": method, **s, "seconds": secs, "spp": spp,
+                         "ref_halves_flip": floor_flip})
         print(f"\n{name} ({path.name}; reference noise: rmse100 {s['ref_floor_rmse100']:.2f}, "
               f"FLIP(half 1, half 2) {floor_flip:.3f}; load {load_average()})")
         print(f"  {'method':<10} {'rmse100':>8} {'relMSE':>9} {'FLIP':>6} {'mean':>6} "

@@ -166,7 +166,8 @@ def test_tiny_run_writes_the_whole_table(nq, tmp_path, capsys):
         (s, m) for s in ("sphere", "blob") for m in nq.METHODS]
     assert list(rows[0]) == list(nq.COLUMNS)
     for r in rows:
-        for col in ("rmse100", "relmse", "flip", "mean", "seconds", "ref_floor_rmse100"):
+        for col in ("rmse100", "relmse", "flip", "mean", "seconds", "ref_floor_rmse100",
+                    "ref_halves_flip"):
             assert math.isfinite(float(r[col])) and float(r[col]) >= 0, (r["method"], col)
         assert (r["spp"] != "") == (r["method"] == "pt_equal")
     assert sum(line.startswith(("PASS ", "FAIL ")) for line in out.splitlines()) == 4
