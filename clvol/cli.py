@@ -2,7 +2,7 @@
 
 Subcommands: ``info`` (OpenCL platforms and the chosen device), ``volume`` (inspect,
 generate and convert density grids), ``render`` (a scene to EXR with one of the render
-methods), ``compare`` (image error metrics), ``dataset make`` (training data, on Ray if
+methods), ``compare`` (image error metrics; FLIP with the ``quality`` extra), ``dataset make`` (training data, on Ray if
 installed), ``bundle`` and ``goldens`` (for C hosts and ports, docs/embedding.md). Bad input
 exits with status 2 and one line
 on stderr; ``CLVOL_TRACEBACK=1`` shows the traceback instead.
@@ -90,9 +90,12 @@ def _cmd_volume_convert(args) -> int:
 
 def _cmd_compare(args) -> int:
     from .image import read_exr
-    from .metrics import compare_images
+    from .metrics import FLIP_MISSING, compare_images, flip_available
     test, ref = read_exr(args.test), read_exr(args.reference)
-    result = compare_images(test.rgb, ref.rgb)
+    has_flip = flip_available()
+    result = compare_images(test.rgb, ref.rgb, with_flip=has_flip)
+    if not has_flip:
+        print(f"clvol: note: no FLIP score; {FLIP_MISSING}", file=sys.stderr)
     result = {"test": str(args.test), "reference": str(args.reference), **result}
     if args.json:
         # Identical images have PSNR = inf, which strict JSON cannot hold: write null.

@@ -11,7 +11,7 @@
 #   5. Debian's chromium and chromium-driver for the browser test of `clvol view` (browser
 #      downloads by test tools fail on these machines);
 #   6. clvol itself (editable) with its test extra (pytest, selenium), the view extra (aiohttp),
-#      the scale extra (Ray 2.60.0: data set generation on all cores or a cluster) and the
+#      the quality extra (flip-evaluator, for FLIP in `clvol compare`), the scale extra (Ray 2.60.0: data set generation on all cores or a cluster) and the
 #      training extra (torch 2.13.0, CPU).
 # Set CLVOL_NO_TRAIN=1 to skip torch (rendering never imports it).
 set -euo pipefail
@@ -38,8 +38,8 @@ if [ ${#apt_pkgs[@]} -gt 0 ]; then
 fi
 
 PY=${PYTHON:-python3}
-extras="test,view,scale"
-if [ "${CLVOL_NO_TRAIN:-0}" != 1 ]; then extras="test,view,scale,train"; fi
+extras="test,view,quality,scale"
+if [ "${CLVOL_NO_TRAIN:-0}" != 1 ]; then extras="$extras,train"; fi
 echo "setup: pip install -e .[$extras]"
 $PY -m pip install -q --disable-pip-version-check -e ".[$extras]"
 clvol info

@@ -1,12 +1,15 @@
 """Image metrics on images whose errors are worked out by hand."""
 import json
 import math
+import sys
 
 import numpy as np
 import pytest
 
 from clvol.errors import ImageError
-from clvol.metrics import compare_images, mrpnn_metric, psnr, relmse, rmse
+from clvol.cli import main
+from clvol.image import write_exr
+from clvol.metrics import compare_images, flip, mrpnn_metric, psnr, relmse, rmse
 
 H, W = 4, 5
 N = H * W
@@ -125,7 +128,7 @@ def test_compare_images_all_four_json_ready():
     ref = const(0.37)
     test = ref.copy()
     test[2, 3] = 0.0
-    out = compare_images(test, ref)
+    out = compare_images(test, ref, with_flip=False)
     assert sorted(out) == ["mrpnn", "psnr", "relmse", "rmse"]
     assert all(type(v) is float for v in out.values())
     assert out["rmse"] == pytest.approx(0.37 / math.sqrt(N), rel=1e-12)
@@ -133,3 +136,81 @@ def test_compare_images_all_four_json_ready():
     assert out["psnr"] == pytest.approx(10 * math.log10(0.37**2 / (0.37**2 / N)), rel=1e-12)
     assert out["mrpnn"] == pytest.approx(100 * (CODE_09 / 255) / math.sqrt(N), rel=1e-12)
     assert json.loads(json.dumps(out)) == out
+
+
+# --------------------------------------------------------------------------- FLIP
+
+def gradient_image(h=32, w=48):
+    """A smooth horizontal ramp with a vertical colour tint: edges and colours FLIP can see."""
+    x = np.linspace(0.05, 1.0, w)[None, :, None]
+    y = np.linspace(0.5, 1.0, h)[:, None, None]
+    return x * y * np.array([1.0, 0.8, 0.6])
+
+
+def test_flip_identical_is_zero_and_grows_with_the_perturbation():
+    pytest.importorskip("flip_evaluator")
+    ref = gradient_image()
+    assert flip(ref, ref) == 0.0
+    small, large = flip(ref * 1.05, ref), flip(ref * 1.5, ref)
+    # FLIP is a mean per-pixel error in [0, 1]; a 5% brightening is visible but small,
+    # 50% much more so.
+    assert 0.0 < small < large <= 1.0
+    assert small < 0.1
+    # The exposure comes from the reference, so a common power-of-two scale changes nothing.
+    assert flip(8 * ref * 1.05, 8 * ref) == small
+
+
+def test_flip_is_ldr_flip_after_the_mrpnn_exposure():
+    flip_evaluator = pytest.importorskip("flip_evaluator")
+    # Grey reference 0.37: exposure k = 0.9 / 0.37, so the reference becomes linear 0.9, sRGB
+    # 1.055 * 0.9^(1/2.4) - 0.055; one black pixel stays 0. That is what FLIP must be given.
+    ref = const(0.37)
+    test = ref.copy()
+    test[2, 3] = 0.0
+    s09 = 1.055 * 0.9 ** (1 / 2.4) - 0.055
+    r8 = np.full((H, W, 3), s09, np.float32)
+    t8 = r8.copy()
+    t8[2, 3] = 0.0
+    expected = flip_evaluator.evaluate(r8, t8, "LDR", applyMagma=False)[1]
+    assert flip(test, ref) == pytest.approx(expected, rel=1e-6)
+    assert expected > 0.0
+
+
+def test_flip_without_the_package_says_how_to_get_it(monkeypatch):
+    monkeypatch.setitem(sys.modules, "flip_evaluator", None)   # import raises ImportError
+    with pytest.raises(ImageError, match=r"pip install 'clvol\[quality\]'"):
+        flip(const(0.5), const(0.5))
+    assert "flip" not in compare_images(const(0.4), const(0.5))
+
+
+def _write_pair(tmp_path):
+    ref = gradient_image().astype(np.float32)
+    write_exr(tmp_path / "ref.exr", {"total": ref})
+    write_exr(tmp_path / "test.exr", {"total": ref * np.float32(1.2)})
+    return tmp_path / "test.exr", tmp_path / "ref.exr"
+
+
+def test_compare_json_has_flip(tmp_path, capsys):
+    pytest.importorskip("flip_evaluator")
+    test, ref = _write_pair(tmp_path)
+    assert main(["compare", str(test), str(ref), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["flip"] == pytest.approx(flip(read_rgb(test), read_rgb(ref)), rel=1e-12)
+    assert 0.0 < out["flip"] < 1.0
+    assert main(["compare", str(ref), str(ref), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["flip"] == 0.0
+
+
+def test_compare_without_flip_still_prints_the_rest(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "flip_evaluator", None)
+    test, ref = _write_pair(tmp_path)
+    assert main(["compare", str(test), str(ref), "--json"]) == 0
+    cap = capsys.readouterr()
+    out = json.loads(cap.out)
+    assert "flip" not in out and out["rmse"] > 0 and out["mrpnn"] > 0
+    assert "pip install 'clvol[quality]'" in cap.err
+
+
+def read_rgb(path):
+    from clvol.image import read_exr
+    return read_exr(path).rgb
