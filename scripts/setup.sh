@@ -11,8 +11,9 @@
 #   5. Debian's chromium and chromium-driver for the browser test of `clvol view` (browser
 #      downloads by test tools fail on these machines);
 #   6. clvol itself (editable) with its test extra (pytest, selenium), the view extra (aiohttp),
-#      the quality extra (flip-evaluator, for FLIP in `clvol compare`), the scale extra (Ray 2.60.0: data set generation on all cores or a cluster) and the
-#      training extra (torch 2.13.0, CPU).
+#      the quality extra (flip-evaluator, for FLIP in `clvol compare`), the scale extra (Ray
+#      2.60.0: data set generation on all cores or a cluster) and the training extra (torch
+#      2.13.0, CPU).
 # Set CLVOL_NO_TRAIN=1 to skip torch (rendering never imports it).
 set -euo pipefail
 cd "$(dirname "$0")/.."
