@@ -6,7 +6,7 @@
  *
  * For query q (point p, unit omega toward the camera) and template point j:
  *   frame     z = l (toward the light), x = normalize(omega - (omega.l) l), y = z x x; when
- *             |omega x l| < 1e-4, x comes from the world axis least aligned with l (DESIGN.md).
+ *             |omega x l| < 1e-4, x comes from the world axis least aligned with l (docs/conventions.md).
  *   position  s_j = p + scale_j (u.x x + u.y y + u.z z), u = template point j; scale_j = cube_size
  *             for diffuse points, t_enter for highlight points.
  *   t_enter   where the light enters the medium along p + t l: the far end of the last non-empty
@@ -23,7 +23,7 @@
  *   phase     log1p of seed eq. 5: j = 0 (centre) evaluates f(dot(-l, omega)) exactly; other
  *             points read the per-frame table ptab[NA][NPAD] linearly in alpha = acos(dot(-l, omega)).
  *
- * Speed (DESIGN.md, PoCL on the CPU): one work-item per query, the template points in float16
+ * Speed (docs/conventions.md, PoCL on the CPU): one work-item per query, the template points in float16
  * lanes (17 chunks of 16 for NP = 266), so the table reads and the output stores are
  * contiguous vector operations and only the grid reads are per-lane gathers. Render mode reads
  * (tau, C) pairs interleaved: one 16-byte load per lane and row serves both features and both
@@ -151,7 +151,7 @@ void store_chunk(__global float *row, int c, v16 v) {
     }
 }
 
-/* The template frame of DESIGN.md (twin: clvol.templates.template_frame): f[0..2] = x,
+/* The template frame of docs/conventions.md (twin: clvol.templates.template_frame): f[0..2] = x,
  * f[3..5] = y. In scalars: Oclgrind's uninitialised-value checker crashed on the float3
  * merged after the fallback branch (a vector phi). */
 __attribute__((always_inline))

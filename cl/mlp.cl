@@ -5,7 +5,7 @@
  * Work split: one work-item evaluates 16 queries, one per lane of a float16; every layer is a
  * loop over its inputs with 16 (or 8) output accumulators (float16 each) fed by scalar weights. Weights
  * are shared by all lanes, so every weight load serves 16 queries, no layer width needs padding
- * to 16, and ReLU/sigmoid/pooling are vector operations. (DESIGN.md: explicit vectors are what
+ * to 16, and ReLU/sigmoid/pooling are vector operations. (docs/conventions.md: explicit vectors are what
  * makes PoCL fast; local-memory tiling is slow there.)
  *
  * Arguments (inputs first, output last)

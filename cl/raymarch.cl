@@ -1,10 +1,10 @@
 /* Ray marcher: exact single scattering plus a pluggable multiple-scattering source.
  *
  * One work-item marches 16 camera rays (a 4 x 4 pixel tile) as float16 lanes: the explicit
- * vector style that made ray marching fast on PoCL here (DESIGN.md: ~5x over one scalar ray
- * per work-item). Twin: reference/raymarch.py (the algorithm is described there in full).
+ * vector style that makes ray marching fast on PoCL (docs/conventions.md, docs/raymarch.md).
+ * Twin: reference/raymarch.py (the algorithm is described there in full).
  *
- * Pixel equation (DESIGN.md; l toward the light, omega = -d toward the camera):
+ * Pixel equation (docs/conventions.md; l toward the light, omega = -d toward the camera):
  *     L = int T_cam(t) sigma_s(x_t) E (F_1 + F_ms)(x_t, omega) dt + T_cam(exit) L_background
  * F_1 = f(dot(-l, omega)) T_light(x), with T_light the exact light transmittance field
  * (lambda = 1: seed eq. 1 at its finest level, built by cl/transmittance.cl), trilinear. The seed's
@@ -17,7 +17,8 @@
  * -expm1 for thin segments) and multiplies T_cam by exp(-tau). Colour enters once per ray
  * (albedo and E are constant over the medium).
  *
- * Specialisation (-D defines, decided from the scene by clvol/raymarch.py):
+ * Specialisation (-D defines, decided from the scene by clvol/render/raymarch.py and the
+ * multiple-scattering sources of clvol/render/sources.py):
  *   PHASE_ISOTROPIC / PHASE_LOBES   phase.h: constant 1/(4 pi) or 1..3 HG lobes
  *   LIT 0|1          0 when albedo * E = 0: no light lookups, no F_1 and no F_ms
  *   MS_SOURCE 0|1|2  0 none; 1 Wrenninge octaves sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i);

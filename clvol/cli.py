@@ -2,7 +2,9 @@
 
 Subcommands: ``info`` (OpenCL platforms and the chosen device), ``volume`` (inspect,
 generate and convert density grids), ``render`` (a scene to EXR with one of the render
-methods), ``compare`` (image error metrics). Bad input exits with status 2 and one line
+methods), ``compare`` (image error metrics), ``dataset make`` (training data, on Ray if
+installed), ``bundle`` and ``goldens`` (for C hosts and ports, docs/embedding.md). Bad input
+exits with status 2 and one line
 on stderr; ``CLVOL_TRACEBACK=1`` shows the traceback instead.
 """
 from __future__ import annotations
@@ -29,9 +31,18 @@ def _cmd_volume_info(args) -> int:
     from .volume.io import read_volume
     from .volume.stats import format_stats, volume_stats
     for path in args.files:
+        if Path(path).suffix.lower() == ".vdb":
+            if args.density_scale is not None:
+                raise ClvolError(f"{path}: --density-scale is for the statistics of a dense "
+                                 f"grid; a .vdb gets its grid listing (convert it to .npz for "
+                                 f"statistics)")
+            from .volume.vdb import format_vdb_info
+            print(format_vdb_info(path))
+            continue
         grid = read_volume(path)
         print(f"{path}:")
-        print(format_stats(volume_stats(grid, args.density_scale)))
+        scale = 1.0 if args.density_scale is None else args.density_scale
+        print(format_stats(volume_stats(grid, scale)))
     return 0
 
 
@@ -71,7 +82,8 @@ def _cmd_volume_generate(args) -> int:
 
 def _cmd_volume_convert(args) -> int:
     from .volume.io import read_volume, write_volume
-    write_volume(args.output, read_volume(args.input))
+    write_volume(args.output, read_volume(args.input, grid=args.grid,
+                                          max_resolution=args.max_resolution))
     print(f"wrote {args.output}")
     return 0
 
@@ -95,22 +107,32 @@ def _cmd_compare(args) -> int:
 
 def _cmd_render(args) -> int:
     from .image import write_exr, write_png_preview
-    from .render import method_module
+    from .render import METHODS
+    from .render.options import given_options
+    from .render.renderer import Renderer
     from .runtime import configure, get_runtime
     from .scene import load_scene
+    if args.png is None:
+        for name in ("exposure", "tone"):
+            if getattr(args, name) is not None:
+                raise ClvolError(f"--{name} sets the PNG preview: give --png too")
+    tone = args.tone or "filmic"
     configure(device=args.device, profiling=args.profile)
     scene = load_scene(args.scene)
-    module = method_module(args.method)
-    result = module.render(scene, args)
+    renderer = Renderer(scene, args.method, **given_options(args, list(METHODS)))
+    result = renderer.render()
     if args.profile:
         print("device time per kernel:\n" + get_runtime().timing_report(), file=sys.stderr)
-    header = {"scene": str(args.scene), "method": args.method, **result.header}
+    header = {"scene": str(args.scene), **result.header}
     write_exr(args.output, result.layers, header)
     print(f"wrote {args.output}", file=sys.stderr)
     if args.png is not None:
         png = args.png or str(Path(args.output).with_suffix(".png"))
-        write_png_preview(png, result.layers["total"], exposure=args.exposure)
-        print(f"wrote {png}", file=sys.stderr)
+        used = write_png_preview(png, result.layers["total"], exposure=args.exposure,
+                                 curve=tone)
+        how = "chosen from the image" if args.exposure is None else "given"
+        print(f"wrote {png} (exposure {used:+.2f} stops, {how}; {tone} tone curve)",
+              file=sys.stderr)
     for key, value in result.header.items():
         print(f"  {key}: {value}", file=sys.stderr)
     return 0
@@ -132,8 +154,49 @@ def _cmd_view(args) -> int:
                  save_dir=Path(args.save_dir) if args.save_dir else None)
 
 
+def _cmd_dataset_make(args) -> int:
+    import time
+    from .dataset import DatasetSpec
+    from .distributed import generate
+    if args.workers is not None and args.workers < 1:
+        raise ClvolError(f"--workers {args.workers}: must be >= 1")
+    spec = DatasetSpec(seed=args.seed, n_volumes=args.volumes, n_solids=args.solids,
+                       configs_per_volume=args.configs, points_per_config=args.points,
+                       n_paths=args.paths, resolution=args.resolution, base_resolution=args.base)
+    t0 = time.perf_counter()
+    r = generate(spec, args.out, address=args.address, serial=args.serial, workers=args.workers,
+                 progress=not args.no_progress)
+    dt = time.perf_counter() - t0
+    print(f"{args.out}: made {r['made']} shards ({r['made'] * spec.points_per_config} labels), "
+          f"skipped {r['skipped']} finished ones, {spec.n_shards} in the spec, {dt:.1f} s "
+          f"({r['engine']})", flush=True)
+    return 0
+
+
+def add_dataset_make_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of `clvol dataset make` (also scripts/make_dataset.py)."""
+    from .dataset import DatasetSpec
+    d = DatasetSpec()
+    p.add_argument("out", help="data set folder (e.g. runs/data; runs/ is ignored by git)")
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--volumes", type=int, default=d.n_volumes)
+    p.add_argument("--solids", type=int, default=d.n_solids)
+    p.add_argument("--configs", type=int, default=d.configs_per_volume, help="per volume")
+    p.add_argument("--points", type=int, default=d.points_per_config, help="labels per shard")
+    p.add_argument("--paths", type=int, default=d.n_paths, help="paths per label")
+    p.add_argument("--resolution", type=int, default=d.resolution)
+    p.add_argument("--base", type=int, default=d.base_resolution, help="pyramid base resolution")
+    g = p.add_argument_group("where it runs (default: a local Ray on all cores, if installed)")
+    g.add_argument("--address", metavar="auto|HOST:PORT|ray://HOST:PORT",
+                   help="join a running Ray cluster instead of starting a local one")
+    g.add_argument("--workers", type=int, metavar="N", help="CPUs of the local Ray (default all)")
+    g.add_argument("--serial", action="store_true", help="no Ray: one shard after another here")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .render import METHODS, available_methods
+    from .render.options import add_cli_arguments
     parser = argparse.ArgumentParser(
         prog="clvol",
         description="Render participating media with multiple scattering on any OpenCL device.")
@@ -146,8 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     pv = sub.add_parser("volume", help="inspect, generate and convert density grids")
     vsub = pv.add_subparsers(dest="volume_command", required=True, metavar="ACTION")
     p = vsub.add_parser("info", help="resolution, bbox, density range, occupancy, optical thickness")
-    p.add_argument("files", nargs="+", help=".vol, .npy or .npz files")
-    p.add_argument("--density-scale", type=float, default=1.0,
+    p.add_argument("files", nargs="+", help=".vol, .npy, .npz or .vdb files (a .vdb: its grids)")
+    p.add_argument("--density-scale", type=float, default=None,
                    help="sigma_t = density * scale, for the optical thickness figures (default 1)")
     p.set_defaults(func=_cmd_volume_info)
     p = vsub.add_parser("generate", help="make a procedural volume (cloud, smoke, solids)")
@@ -161,25 +224,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--density-scale", type=float, default=1.0)
     p.add_argument("--list", action="store_true", help="list generators and their parameters")
     p.set_defaults(func=_cmd_volume_generate)
-    p = vsub.add_parser("convert", help="convert between .vol, .npy and .npz")
+    p = vsub.add_parser("convert", help="convert between .vol, .npy, .npz and .vdb")
     p.add_argument("input")
     p.add_argument("output")
+    p.add_argument("--grid", help=".vdb input: the grid to read (default: density, else the "
+                   "only scalar grid)")
+    p.add_argument("--max-resolution", type=int, metavar="N",
+                   help=".vdb input: box-filter while reading to at most N voxels per axis")
     p.set_defaults(func=_cmd_volume_convert)
 
     methods = "; ".join(f"{k}: {v[1]}" for k, v in METHODS.items())
     p = sub.add_parser("render", help="render a scene to EXR", description=f"Methods: {methods}.")
     p.add_argument("scene", help="scene .toml file")
-    p.add_argument("--method", choices=sorted(METHODS), default="raymarch")
+    p.add_argument("--method", choices=sorted(METHODS), default=None,
+                   help="render method (default: raymarch, with the network's multiple "
+                        "scattering: the paper's method)")
     p.add_argument("-o", "--output", required=True, help="output .exr")
     p.add_argument("--png", nargs="?", const="", default=None, metavar="FILE",
                    help="also write a tonemapped PNG preview (default: next to the EXR)")
-    p.add_argument("--exposure", type=float, default=0.0, help="preview exposure in stops")
+    p.add_argument("--exposure", type=float, default=None,
+                   help="preview exposure in stops (default: chosen from the image so its bright "
+                        "parts sit below white; the EXR is never changed)")
+    p.add_argument("--tone", choices=["filmic", "linear"], default=None,
+                   help="preview tone curve: filmic (default; highlights roll off) or linear "
+                        "(clamp to [0, 1], then sRGB)")
     p.add_argument("--device", help="OpenCL device: P:D, gpu, cpu or a name substring")
-    p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same image)")
     p.add_argument("--profile", action="store_true", help="print per-kernel device times")
-    for name, module in available_methods().items():
-        if hasattr(module, "add_arguments"):
-            module.add_arguments(p.add_argument_group(f"{name} options"))
+    # Each method's options, bound to it: one the chosen method does not use is refused.
+    add_cli_arguments(p, list(available_methods()))
     p.set_defaults(func=_cmd_render)
 
     p = sub.add_parser("view", help="interactive viewer in the browser (served on 127.0.0.1)")
@@ -193,11 +265,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", help="OpenCL device: P:D, gpu, cpu or a name substring")
     p.set_defaults(func=_cmd_view)
 
+
+    from . import bundle, goldens
+    p = sub.add_parser("bundle", help="write what a C host needs to render a scene "
+                                      "(docs/embedding.md)")
+    bundle.add_arguments(p)
+    p.set_defaults(func=bundle.run)
+    p = sub.add_parser("goldens", help="write golden inputs and outputs of every kernel "
+                                       "(docs/embedding.md)")
+    goldens.add_arguments(p)
+    p.set_defaults(func=goldens.run)
+
     p = sub.add_parser("compare", help="error metrics of a test image against a reference")
     p.add_argument("test", help="test .exr")
     p.add_argument("reference", help="reference .exr")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_compare)
+
+    pd = sub.add_parser("dataset", help="training data for the network")
+    dsub = pd.add_subparsers(dest="dataset_command", required=True, metavar="ACTION")
+    p = dsub.add_parser(
+        "make", help="make (or finish) a data set folder; resumable",
+        description="Procedural volumes, random configurations, path-traced labels "
+                    "(docs/dataset.md). Rerun the same command to resume; the folder's "
+                    "spec.json must match the options.")
+    add_dataset_make_arguments(p)
+    p.set_defaults(func=_cmd_dataset_make)
     return parser
 
 

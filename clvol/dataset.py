@@ -16,17 +16,22 @@ direction, camera position, phase, albedo, density scale):
     config   float32 [n][9]        the gather's config (albedo of channel 0; training sets each channel's)
     Fms, Fms_se, F1  float64 [n][3]  labels from clvol.pathtrace.point_query (unit sun, orders >= 2)
     __meta__ uint8                 UTF-8 JSON: spec, shard indices, volume, medium, light, camera,
-                                   query seed, timings, code contract (layout version, template hash)
+                                   query seed, code contract (layout version, template hash)
+
+The file is a pure function of (spec, v, c) and the device: fixed zip timestamps, and the
+wall-clock timings go to ``timings.jsonl`` in the folder instead (one JSON line per shard).
 
 Robust to a session ending at any moment: a shard is written to a temporary file
 (``.shard_*.tmp``, clvol/atomic.py) and renamed into place (``os.replace`` is atomic on one file
 system), so a ``shard_*.npz`` is always complete; the loader reads only ``shard_*.npz``, and a
 rerun deletes stale temporary files and skips finished shards (one writer per folder at a time). Everything random
 is keyed by (spec.seed, v, c): the same spec gives the same shards bit for bit on the same
-device, in any order and after any interruption.
+device, in any order and after any interruption, serially or on Ray (clvol/distributed.py:
+workers return the bytes, this process writes them).
 """
 from __future__ import annotations
 
+import io
 import json
 import math
 import time
@@ -285,12 +290,29 @@ def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runti
     return {"arrays": arrays, "meta": meta}
 
 
-def write_atomic_npz(path: Path, arrays: dict, meta: dict) -> None:
-    """np.savez through clvol.atomic (temporary file, fsync, os.replace): a reader (or a resumed
-    run) sees either no file or the whole file."""
-    blob = np.frombuffer(json.dumps(meta, sort_keys=True).encode("utf-8"), np.uint8)
-    with atomic_open(path, "wb") as f:
-        np.savez(f, **{META_KEY: blob}, **arrays)
+# A fixed zip timestamp (the earliest zip can hold): np.savez stamps each member with the
+# current time, so two runs would differ in a few header bytes.
+_ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
+
+
+def shard_bytes(arrays: dict, meta: dict) -> bytes:
+    """The .npz file of a shard as bytes (what a remote worker sends back to the driver).
+
+    A pure function of the arrays and meta: zip members in a fixed order with a fixed
+    timestamp, and the meta's wall-clock ``seconds`` left out (they go to the folder's
+    ``timings.jsonl``), so the same spec gives the same bytes serially, on Ray, or resumed.
+    np.load reads it like any np.savez file."""
+    import zipfile
+    meta = {k: v for k, v in meta.items() if k != "seconds"}
+    members = {META_KEY: np.frombuffer(json.dumps(meta, sort_keys=True).encode("utf-8"), np.uint8),
+               **arrays}
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
+        for key, a in members.items():
+            info = zipfile.ZipInfo(key + ".npy", date_time=_ZIP_EPOCH)
+            with zf.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(a), allow_pickle=False)
+    return buf.getvalue()
 
 
 def _write_json_atomic(path: Path, obj) -> None:
@@ -316,31 +338,75 @@ def check_spec_file(out_dir: Path, spec: DatasetSpec) -> None:
         _write_json_atomic(path, want)
 
 
-def make_dataset(spec: DatasetSpec, out_dir, runtime=None, progress: bool = True,
-                 max_shards: int | None = None, on_shard=None) -> dict:
-    """Make every missing shard of ``spec`` in ``out_dir``. Returns {"made", "skipped"} counts.
-    ``max_shards``: stop after making this many (tests); ``on_shard(v, c)`` is called after
-    each shard is written."""
-    from .kernels.pyramid import build_pyramid
-    from .progress import Progress
+def pending_shards(spec: DatasetSpec, out_dir) -> list[tuple[int, int]]:
+    """Prepare ``out_dir`` for a (resumed) run and list the shards still to make: checks or
+    creates spec.json, removes temporary files of a run killed mid-write, skips finished
+    shards."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     check_spec_file(out, spec)
     for stale in out.glob(".shard_*.tmp"):     # a previous run killed mid-write
         stale.unlink()
-    todo = [(v, c) for v in range(spec.n_volumes) for c in range(spec.configs_per_volume)
+    return [(v, c) for v in range(spec.n_volumes) for c in range(spec.configs_per_volume)
             if not (out / shard_name(v, c)).exists()]
+
+
+class ShardMaker:
+    """Makes shards one after another in one process, keeping the last volume's grid and
+    pyramid (they depend on (spec, v) only). Used by the serial loop and by each Ray worker."""
+
+    def __init__(self, runtime=None):
+        self.runtime = runtime
+        self._volume = (None, None, None)
+
+    def __call__(self, spec: DatasetSpec, v: int, c: int) -> tuple[bytes, dict]:
+        """(the shard file's bytes, its meta including the timings the file leaves out)."""
+        from .kernels.pyramid import build_pyramid
+        key = (json.dumps(spec.to_dict(), sort_keys=True), v)
+        if self._volume[0] != key:
+            grid = make_volume(spec, v)
+            self._volume = (key, grid, build_pyramid(grid, spec.base_resolution, self.runtime))
+        shard = make_shard(spec, v, c, self._volume[1], self._volume[2], self.runtime)
+        return shard_bytes(shard["arrays"], shard["meta"]), shard["meta"]
+
+
+TIMINGS_FILE = "timings.jsonl"
+
+
+def write_shard(out_dir, v: int, c: int, data: bytes, log: dict | None = None) -> None:
+    """The driver's write of one finished shard: the bytes atomically, then one line of
+    ``log`` (timings, the node that made it) to timings.jsonl, for labelling-cost
+    measurements; the loader never reads it."""
+    out = Path(out_dir)
+    with atomic_open(out / shard_name(v, c), "wb") as f:
+        f.write(data)
+    if log:
+        with open(out / TIMINGS_FILE, "a") as f:
+            f.write(json.dumps({"shard": shard_name(v, c), **log}, sort_keys=True) + "\n")
+
+
+def shard_progress(n_shards: int, spec: DatasetSpec, progress: bool):
+    """The progress bar of a data set run: shards done/total, labels per second, ETA."""
+    from .progress import Progress
+    return Progress(n_shards, label="dataset", unit=" shards", delay=0.0 if progress else 1e30,
+                    rate_per_unit=spec.points_per_config, rate_unit="labels")
+
+
+def make_dataset(spec: DatasetSpec, out_dir, runtime=None, progress: bool = True,
+                 max_shards: int | None = None, on_shard=None) -> dict:
+    """Make every missing shard of ``spec`` in ``out_dir``, serially in this process (Ray:
+    clvol/distributed.py). Returns {"made", "skipped"} counts. ``max_shards``: stop after
+    making this many (tests); ``on_shard(v, c)`` is called after each shard is written."""
+    out = Path(out_dir)
+    todo = pending_shards(spec, out)
     made = 0
-    with Progress(len(todo), label="dataset", unit="shards", delay=0.0 if progress else 1e30) as bar:
-        cache = (None, None, None)
+    maker = ShardMaker(runtime)
+    with shard_progress(len(todo), spec, progress) as bar:
         for v, c in todo:
             if max_shards is not None and made >= max_shards:
                 break
-            if cache[0] != v:
-                grid = make_volume(spec, v)
-                cache = (v, grid, build_pyramid(grid, spec.base_resolution, runtime))
-            shard = make_shard(spec, v, c, cache[1], cache[2], runtime)
-            write_atomic_npz(out / shard_name(v, c), shard["arrays"], shard["meta"])
+            data, meta = maker(spec, v, c)
+            write_shard(out, v, c, data, meta.get("seconds"))
             made += 1
             bar.update(1)
             if on_shard is not None:

@@ -12,7 +12,11 @@ import time
 
 class Progress:
     def __init__(self, total: float, label: str = "", unit: str = "", delay: float = 1.0,
-                 stream=None):
+                 stream=None, rate_per_unit: float = 0.0, rate_unit: str = ""):
+        # rate_per_unit > 0 adds a throughput column: e.g. labels per second when one unit
+        # (a shard) holds rate_per_unit labels.
+        self.rate_per_unit = rate_per_unit
+        self.rate_unit = rate_unit
         self.total = max(float(total), 1e-12)
         self.label = label
         self.unit = unit
@@ -46,8 +50,10 @@ class Progress:
         width = 30
         fill = int(frac * width)
         eta = (now / frac - now) if frac > 0 else float("nan")
+        rate = (f" {self.done * self.rate_per_unit / max(now, 1e-9):8.0f} {self.rate_unit}/s"
+                if self.rate_per_unit > 0 else "")
         self.stream.write(f"\r{self.label} [{'#' * fill}{'.' * (width - fill)}] "
-                          f"{frac * 100:5.1f}% {self.done:g}/{self.total:g}{self.unit} "
+                          f"{frac * 100:5.1f}% {self.done:g}/{self.total:g}{self.unit}{rate} "
                           f"{now:6.1f}s eta {eta:6.1f}s")
         self.stream.flush()
         self._last_draw = now

@@ -17,6 +17,15 @@ Device choice (first that applies): the ``device`` argument, ``$CLVOL_DEVICE``,
 Programs are built with ``-I cl/include``, the caller's ``-D`` defines and a hash of
 every source they could include, so no driver-side cache can serve a stale header.
 They are cached in-process on (source hash, options, device).
+
+Device data follows one convention:
+
+- an array kept on the device is a ``DeviceArray`` (buffer, shape, dtype), made by
+  ``Runtime.upload`` or ``Runtime.alloc`` and read with ``.read()``;
+- every launch goes through ``Runtime.launch`` (profiling sees all of them);
+- data derived from an object and kept for reuse lives in that object's ``cache`` dict
+  (``Pyramid.cache``, ``DeviceMedium.cache``) and dies with it; host-only tables that are pure
+  functions of small arguments use ``functools.lru_cache``.
 """
 from __future__ import annotations
 
@@ -33,7 +42,7 @@ import pyopencl as cl
 from .errors import BuildError, DeviceError
 
 # PoCL runs a NULL-local-size launch with a prime global size on one core
-# (DESIGN.md), so global sizes are padded to a multiple of this by default.
+# (docs/opencl.md), so global sizes are padded to a multiple of this by default.
 DEFAULT_PAD = 64
 
 
@@ -291,6 +300,16 @@ class Runtime:
             cl.enqueue_fill_buffer(self.queue, buf, np.uint8(0), 0, nbytes)
         return buf
 
+    def upload(self, array, dtype=np.float32) -> "DeviceArray":
+        """A C-ordered copy of ``array`` on the device."""
+        a = np.ascontiguousarray(array, dtype)
+        return DeviceArray(self.to_device(a), a.shape, a.dtype, self)
+
+    def alloc(self, shape, dtype=np.float32, zero: bool = False) -> "DeviceArray":
+        """A new device array (contents undefined unless ``zero``)."""
+        shape = (int(shape),) if np.isscalar(shape) else tuple(int(n) for n in shape)
+        return DeviceArray(self.empty(shape, dtype, zero), shape, np.dtype(dtype), self)
+
     def from_device(self, buf: "cl.Buffer", shape, dtype=np.float32,
                     wait_for=None) -> np.ndarray:
         out = np.empty(shape, dtype=dtype)
@@ -302,10 +321,15 @@ class Runtime:
     def launch(self, kernel: "cl.Kernel", global_size, args, local_size=None,
                pad: int = DEFAULT_PAD, wait_for=None) -> "cl.Event":
         """Enqueue ``kernel``. The first global dimension is padded to a multiple of
-        ``pad`` (kernels guard with their own element count); others are used as given."""
+        ``pad`` (kernels guard with their own element count); others are used as given.
+        ``args=None`` launches with the arguments already set on the kernel (``set_args`` /
+        ``set_arg``: a loop of launches that changes one argument)."""
         gs = (global_size,) if np.isscalar(global_size) else tuple(global_size)
         gs = (padded(gs[0], pad),) + tuple(max(int(g), 1) for g in gs[1:])
-        evt = kernel(self.queue, gs, local_size, *args, wait_for=wait_for)
+        if args is None:
+            evt = cl.enqueue_nd_range_kernel(self.queue, kernel, gs, local_size, wait_for=wait_for)
+        else:
+            evt = kernel(self.queue, gs, local_size, *args, wait_for=wait_for)
         if self.profiling:
             self._events.append((kernel.function_name, evt))
         return evt
@@ -325,6 +349,23 @@ class Runtime:
         rows = [f"{n:<32} {self.kernel_launches[n]:>6} launches {s * 1e3:10.3f} ms"
                 for n, s in sorted(self.kernel_seconds.items(), key=lambda kv: -kv[1])]
         return "\n".join(rows) if rows else "(no profiled launches)"
+
+
+@dataclass(frozen=True, eq=False)
+class DeviceArray:
+    """A C-ordered array living in ``buffer`` on ``runtime``'s device."""
+    buffer: "cl.Buffer"
+    shape: tuple
+    dtype: np.dtype = np.dtype(np.float32)
+    runtime: "Runtime | None" = None
+
+    @classmethod
+    def upload(cls, array, runtime=None) -> "DeviceArray":
+        return (runtime or get_runtime()).upload(array)
+
+    def read(self, wait_for=None) -> np.ndarray:
+        return (self.runtime or get_runtime()).from_device(self.buffer, self.shape, self.dtype,
+                                                           wait_for=wait_for)
 
 
 _RUNTIMES: dict[tuple, Runtime] = {}

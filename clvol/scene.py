@@ -2,7 +2,8 @@
 
 The format is documented in ``docs/scenes.md``; in short::
 
-    [volume]   file = "x.vol" | "x.npy" | "x.npz"   or   generator = "cloud" (+ seed, resolution, params)
+    [volume]   file = "x.vol" | "x.npy" | "x.npz" | "x.vdb" (+ grid, max_resolution for .vdb)
+               or   generator = "cloud" (+ seed, resolution, params)
     [medium]   preset, density_scale, albedo, phase
     [light]    direction (toward the light), irradiance, environment
     [camera]   origin, target, up, fov_y (degrees), width, height
@@ -13,7 +14,7 @@ with the file name and the dotted field, quotes the bad value and says what is a
 
     examples/x.toml: [medium.albedo] = [1.2, 0.5, 0.5]: each component must be in [0, 1]
 
-``Camera.pixel_directions`` is *the* camera convention of the project (DESIGN.md):
+``Camera.pixel_directions`` is *the* camera convention of the project (docs/conventions.md):
 column 0 is the left edge, row 0 the top, right = normalize(cross(forward, up)).
 OpenCL kernels copy that formula.
 """
@@ -33,12 +34,13 @@ from .errors import SceneError, VolumeError
 
 # --------------------------------------------------------------------------- limits
 
-HG_G_LIMIT = 0.99          # |g| above this makes HG peaks too narrow for our tables (DESIGN.md)
+HG_G_LIMIT = 0.99          # |g| above this makes HG peaks too narrow for our tables (docs/conventions.md)
 MHG_MAX_LOBES = 3
 MHG_WEIGHT_TOL = 1e-4      # lobe weights must sum to 1 within this, then are renormalised
 MAX_RESOLUTION = 1024
 MAX_IMAGE_SIZE = 16384
-VOLUME_SUFFIXES = (".vol", ".npy", ".npz")
+VOLUME_SUFFIXES = (".vol", ".npy", ".npz", ".vdb")
+MAX_VDB_RESOLUTION = 16384   # [volume.max_resolution]: voxels on the longest axis, border included
 # A vector whose length is already 1 (or weights already summing to 1) within this is left
 # alone, so that writing a scene and reading it back gives bit-identical values.
 _ALREADY_UNIT = 1e-12
@@ -79,7 +81,7 @@ class Phase:
 
     @property
     def mean_cosine(self) -> float:
-        """Mean cosine ``sum(w_k g_k)``: the one number that stands for the phase (DESIGN.md)."""
+        """Mean cosine ``sum(w_k g_k)``: the one number that stands for the phase (docs/conventions.md)."""
         return float(sum(l.weight * l.g for l in self.lobes))
 
     @property
@@ -97,14 +99,27 @@ class VolumeSpec:
     params: dict = field(default_factory=dict)
     bbox_min: tuple[float, float, float] | None = None
     bbox_max: tuple[float, float, float] | None = None
+    grid: str | None = None                 # .vdb only: which grid
+    max_resolution: int | None = None       # .vdb only: box-filter while reading
 
-    def load(self):
-        """Read the file or run the generator; apply the bbox override. Returns a ``Grid``."""
+    def load(self, max_bytes: int | None = None):
+        """Read the file or run the generator; apply the bbox override. Returns a ``Grid``.
+
+        A .vdb grid whose dense array would exceed ``max_bytes`` (default: the OpenCL device's
+        largest buffer, when a device is available) is refused with the ``max_resolution`` that
+        would fit, before anything large is allocated.
+        """
         if self.file is not None:
             from .volume.io import read_volume
             if not self.file.is_file():
                 raise VolumeError(f"{self.file}: volume file not found")
-            grid = read_volume(self.file)
+            if self.file.suffix.lower() == ".vdb":
+                if max_bytes is None:
+                    max_bytes = _device_buffer_limit()
+                grid = read_volume(self.file, grid=self.grid, max_resolution=self.max_resolution,
+                                   max_bytes=max_bytes)
+            else:
+                grid = read_volume(self.file)
         else:
             from .volume.generators import generate
             res = self.resolution if self.resolution is not None else 64
@@ -116,6 +131,16 @@ class VolumeSpec:
         if dataclasses.is_dataclass(grid):
             return dataclasses.replace(grid, bbox_min=bmin, bbox_max=bmax)
         return type(grid)(density=grid.density, bbox_min=bmin, bbox_max=bmax)
+
+
+def _device_buffer_limit() -> int | None:
+    """CL_DEVICE_MAX_MEM_ALLOC_SIZE of the configured OpenCL device, or None without one."""
+    from .errors import ClvolError
+    try:
+        from .runtime import get_runtime
+        return int(get_runtime().device.max_mem_alloc_size)
+    except (ClvolError, ImportError):
+        return None     # no device: the render reports that itself
 
 
 @dataclass(frozen=True)
@@ -148,6 +173,11 @@ class Camera:
     fov_y: float
     width: int
     height: int
+
+    @property
+    def tan_half_fov(self) -> float:
+        """tan(fov_y / 2): the image plane's half-height at distance 1."""
+        return math.tan(math.radians(self.fov_y) / 2.0)
 
     def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(forward, right, up)``: orthonormal float64 vectors of the image plane.
@@ -183,7 +213,7 @@ class Camera:
                 raise ValueError("jitter must be in [-0.5, 0.5] pixels")
             col = col + j[..., 0]
             row = row + j[..., 1]
-        tan_half = math.tan(math.radians(self.fov_y) / 2.0)
+        tan_half = self.tan_half_fov
         sx = (2.0 * col / w - 1.0) * tan_half * (w / h)
         sy = (1.0 - 2.0 * row / h) * tan_half
         sx, sy = np.broadcast_arrays(sx, sy)
@@ -211,6 +241,10 @@ class Scene:
         vol: dict[str, Any] = {}
         if v.file is not None:
             vol["file"] = str(v.file)
+            if v.grid is not None:
+                vol["grid"] = v.grid
+            if v.max_resolution is not None:
+                vol["max_resolution"] = v.max_resolution
         else:
             vol["generator"] = v.generator
             vol["seed"] = v.seed
@@ -268,7 +302,7 @@ class Scene:
 
 # --------------------------------------------------------------------------- presets
 
-# Artistic defaults from DESIGN.md, not measured data. A preset gives albedo and phase;
+# Artistic defaults from docs/conventions.md, not measured data. A preset gives albedo and phase;
 # density_scale depends on the world size of the volume and is always given by the user.
 PRESETS: dict[str, tuple[tuple[float, float, float], Phase]] = {
     "cloud": ((0.999, 0.999, 0.999), Phase.hg(0.857)),
@@ -333,14 +367,27 @@ def _parse_volume(ctx: "_Ctx", t: dict, base_dir: Path) -> VolumeSpec:
     if not has_file and not has_gen:
         raise ctx.error("volume", None, 'missing the volume: give file = "x.vol" (or .npy, '
                         '.npz) or generator = "<name>"')
+    vdb_grid = max_res = None
     if has_file:
-        _check_keys(ctx, "volume", t, ("file", "bbox_min", "bbox_max"),
+        _check_keys(ctx, "volume", t, ("file", "bbox_min", "bbox_max", "grid", "max_resolution"),
                     hint="seed, resolution and params go with generator = ..., not file")
         f = t["file"]
         if not isinstance(f, str) or not f:
             raise ctx.error("volume.file", f, "must be a non-empty path string")
-        if Path(f).suffix.lower() not in VOLUME_SUFFIXES:
+        suffix = Path(f).suffix.lower()
+        if suffix not in VOLUME_SUFFIXES:
             raise ctx.error("volume.file", f, "must end in " + ", ".join(VOLUME_SUFFIXES))
+        for key in ("grid", "max_resolution"):
+            if key in t and suffix != ".vdb":
+                raise ctx.error(f"volume.{key}", t[key], f"applies to .vdb files only, not "
+                                f"{suffix} (file = {_fmt(f)})")
+        if "grid" in t:
+            vdb_grid = t["grid"]
+            if not isinstance(vdb_grid, str) or not vdb_grid:
+                raise ctx.error("volume.grid", vdb_grid, "must be a non-empty grid name")
+        if "max_resolution" in t:
+            max_res = _int(ctx, "volume.max_resolution", t["max_resolution"], 4,
+                           MAX_VDB_RESOLUTION)
         p = Path(f).expanduser()
         resolved = (p if p.is_absolute() else base_dir / p).resolve()
         if not resolved.is_file():
@@ -361,7 +408,7 @@ def _parse_volume(ctx: "_Ctx", t: dict, base_dir: Path) -> VolumeSpec:
             raise ctx.error("volume.bbox_max", list(bmax),
                             f"each component must be > bbox_min = {_fmt(list(bmin))}")
     return VolumeSpec(file=resolved, generator=gen, seed=seed, resolution=res, params=params,
-                      bbox_min=bmin, bbox_max=bmax)
+                      bbox_min=bmin, bbox_max=bmax, grid=vdb_grid, max_resolution=max_res)
 
 
 _VOLUME_GENERATOR_KEYS = ("generator", "seed", "resolution", "params", "bbox_min", "bbox_max")

@@ -3,7 +3,13 @@
 #   1. an OpenCL runtime: Debian's PoCL CPU driver, only if no OpenCL platform is installed
 #      (the pip PoCL wheel cannot build kernels on these CPUs; see docs/opencl.md);
 #   2. Oclgrind, the strict OpenCL simulator the test suite runs every kernel on;
-#   3. clvol itself (editable) with its test extra and the training extra (torch 2.13.0, CPU).
+#   3. OpenVDB's own writer for the .vdb tests and benchmark: Debian's python3-openvdb (for the
+#      system /usr/bin/python3, not ours) and vdb_tool (libopenvdb-tools); clvol reads .vdb
+#      without them (docs/volumes.md);
+#   4. a C compiler, make and the OpenCL headers + ICD loader for the C host in examples/c/
+#      (tests/test_c_host.py builds it; docs/embedding.md);
+#   5. clvol itself (editable) with its test extra, the scale extra (Ray 2.60.0: data set
+#      generation on all cores or a cluster) and the training extra (torch 2.13.0, CPU).
 # Set CLVOL_NO_TRAIN=1 to skip torch (rendering never imports it).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -15,6 +21,11 @@ have_icd() { ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; }
 apt_pkgs=()
 if ! have_icd; then apt_pkgs+=(pocl-opencl-icd ocl-icd-libopencl1); fi
 if ! command -v oclgrind >/dev/null 2>&1; then apt_pkgs+=(oclgrind); fi
+if ! /usr/bin/python3 -c "import pyopenvdb" >/dev/null 2>&1; then apt_pkgs+=(python3-openvdb); fi
+if ! command -v vdb_tool >/dev/null 2>&1; then apt_pkgs+=(libopenvdb-tools); fi
+if ! command -v cc >/dev/null 2>&1; then apt_pkgs+=(gcc libc6-dev); fi
+if ! command -v make >/dev/null 2>&1; then apt_pkgs+=(make); fi
+if [ ! -f /usr/include/CL/cl.h ]; then apt_pkgs+=(opencl-headers ocl-icd-opencl-dev); fi
 if [ ${#apt_pkgs[@]} -gt 0 ]; then
   echo "setup: installing ${apt_pkgs[*]}"
   $SUDO apt-get update -qq
@@ -22,8 +33,8 @@ if [ ${#apt_pkgs[@]} -gt 0 ]; then
 fi
 
 PY=${PYTHON:-python3}
-extras="test"
-if [ "${CLVOL_NO_TRAIN:-0}" != 1 ]; then extras="test,train"; fi
+extras="test,scale"
+if [ "${CLVOL_NO_TRAIN:-0}" != 1 ]; then extras="test,scale,train"; fi
 echo "setup: pip install -e .[$extras]"
 $PY -m pip install -q --disable-pip-version-check -e ".[$extras]"
 clvol info

@@ -2,6 +2,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -153,3 +154,17 @@ def test_rendering_never_imports_torch(tmp_path):
         "width = 6\nheight = 5\n")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
+
+
+def test_png_preview_exposure_is_auto_unless_given_and_needs_png(tmp_path, capsys):
+    scene = tmp_path / "s.toml"
+    scene.write_text((Path(__file__).parent / "data" / "scenes" / "milk.toml").read_text()
+                     .replace("width = 256", "width = 16").replace("height = 256", "height = 16"))
+    out = tmp_path / "a.exr"
+    code, _, err = run(capsys, "render", scene, "-o", out, "--exposure", "1")
+    assert code == 2 and "--exposure sets the PNG preview" in err
+    code, _, err = run(capsys, "render", scene, "-o", out, "--png", "--ms", "none")
+    assert code == 0 and "chosen from the image; filmic" in err
+    code, _, err = run(capsys, "render", scene, "-o", out, "--png", "--exposure", "1.5",
+                       "--tone", "linear", "--ms", "none")
+    assert code == 0 and "exposure +1.50 stops, given; linear" in err

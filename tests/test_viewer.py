@@ -191,7 +191,8 @@ def test_server_protocol_errors_frames_and_save(server):
     from clvol.image import read_exr
     img = read_exr(path)
     assert np.isfinite(img.rgb).all() and img.rgb.shape == (64, 64, 3)
-    assert img.header.get("method") == "network" and "viewer_state" in img.header
+    assert img.header.get("viewer.method") == "network" and "viewer.state" in img.header
+    assert img.header.get("method") == "raymarch"      # the render header is kept
 
 
 def test_newest_request_wins_and_a_dropped_client_leaves_nothing(server):
@@ -392,3 +393,10 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
     print(f"\nviewer: {fps:.2f} frames/s at 256x256 while orbiting (paper's method, "
           f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f})")
     assert fps > 0
+
+
+def test_stage_times_come_from_the_header_seconds_entries():
+    from clvol.viewer.server import stage_times
+    header = {"seconds": 0.5, "seconds.march": 0.0125, "seconds.gather": 2, "method": "raymarch",
+              "seconds.flag": True, "raymarch.step": 0.01}
+    assert stage_times(header) == {"march": 12.5, "gather": 2000.0}

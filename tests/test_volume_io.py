@@ -225,8 +225,8 @@ def test_malformed_npz_is_rejected(tmp_path, arrays, fragments):
 
 
 def test_unknown_extension_and_missing_file(tmp_path):
-    p = write(tmp_path, "cloud.vdb", b"whatever")
-    with pytest.raises(VolumeError, match=r"cloud\.vdb.*unknown volume file extension '\.vdb'.*\.vol"):
+    p = write(tmp_path, "cloud.nvdb", b"whatever")
+    with pytest.raises(VolumeError, match=r"cloud\.nvdb.*unknown volume file extension '\.nvdb'.*\.vol"):
         read_volume(p)
     with pytest.raises(VolumeError, match="no such volume file"):
         read_volume(tmp_path / "absent.vol")

@@ -126,8 +126,8 @@ def _taufac(pyramid: Pyramid, density_scale: float) -> np.ndarray:
 
 def _reused(pyramid: Pyramid, name: str, nfloats: int):
     """A device buffer of at least ``nfloats`` kept on the pyramid and reused by later calls:
-    a fresh buffer costs a page fault per 4 KiB on its first write (~60 ms of CPU for the
-    200 MiB of features of 65,536 queries on this VM, as much as the gather itself)."""
+    a fresh buffer costs a page fault per 4 KiB on its first write, as much CPU time as the
+    gather itself for the features of 65,536 queries (docs/templates.md)."""
     buf = pyramid.cache.get(name)
     if buf is None or buf.size < 4 * max(nfloats, 1):
         pyramid.cache.pop(name, None)
@@ -175,7 +175,7 @@ def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, le
                           f"base_resolution = {pyramid.base_resolution} has {total}")
     L, n0 = pyramid.n_levels, pyramid.base_resolution
     # One light at a time per pyramid: the previous bake's buffer is overwritten (a fresh one
-    # would cost a page fault per 4 KiB on first write, ~40 ms for 150 MiB here).
+    # would cost a page fault per 4 KiB on first write).
     out = pyramid.cache.get("gather_baked")
     if out is None:
         out = pyramid.cache["gather_baked"] = rt.empty(2 * total + BAKE_PAD)
@@ -287,8 +287,8 @@ def _spread_bits(v: np.ndarray) -> np.ndarray:
 def query_order(pyramid: Pyramid, points: np.ndarray) -> np.ndarray:
     """A processing order for the queries: by the Morton code of their cell in a 32^3 grid over
     the cube (points outside are clamped onto it). Consecutive queries then read nearby voxels
-    and share cache lines and pages (random queries in a cloud: ~1.5x faster at 256^3). A
-    16-bit key, so NumPy's stable sort is a radix sort (~1 ms for 65,536 queries)."""
+    and share cache lines and pages (faster on random queries in a cloud: docs/templates.md). A
+    16-bit key, so NumPy's stable sort is a radix sort."""
     cells = 1 << SORT_BITS
     g = (np.asarray(points, np.float64) - pyramid.cube_min) * (cells / pyramid.cube_size)
     c = np.clip(g, 0, cells - 1).astype(np.uint16)
@@ -314,7 +314,7 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
     ...)``): ``features`` and ``config`` (and ``t_enter``) are cl.Buffers holding the same
     layout, plus ``n``; nothing is read back (~200 MiB for 65,536 queries). Pass a previous
     such result as ``reuse`` to have its buffers overwritten instead of new ones allocated (new
-    buffers cost ~60 ms of page faults per 200 MiB on this VM).
+    buffers cost a page fault per 4 KiB on their first write).
 
     ``sort`` (default): the kernel visits the queries in ``query_order`` (results are the same
     and in the caller's order; only speed changes). ``sort=False`` visits them as given, for

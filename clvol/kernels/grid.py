@@ -46,6 +46,6 @@ def camera_rays(camera, runtime=None) -> np.ndarray:
                                                   np.int32, None])
     out = rt.empty((h * w, 3))
     rt.launch(k, w * h, (f4(forward), f4(right), f4(up),
-                         np.float32(np.tan(np.radians(camera.fov_y) / 2)), np.int32(w),
+                         np.float32(camera.tan_half_fov), np.int32(w),
                          np.int32(h), out))
     return rt.from_device(out, (h, w, 3))

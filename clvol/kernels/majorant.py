@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import ClvolError
 from ..runtime import get_runtime
 from .grid import f4
 
@@ -18,7 +19,7 @@ _BUILD_ARGS = [None, np.int32, np.int32, np.int32, np.int32, np.int32, np.int32,
 def coarse_shape(grid_shape, block: int) -> tuple[int, int, int]:
     """(mz, my, mx) = ceil((nz, ny, nx) / block)."""
     if int(block) < 1:
-        raise ValueError(f"majorant block must be >= 1, got {block}")
+        raise ClvolError(f"majorant block must be >= 1, got {block}")
     return tuple(-(-int(n) // int(block)) for n in grid_shape)
 
 
@@ -49,7 +50,7 @@ def build_majorant(density: np.ndarray, block: int = 8, runtime=None) -> np.ndar
     rt = runtime or get_runtime()
     density = np.ascontiguousarray(density, np.float32)
     if density.ndim != 3:
-        raise ValueError(f"density must be 3-D [z][y][x], got shape {density.shape}")
+        raise ClvolError(f"density must be 3-D [z][y][x], got shape {density.shape}")
     buf, shape = build_majorant_buffer(rt.to_device(density), density.shape, block, rt)
     return rt.from_device(buf, shape)
 
@@ -64,7 +65,7 @@ def dda_segments(origins, dirs, bmin, bmax, grid_shape, maj: np.ndarray, block: 
     n = len(o)
     (mx, my, mz), bsize = majorant_args(grid_shape, bmin, bmax, block)
     if maj.shape != (mz, my, mx):
-        raise ValueError(f"majorant grid shape {maj.shape} != {(mz, my, mx)}")
+        raise ClvolError(f"majorant grid shape {maj.shape} != {(mz, my, mx)}")
     k = rt.program("majorant").kernel("majorant_segments", [
         None, None, np.int32, None, None, None, None, np.int32, np.int32, np.int32,
         np.float32, np.float32, np.int32, None, None])

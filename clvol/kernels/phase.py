@@ -5,6 +5,7 @@ None or empty means isotropic (compiled with PHASE_ISOTROPIC).
 """
 import numpy as np
 
+from ..errors import ClvolError
 from ..runtime import get_runtime
 
 
@@ -13,7 +14,7 @@ def phase_defines(lobes) -> dict:
     if not lobes:
         return {"PHASE_ISOTROPIC": 1, "PHASE_LOBES": 1}
     if not 1 <= len(lobes) <= 3:
-        raise ValueError(f"1 to 3 phase lobes supported, got {len(lobes)}")
+        raise ClvolError(f"1 to 3 phase lobes supported, got {len(lobes)}")
     return {"PHASE_LOBES": len(lobes)}
 
 

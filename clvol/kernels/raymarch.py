@@ -6,12 +6,10 @@ to the device on each call: tests) or ``DeviceArray`` handles of buffers already
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-import pyopencl as cl
 
-from ..runtime import get_runtime
+from ..errors import ClvolError
+from ..runtime import DeviceArray, get_runtime
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
 
@@ -23,38 +21,31 @@ LOCAL_SIZE = 16  # tiles per work-group
 LAYERS = (("total", 3), ("single", 3), ("multiple", 3), ("alpha", 1), ("depth", 1))
 
 
-@dataclass(frozen=True)
-class DeviceArray:
-    """A float32 C-ordered array living in ``buffer`` on the runtime's device."""
-    buffer: "cl.Buffer"
-    shape: tuple
-
-    @classmethod
-    def upload(cls, array, runtime=None) -> "DeviceArray":
-        rt = runtime or get_runtime()
-        a = np.ascontiguousarray(array, np.float32)
-        return cls(rt.to_device(a), a.shape)
-
-
 def _device(x, rt) -> DeviceArray:
     if isinstance(x, DeviceArray):
         return x
-    return DeviceArray.upload(x, rt)
+    return rt.upload(x)
+
+
+def ms_defines(source: str, octaves: int = 1, channels: int = 1) -> dict:
+    """The -D defines of one multiple-scattering source of cl/raymarch.cl (see its header)."""
+    if source not in SOURCES:
+        raise ClvolError(f"unknown multiple-scattering source {source!r}; one of {sorted(SOURCES)}")
+    if not 1 <= octaves <= MAX_OCTAVES:
+        raise ClvolError(f"octaves must be 1..{MAX_OCTAVES}, got {octaves}")
+    if channels not in (1, 3):
+        raise ClvolError(f"ms grid channels must be 1 or 3, got {channels}")
+    return {"MS_SOURCE": SOURCES[source],
+            "MS_OCTAVES": int(octaves) if source == "wrenninge" else 1,
+            "MS_CHANNELS": int(channels) if source == "grid" else 1}
 
 
 def raymarch_defines(lobes, lit: bool, source: str, octaves: int, channels: int,
                      skip_empty: bool) -> dict:
     """The -D defines that specialise cl/raymarch.cl (see its header)."""
-    if source not in SOURCES:
-        raise ValueError(f"unknown multiple-scattering source {source!r}; one of {sorted(SOURCES)}")
-    if not 1 <= octaves <= MAX_OCTAVES:
-        raise ValueError(f"octaves must be 1..{MAX_OCTAVES}, got {octaves}")
-    if channels not in (1, 3):
-        raise ValueError(f"ms grid channels must be 1 or 3, got {channels}")
     d = dict(phase_defines(lobes))
-    d.update(LIT=int(bool(lit)), MS_SOURCE=SOURCES[source], SKIP_EMPTY=int(bool(skip_empty)),
-             MS_OCTAVES=int(octaves) if source == "wrenninge" else 1,
-             MS_CHANNELS=int(channels) if source == "grid" else 1)
+    d.update(LIT=int(bool(lit)), SKIP_EMPTY=int(bool(skip_empty)))
+    d.update(ms_defines(source, octaves, channels))
     return d
 
 
@@ -87,8 +78,34 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     None). ``light`` may be None when ``lit`` is False. Argument meanings: see the twin.
     """
     rt = runtime or get_runtime()
+    if source == "grid":
+        ms = _device(ms_grid, rt)
+        if len(ms.shape) != 4 or ms.shape[0] not in (1, 3):
+            raise ClvolError(f"ms_grid must be (C, gz, gy, gx) with C = 1 or 3, got {ms.shape}")
+        channels = ms.shape[0]
+    else:
+        ms, channels = None, 1
+    defines = raymarch_defines(lobes, lit, source, octaves, channels, skip_empty)
+    return launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
+                  light, cube_min, cube_size, ms, ms_bbox_min, ms_bbox_max,
+                  origin, forward, right, up, tan_half, width, height,
+                  light_dir, irradiance, albedo, lobes, background, a=a, b=b, c=c, step=step,
+                  threshold=threshold, lit=lit, light_quantity=light_quantity, runtime=rt,
+                  read_back=read_back, stats=stats)
+
+
+def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
+           light, cube_min, cube_size, ms_grid, ms_bbox_min, ms_bbox_max,
+           origin, forward, right, up, tan_half, width, height,
+           light_dir, irradiance, albedo, lobes, background, *, a=0.5, b=0.5, c=0.5,
+           step=None, threshold=1e-3, lit=True, light_quantity="transmittance", runtime=None,
+           read_back=True, stats=False):
+    """Launch cl/raymarch.cl built with ``defines`` (``raymarch_defines``, or the phase, LIT,
+    SKIP_EMPTY and a multiple-scattering source's own). ``ms_grid``: a (C, gz, gy, gx)
+    DeviceArray or None. Returns what ``raymarch`` returns."""
+    rt = runtime or get_runtime()
     if step is None or not step > 0:
-        raise ValueError(f"step must be > 0 (world units), got {step}")
+        raise ClvolError(f"step must be > 0 (world units), got {step}")
     dens = _device(density, rt)
     maj = _device(majorant, rt)
     nz, ny, nx = dens.shape
@@ -98,25 +115,23 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         light = _device(light, rt)
         ln = light.shape[0]
         if light.shape != (ln, ln, ln):
-            raise ValueError(f"light must be a cube [n][n][n], got {light.shape}")
+            raise ClvolError(f"light must be a cube [n][n][n], got {light.shape}")
     else:
         dummy = dummy or rt.empty(1)
         light, ln = DeviceArray(dummy, (1, 1, 1)), 1
-    if source == "grid":
-        ms = _device(ms_grid, rt)
-        if len(ms.shape) != 4 or ms.shape[0] not in (1, 3):
-            raise ValueError(f"ms_grid must be (C, gz, gy, gx) with C = 1 or 3, got {ms.shape}")
-        channels, (gz, gy, gx) = ms.shape[0], ms.shape[1:]
+    if ms_grid is not None:
+        ms = ms_grid
+        gz, gy, gx = ms.shape[1:]
         gmin, gmax = ms_bbox_min, ms_bbox_max
     else:
         dummy = dummy or rt.empty(1)
-        ms, channels, (gz, gy, gx) = DeviceArray(dummy, (1, 1, 1, 1)), 1, (1, 1, 1)
+        ms, (gz, gy, gx) = DeviceArray(dummy, (1, 1, 1, 1)), (1, 1, 1)
         gmin, gmax = (0, 0, 0), (1, 1, 1)
-    defines = raymarch_defines(lobes, lit, source, octaves, channels, skip_empty)
+    defines = dict(defines)
     if stats:
         defines["RAYMARCH_STATS"] = 1
     if light_quantity not in LIGHT_QUANTITIES:
-        raise ValueError(f"light_quantity {light_quantity!r}: one of {LIGHT_QUANTITIES}")
+        raise ClvolError(f"light_quantity {light_quantity!r}: one of {LIGHT_QUANTITIES}")
     defines["LIGHT_TAU"] = int(light_quantity == "optical_depth")
     prog = rt.program("raymarch", defines)
     k = prog.kernel("raymarch", _SCALARS)

@@ -10,7 +10,8 @@ light transmittance, and the render-time combination across levels (docs/transmi
 
 Fields are sampled at their level's voxel centres (cube_min + (i + 0.5) * cube_size / n_l);
 read them trilinearly, clamped at the faces, and use T = 1 outside the cube (nothing there
-attenuates). ``light_dir`` is the direction *toward* the light (DESIGN.md); it is normalised here.
+attenuates). ``light_dir`` is the direction *toward* the light (docs/conventions.md); it is
+normalised here.
 
 Methods: "sweep" (default, fast: light-ray columns swept slice by slice along the dominant
 light axis, 16 slices per launch; error bounded in tests/test_transmittance.py and
@@ -24,7 +25,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import pyopencl as cl
 
 from ..errors import ClvolError
 from ..runtime import Runtime, padded
@@ -212,10 +212,7 @@ def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
                np.int32(n_col))
     for b in range(nb + 1):
         k.set_arg(_ARG_B, np.int32(b))
-        evt = cl.enqueue_nd_range_kernel(rt.queue, k, (padded(n_col + n_vox, SWEEP_GROUP),),
-                                         (SWEEP_GROUP,))
-        if rt.profiling:
-            rt._events.append((k.function_name, evt))
+        rt.launch(k, n_col + n_vox, None, local_size=(SWEEP_GROUP,), pad=SWEEP_GROUP)
 
 
 def _run_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir, method: str,

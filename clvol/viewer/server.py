@@ -57,14 +57,10 @@ class Frame:
 
 
 def stage_times(header: dict) -> dict[str, float]:
-    """Per-stage times (ms) from a render header: every numeric entry named ``time_*`` or
-    ``*_ms``, as the render methods write them."""
-    out = {}
-    for key, value in header.items():
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and (
-                key.startswith("time") or key.endswith("_ms")):
-            out[key] = float(value)
-    return out
+    """Per-stage times in ms from a render header's ``seconds.STAGE`` entries."""
+    return {key.split(".", 1)[1]: round(float(value) * 1e3, 3) for key, value in header.items()
+            if key.startswith("seconds.") and isinstance(value, (int, float))
+            and not isinstance(value, bool)}
 
 
 class FrameMaker:
@@ -183,8 +179,9 @@ class Connection:
             raise ViewerMessageError("save: no frame yet")
         name = time.strftime("clvol_view_%Y%m%d_%H%M%S") + f"_{self.frame_id}.exr"
         path = self.save_dir / name
-        header = {"method": self.last.state.method, "viewer_state": json.dumps(self.last.state.to_json()),
-                  **{k: v for k, v in self.last.header.items() if isinstance(v, (str, int, float))}}
+        header = {**{k: v for k, v in self.last.header.items() if isinstance(v, (str, int, float))},
+                  "viewer.method": self.last.state.method,
+                  "viewer.state": json.dumps(self.last.state.to_json())}
         if self.last.spp:
             header["spp"] = self.last.spp
         loop = asyncio.get_running_loop()

@@ -1,4 +1,5 @@
-"""Reading and writing density grids: Mitsuba ``.vol``, NumPy ``.npy`` and ``.npz``.
+"""Reading and writing density grids: Mitsuba ``.vol``, NumPy ``.npy`` and ``.npz``, and
+reading OpenVDB ``.vdb`` (clvol/volume/vdb.py).
 
 Formats (docs/volumes.md has the full description):
 
@@ -41,7 +42,7 @@ _VOL_ENCODING_NAMES = {1: "float32", 2: "float16", 3: "uint8", 4: "quantized dir
 _VOL_HEADER = struct.Struct("<3sBiiiii6f")
 VOL_HEADER_SIZE = _VOL_HEADER.size  # 48
 
-SUPPORTED_EXTENSIONS = (".vol", ".npy", ".npz")
+SUPPORTED_EXTENSIONS = (".vol", ".npy", ".npz", ".vdb")
 _NPZ_KEYS = ("density", "bbox_min", "bbox_max")
 
 
@@ -54,12 +55,23 @@ def _extension(path: Path) -> str:
     return ext
 
 
-def read_volume(path: str | os.PathLike) -> Grid:
-    """Read a density grid from a ``.vol``, ``.npy`` or ``.npz`` file (chosen by extension)."""
+def read_volume(path: str | os.PathLike, grid: str | None = None,
+                max_resolution: int | None = None, max_bytes: int | None = None) -> Grid:
+    """Read a density grid from a ``.vol``, ``.npy``, ``.npz`` or ``.vdb`` file (by extension).
+
+    ``grid``, ``max_resolution`` and ``max_bytes`` apply to ``.vdb`` only (see ``read_vdb``);
+    given for another format they are refused, not ignored.
+    """
     path = Path(path)
     ext = _extension(path)
     if not path.is_file():
         raise VolumeError(f"{path}: no such volume file")
+    if ext == ".vdb":
+        from .vdb import read_vdb
+        return read_vdb(path, grid=grid, max_resolution=max_resolution, max_bytes=max_bytes)
+    for name, value in (("grid", grid), ("max_resolution", max_resolution)):
+        if value is not None:
+            raise VolumeError(f"{path}: {name} applies to .vdb files only, not {ext}")
     if ext == ".vol":
         return _read_vol(path)
     if ext == ".npy":
@@ -79,6 +91,9 @@ def write_volume(path: str | os.PathLike, grid: Grid) -> None:
     grid.validate(f"{path} (writing)")
     if ext == ".vol":
         _write_vol(path, grid)
+    elif ext == ".vdb":
+        from .vdb import write_vdb
+        write_vdb(path, grid)
     elif ext == ".npy":
         if not (np.array_equal(grid.bbox_min, DEFAULT_BBOX_MIN)
                 and np.array_equal(grid.bbox_max, DEFAULT_BBOX_MAX)):

@@ -1,4 +1,11 @@
-"""Render-method registry shared by the CLI and Python callers.
+"""Rendering: the method registry, the result type, and (in this package) the pipeline.
+
+Layout: ``renderer`` (the stateful ``Renderer`` applications hold), ``options`` (options
+bound to methods), ``medium`` (a volume on the device), ``raymarch`` (the ray marcher and its
+plan), ``sources`` (multiple-scattering sources: none, octaves, grid) and ``network`` (the
+network source). The path tracer lives in clvol/pathtrace.py.
+
+Render-method registry shared by the CLI and Python callers.
 
 A render method lives in its own module and exposes:
 
@@ -15,12 +22,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import ClvolError
+from ..errors import ClvolError
 
 # name -> (module, one-line description)
 METHODS: dict[str, tuple[str, str]] = {
     "pathtrace": ("clvol.pathtrace", "reference volumetric path tracer (ground truth, noisy, slow)"),
-    "raymarch": ("clvol.raymarch", "real-time ray marcher: exact single scattering + analytic multiple scattering"),
+    "raymarch": ("clvol.render.raymarch", "real-time ray marcher: exact single scattering + "
+                 "multiple scattering from the trained network (default) or an analytic source"),
 }
 
 
@@ -30,6 +38,12 @@ class RenderResult:
     including which effects were simulated and which were skipped."""
     layers: dict[str, np.ndarray]
     header: dict[str, str | int | float] = field(default_factory=dict)
+
+    total = property(lambda self: self.layers["total"])
+    single = property(lambda self: self.layers["single"])
+    multiple = property(lambda self: self.layers["multiple"])
+    alpha = property(lambda self: self.layers["alpha"])
+    depth = property(lambda self: self.layers["depth"])
 
 
 def method_module(name: str):

@@ -1,0 +1,426 @@
+"""The trained network as the ray marcher's multiple-scattering source (the paper's method).
+
+``NetworkSource`` holds one weight file and one volume on the device (the MLP's packed
+weights, the density pyramid at the weights' base resolution) and fills an F_ms lattice for a
+camera position, a light and a medium: graded transmittance toward the light, render-mode
+template gather at the lattice points, the fused OpenCL MLP. ``NetworkMs`` is the marcher's
+source built on it: it refills the lattice only when the camera position, the light or the
+medium changed.
+
+The weight file states the domain it was trained on (``domain_of``); ``check_domain`` says
+whether a medium is inside it.
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+from ..errors import ClvolError, WeightsError
+from ..runtime import Stopwatch, get_runtime
+from .sources import GridMs, MsGrid, MsPlan, check_ms_grid, ms_lattice, register
+
+DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
+NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
+# The domain of a weight file without meta["domain"] (how cloud_small.npz was made:
+# clvol/data/weights/cloud_small.md).
+DEFAULT_DOMAIN = {"albedo": [0.8, 0.999], "g": [0.0, 0.9], "max_lobes": 3}
+# Outside the domain the network is still the best source measured, except for strongly
+# backward phases (docs/raymarch.md, "Validity domain"; bench/domain_fallback.py).
+BACKWARD_LIMIT = -0.8          # mean cosine below this: an analytic source instead
+BACKWARD_ALBEDO = 0.9          # ... Wrenninge octaves at albedo >= this, else single only
+
+
+# Below this largest optical thickness (along an axis, clvol/volume/stats.py) the network is
+# not run: single scattering alone measured at least as accurate against the path tracer
+# (the network's share of the image is far above the true one in thin media, outside its
+# training data; docs/raymarch.md, "Validity domain").
+THIN_OPTICAL_THICKNESS = 0.5
+
+
+def fallback_for(medium) -> str | None:
+    """The source to use instead of the network for a medium outside its domain, or None to
+    keep the network (with a warning)."""
+    if medium.phase.mean_cosine >= BACKWARD_LIMIT:
+        return None
+    alb = [a for a in medium.albedo if a > 0]
+    return "wrenninge" if alb and min(alb) >= BACKWARD_ALBEDO else "none"
+
+
+def shipped_weights():
+    """The model that ships with clvol, trained on procedural clouds and solids (albedo
+    0.8-0.999; how it was made and how well it does: clvol/data/weights/cloud_small.md)."""
+    import importlib.resources
+    from pathlib import Path
+    return Path(str(importlib.resources.files("clvol") / "data" / "weights" / "cloud_small.npz"))
+
+
+def load_network_weights(path):
+    """A weight file checked against the contract of the gather that will feed it: this
+    code's layout and packaged templates (hash, level map) at the file's base resolution and
+    lambda (the pyramid is built to match those). Raises WeightsError naming the field."""
+    from ..export import MlpWeights, gather_contract, load_weights, read_meta
+    if isinstance(path, MlpWeights):
+        path = path.path
+    c = read_meta(path)["contract"]
+    base, lam = c.get("base_resolution"), c.get("lambda")
+    if not (isinstance(base, int) and 2 <= base <= 512 and base & (base - 1) == 0):
+        raise WeightsError(f"{path}: [contract.base_resolution] = {base!r}: must be a power of two "
+                           f"from 2 to 512")
+    if not (isinstance(lam, (int, float)) and 0 < lam <= 1):
+        raise WeightsError(f"{path}: [contract.lambda] = {lam!r}: must be in (0, 1]")
+    return load_weights(path, expect_contract=gather_contract(base, float(lam)))
+
+
+def check_ms_resolution(r):
+    ok = (isinstance(r, (int, np.integer)) and not isinstance(r, bool) and 2 <= r <= 256) or (
+        not np.isscalar(r) and len(r) == 3 and all(isinstance(v, (int, np.integer)) and 2 <= v <= 256
+                                                   for v in r))
+    if not ok:
+        raise ClvolError(f"raymarch option ms_resolution = {r!r}: an integer (or three) from 2 to 256")
+    return r
+
+
+# --------------------------------------------------------------------------- domain
+
+def domain_of(weights) -> dict:
+    """The validity domain a weight file records (meta["domain"]), or DEFAULT_DOMAIN."""
+    meta = getattr(weights, "meta", None) or {}
+    d = meta.get("domain")
+    return dict(DEFAULT_DOMAIN) if not isinstance(d, dict) else d
+
+
+def check_domain(domain: dict, medium, optical_thickness: float | None = None) -> list[str]:
+    """The ways ``medium`` lies outside ``domain`` (empty: inside). Channels of albedo 0 are
+    not checked (the network is not evaluated there)."""
+    out = []
+    alb = [a for a in medium.albedo if a > 0]
+    lo, hi = domain.get("albedo", [0.0, 1.0])
+    bad = [a for a in alb if not lo <= a <= hi]
+    if bad:
+        out.append(f"albedo {bad[0]:g} outside [{lo:g}, {hi:g}]")
+    lo, hi = domain.get("g", [-1.0, 1.0])
+    gs = [l.g for l in medium.phase.lobes if l.weight > 0]
+    bad = [g for g in gs if not lo <= g <= hi]
+    if bad:
+        out.append(f"phase g {bad[0]:g} outside [{lo:g}, {hi:g}]")
+    n = domain.get("max_lobes")
+    if n is not None and len(medium.phase.lobes) > n:
+        out.append(f"{len(medium.phase.lobes)} phase lobes > {n}")
+    ot = domain.get("optical_thickness")
+    if ot is not None and optical_thickness is not None and not ot[0] <= optical_thickness <= ot[1]:
+        out.append(f"optical thickness {optical_thickness:.3g} outside [{ot[0]:g}, {ot[1]:g}]")
+    return out
+
+
+# --------------------------------------------------------------------------- the lattice
+
+def spherical_barycentric(dirs: np.ndarray, omegas: np.ndarray):
+    """For each unit vector in ``omegas`` (N, 3): the three ``dirs`` of the triangle of their
+    convex hull that it passes through, and barycentric weights (N, 3) summing to 1 (exact at
+    the directions, linear in between on the triangle's plane)."""
+    tri = _hull(np.ascontiguousarray(dirs, np.float64).tobytes(), len(dirs))
+    inv = np.linalg.inv(np.transpose(dirs[tri], (0, 2, 1)))  # b = inv @ omega per triangle
+    b = (omegas @ inv.reshape(-1, 3).T).reshape(len(omegas), -1, 3)
+    t = np.argmax(b.min(axis=2), axis=1)
+    w = np.maximum(b[np.arange(len(omegas)), t], 0.0)
+    return tri[t], w / w.sum(axis=1, keepdims=True)
+
+
+@functools.lru_cache(maxsize=8)
+def _hull(key: bytes, n: int) -> np.ndarray:
+    from scipy.spatial import ConvexHull
+    return ConvexHull(np.frombuffer(key).reshape(n, 3)).simplices
+
+
+def fibonacci_directions(n: int) -> np.ndarray:
+    """(n, 3) unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * i
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def lattice_reach_mask(grid, resolution, reach: float) -> np.ndarray:
+    """Boolean mask over the F_ms lattice points ([z][y][x], the volume's box): True where
+    some voxel of non-zero density has its centre within one lattice cell plus ``reach``
+    (world units, per axis) of the point. The march reads a lattice point only at samples
+    inside its trilinear support (one lattice cell) and adds F_ms weighted by the density
+    there (a trilinear read: non-zero only within one voxel of an occupied centre), so F_ms at
+    the other points never reaches the image: they need no network evaluation.
+    ``reach`` must cover one voxel plus the distance between the density sample and the F_ms
+    sample of a march segment (one step)."""
+    res = (resolution,) * 3 if np.isscalar(resolution) else tuple(resolution)
+    occ = (np.asarray(grid.density) > 0).astype(np.int32)
+    # 3-D summed-area table: occupied voxels in any index box in O(1).
+    sat = np.zeros(tuple(n + 1 for n in occ.shape), np.int64)
+    sat[1:, 1:, 1:] = occ.cumsum(0).cumsum(1).cumsum(2)
+    lo_ix, hi_ix = [], []
+    for a in range(3):                      # a = x, y, z; density axis 2 - a
+        n = occ.shape[2 - a]
+        ext = float(grid.bbox_max[a] - grid.bbox_min[a])
+        cell_l, cell_d = ext / res[a], ext / n
+        p = (np.arange(res[a]) + 0.5) * cell_l                     # lattice centres, from bbox_min
+        r = cell_l + reach
+        lo_ix.append(np.clip(np.ceil((p - r) / cell_d - 0.5), 0, n).astype(np.int64))
+        hi_ix.append(np.clip(np.floor((p + r) / cell_d - 0.5) + 1, 0, n).astype(np.int64))
+    z0, y0, x0 = np.meshgrid(lo_ix[2], lo_ix[1], lo_ix[0], indexing="ij")
+    z1, y1, x1 = np.meshgrid(hi_ix[2], hi_ix[1], hi_ix[0], indexing="ij")
+    count = (sat[z1, y1, x1] - sat[z0, y1, x1] - sat[z1, y0, x1] - sat[z1, y1, x0]
+             + sat[z0, y0, x1] + sat[z0, y1, x0] + sat[z1, y0, x0] - sat[z0, y0, x0])
+    return (count > 0).ravel()
+
+
+
+class NetworkSource:
+    """The network's F_ms lattice for one volume: weights and pyramid on the device.
+
+    ``fill`` makes the graded transmittance for the light (cached per light direction and
+    density scale), gathers render-mode features (the weights' level combination baked by the
+    gather) at an F_ms lattice and evaluates the network there: one evaluation per point for a
+    grey albedo (``grey_shortcut``), else one per distinct non-zero channel albedo.
+    """
+
+    def __init__(self, weights, grid, medium, runtime=None):
+        from ..kernels.mlp import MlpKernel
+        from ..kernels.pyramid import build_pyramid
+        self.rt = runtime or get_runtime()
+        self.weights = load_network_weights(weights)
+        self.grid, self.medium = grid, medium
+        self.mlp = MlpKernel(self.weights, self.rt)
+        self.base = int(self.weights.contract["base_resolution"])
+        self.lam = float(self.weights.contract["lambda"])
+        self.pyramid = build_pyramid(grid, self.base, self.rt)
+        self._graded = (None, None)
+        self.graded_builds = 0
+
+    def graded(self, light_dir, density_scale=None):
+        from ..kernels.transmittance import check_light_dir, graded_transmittance
+        l = check_light_dir(light_dir)
+        s = float(self.medium.density_scale if density_scale is None else density_scale)
+        key = (tuple(l), s)
+        if self._graded[0] != key:
+            self._graded = (key, graded_transmittance(self.pyramid, s, l, lam=self.lam))
+            self.graded_builds += 1
+        return self._graded[1]
+
+    def fill(self, scene, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
+             bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None, active=None,
+             omegas=None):
+        """(MsGrid, info): F_ms at the lattice (``ms_lattice``) for the camera at ``origin``
+        (default the scene camera's) and a light toward ``light_dir``; info has seconds
+        "light" (graded fields), "gather", "network", "evaluations" (network evaluations
+        per lattice point) and "points" (lattice points evaluated). ``active``: a boolean
+        mask over the lattice points ([z][y][x] order); the others get F_ms = 0. ``omegas``:
+        one unit direction (3,) for every point instead of toward the camera."""
+        from ..kernels.gather import gather
+        from ..kernels.transmittance import check_light_dir
+        rt = self.rt
+        medium = self.medium if medium is None else medium
+        if bbox_min is None or bbox_max is None:
+            bbox_min, bbox_max = self.grid.bbox_min, self.grid.bbox_max
+        res, lo, hi, pts_all, om_all = ms_lattice(scene, resolution, bbox_min, bbox_max,
+                                                  (0.0, 0.0, 0.0) if omegas is not None else origin)
+        if omegas is not None:
+            om_all = np.broadcast_to(np.asarray(omegas, np.float64), om_all.shape)
+        if active is None:
+            active = np.ones(len(pts_all), bool)
+        active = np.asarray(active, bool).ravel()
+        pts, om = pts_all[active], om_all[active]
+        alb = np.asarray(medium.albedo, np.float64)
+        grey = grey_shortcut and medium.is_grey
+        l = check_light_dir(light_dir)
+        info = {"light": 0.0, "gather": 0.0, "network": 0.0}
+        with Stopwatch() as sw:
+            graded = self.graded(l, medium.density_scale)
+            rt.finish()
+        info["light"] = sw.seconds
+        out = np.zeros((len(pts),) if grey else (len(pts), 3), np.float32)
+        reuse = None
+        for i in range(0, len(pts), NETWORK_CHUNK):
+            sl = slice(i, i + NETWORK_CHUNK)
+            with Stopwatch() as sw:
+                g = gather(self.pyramid, graded, pts[sl], om[sl], l, medium, float(alb[0]),
+                           mode="render", level_weights=self.weights.level_weights,
+                           bias=self.weights.level_bias, as_buffers=True, reuse=reuse)
+                rt.finish()
+            info["gather"] += sw.seconds
+            reuse = g
+            with Stopwatch() as sw:
+                if grey:     # the config's albedo is the medium's: one evaluation per point
+                    out[sl] = self.mlp.forward(g["features"], g["config"], decode=True, n=g["n"])
+                else:        # one per distinct non-zero channel albedo (the kernel dedupes)
+                    out[sl] = self.mlp.forward(g["features"], g["config"], channel_albedo=alb,
+                                               decode=True, n=g["n"])
+            info["network"] += sw.seconds
+        info["evaluations"] = 1 if grey else len(set(float(a) for a in alb if a > 0))
+        info["points"] = int(len(pts))
+        full = np.zeros((len(pts_all),) + out.shape[1:], np.float32)
+        full[active] = out
+        vals = full.reshape((res[2], res[1], res[0]) + (() if grey else (3,)))
+        if not np.all(np.isfinite(vals)):
+            raise ClvolError(f"{self.weights.path}: the network produced non-finite F_ms")
+        return check_ms_grid(MsGrid(np.maximum(vals, 0.0), tuple(lo), tuple(hi))), info
+
+
+@register
+class NetworkMs(GridMs):
+    """The network's lattice marched like a precomputed grid. The lattice depends on the
+    camera position (omega toward it), the light direction and the medium; ``prepare``
+    refills it only when one of those changed."""
+    name = "network"
+    options = ("weights", "ms_resolution", "no_domain_fallback", "ms_directions", "ms_refresh")
+
+    @property
+    def label(self) -> str:
+        from pathlib import Path
+        return f"network multiple scattering (weights {Path(str(self.weights_path)).name})"
+
+    what = "network-filled F_ms lattice"
+
+    def __init__(self, weights=None, ms_resolution=DEFAULT_NETWORK_RESOLUTION, runtime=None,
+                 directions: int = 0, refresh: int = 1):
+        super().__init__(None, runtime)
+        if isinstance(directions, bool) or not isinstance(directions, (int, np.integer)) or \
+                not (directions == 0 or 6 <= directions <= 256):
+            raise ClvolError(f"raymarch option ms_directions = {directions!r}: 0 (a lattice per "
+                             f"camera position) or an integer from 6 to 256")
+        self.directions = int(directions)
+        self._table = None
+        if isinstance(refresh, bool) or not isinstance(refresh, (int, np.integer)) or \
+                not 1 <= refresh <= 64:
+            raise ClvolError(f"raymarch option ms_refresh = {refresh!r}: an integer from 1 (the "
+                             f"whole lattice every camera position) to 64")
+        self.refresh, self._phase, self._todo = int(refresh), 0, 0
+        self.weights_path = shipped_weights() if weights is None else weights
+        self.resolution = check_ms_resolution(ms_resolution)
+        self.net: NetworkSource | None = None
+        self.info = None
+        self.setup_seconds = 0.0
+        self._key = None
+
+    def prepare(self, frame) -> None:
+        self.count = frame.count
+        if self.net is None or self.net.grid is not frame.grid:
+            with Stopwatch() as sw:
+                self.net = NetworkSource(self.weights_path, frame.grid, frame.medium,
+                                         frame.runtime)
+                frame.runtime.finish()
+            self.setup_seconds = sw.seconds
+            frame.count("network_setup")
+            self._key = None
+        m = frame.medium
+        key = (tuple(frame.camera.origin), tuple(frame.light.direction), m.density_scale,
+               tuple(m.albedo), m.phase, bool(frame.shortcuts))
+        if key == self._key and not self._todo:
+            return
+        active = None
+        if frame.shortcuts:
+            mkey = ("network_active", self.resolution, frame.reach)
+            cache = frame.cache if frame.cache is not None else {}
+            if mkey not in cache:
+                cache[mkey] = lattice_reach_mask(frame.grid, self.resolution, frame.reach)
+            active = cache[mkey]
+        builds = self.net.graded_builds
+        if self.directions:
+            self._prepare_directional(frame, key[1:], active)
+        else:
+            self._prepare_lattice(frame, key, active)
+        if self.net.graded_builds != builds:
+            frame.count("graded_transmittance")
+        self._key = key
+
+    def _prepare_lattice(self, frame, key, active) -> None:
+        """The lattice for the camera position: all of it when the light or the medium changed
+        (or ``refresh`` is 1); else, when only the camera moved, one of ``refresh`` interleaved
+        subsets of the active points per frame (the others keep the values of the positions
+        they were last filled for), continuing at rest until every subset is current."""
+        fill = dict(grey_shortcut=frame.shortcuts, medium=frame.medium,
+                    origin=frame.camera.origin)
+        light = frame.light.direction
+        if (self.refresh == 1 or self._key is None or self.ms_grid is None
+                or key[1:] != self._key[1:]):
+            self.ms_grid, self.info = self.net.fill(None, light, self.resolution, active=active,
+                                                    **fill)
+            self._todo = 0
+        else:
+            if key[0] != self._key[0]:           # the camera moved: every subset is stale
+                self._todo = self.refresh
+            part = self._phase % self.refresh
+            self._phase += 1
+            n = self.ms_grid.values.shape[0] * self.ms_grid.values.shape[1] * \
+                self.ms_grid.values.shape[2]
+            idx = np.flatnonzero(active) if active is not None else np.arange(n)
+            subset = np.zeros(n, bool)
+            subset[idx[part::self.refresh]] = True
+            g, self.info = self.net.fill(None, light, self.resolution, active=subset, **fill)
+            vals = np.array(self.ms_grid.values, np.float32, copy=True)
+            flat, new = vals.reshape(n, -1), np.asarray(g.values).reshape(n, -1)
+            flat[subset] = new[subset]
+            self.ms_grid = MsGrid(vals, g.bbox_min, g.bbox_max)
+            self._todo = max(self._todo - 1, 0)
+        frame.count("ms_lattice")
+
+    def _prepare_directional(self, frame, light_key, active) -> None:
+        """View-independent cache: F_ms at ``directions`` fixed directions per lattice point,
+        filled once per light and medium; each camera position then interpolates them toward
+        omega (barycentric on the directions' spherical triangulation)."""
+        dirs = fibonacci_directions(self.directions)
+        if self._table is None or self._table[0] != light_key:
+            tables, info = [], None
+            for d in dirs:
+                g, i = self.net.fill(None, frame.light.direction, self.resolution,
+                                     grey_shortcut=frame.shortcuts, medium=frame.medium,
+                                     active=active, omegas=d)
+                tables.append(np.asarray(g.values, np.float32))
+                if info is None:
+                    info = dict(i)
+                else:
+                    for k in ("light", "gather", "network"):
+                        info[k] += i[k]
+            self._table = (light_key, np.stack(tables), g.bbox_min, g.bbox_max, info)
+            frame.count("ms_directional_fill")
+            filled = True
+        else:
+            filled = False
+        _, table, lo, hi, info = self._table
+        with Stopwatch() as sw:
+            _, _, _, _, om = ms_lattice(None, self.resolution, lo, hi, frame.camera.origin)
+            flat = table.reshape(len(dirs), om.shape[0], -1)          # (K, N, C)
+            vals = np.zeros(flat.shape[1:], np.float32)
+            act = np.flatnonzero(active) if active is not None else np.arange(om.shape[0])
+            idx, w = spherical_barycentric(dirs, om[act])
+            vals[act] = (flat[idx, act[:, None]] * w[..., None]).sum(axis=1)   # (n, 3, C) -> (n, C)
+            self.ms_grid = MsGrid(vals.reshape(table.shape[1:]), lo, hi)
+        # This frame's costs: the K fills only when they ran, and the interpolation.
+        self.info = dict(info) if filled else dict(info, light=0.0, gather=0.0, network=0.0)
+        self.info["interpolate"] = sw.seconds
+        frame.count("ms_lattice")
+
+    def plan(self, medium, shortcuts: bool) -> MsPlan:
+        p = super().plan(medium, shortcuts)
+        if medium.is_grey and shortcuts:
+            p.skipped.append("network evaluations for colour channels 2 and 3 (grey albedo: "
+                             "one per lattice point)")
+        if shortcuts:
+            p.skipped.append("network evaluations at lattice points with no density within "
+                             "reach (their F_ms never reaches the image)")
+        return p
+
+    def header(self) -> dict:
+        info = self.info
+        return {
+            "raymarch.weights": str(self.net.weights.path) if self.net else str(self.weights_path),
+            "raymarch.ms_resolution": str(self.resolution),
+            "raymarch.network_base_resolution": self.net.base if self.net else 0,
+            "raymarch.network_evaluations_per_point": info["evaluations"] if info else 0,
+            "raymarch.network_points": info["points"] if info else 0,
+            "seconds.network_setup": round(self.setup_seconds, 4) if info else 0.0,
+            "seconds.graded_transmittance": round(info["light"], 4) if info else 0.0,
+            "seconds.gather": round(info["gather"], 4) if info else 0.0,
+            "seconds.network": round(info["network"], 4) if info else 0.0,
+            **({"seconds.ms_interpolate": round(info["interpolate"], 4)}
+               if info and "interpolate" in info else {}),
+        }

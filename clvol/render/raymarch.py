@@ -1,0 +1,356 @@
+"""The ray-marching render method: exact single scattering plus a multiple-scattering source.
+
+    clvol render examples/cloud.toml -o cloud.exr            # raymarch + network (the default)
+
+``RayMarcher`` keeps a volume on the device for many frames (``DeviceMedium``: density and
+majorant) and the exact light field toward the light (``set_light``: the light-change cost);
+``march(camera, light, source)`` renders a camera with a multiple-scattering source from
+clvol/render/sources.py. ``Plan`` decides what the kernel simulates for a medium and a light,
+and which shortcuts it takes (with reasons, for the header). The stateful ``Renderer``
+(clvol/render/renderer.py) drives all of it; ``render_raymarch`` is the one-call form.
+
+``shortcuts=False`` forces the general kernel (all lobes evaluated, three colour planes, light
+lookups even at albedo 0): the tests check that every shortcut gives the same image. The
+method, its accuracy and its speed are described in docs/raymarch.md.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ClvolError
+from ..kernels.raymarch import LIGHT_QUANTITIES, launch
+from ..kernels.phase import phase_defines
+from ..runtime import DeviceArray, get_runtime
+from .medium import DeviceMedium
+from .sources import MsPlan, MsSource, NoMs
+
+DEFAULT_STEP = 1.0         # segment length in voxels of the density grid
+DEFAULT_THRESHOLD = 1e-3   # early termination when T_cam falls below this
+DEFAULT_BLOCK = 8          # voxels per majorant block per axis (empty-space skipping)
+MAX_LIGHT_RESOLUTION = 256
+MAX_SUPERSAMPLE = 8
+
+
+def check_march_options(step, threshold, light_resolution, supersample, light_interp):
+    def bad(name, value, allowed):
+        return ClvolError(f"raymarch option {name} = {value!r}: {allowed}")
+    if not (isinstance(step, (int, float)) and math.isfinite(step) and 0.01 <= step <= 64):
+        raise bad("step", step, "must be in [0.01, 64] voxels")
+    if not (isinstance(threshold, (int, float)) and math.isfinite(threshold) and 0 <= threshold < 1):
+        raise bad("threshold", threshold, "must be in [0, 1) (0 disables early termination)")
+    if light_resolution is not None and not (
+            isinstance(light_resolution, (int, np.integer)) and 1 <= light_resolution <= 1024
+            and light_resolution & (light_resolution - 1) == 0):
+        raise bad("light_resolution", light_resolution, "must be a power of two from 1 to 1024")
+    if not (isinstance(supersample, (int, np.integer)) and 1 <= supersample <= MAX_SUPERSAMPLE):
+        raise bad("supersample", supersample, f"must be an integer from 1 to {MAX_SUPERSAMPLE}")
+    if light_interp not in LIGHT_QUANTITIES:
+        raise bad("light_interp", light_interp, f"choose one of {list(LIGHT_QUANTITIES)}")
+
+
+def auto_light_resolution(grid) -> int:
+    """The light field's default resolution: twice the grid's largest side rounded up to a
+    power of two, at most MAX_LIGHT_RESOLUTION. The voxelised light field is the ray
+    marcher's main bias against exact single scattering (docs/raymarch.md measures it at
+    1x and 2x)."""
+    n = 2 * max(grid.resolution)
+    return min(1 << max(0, (n - 1).bit_length()), MAX_LIGHT_RESOLUTION)
+
+
+def is_lit(medium, light) -> bool:
+    """Anything scatters light toward the camera: some channel has albedo * irradiance > 0."""
+    return bool(np.any(np.asarray(medium.albedo) * np.asarray(light.irradiance) > 0))
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What the kernel simulates for a medium, a light and a source, and which shortcuts it
+    takes (with reasons)."""
+    lit: bool
+    defines: dict
+    lobes: list
+    ms: MsPlan
+    background: tuple
+    simulated: tuple
+    skipped: tuple
+    channels: int = 1
+
+    @classmethod
+    def make(cls, medium, light, source: MsSource, shortcuts: bool = True,
+             skip_empty: bool = True) -> "Plan":
+        sim, skip = [], []
+        lit = is_lit(medium, light) or not shortcuts
+        phase = medium.phase
+        lobes = [(lo.g, lo.weight) for lo in phase.lobes]
+        if lit:
+            sim.append("single scattering")
+        else:
+            skip.append("single and multiple scattering (albedo * irradiance = 0: no light "
+                        "field, no source)")
+        if shortcuts and phase.is_isotropic:
+            lobes = []
+            skip.append("phase evaluation (isotropic: constant 1/(4 pi))")
+        ms = source.plan(medium, shortcuts) if lit else NoMs().plan(medium, shortcuts)
+        if lit:
+            sim += ms.simulated
+            skip += ms.skipped
+        channels = ms.channels or 1
+        if ms.channels is None and lit:
+            skip.append("per-channel marching (albedo and irradiance are constant over the "
+                        "medium: one colour-free march, colour applied once per ray)")
+        env = light.environment
+        if env is not None:
+            sim.append("background (environment radiance behind the medium)")
+            skip.append("environment in-scattering (the medium is lit by the sun only)")
+        background = tuple(env) if env is not None else (0.0, 0.0, 0.0)
+        sim.append("extinction along camera rays")
+        defines = dict(phase_defines(lobes))
+        defines.update(LIT=int(lit), SKIP_EMPTY=int(bool(skip_empty)))
+        defines.update(ms.defines)
+        return cls(lit, defines, lobes, ms, background, tuple(sim), tuple(skip), channels)
+
+
+class RayMarcher:
+    """A volume kept on the device for many frames: density, majorant grid, light field.
+
+    ``grid``: clvol Grid; ``medium``: clvol Medium (``set_medium`` changes it). The light field
+    (T_light, or its optical depth with light_interp="optical_depth", on the pyramid's cube)
+    is made by ``set_light`` (the light-change cost) and kept until the light direction or the
+    density scale changes. ``light_builds`` counts them.
+    """
+
+    def __init__(self, grid, medium, runtime=None, block: int = DEFAULT_BLOCK,
+                 light_resolution: int | None = None, light_interp: str = "transmittance",
+                 device_medium: DeviceMedium | None = None):
+        self.rt = runtime or get_runtime()
+        self.grid = grid
+        self.medium = medium
+        self.light_resolution = light_resolution or auto_light_resolution(grid)
+        if light_interp not in LIGHT_QUANTITIES:
+            raise ClvolError(f"raymarch option light_interp = {light_interp!r}: choose one of "
+                             f"{list(LIGHT_QUANTITIES)}")
+        self.light_interp = light_interp
+        self.dm = device_medium or DeviceMedium.upload(grid, block, self.rt)
+        self.block = self.dm.block
+        self.density, self.majorant = self.dm.density, self.dm.majorant
+        self.light_field = None
+        self._light_key = None
+        self.light_builds = 0
+
+    @property
+    def pyramid(self):
+        """Density resampled to the light field's cube (built once, on first use)."""
+        key = ("light_pyramid", self.light_resolution)
+        if key not in self.dm.cache:
+            from ..kernels.pyramid import build_pyramid
+            self.dm.cache[key] = build_pyramid(self.grid, self.light_resolution, self.rt)
+        return self.dm.cache[key]
+
+    def set_medium(self, medium) -> None:
+        self.medium = medium
+
+    def set_light(self, light_dir) -> None:
+        """(Re)compute the exact light field for a light toward ``light_dir``."""
+        from ..kernels.transmittance import check_light_dir, light_transmittance
+        l = check_light_dir(light_dir)
+        pyr = self.pyramid
+        buf = light_transmittance(pyr, self.medium.density_scale, l,
+                                  quantity=self.light_interp, as_buffer=True)
+        n = pyr.base_resolution
+        self.light_field = DeviceArray(buf, (n, n, n), np.dtype(np.float32), self.rt)
+        self._light_key = (tuple(l), float(self.medium.density_scale))
+        self.light_builds += 1
+
+    @property
+    def light_dir(self):
+        return None if self._light_key is None else np.asarray(self._light_key[0])
+
+    def ensure_light(self, light_dir) -> bool:
+        """Build the light field unless it is already the one for this light and medium.
+        Returns True when it was built."""
+        from ..kernels.transmittance import check_light_dir
+        key = (tuple(check_light_dir(light_dir)), float(self.medium.density_scale))
+        if self.light_field is not None and key == self._light_key:
+            return False
+        self.set_light(light_dir)
+        return True
+
+    def march(self, camera, light, source: MsSource | str = "wrenninge", *, octaves=None,
+              ms_grid=None, step: float = DEFAULT_STEP, threshold: float = DEFAULT_THRESHOLD,
+              skip_empty: bool = True, shortcuts: bool = True, read_back: bool = True,
+              stats: bool = False, ms: str | None = None):
+        """Render ``camera`` lit by ``light`` with the multiple-scattering ``source`` (an
+        MsSource, already prepared for this frame; or a source name with ``octaves`` /
+        ``ms_grid``). Returns (layers, plan), or with ``read_back=False`` (event, buffers,
+        plan)."""
+        if ms is not None:
+            source = ms
+        if isinstance(source, str):
+            source = make_source(source, octaves=octaves, ms_grid=ms_grid, runtime=self.rt)
+        plan = Plan.make(self.medium, light, source, shortcuts, skip_empty)
+        if plan.lit:
+            self.ensure_light(light.direction)
+        g = self.grid
+        fwd, right, up = camera.basis()
+        cube_min = self.pyramid.cube_min if plan.lit else np.zeros(3)
+        cube_size = self.pyramid.cube_size if plan.lit else 1.0
+        box = plan.ms.box or (None, None)
+        o = plan.ms.octaves
+        res = launch(
+            plan.defines, self.density, g.bbox_min, g.bbox_max, self.medium.density_scale,
+            self.majorant, self.block,
+            self.light_field if plan.lit else None, cube_min, cube_size,
+            plan.ms.planes, *box,
+            camera.origin, fwd, right, up, camera.tan_half_fov,
+            camera.width, camera.height,
+            light.direction, light.irradiance, self.medium.albedo, plan.lobes,
+            plan.background, a=o.a, b=o.b, c=o.c, step=step * float(np.min(g.cell_size)),
+            threshold=threshold, lit=plan.lit, light_quantity=self.light_interp,
+            runtime=self.rt, read_back=read_back, stats=stats)
+        if read_back:
+            return res, plan
+        return res + (plan,)
+
+
+def make_source(ms: str, *, octaves=None, ms_grid=None, weights=None, ms_resolution=None,
+                runtime=None, ms_directions: int = 0, ms_refresh: int = 1) -> MsSource:
+    """The source named ``ms`` (``--ms``) with its options."""
+    from .network import DEFAULT_NETWORK_RESOLUTION
+    from .sources import SOURCES, GridMs, Octaves, OctavesMs
+    if ms not in SOURCES:
+        raise ClvolError(f"raymarch option ms = {ms!r}: choose one of {sorted(SOURCES)}")
+    cls = SOURCES[ms]
+    if issubclass(cls, OctavesMs):
+        return cls(octaves if octaves is not None else Octaves())
+    if cls is GridMs:
+        if ms_grid is None:
+            raise ClvolError("raymarch option ms = 'grid' needs an ms grid (--ms-grid FILE.npz, "
+                             "or ms_grid=MsGrid(...) in Python)")
+        if not hasattr(ms_grid, "values"):
+            from .sources import load_ms_grid
+            ms_grid = load_ms_grid(ms_grid)
+        return cls(ms_grid, runtime)
+    if ms == "network":
+        return cls(weights, DEFAULT_NETWORK_RESOLUTION if ms_resolution is None else ms_resolution,
+                   runtime, ms_directions, ms_refresh)
+    return cls()
+
+
+def downsample(layers: dict, s: int) -> dict:
+    """Box-filter S x S blocks of sub-pixel samples into pixels; depth is averaged with
+    alpha weights (the mean distance of the extinction events in the whole pixel)."""
+    def box(x):
+        h, w = x.shape[0] // s, x.shape[1] // s
+        return x.reshape((h, s, w, s) + x.shape[2:]).mean(axis=(1, 3), dtype=np.float64)
+    out = {k: box(v).astype(np.float32) for k, v in layers.items() if k != "depth"}
+    a = box(layers["alpha"])
+    ad = box(layers["alpha"].astype(np.float64) * layers["depth"])
+    out["depth"] = np.where(a > 0, ad / np.where(a > 0, a, 1.0), 0.0).astype(np.float32)
+    return out
+
+
+def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float = 0.5,
+                    b: float = 0.5, c: float = 0.5, ms_grid=None,
+                    step: float = DEFAULT_STEP, threshold: float = DEFAULT_THRESHOLD,
+                    skip_empty: bool = True, block: int = DEFAULT_BLOCK,
+                    light_resolution: int | None = None, light_interp: str = "transmittance",
+                    supersample: int = 1, shortcuts: bool = True, grid=None,
+                    runtime=None, weights=None, ms_resolution=None,
+                    domain_fallback: bool = False):
+    """Render ``scene`` with the ray marcher in one call (a ``Renderer`` kept for one frame).
+    Returns a RenderResult with layers total, single, multiple (H, W, 3), alpha and depth
+    (H, W), and the header.
+
+    step: segment length in voxels of the density grid (smallest cell side);
+    threshold: early termination transmittance (error < threshold x the largest source
+    radiance along the ray); supersample: S x S rays per pixel on a regular sub-grid, box
+    filtered (1 = pixel centres); grid: the loaded volume (else ``scene.volume.load()``).
+    ms="network": ``weights`` (a weight file; default the shipped model) fills an F_ms
+    lattice of ``ms_resolution`` points per side for this camera and light, used even outside
+    the weights' training domain unless ``domain_fallback`` (the Renderer's default).
+    """
+    from .renderer import Renderer
+    opts = dict(ms=ms, step=step, threshold=threshold, no_skip_empty=not skip_empty,
+                majorant_block=block, light_resolution=light_resolution,
+                light_interp=light_interp, supersample=supersample, no_shortcuts=not shortcuts)
+    if ms == "wrenninge":
+        opts.update(octaves=octaves, ms_a=a, ms_b=b, ms_c=c)
+    elif ms == "grid":
+        opts["ms_grid"] = ms_grid
+    elif ms == "network":
+        opts.update(weights=weights, ms_resolution=ms_resolution,
+                    no_domain_fallback=not domain_fallback)
+    opts = {k: v for k, v in opts.items() if v is not None}
+    return Renderer(scene, "raymarch", grid=grid, runtime=runtime, **opts).render()
+
+
+# --------------------------------------------------------------------------- CLI options
+
+def add_arguments(group) -> None:
+    from .network import DEFAULT_NETWORK_RESOLUTION
+    from .sources import SOURCES
+    group.add_argument("--ms", choices=sorted(SOURCES), default="network",
+                       help="multiple-scattering source: network (the trained network, "
+                            "default), wrenninge (analytic octaves), grid (precomputed F_ms, "
+                            "--ms-grid), none (single scattering only)")
+    group.add_argument("--weights", metavar="FILE.npz",
+                       help="network weight file for --ms network (default: the shipped "
+                            "model, clvol/data/weights/cloud_small.npz)")
+    group.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
+                       help=f"F_ms lattice points per side filled by the network (default "
+                            f"{DEFAULT_NETWORK_RESOLUTION})")
+    group.add_argument("--ms-grid", metavar="FILE.npz",
+                       help="precomputed F_ms grid (arrays values, bbox_min, bbox_max) for --ms grid")
+    group.add_argument("--ms-directions", type=int, default=0, metavar="K",
+                       help="network: fill F_ms at K fixed directions per lattice point once per "
+                            "light and blend them for each camera (camera motion then costs no "
+                            "network evaluation; 0 = a lattice per camera position, default)")
+    group.add_argument("--ms-refresh", type=int, default=1, metavar="K",
+                       help="network: when only the camera moves, refill 1/K of the lattice per "
+                            "frame (interleaved; the rest keeps earlier positions' values until "
+                            "its turn; default 1 = all of it)")
+    group.add_argument("--no-domain-fallback", action="store_true",
+                       help="use the network even for a scene outside the domain its weight "
+                            "file was trained on (default: warn and use the measured fallback, "
+                            "docs/raymarch.md)")
+    group.add_argument("--octaves", type=int, default=3, help="Wrenninge octaves N (default 3)")
+    group.add_argument("--ms-a", type=float, default=0.5,
+                       help="octave extinction multiplier a (default 0.5)")
+    group.add_argument("--ms-b", type=float, default=0.5,
+                       help="octave contribution multiplier b (default 0.5; keep b <= a)")
+    group.add_argument("--ms-c", type=float, default=0.5,
+                       help="octave eccentricity multiplier c (default 0.5)")
+    group.add_argument("--max-order", type=int, default=None, metavar="K",
+                       help="highest scattering order: 1 = single scattering only (the ray "
+                            "marcher then uses --ms none); the ray marcher has no other limit")
+    group.add_argument("--majorant-block", type=int, default=DEFAULT_BLOCK, metavar="B",
+                       help=f"voxels per majorant-grid cell (default {DEFAULT_BLOCK}; 0 = one "
+                            f"global majorant)")
+    group.add_argument("--step", type=float, default=DEFAULT_STEP,
+                       help=f"march step in voxels (default {DEFAULT_STEP:g})")
+    group.add_argument("--threshold", type=float, default=DEFAULT_THRESHOLD,
+                       help=f"stop a ray when its transmittance falls below this "
+                            f"(default {DEFAULT_THRESHOLD:g}; 0 = never)")
+    group.add_argument("--light-resolution", type=int, default=None,
+                       help="light field resolution (power of two; default: twice the grid "
+                            f"size rounded up to a power of two, at most {MAX_LIGHT_RESOLUTION})")
+    group.add_argument("--light-interp", choices=list(LIGHT_QUANTITIES), default="transmittance",
+                       help="what is blended trilinearly between light-field voxels: T "
+                            "(default) or the optical depth (docs/raymarch.md)")
+    group.add_argument("--supersample", type=int, default=1,
+                       help="S x S rays per pixel (default 1)")
+    group.add_argument("--no-skip-empty", action="store_true",
+                       help="march through empty majorant blocks too (same image, slower)")
+    group.add_argument("--no-shortcuts", action="store_true",
+                       help="run the general kernel even where the scene allows a shortcut "
+                            "(same image, slower; for testing)")
+
+
+def render(scene, args):
+    """``clvol render --method raymarch``: a Renderer with the options the user gave."""
+    from .options import given_options
+    from .renderer import Renderer
+    return Renderer(scene, "raymarch", **given_options(args, ["raymarch"])).render()

@@ -1,0 +1,260 @@
+"""``Renderer``: the one object an application holds to render a scene many times.
+
+    import clvol, dataclasses
+    scene = clvol.load_scene("examples/cloud.toml")
+    r = clvol.Renderer(scene)                      # raymarch + network MS (the paper's method)
+    img = r.render()                               # RenderResult: .total .alpha ... .header
+    cam = dataclasses.replace(scene.camera, origin=(1.0, 0.3, 2.2))
+    img = r.render(camera=cam)                     # recomputes only what the camera changes
+
+Options are the CLI's option names with dashes as underscores (``Renderer(scene, "raymarch",
+ms="none")`` is the plain single-scattering march); an option the method does not use is
+refused (clvol/render/options.py). Device state (the volume and its majorant, the light
+field, the network's pyramid and lattice) is kept between calls and rebuilt only when a
+change invalidates it:
+
+    volume, device_medium   once per Renderer
+    light_field             light direction or density scale changed
+    graded_transmittance    the same, for the network's pyramid
+    ms_lattice              camera position, light direction or medium changed (network)
+    march                   every call
+
+``counts`` counts each stage's recomputations (tests check them).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+from collections import Counter
+
+import numpy as np
+
+from ..errors import ClvolError
+from ..runtime import Stopwatch, get_runtime
+from . import RenderResult, method_module
+from .options import DEFAULT_METHOD, bind, flag
+
+
+def _check_arg(value, cls, name):
+    if value is not None and not isinstance(value, cls):
+        raise ClvolError(f"Renderer.render({name}=...): expected a clvol.scene.{cls.__name__} "
+                         f"(e.g. dataclasses.replace(scene.{name}, ...)), got {type(value).__name__}")
+    return value
+
+
+def _check_medium(m):
+    s = m.density_scale
+    if not (isinstance(s, (int, float)) and math.isfinite(s) and s >= 0):
+        raise ClvolError(f"[medium.density_scale] = {s!r}: must be a finite number >= 0")
+    a = np.asarray(m.albedo, np.float64)
+    if a.shape != (3,) or not (np.all(np.isfinite(a)) and np.all(a >= 0) and np.all(a <= 1)):
+        raise ClvolError(f"[medium.albedo] = {list(m.albedo)!r}: three values in [0, 1]")
+
+
+class Renderer:
+    """A scene and a render method with its options, and the device state they need."""
+
+    def __init__(self, scene, method: str | None = None, *, grid=None, runtime=None,
+                 device: str | None = None, **options):
+        self.method = method or DEFAULT_METHOD
+        self.module = method_module(self.method)
+        self.given = dict(options)
+        self.options = bind(self.method, self.given)
+        self.scene = scene
+        self.rt = runtime or get_runtime(device)
+        self.counts: Counter = Counter()
+        self._grid = grid
+        self._marcher = None
+        self._warned: set = set()
+        self.source = self.fallback = None
+        self._tau1 = self.thin = None
+        if self.method == "raymarch":
+            self._setup_raymarch()
+
+    def _count(self, stage: str) -> None:
+        self.counts[stage] += 1
+
+    @property
+    def grid(self):
+        """The volume (loaded on first use)."""
+        if self._grid is None:
+            self._grid = self.scene.volume.load()
+            self._count("volume")
+        return self._grid
+
+    # ------------------------------------------------------------------ raymarch
+    def _setup_raymarch(self) -> None:
+        from .raymarch import check_march_options, make_source
+        from .sources import SOURCES, Octaves
+        o, given = self.options, self.given
+        mo = o["max_order"]
+        if mo is not None:
+            if isinstance(mo, bool) or not isinstance(mo, (int, np.integer)) or mo < 1:
+                raise ClvolError(f"option --max-order = {mo!r}: must be an integer >= 1")
+            if mo > 1:
+                raise ClvolError(f"option --max-order {mo} is not supported by method 'raymarch': "
+                                 f"it simulates order 1 (--max-order 1) or all orders; use "
+                                 f"--method pathtrace to stop at order {mo}")
+            if given.get("ms", "none") != "none":
+                raise ClvolError(f"option --max-order 1 asks for single scattering, but --ms "
+                                 f"{given['ms']} adds multiple scattering; drop one of them")
+            o["ms"] = "none"
+        ms = o["ms"]
+        if ms not in SOURCES:
+            raise ClvolError(f"raymarch option ms = {ms!r}: choose one of {sorted(SOURCES)}")
+        for name in given:
+            owners = [n for n, cls in SOURCES.items() if name in cls.options]
+            if owners and ms not in owners:
+                raise ClvolError(f"option {flag(name)} is used only with --ms {owners[0]} "
+                                 f"(method 'raymarch' with --ms {ms} does not read it)")
+        check_march_options(o["step"], o["threshold"], o["light_resolution"], o["supersample"],
+                            o["light_interp"])
+        oct_ = Octaves(o["octaves"], float(o["ms_a"]), float(o["ms_b"]), float(o["ms_c"]))
+        self.source = make_source(ms, octaves=oct_, ms_grid=o["ms_grid"], weights=o["weights"],
+                                  ms_resolution=o["ms_resolution"], runtime=self.rt,
+                                  ms_directions=o["ms_directions"], ms_refresh=o["ms_refresh"])
+        self.source.count = self._count
+        if ms == "network":
+            from .network import domain_of, load_network_weights
+            self.domain = domain_of(load_network_weights(self.source.weights_path))
+
+    def _active_source(self, medium, grid):
+        """The configured source, or the measured alternative when the medium lies outside
+        the network's training domain (one warning per distinct reason)."""
+        from .network import THIN_OPTICAL_THICKNESS, NetworkMs, check_domain, fallback_for
+        if not isinstance(self.source, NetworkMs):
+            return self.source, None
+        if self._tau1 is None:                 # optical thickness at density scale 1
+            from ..volume.stats import volume_stats
+            self._tau1 = volume_stats(grid, 1.0)["max_optical_thickness"]
+        ot = self._tau1 * medium.density_scale
+        if ot < THIN_OPTICAL_THICKNESS and not self.options["no_shortcuts"]:
+            self.thin = ot
+            return self._other("none"), None
+        self.thin = None
+        out = check_domain(self.domain, medium, ot)
+        if not out:
+            return self.source, None
+        alt = None if self.options["no_domain_fallback"] else fallback_for(medium)
+        what = ("the network is used all the same (--no-domain-fallback)"
+                if self.options["no_domain_fallback"] else
+                "the network is used all the same (measured better than the analytic sources "
+                "there)" if alt is None else f"multiple scattering from --ms {alt} instead")
+        msg = (f"scene outside the network's training domain ({'; '.join(out)}): {what} "
+               f"(docs/raymarch.md)")
+        if msg not in self._warned:
+            print(f"clvol: warning: {msg}", file=sys.stderr)
+            self._warned.add(msg)
+        if alt is None:
+            return self.source, msg
+        return self._other(alt), msg
+
+    def _other(self, name):
+        from .raymarch import make_source
+        if self.fallback is None or self.fallback.name != name:
+            self.fallback = make_source(name, runtime=self.rt)
+        return self.fallback
+
+    def _render_raymarch(self, cam, light, medium) -> RenderResult:
+        from .raymarch import RayMarcher, downsample, is_lit
+        from .sources import Frame
+        o = self.options
+        shortcuts, skip_empty, s = not o["no_shortcuts"], not o["no_skip_empty"], o["supersample"]
+        with Stopwatch() as sw_total:
+            with Stopwatch() as sw_load:
+                grid = self.grid
+            if self._marcher is None:
+                self._marcher = RayMarcher(grid, medium, self.rt, o["majorant_block"],
+                                           o["light_resolution"], o["light_interp"])
+                self._count("device_medium")
+            rm = self._marcher
+            rm.set_medium(medium)
+            if s > 1:
+                cam = dataclasses.replace(cam, width=cam.width * s, height=cam.height * s)
+            source, warning = self._active_source(medium, grid)
+            if is_lit(medium, light) or not shortcuts:
+                cell = float(np.max(grid.cell_size))
+                reach = cell + float(o["step"]) * float(np.min(grid.cell_size))
+                source.prepare(Frame(grid, cam, light, medium, self.rt, shortcuts, self._count,
+                                     reach, rm.dm.cache))
+            with Stopwatch() as sw_light:
+                if is_lit(medium, light) or not shortcuts:
+                    if rm.ensure_light(light.direction):
+                        self._count("light_field")
+                    self.rt.finish()
+            with Stopwatch() as sw_march:
+                layers, plan = rm.march(cam, light, source, step=o["step"],
+                                        threshold=o["threshold"], skip_empty=skip_empty,
+                                        shortcuts=shortcuts)
+            self._count("march")
+            if s > 1:
+                layers = downsample(layers, s)
+        step = float(o["step"])
+        header = {
+            "method": "raymarch",
+            "method.description": f"ray marching: exact single scattering + {source.label}",
+            "simulated": "; ".join(plan.simulated),
+            "skipped": "; ".join(plan.skipped) or "nothing",
+            "seconds": round(sw_total.seconds, 4),
+            "seconds.load": round(sw_load.seconds, 4),
+            "seconds.light_field": round(sw_light.seconds, 4),
+            "seconds.march": round(sw_march.seconds, 4),
+            "raymarch.ms": source.name,
+            "raymarch.step_voxels": step,
+            "raymarch.step": step * float(np.min(grid.cell_size)),
+            "raymarch.threshold": float(o["threshold"]),
+            "raymarch.skip_empty": bool(skip_empty),
+            "raymarch.block": int(rm.block),
+            "raymarch.light_resolution": int(rm.light_resolution) if plan.lit else 0,
+            "raymarch.light_interp": o["light_interp"],
+            "raymarch.supersample": int(s),
+            "raymarch.channels_marched": plan.channels,
+            "raymarch.shortcuts": bool(shortcuts),
+            "device": self.rt.entry.label,
+        }
+        if warning:
+            header["warning"] = warning
+        if self.thin is not None and source is not self.source:
+            header["skipped"] = ("; ".join(s for s in plan.skipped if "--ms none" not in s) +
+                                 f"; multiple scattering (optically thin: largest optical "
+                                 f"thickness {self.thin:.3g} < 0.5, where single scattering "
+                                 f"alone measured as accurate; docs/raymarch.md)").lstrip("; ")
+        header.update(source.header())
+        return RenderResult(layers, header)
+
+    # ------------------------------------------------------------------ pathtrace
+    def _render_pathtrace(self, cam, light, medium, seed=None) -> RenderResult:
+        from ..pathtrace import render_pathtrace
+        o = self.options
+        scene = dataclasses.replace(self.scene, camera=cam, light=light, medium=medium)
+        res = render_pathtrace(scene, spp=o["spp"], seed=o["seed"] if seed is None else seed, max_order=o["max_order"],
+                               time_budget=o["time"], runtime=self.rt,
+                               majorant_block=o["majorant_block"], grid=self.grid)
+        self._count("pathtrace")
+        res.header = {"method": "pathtrace",
+                      "method.description": "volumetric path tracing (reference)", **res.header}
+        return res
+
+    # ------------------------------------------------------------------ API
+    def render(self, camera=None, light=None, medium=None, seed: int | None = None) -> RenderResult:
+        """Render with the scene's camera, light and medium, or the ones given (instances of
+        clvol.scene.Camera, Light, Medium). Returns a RenderResult.
+
+        ``seed`` (path tracer only) replaces the ``seed`` option for this frame, so the passes
+        of a progressive render draw independent samples from one Renderer."""
+        from ..scene import Camera, Light, Medium
+        cam = _check_arg(camera, Camera, "camera") or self.scene.camera
+        light = _check_arg(light, Light, "light") or self.scene.light
+        medium = _check_arg(medium, Medium, "medium") or self.scene.medium
+        _check_medium(medium)
+        if seed is not None:
+            if self.method != "pathtrace":
+                raise ClvolError(f"seed: the {self.method} method is deterministic and takes no seed")
+            if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
+                raise ClvolError(f"seed: {seed!r} must be an integer in [0, 2^32)")
+        if self.method == "raymarch":
+            return self._render_raymarch(cam, light, medium)
+        if self.method == "pathtrace":
+            return self._render_pathtrace(cam, light, medium, seed)
+        raise ClvolError(f"render method {self.method!r} has no Renderer support")

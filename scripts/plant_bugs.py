@@ -1,0 +1,208 @@
+#!/usr/bin/env python3
+"""Plant known physics bugs in a scratch copy of the checkout and show which tests catch them.
+
+    python scripts/plant_bugs.py                 # baseline + every bug, the default tests
+    python scripts/plant_bugs.py --bugs lattice-corners --keep
+    python scripts/plant_bugs.py --tests tests/test_raymarch.py
+
+Each run copies the working tree (not .git, caches) to a fresh temporary folder, recreates the
+``clvol/_cl -> ../cl`` link there so the kernels come from the copy (clvol finds them through
+importlib.resources 'clvol._cl'), checks that the copy's clvol and kernels are the ones imported,
+patches one file and runs pytest in the copy. The patches search for the code they change and
+stop with an error if it is not there exactly once (the code may have been rewritten since this
+script was written: then update the pattern, do not drop the bug). docs/testing.md lists the
+bugs, why each one passed the twin tests, and the last recorded result.
+
+Not part of CI (it runs the tests once per bug: a few minutes).
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_TESTS = ["tests/test_phase_world.py", "tests/test_ms_lattice_roundtrip.py",
+                 "tests/test_pathtrace_closed_form.py"]
+
+
+class PatchError(RuntimeError):
+    pass
+
+
+def function_span(text: str, start_pattern: str, end_pattern: str) -> tuple[int, int]:
+    """(start, end) of the one region that starts at ``start_pattern`` and ends before the
+    next ``end_pattern`` (a function body, found without parsing)."""
+    starts = [m.start() for m in re.finditer(start_pattern, text, re.M)]
+    if len(starts) != 1:
+        raise PatchError(f"expected one match of {start_pattern!r}, found {len(starts)}")
+    m = re.compile(end_pattern, re.M).search(text, starts[0] + 1)
+    return starts[0], (m.start() if m else len(text))
+
+
+def replace_once(text: str, span: tuple[int, int], pattern: str, repl: str) -> str:
+    a, b = span
+    body = text[a:b]
+    new, n = re.subn(pattern, repl, body)
+    if n != 1:
+        raise PatchError(f"expected exactly one match of {pattern!r} in the region, found {n}:\n"
+                         + body[:400])
+    return text[:a] + new + text[b:]
+
+
+@dataclass(frozen=True)
+class Bug:
+    name: str
+    path: str
+    what: str
+
+    def apply(self, root: Path) -> None:
+        f = root / self.path
+        text = f.read_text()
+        new = PATCHES[self.name](text)
+        if new == text:
+            raise PatchError(f"{self.name}: patch changed nothing in {self.path}")
+        f.write_text(new)
+
+
+def _mirrored_frame(text: str) -> str:
+    # The view term of the phase-feature table: dot(d, omega) = u_z cos(a) - u_x sin(a) in
+    # the template frame (omega = (sin a, 0, -cos a)). The camera reflected across the light
+    # axis is omega = (-sin a, 0, -cos a): the sign of the u_x term flips.
+    span = function_span(text, r"^def phase_features\(", r"^(def |class )")
+    return replace_once(text, span,
+                        r"(mu_out\s*=\s*u\[None,\s*:,\s*2\]\s*\*\s*ca\s*)-(\s*u\[None,\s*:,\s*0\]\s*\*\s*sa)",
+                        r"\1+\2")
+
+
+def _lattice_corners(text: str) -> str:
+    # ms_lattice's axes: lo + (i + 0.5) * cell (cell centres) -> lo + i * cell (corners).
+    span = function_span(text, r"^def ms_lattice\(", r"^(def |class )")
+    return replace_once(text, span, r"\(np\.arange\((res\[a\])\)\s*\+\s*0\.5\)",
+                        r"np.arange(\1)")
+
+
+def _shadow_rate_bias(text: str) -> str:
+    # Ratio tracking toward the sun with tentative collisions at 1.01 x the majorant rate and
+    # the ratios unchanged: E[T] = exp(-1.01 int sigma_t), a 1% extinction bias.
+    span = function_span(text, r"^float pt_transmittance\(", r"^\}")
+    return replace_once(text, span, r"pt_tau\(r\)", "(pt_tau(r) / 1.01f)")
+
+
+def _shadow_sigma_bias(text: str) -> str:
+    # The same 1% written into the ratio instead: 1 - 1.01 sigma / sigma_maj. Where the
+    # majorant equals sigma (a homogeneous box) the ratio is clamped at 0 either way and the
+    # bias vanishes; elsewhere E[T] = exp(-1.01 int sigma_t) as long as 1.01 sigma <= sigma_maj.
+    span = function_span(text, r"^float pt_transmittance\(", r"^\}")
+    return replace_once(text, span, r"1\.0f\s*-\s*pt_sigma\(", "1.0f - 1.01f * pt_sigma(")
+
+
+PATCHES = {"mirrored-frame": _mirrored_frame, "lattice-corners": _lattice_corners,
+           "shadow-bias": _shadow_rate_bias, "shadow-bias-ratio": _shadow_sigma_bias}
+BUGS = [
+    Bug("mirrored-frame", "clvol/phasetable.py",
+        "phase feature's view term with the camera reflected across the light axis"),
+    Bug("lattice-corners", "clvol/raymarch.py",
+        "F_ms lattice points at cell corners instead of cell centres (ms_lattice)"),
+    Bug("shadow-bias", "cl/pathtrace.cl",
+        "1% extinction bias on shadow rays (tentative collisions at 1.01 x the majorant rate)"),
+    Bug("shadow-bias-ratio", "cl/pathtrace.cl",
+        "1% extinction bias on shadow rays written into the ratio (1 - 1.01 sigma/sigma_maj)"),
+]
+
+
+def make_copy(dest: Path) -> Path:
+    ignore = shutil.ignore_patterns(".git", "__pycache__", ".pytest_cache", "*.pyc", "_cl")
+    shutil.copytree(ROOT, dest, ignore=ignore, symlinks=True)
+    (dest / "clvol" / "_cl").symlink_to(Path("..") / "cl")
+    # The copy's package and kernels must be the ones imported there.
+    probe = subprocess.run(
+        [sys.executable, "-c",
+         "import clvol, importlib.resources as r; print(clvol.__file__); "
+         "print(r.files('clvol._cl') / 'pathtrace.cl')"],
+        cwd=dest, capture_output=True, text=True, check=True)
+    pkg, kern = (Path(x).resolve() for x in probe.stdout.split())
+    for p in (pkg, kern):
+        if dest.resolve() not in p.parents:
+            raise RuntimeError(f"the copy imports {p}, outside {dest}: the planted bug would not run")
+    return dest
+
+
+def run_tests(root: Path, tests: list[str]) -> tuple[dict, dict, float]:
+    xml = root / "plant-report.xml"
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                    f"--junitxml={xml}", *tests], cwd=root, capture_output=True, text=True)
+    seconds = time.perf_counter() - t0
+    results, why = {}, {}
+    for case in ET.parse(xml).getroot().iter("testcase"):
+        name = f"{case.get('classname', '').split('.')[-1]}::{case.get('name')}"
+        bad = case.find("failure")
+        bad = bad if bad is not None else case.find("error")
+        if bad is not None:
+            results[name] = "FAIL"
+            why[name] = " ".join((bad.get("message") or "").split())[:160]
+        elif case.find("skipped") is not None:
+            results[name] = "skip"
+        else:
+            results[name] = "pass"
+    return results, why, seconds
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--bugs", nargs="*", default=[b.name for b in BUGS],
+                    choices=[b.name for b in BUGS])
+    ap.add_argument("--tests", nargs="*", default=DEFAULT_TESTS)
+    ap.add_argument("--no-baseline", action="store_true", help="skip the unpatched run")
+    ap.add_argument("--keep", action="store_true", help="keep the scratch copies")
+    args = ap.parse_args(argv)
+
+    runs = ([] if args.no_baseline else [None]) + [b for b in BUGS if b.name in args.bugs]
+    table = {}
+    scratch = Path(tempfile.mkdtemp(prefix="clvol-plant-"))
+    try:
+        for bug in runs:
+            label = bug.name if bug else "baseline"
+            root = make_copy(scratch / label)
+            if bug:
+                bug.apply(root)
+            results, why, seconds = run_tests(root, args.tests)
+            table[label] = results
+            failed = [k for k, v in results.items() if v == "FAIL"]
+            print(f"{label:18s} {seconds:6.1f} s  {len(failed)}/{len(results)} tests fail"
+                  + (f"  ({bug.what})" if bug else ""), flush=True)
+            for k in failed:
+                print(f"{'':20s}FAIL {k}\n{'':25s}{why[k]}")
+    finally:
+        if args.keep:
+            print(f"scratch copies kept in {scratch}")
+        else:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+    names = sorted({k for r in table.values() for k in r})
+    print()
+    print("| test | " + " | ".join(table) + " |")
+    print("|---|" + "---|" * len(table))
+    for n in names:
+        print(f"| {n} | " + " | ".join(table[c].get(n, "-") for c in table) + " |")
+    ok = True
+    if "baseline" in table and any(v != "pass" for v in table["baseline"].values()):
+        print("\nbaseline (no bug) does not pass: the results above mean nothing", file=sys.stderr)
+        ok = False
+    for bug in runs:
+        if bug and not any(v == "FAIL" for v in table[bug.name].values()):
+            print(f"\n{bug.name}: no test failed", file=sys.stderr)
+            ok = False
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
