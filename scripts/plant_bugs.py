@@ -89,19 +89,32 @@ def _lattice_corners(text: str) -> str:
                         r"np.arange(\1)")
 
 
+def _exactly_once(text: str, pattern: str, repl: str) -> str:
+    new, n = re.subn(pattern, repl, text)
+    if n != 1:
+        raise PatchError(f"expected exactly one match of {pattern!r}, found {n}")
+    return new
+
+
 def _shadow_rate_bias(text: str) -> str:
     # Ratio tracking toward the sun with tentative collisions at 1.01 x the majorant rate and
-    # the ratios unchanged: E[T] = exp(-1.01 int sigma_t), a 1% extinction bias.
-    span = function_span(text, r"^float pt_transmittance\(", r"^\}")
-    return replace_once(text, span, r"pt_tau\(r\)", "(pt_tau(r) / 1.01f)")
+    # the ratios unchanged: E[T] = exp(-1.01 int sigma_t), a 1% extinction bias. The lane
+    # kernel draws a lane's optical depth to its next tentative collision in two places (ray
+    # start, after a rejected collision); shadow lanes get tau / 1.01 in both.
+    text = _exactly_once(
+        text, r"vf tau = -log\(1\.0f - pt_lanes_take\(S, ok\)\);",
+        "vf tau = -log(1.0f - pt_lanes_take(S, ok)) / select((vf)(1.0f), (vf)(1.01f), shadow);")
+    return _exactly_once(
+        text, r"tau = select\(tau, -log\(1\.0f - pt_lanes_take\(&S, more\)\), more\);",
+        "tau = select(tau, -log(1.0f - pt_lanes_take(&S, more)) / "
+        "select((vf)(1.0f), (vf)(1.01f), shadow), more);")
 
 
 def _shadow_sigma_bias(text: str) -> str:
     # The same 1% written into the ratio instead: 1 - 1.01 sigma / sigma_maj. Where the
     # majorant equals sigma (a homogeneous box) the ratio is clamped at 0 either way and the
     # bias vanishes; elsewhere E[T] = exp(-1.01 int sigma_t) as long as 1.01 sigma <= sigma_maj.
-    span = function_span(text, r"^float pt_transmittance\(", r"^\}")
-    return replace_once(text, span, r"1\.0f\s*-\s*pt_sigma\(", "1.0f - 1.01f * pt_sigma(")
+    return _exactly_once(text, r"1\.0f - sigma / sm\)", "1.0f - 1.01f * sigma / sm)")
 
 
 PATCHES = {"mirrored-frame": _mirrored_frame, "lattice-corners": _lattice_corners,
@@ -109,7 +122,7 @@ PATCHES = {"mirrored-frame": _mirrored_frame, "lattice-corners": _lattice_corner
 BUGS = [
     Bug("mirrored-frame", "clvol/phasetable.py",
         "phase feature's view term with the camera reflected across the light axis"),
-    Bug("lattice-corners", "clvol/raymarch.py",
+    Bug("lattice-corners", "clvol/render/sources.py",
         "F_ms lattice points at cell corners instead of cell centres (ms_lattice)"),
     Bug("shadow-bias", "cl/pathtrace.cl",
         "1% extinction bias on shadow rays (tentative collisions at 1.01 x the majorant rate)"),
