@@ -220,7 +220,7 @@ class RunConfig:
     weight_decay: float = 0.0
     seed: int = 0
     floor: float = 0.05
-    holdout_volumes: tuple = (1,)     # whole volumes never seen in training (+ the first solid)
+    holdout_volumes: tuple = ()       # extra whole volumes never trained on (split_shards)
     holdout_config: int = -1          # this configuration index of every volume is held out too
     eval_every: int = 500
     checkpoint_every: int = 250
@@ -233,15 +233,22 @@ class RunConfig:
 
 
 def split_shards(shards, cfg: RunConfig):
-    """(train shards, held-out shards): held out are all configurations of the volumes in
-    ``cfg.holdout_volumes`` and of the first solid volume (if the data set has solids), and
-    configuration ``cfg.holdout_config`` (negative: from the end) of every other volume. Held-out
-    points therefore come from volumes or light/view/phase/albedo draws training never saw."""
+    """(train shards, held-out shards). Held out are all configurations of the held-out volumes
+    and configuration ``cfg.holdout_config`` (negative: from the end) of every other volume, so
+    held-out points come from volumes or light/view/phase/albedo draws training never saw.
+
+    Held-out volumes: those of ``cfg.holdout_volumes``, plus, for a version-2 data set, its
+    held-out stream (``n_heldout_volumes``, generator seeds training never sees), or, for a
+    version-1 one, volume 1 (when no others are named) and the first solid."""
     spec = shards[0].meta["spec"]
     n_cfg = spec["configs_per_volume"]
     hv = set(int(v) for v in cfg.holdout_volumes)
-    if spec["n_solids"] > 0:
-        hv.add(spec["n_volumes"] - spec["n_solids"])
+    if "n_heldout_volumes" in spec:
+        hv |= set(range(spec["n_volumes"] - spec["n_heldout_volumes"], spec["n_volumes"]))
+    else:   # version 1: volume 1 (a cloud) unless others are named, and the first solid
+        hv |= set() if cfg.holdout_volumes else {1}
+        if spec.get("n_solids", 0) > 0:
+            hv.add(spec["n_volumes"] - spec["n_solids"])
     hc = cfg.holdout_config % n_cfg
     held = [s for s in shards if s.volume in hv or s.config_index == hc]
     train = [s for s in shards if not (s.volume in hv or s.config_index == hc)]

@@ -94,7 +94,8 @@ def main(argv=None) -> int:
         contract = gather_contract(spec["base_resolution"], spec["lam"])
         notes = {k: report[k] for k in ("spec", "run", "samples", "step", "held_out_mean_predictor",
                                          "held_out_label_noise", "final")}
-        trainer.model.export(args.export, contract, training=notes)
+        from clvol.dataset import dataset_domain
+        trainer.model.export(args.export, contract, training=notes, domain=dataset_domain(spec))
         print(f"exported {args.export}")
     return 0
 
