@@ -20,6 +20,7 @@ labels (``encode_labels``):
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -303,12 +304,18 @@ class Trainer:
     def state_dict(self) -> dict:
         return {"model": self.model.state_dict(), "opt": self.opt.state_dict(),
                 "sched": self.sched.state_dict(), "gen": self.gen.get_state(), "step": self.step,
-                "history": self.history, "config": self.cfg.to_dict()}
+                "history": self.history, "config": self.cfg.to_dict(),
+                "architecture": self.model.arch.to_dict()}
 
     def load_state_dict(self, st: dict) -> None:
         if st["config"] != self.cfg.to_dict():
             diff = sorted(k for k in st["config"] if st["config"][k] != self.cfg.to_dict().get(k))
             raise ValueError(f"checkpoint was made with other run settings ({diff}); use the same "
+                             f"settings or another output folder")
+        have = st.get("architecture", self.model.arch.to_dict())   # older checkpoints: not recorded
+        if have != self.model.arch.to_dict():
+            diff = sorted(k for k in have if have[k] != self.model.arch.to_dict().get(k))
+            raise ValueError(f"checkpoint was made with another architecture ({diff}); use the same "
                              f"settings or another output folder")
         self.model.load_state_dict(st["model"])
         self.opt.load_state_dict(st["opt"])
@@ -323,6 +330,8 @@ class Trainer:
         until = min(int(until), self.cfg.steps)
         n = len(self.train)
         window = []
+        t0 = time.perf_counter()
+        done_before = self.history["eval"][-1].get("seconds", 0.0) if self.history["eval"] else 0.0
         while self.step < until:
             self.model.train()
             idx = torch.randint(0, n, (min(self.cfg.batch, n),), generator=self.gen).numpy()
@@ -336,7 +345,9 @@ class Trainer:
             window.append(float(loss.detach()))
             last = self.step == until
             if self.cfg.eval_every and (self.step % self.cfg.eval_every == 0 or last):
-                row = {"step": self.step, "train": float(np.mean(window))}
+                row = {"step": self.step, "train": float(np.mean(window)),
+                       # wall seconds of training so far, over resumed sessions too
+                       "seconds": round(done_before + time.perf_counter() - t0, 1)}
                 window = []
                 if held is not None:
                     row["held_out"] = evaluate(self.model, held)
