@@ -3,7 +3,7 @@
 configurations, path-traced F_>=2 labels, train-mode gather features (clvol/dataset.py).
 
     python scripts/make_dataset.py runs/data [--seed 0] [--volumes 30] [--heldout 10]
-        [--configs 8] [--points 256] [--paths 256] [--resolution 32,128] [--base 64]
+        [--configs 8] [--points 128] [--paths 128] [--resolution 32,128] [--base 64]
         [--optical-thickness 1,1000] [--albedo 0.3,0.999] [--g -0.9,0.99] [--max-lobes 3]
         [--families cumulus,flat_cumulus,...]
 
