@@ -198,4 +198,4 @@ def test_shipped_domain_model_matches_this_gather_and_records_its_domain():
     assert tuple(sorted(w.meta["domain"])) == tuple(sorted(DOMAIN_KEYS))
     assert weights_domain(w.meta) == {"albedo": [0.3, 0.999], "g": [-0.9, 0.99], "max_lobes": 3,
                                       "optical_thickness": [1.0, 1000.0], "resolution": [32, 128]}
-    assert w.meta["training"]["step"] == 5000
+    assert w.meta["training"]["step"] == 12000
