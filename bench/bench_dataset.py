@@ -43,8 +43,9 @@ def main(argv=None) -> int:
     ap.add_argument("--points", type=int, default=128)
     ap.add_argument("--paths", type=int, default=128)
     args = ap.parse_args(argv)
-    spec_args = ["--seed", "0", "--volumes", str(args.volumes), "--solids", "1",
-                 "--configs", str(args.configs), "--resolution", str(args.resolution),
+    spec_args = ["--seed", "0", "--volumes", str(args.volumes), "--heldout", "0",
+                 "--configs", str(args.configs),
+                 "--resolution", f"{args.resolution},{args.resolution}",
                  "--base", str(args.base), "--points", str(args.points), "--paths", str(args.paths)]
     n_shards = args.volumes * args.configs
     print(_common.machine())

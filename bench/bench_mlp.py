@@ -2,6 +2,8 @@
 
     python bench/bench_mlp.py            # batches 4,096 and 262,144
     python bench/bench_mlp.py --quick    # batches 4,096 and 32,768
+    python bench/bench_mlp.py --sizes A.npz,B.npz,...   # OpenCL cost of several weight files'
+                                                        # networks, side by side (model-size sweep)
 
 Evaluations/s = queries x channels evaluated per second. OpenCL is timed on device buffers
 (the render path: the gather's buffers in, a device buffer out; no host copies), torch
@@ -58,7 +60,12 @@ def main(argv=None) -> int:
                     help="repeats per batch (default: 3, more for small batches: at least "
                          "~2 s of OpenCL time, at most 25)")
     ap.add_argument("--device", default=None)
+    ap.add_argument("--sizes", default=None, metavar="W1.npz,W2.npz,...",
+                    help="only time the OpenCL forward of these weight files' networks, "
+                         "alternating within each repeat (a 32^3 lattice, grey and RGB)")
     args = ap.parse_args(argv)
+    if args.sizes:
+        return compare_sizes(args.sizes.split(","), args.device, args.repeats or 15)
     batches = (4096, 32768) if args.quick else (4096, 262144)
 
     import torch
@@ -132,6 +139,42 @@ def main(argv=None) -> int:
     worst = min(r[5] for r in rows)
     print(f"lowest ratio (vs the faster torch) {worst:.1f}x, target {TARGET_RATIO:.0f}x: "
           f"{'met' if worst >= TARGET_RATIO else 'NOT met'}")
+    return 0
+
+
+def compare_sizes(paths, device, repeats: int) -> int:
+    """Median OpenCL forward time of each weight file's network on one 32^3 lattice of inputs
+    (what one --ms network lattice fill evaluates), the files alternating within each repeat."""
+    from clvol.export import load_weights
+    rt = get_runtime(device)
+    nets = [(p, load_weights(p)) for p in paths]
+    n = 32 ** 3
+    f, c = make_inputs(n, np.random.default_rng(1))
+    fb, cb = rt.to_device(f), rt.to_device(c)
+    print("bench_mlp --sizes: OpenCL forward of a 32^3 lattice (32,768 queries), medians")
+    print(f"machine : {machine(rt)}")
+    print(f"protocol: {repeats} repeats, files alternating; load average before {os.getloadavg()[0]:.2f}")
+    print(f"{'weights':40s} {'params':>8} {'MACs/eval':>10} {'grey ms':>8} {'rgb ms':>8} {'grey evals/cpu-s':>17}")
+    kernels = [(p, w, MlpKernel(w, runtime=rt)) for p, w in nets]
+    times = {(p, m): [] for p, _ in nets for m in ("grey", "rgb")}
+    cpu = {p: [] for p, _ in nets}
+    outs = {1: rt.empty((n, 1)), 3: rt.empty((n, 3))}
+    for _, _, k in kernels:                                  # build + warm-up
+        k.enqueue(fb, cb, n, outs[1], None).wait()
+        k.enqueue(fb, cb, n, outs[3], (0.92, 0.99, 0.94)).wait()
+    for _ in range(repeats):
+        for p, _, k in kernels:
+            for mode, alb, ch in (("grey", None, 1), ("rgb", (0.92, 0.99, 0.94), 3)):
+                c0, t0 = cpu_seconds(), time.perf_counter()
+                k.enqueue(fb, cb, n, outs[ch], alb).wait()
+                times[(p, mode)].append(time.perf_counter() - t0)
+                if mode == "grey":
+                    cpu[p].append(cpu_seconds() - c0)
+    for p, w in nets:
+        print(f"{Path(p).name[-40:]:40s} {w.arch.n_params():>8} {w.arch.n_macs()['total']:>10} "
+              f"{np.median(times[(p, 'grey')]) * 1e3:>8.1f} {np.median(times[(p, 'rgb')]) * 1e3:>8.1f} "
+              f"{n / max(np.median(cpu[p]), 1e-9):>17,.0f}")
+    print(f"load average after {os.getloadavg()[0]:.2f} (2 cores; figures measured under that load)")
     return 0
 
 

@@ -163,9 +163,15 @@ def _cmd_dataset_make(args) -> int:
     from .distributed import generate
     if args.workers is not None and args.workers < 1:
         raise ClvolError(f"--workers {args.workers}: must be >= 1")
-    spec = DatasetSpec(seed=args.seed, n_volumes=args.volumes, n_solids=args.solids,
+    spec = DatasetSpec(seed=args.seed, n_volumes=args.volumes, n_heldout_volumes=args.heldout,
                        configs_per_volume=args.configs, points_per_config=args.points,
-                       n_paths=args.paths, resolution=args.resolution, base_resolution=args.base)
+                       n_paths=args.paths,
+                       resolution=_parse_pair("--resolution", args.resolution, int),
+                       base_resolution=args.base,
+                       optical_thickness=_parse_pair("--optical-thickness", args.optical_thickness),
+                       albedo=_parse_pair("--albedo", args.albedo), g=_parse_pair("--g", args.g),
+                       max_lobes=args.max_lobes,
+                       families=tuple(f for f in args.families.split(",") if f))
     t0 = time.perf_counter()
     r = generate(spec, args.out, address=args.address, serial=args.serial, workers=args.workers,
                  progress=not args.no_progress)
@@ -176,19 +182,39 @@ def _cmd_dataset_make(args) -> int:
     return 0
 
 
+def _pair(r) -> str:
+    return ",".join(str(x) for x in r)
+
+
+def _parse_pair(name: str, text: str, kind=float) -> tuple:
+    try:
+        lo, hi = (kind(x) for x in text.split(","))
+    except ValueError:
+        raise ClvolError(f"{name} {text!r}: expected two numbers low,high") from None
+    return (lo, hi)
+
+
 def add_dataset_make_arguments(p: argparse.ArgumentParser) -> None:
     """Options of `clvol dataset make` (also scripts/make_dataset.py)."""
     from .dataset import DatasetSpec
     d = DatasetSpec()
     p.add_argument("out", help="data set folder (e.g. runs/data; runs/ is ignored by git)")
     p.add_argument("--seed", type=int, default=d.seed)
-    p.add_argument("--volumes", type=int, default=d.n_volumes)
-    p.add_argument("--solids", type=int, default=d.n_solids)
+    p.add_argument("--volumes", type=int, default=d.n_volumes,
+                   help="every volume; the last --heldout come from a separate random stream")
+    p.add_argument("--heldout", type=int, default=d.n_heldout_volumes,
+                   help="volumes held out of training by construction")
     p.add_argument("--configs", type=int, default=d.configs_per_volume, help="per volume")
     p.add_argument("--points", type=int, default=d.points_per_config, help="labels per shard")
     p.add_argument("--paths", type=int, default=d.n_paths, help="paths per label")
-    p.add_argument("--resolution", type=int, default=d.resolution)
+    p.add_argument("--resolution", default=_pair(d.resolution), help="low,high voxels per side")
     p.add_argument("--base", type=int, default=d.base_resolution, help="pyramid base resolution")
+    p.add_argument("--optical-thickness", default=_pair(d.optical_thickness), help="low,high")
+    p.add_argument("--albedo", default=_pair(d.albedo), help="low,high per channel")
+    p.add_argument("--g", default=_pair(d.g), help="low,high HG g of every lobe")
+    p.add_argument("--max-lobes", type=int, default=d.max_lobes)
+    p.add_argument("--families", default=",".join(d.families),
+                   help="volume families, cycled through (docs/neural.md)")
     g = p.add_argument_group("where it runs (default: a local Ray on all cores, if installed)")
     g.add_argument("--address", metavar="auto|HOST:PORT|ray://HOST:PORT",
                    help="join a running Ray cluster instead of starting a local one")

@@ -1,13 +1,13 @@
 """Training data for the network: procedural volumes, random configurations, path-traced labels.
 
-    spec = DatasetSpec(seed=0, n_volumes=10, configs_per_volume=12)
+    spec = DatasetSpec(seed=0, n_volumes=40, n_heldout_volumes=10, configs_per_volume=8)
     make_dataset(spec, "runs/data")          # resumable: finished shards are skipped
     shards = load_shards("runs/data")        # list of Shard (arrays + meta)
 
 A data set is a folder of shards, one per (volume v, configuration c), named
 ``shard_{v:03d}_{c:03d}.npz``, plus ``spec.json`` (the ``DatasetSpec`` that made it). A shard
 holds, for ``points_per_config`` query points of one volume under one configuration (sun
-direction, camera position, phase, albedo, density scale):
+direction, camera position, phase, albedo, optical thickness -> density scale):
 
     points   float32 [n][3]        world positions (density-weighted inside the medium + uniform)
     omegas   float32 [n][3]        unit, toward the configuration's camera (as the renderer's lattice)
@@ -45,15 +45,21 @@ from .atomic import atomic_open
 from .errors import ClvolError
 
 DATASET_FORMAT = "clvol-dataset"
-DATASET_VERSION = 1
+# Version 2: the whole material domain (volume families, resolutions, optical thickness, g < 0,
+# low albedo, held-out volume stream). Version-1 shards (the cloud_small data) still load for
+# training and evaluation (same arrays); only version-2 specs are made.
+DATASET_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 SPEC_FILE = "spec.json"
 META_KEY = "__meta__"
 ARRAYS = ("points", "omegas", "features", "levels", "config", "Fms", "Fms_se", "F1")
 
-# Phase choices for clouds: the MRPNN test protocol's g values plus a uniform draw.
-CLOUD_G = (0.857, 0.5, 0.0)
-# Albedos of the MRPNN protocol ((1,1,1) taken as the cloud preset's 0.999) plus grey draws.
-PROTOCOL_ALBEDOS = ((0.999, 0.999, 0.999), (0.96, 0.98, 1.0), (0.8, 0.9, 1.0))
+# Volume families, each a generator with a random parameter draw (``volume_params``). Volumes
+# cycle through ``spec.families`` so every family is equally represented, held-out ones too.
+FAMILIES = ("cumulus", "flat_cumulus", "stratus", "plume", "noise",
+            "sphere", "blob", "torus", "box", "union")
+SOLID_FAMILIES = ("sphere", "blob", "torus", "box", "union")
+RESOLUTIONS = (32, 48, 64, 96, 128)
 
 
 class DatasetError(ClvolError):
@@ -62,31 +68,49 @@ class DatasetError(ClvolError):
 
 @dataclass(frozen=True)
 class DatasetSpec:
-    """Everything that determines a data set. Volumes 0..n_volumes-n_solids-1 are clouds
-    (generator "cloud", random shape parameters), the last ``n_solids`` are solids (blob or
-    sphere, 1-3 HG lobes, chromatic albedo)."""
+    """Everything that determines a data set.
+
+    Volumes 0..n_volumes-1; the last ``n_heldout_volumes`` are drawn from a separate random
+    stream (their generator seeds and configurations never come from the training volumes'
+    stream), so a held-out volume is one training never sees by construction. Volume v is of
+    family ``families[i % len(families)]`` with i its index within its part (training or
+    held out)."""
     seed: int = 0
-    n_volumes: int = 12
-    n_solids: int = 2
-    resolution: int = 48             # voxels per side of the generated volumes
-    base_resolution: int = 64        # pyramid base of the gather (goes into the weight contract)
+    n_volumes: int = 30
+    n_heldout_volumes: int = 10
+    families: tuple = FAMILIES
+    resolution: tuple = (32, 128)       # voxels per side, drawn per volume from RESOLUTIONS in range
+    base_resolution: int = 64           # pyramid base of the gather (goes into the weight contract)
     lam: float = layout.DEFAULT_LAMBDA
-    configs_per_volume: int = 14
-    points_per_config: int = 256
-    uniform_fraction: float = 0.2    # of the points drawn uniformly in the box (rest by density)
-    n_paths: int = 384               # paths per point query (label standard error ~1/sqrt)
-    cloud_density_scale: tuple = (16.0, 96.0)   # log-uniform; unit box, density peak ~1
-    solid_density_scale: tuple = (20.0, 200.0)
+    configs_per_volume: int = 8
+    # From the measured curve (docs/neural.md, "Labels by measurement"): at equal cost more
+    # labels per configuration beat more paths per label; paths stay at 128 because the curve's
+    # fewer-path cells are emulated with Gaussian noise, which cannot show the low bias of
+    # skewed few-path labels (docs/neural.md).
+    points_per_config: int = 128
+    uniform_fraction: float = 0.2       # of the points drawn uniformly in the box (rest by density)
+    n_paths: int = 128                  # paths per point query (label standard error ~1/sqrt)
+    optical_thickness: tuple = (1.0, 1000.0)   # log-uniform target (``unit_optical_thickness``)
+    albedo: tuple = (0.3, 0.999)        # per channel
+    g: tuple = (-0.9, 0.99)             # HG g of every lobe
+    max_lobes: int = 3
 
     def __post_init__(self):
         def bad(name, value, allowed):
             return DatasetError(f"dataset spec [{name}] = {value!r}: {allowed}")
-        for name in ("n_volumes", "resolution", "configs_per_volume", "points_per_config", "n_paths"):
+        for name in ("n_volumes", "configs_per_volume", "points_per_config", "n_paths", "max_lobes"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise bad(name, v, "must be an integer >= 1")
-        if not (isinstance(self.n_solids, int) and 0 <= self.n_solids <= self.n_volumes):
-            raise bad("n_solids", self.n_solids, f"must be an integer in [0, n_volumes={self.n_volumes}]")
+        if not (isinstance(self.n_heldout_volumes, int) and 0 <= self.n_heldout_volumes < self.n_volumes):
+            raise bad("n_heldout_volumes", self.n_heldout_volumes,
+                      f"must be an integer in [0, n_volumes - 1 = {self.n_volumes - 1}]")
+        if self.max_lobes > 3:
+            raise bad("max_lobes", self.max_lobes, "must be 1, 2 or 3 (the config has 3 lobe slots)")
+        fam = tuple(self.families)
+        if not fam or any(f not in FAMILIES for f in fam):
+            raise bad("families", fam, f"must be a non-empty list of {list(FAMILIES)}")
+        object.__setattr__(self, "families", fam)
         b = self.base_resolution
         if not (isinstance(b, int) and 2 <= b <= 512 and b & (b - 1) == 0):
             raise bad("base_resolution", b, "must be a power of two from 2 to 512")
@@ -94,15 +118,24 @@ class DatasetSpec:
             raise bad("uniform_fraction", self.uniform_fraction, "must be in [0, 1]")
         if not 0.0 < self.lam <= 1.0:
             raise bad("lam", self.lam, "must be in (0, 1]")
-        for name in ("cloud_density_scale", "solid_density_scale"):
-            lo, hi = getattr(self, name)
-            if not (0 < lo <= hi and math.isfinite(hi)):
-                raise bad(name, (lo, hi), "must be (low, high) with 0 < low <= high")
+        ranges = {"resolution": (4, 512), "optical_thickness": (1e-3, 1e5), "albedo": (1e-3, 1.0),
+                  "g": (-0.99, 0.99)}
+        for name, (lo_ok, hi_ok) in ranges.items():
+            r = getattr(self, name)
+            if isinstance(r, (int, float)) and name == "resolution":
+                r = (int(r), int(r))       # one fixed resolution
+            try:
+                lo, hi = (float(x) for x in r)
+            except (TypeError, ValueError):
+                raise bad(name, r, "must be (low, high)") from None
+            if not (lo_ok <= lo <= hi <= hi_ok):
+                raise bad(name, r, f"must be (low, high) with {lo_ok} <= low <= high <= {hi_ok}")
+            object.__setattr__(self, name, tuple(int(x) if name == "resolution" else float(x) for x in r))
 
     def to_dict(self) -> dict:
         d = asdict(self)
-        d.update(cloud_density_scale=list(self.cloud_density_scale),
-                 solid_density_scale=list(self.solid_density_scale))
+        for k in ("families", "resolution", "optical_thickness", "albedo", "g"):
+            d[k] = list(getattr(self, k))
         return d
 
     @classmethod
@@ -110,19 +143,39 @@ class DatasetSpec:
         names = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - names)
         if unknown:
-            raise DatasetError(f"dataset spec: unknown field(s) {unknown}; allowed: {sorted(names)}")
-        d = dict(d)
-        for k in ("cloud_density_scale", "solid_density_scale"):
-            if k in d:
-                d[k] = tuple(d[k])
-        return cls(**d)
+            raise DatasetError(f"dataset spec: unknown field(s) {unknown}; allowed: {sorted(names)} "
+                               f"(a version-1 spec? its shards still load, but it cannot be remade)")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
     @property
     def n_shards(self) -> int:
         return self.n_volumes * self.configs_per_volume
 
+    @property
+    def n_train_volumes(self) -> int:
+        return self.n_volumes - self.n_heldout_volumes
+
+    def is_heldout(self, v: int) -> bool:
+        return v >= self.n_train_volumes
+
+    def family(self, v: int) -> str:
+        i = v - self.n_train_volumes if self.is_heldout(v) else v
+        return self.families[i % len(self.families)]
+
     def is_solid(self, v: int) -> bool:
-        return v >= self.n_volumes - self.n_solids
+        return self.family(v) in SOLID_FAMILIES
+
+
+def dataset_domain(spec: dict) -> dict | None:
+    """The validity domain a model trained on this data set has (clvol.export's ``domain``), from
+    a spec dict (``DatasetSpec.to_dict()`` or a shard's meta["spec"]); None for a version-1 spec
+    (clvol.export.DEFAULT_DOMAIN describes that data)."""
+    if "optical_thickness" not in spec:
+        return None
+    return {"albedo": [float(x) for x in spec["albedo"]], "g": [float(x) for x in spec["g"]],
+            "max_lobes": int(spec["max_lobes"]),
+            "optical_thickness": [float(x) for x in spec["optical_thickness"]],
+            "resolution": [int(x) for x in spec["resolution"]]}
 
 
 def shard_name(v: int, c: int) -> str:
@@ -135,84 +188,153 @@ def _rng(spec: DatasetSpec, *key) -> np.random.Generator:
     return np.random.default_rng([spec.seed, *key])
 
 
+def _vkey(spec: DatasetSpec, v: int) -> tuple:
+    """Random-stream key of volume v: held-out volumes use their own purpose numbers (100+), so
+    no generator seed, shape or configuration of theirs can coincide with a training volume's."""
+    return (100, v - spec.n_train_volumes) if spec.is_heldout(v) else (0, v)
+
+
 def _unit(rng) -> np.ndarray:
     v = rng.normal(size=3)
     return v / np.linalg.norm(v)
 
 
+def _u(rng, lo, hi, nd=4) -> float:
+    return round(float(rng.uniform(lo, hi)), nd)
+
+
 def volume_params(spec: DatasetSpec, v: int) -> dict:
-    """The generator call for volume v: {"generator", "seed", "params"}."""
-    rng = _rng(spec, 1, v)
+    """The generator call for volume v: {"family", "generator", "seed", "resolution", "params"}."""
+    base, idx = _vkey(spec, v)
+    rng = _rng(spec, base + 1, idx)
     gseed = int(rng.integers(0, 2**31 - 1))
-    if not spec.is_solid(v):
-        return {"generator": "cloud", "seed": gseed, "params": {
-            "coverage": round(float(rng.uniform(0.35, 0.75)), 4),
-            "scale": round(float(rng.uniform(0.15, 0.4)), 4),
-            "worley": round(float(rng.uniform(0.3, 0.8)), 4),
-            "detail": round(float(rng.uniform(0.1, 0.5)), 4)}}
-    if rng.uniform() < 0.5:
-        return {"generator": "blob", "seed": gseed, "params": {
-            "count": int(rng.integers(3, 9)), "radius": round(float(rng.uniform(0.1, 0.16)), 4)}}
-    return {"generator": "sphere", "seed": gseed, "params": {
-        "radius": round(float(rng.uniform(0.25, 0.42)), 4)}}
+    res = [r for r in RESOLUTIONS if spec.resolution[0] <= r <= spec.resolution[1]] or [spec.resolution[0]]
+    resolution = int(res[int(rng.integers(len(res)))])
+    fam = spec.family(v)
+    if fam == "cumulus":          # billowy towers
+        gen, prm = "cloud", {"coverage": _u(rng, 0.45, 0.75), "scale": _u(rng, 0.18, 0.4),
+                             "worley": _u(rng, 0.6, 0.95), "detail": _u(rng, 0.1, 0.45),
+                             "base": _u(rng, 0.05, 0.25), "top": _u(rng, 0.75, 1.0),
+                             "width": _u(rng, 0.55, 0.9)}
+    elif fam == "flat_cumulus":   # wide, flat-based, shallow
+        base_h = _u(rng, 0.25, 0.45)
+        gen, prm = "cloud", {"coverage": _u(rng, 0.4, 0.65), "scale": _u(rng, 0.12, 0.3),
+                             "worley": _u(rng, 0.2, 0.6), "detail": _u(rng, 0.1, 0.5),
+                             "base": base_h, "top": round(min(base_h + rng.uniform(0.2, 0.45), 1.0), 4),
+                             "width": _u(rng, 0.75, 1.0)}
+    elif fam == "stratus":
+        gen, prm = "stratus", {"layers": int(rng.integers(1, 4)), "thickness": _u(rng, 0.06, 0.3),
+                               "coverage": _u(rng, 0.4, 0.85), "scale": _u(rng, 0.08, 0.3),
+                               "detail": _u(rng, 0.0, 0.5)}
+    elif fam == "plume":          # wispy smoke
+        gen, prm = "smoke", {"radius": _u(rng, 0.03, 0.1), "spread": _u(rng, 0.15, 0.6),
+                             "turbulence": _u(rng, 0.5, 1.5), "scale": _u(rng, 0.1, 0.35),
+                             "fade": _u(rng, 0.5, 2.0), "drift": _u(rng, -0.5, 0.5)}
+    elif fam == "noise":
+        gen, prm = "noise", {"scale": _u(rng, 0.1, 0.5), "gain": _u(rng, 0.35, 0.65),
+                             "coverage": _u(rng, 0.1, 0.6), "softness": _u(rng, 0.2, 2.0)}
+    elif fam == "sphere":
+        gen, prm = "sphere", {"radius": _u(rng, 0.2, 0.45), "edge": _u(rng, 0.25, 1.5)}
+    elif fam == "blob":
+        gen, prm = "blob", {"count": int(rng.integers(3, 11)), "radius": _u(rng, 0.08, 0.16),
+                            "wobble": _u(rng, 0.0, 0.05), "edge": _u(rng, 0.25, 1.5)}
+    elif fam == "torus":
+        minor = _u(rng, 0.05, 0.15)
+        gen, prm = "torus", {"major": round(minor + rng.uniform(0.08, 0.3 - minor + 0.08), 4),
+                             "minor": minor, "edge": _u(rng, 0.25, 1.5)}
+    elif fam == "box":
+        w, h, d = (_u(rng, 0.3, 0.8) for _ in range(3))
+        gen, prm = "box", {"width": w, "height": h, "depth": d,
+                           "rounding": round(0.5 * min(w, h, d) * rng.uniform(0.0, 0.8), 4),
+                           "edge": _u(rng, 0.25, 1.5)}
+    else:                         # union
+        gen, prm = "union", {"count": int(rng.integers(2, 7)), "size": _u(rng, 0.1, 0.22),
+                             "blend": _u(rng, 0.0, 0.06) if rng.uniform() < 0.5 else 0.0,
+                             "edge": _u(rng, 0.25, 1.5)}
+    return {"family": fam, "generator": gen, "seed": gseed, "resolution": resolution, "params": prm}
 
 
 def make_volume(spec: DatasetSpec, v: int):
     from .volume.generators import generate
     p = volume_params(spec, v)
-    return generate(p["generator"], seed=p["seed"], resolution=spec.resolution, **p["params"])
+    return generate(p["generator"], seed=p["seed"], resolution=p["resolution"], **p["params"])
 
 
-def _q(g: float) -> float:
-    return round(float(g) * 10) / 10
+def unit_optical_thickness(grid) -> float:
+    """Optical thickness of the volume at density_scale 1: the mean, over the three axes, of the
+    column integrals of density (world units) over the columns that hold any density. A data
+    set draws a target optical thickness and sets density_scale = target / this."""
+    d = grid.density.astype(np.float64)
+    cs = np.asarray(grid.cell_size, np.float64)      # (x, y, z); density is [z][y][x]
+    out = []
+    for axis, h in ((2, cs[0]), (1, cs[1]), (0, cs[2])):
+        col = d.sum(axis=axis) * h
+        nz = col[col > 0]
+        if nz.size:
+            out.append(float(nz.mean()))
+    return float(np.mean(out)) if out else 0.0
 
 
-def config_params(spec: DatasetSpec, v: int, c: int) -> dict:
-    """Configuration c of volume v: light and camera directions, phase lobes, albedo, density
-    scale (JSON-ready)."""
-    rng = _rng(spec, 2, v, c)
+def _draw_albedo(rng, lo: float, hi: float) -> float:
+    # log-uniform in 1 - albedo: as many draws in 0.99-0.999 (clouds) as in 0.9-0.99 or below
+    return float(1.0 - np.exp(rng.uniform(np.log(1.0 - hi), np.log(1.0 - lo))))
+
+
+def config_params(spec: DatasetSpec, v: int, c: int, grid=None) -> dict:
+    """Configuration c of volume v: light and camera directions, phase lobes, albedo, target
+    optical thickness and the density scale that gives it (JSON-ready). ``grid``: volume v's,
+    if the caller has it (the density scale depends on it)."""
+    base, idx = _vkey(spec, v)
+    rng = _rng(spec, base + 2, idx, c)
     light = _unit(rng)
+    if rng.uniform() < 0.25:      # grazing: within ~9 degrees of horizontal (flat bases, sheets)
+        az = rng.uniform(0.0, 2.0 * np.pi)
+        ly = rng.uniform(-0.15, 0.15)
+        r = np.sqrt(1.0 - ly * ly)
+        light = np.array([r * np.cos(az), ly, r * np.sin(az)])
     cam_dir = _unit(rng)
     cam_dist = float(rng.uniform(1.8, 3.0))
-    if spec.is_solid(v):
-        n_lobes = int(rng.integers(1, 4))
-        # g on a 0.1 lattice: the gather's volume-phase tables cost ~1.5 s per distinct |g|
-        # and are cached per process, so a few distinct values keep shards cheap
-        gs = [_q(rng.uniform(0.3, 0.9))] + [_q(rng.uniform(-0.5, 0.5)) for _ in range(n_lobes - 1)]
-        ws = rng.dirichlet(np.full(n_lobes, 2.0)) if n_lobes > 1 else np.ones(1)
-        lobes = [(g, float(w)) for g, w in zip(gs, ws)]
-        s = sum(w for _, w in lobes)
-        lobes = [(g, w / s) for g, w in lobes]
-        albedo = tuple(round(float(a), 4) for a in rng.uniform(0.8, 0.999, 3))
-        lo, hi = spec.solid_density_scale
-    else:
-        k = int(rng.integers(0, len(CLOUD_G) + 1))
-        g = CLOUD_G[k] if k < len(CLOUD_G) else _q(rng.uniform(0.0, 0.9))
-        lobes = [(g, 1.0)]
-        k = int(rng.integers(0, len(PROTOCOL_ALBEDOS) + 1))
-        if k < len(PROTOCOL_ALBEDOS):
-            albedo = PROTOCOL_ALBEDOS[k]
-        else:
-            a = round(float(rng.uniform(0.8, 0.999)), 4)
-            albedo = (a, a, a)
-        lo, hi = spec.cloud_density_scale
-    scale = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+    glo, ghi = spec.g
+    n_lobes = min(int(rng.choice([1, 2, 3], p=[0.5, 0.3, 0.2])), spec.max_lobes)
+    # first lobe: a third of the time strongly forward (clouds, 0.75..g_hi), else anywhere
+    g0 = rng.uniform(max(glo, 0.75), ghi) if (rng.uniform() < 0.35 and ghi > 0.75) else rng.uniform(glo, ghi)
+    gs = [g0] + [rng.uniform(glo, min(ghi, 0.9)) for _ in range(n_lobes - 1)]
+    ws = rng.dirichlet(np.full(n_lobes, 2.0)) if n_lobes > 1 else np.ones(1)
+    lobes = [(round(float(g), 4), float(w)) for g, w in zip(gs, ws)]
+    s = sum(w for _, w in lobes)
+    lobes = [(g, w / s) for g, w in lobes]
+    alo, ahi = spec.albedo
+    kind = rng.uniform()
+    if kind < 0.4:                # grey
+        a = _draw_albedo(rng, alo, ahi)
+        albedo = (a, a, a)
+    elif kind < 0.7:              # tinted (like the MRPNN protocol's (0.8, 0.9, 1))
+        a = _draw_albedo(rng, alo, ahi)
+        albedo = tuple(float(np.clip(a * rng.uniform(0.8, 1.0), alo, ahi)) for _ in range(3))
+    else:                         # independent per channel
+        albedo = tuple(_draw_albedo(rng, alo, ahi) for _ in range(3))
+    albedo = tuple(round(x, 4) for x in albedo)
+    tlo, thi = spec.optical_thickness
+    tau = float(np.exp(rng.uniform(np.log(tlo), np.log(thi))))
+    grid = grid if grid is not None else make_volume(spec, v)
+    unit = unit_optical_thickness(grid)
+    scale = tau / unit if unit > 0 else tau
     return {"light": light.tolist(), "camera_dir": cam_dir.tolist(), "camera_distance": cam_dist,
             "lobes": [list(x) for x in lobes], "albedo": list(albedo),
-            "density_scale": round(scale, 4)}
+            "optical_thickness": round(tau, 4), "density_scale": float(f"{scale:.6g}")}
 
 
-def scene_for(spec: DatasetSpec, v: int, c: int):
+def scene_for(spec: DatasetSpec, v: int, c: int, grid=None):
     """The clvol Scene of shard (v, c) (its camera is only a placeholder: labels need the
     sun and the medium)."""
     from .scene import scene_from_dict
-    vp, cp = volume_params(spec, v), config_params(spec, v, c)
+    vp, cp = volume_params(spec, v), config_params(spec, v, c, grid)
     lobes = cp["lobes"]
     phase = ({"type": "hg", "g": lobes[0][0]} if len(lobes) == 1 else
              {"type": "mhg", "lobes": [{"g": g, "weight": w} for g, w in lobes]})
     origin = (np.asarray(cp["camera_dir"]) * cp["camera_distance"]).tolist()
     return scene_from_dict({
-        "volume": {"generator": vp["generator"], "seed": vp["seed"], "resolution": spec.resolution,
+        "volume": {"generator": vp["generator"], "seed": vp["seed"], "resolution": vp["resolution"],
                    **({"params": vp["params"]} if vp["params"] else {})},
         "medium": {"density_scale": cp["density_scale"], "albedo": list(cp["albedo"]), "phase": phase},
         "light": {"direction": cp["light"], "irradiance": [1.0, 1.0, 1.0]},
@@ -226,22 +348,47 @@ def _up_for(origin) -> list:
     return [0.0, 1.0, 0.0] if abs(o[1]) < 0.99 * np.linalg.norm(o) else [1.0, 0.0, 0.0]
 
 
+def escape_depth(grid, density_scale: float) -> np.ndarray:
+    """Optical depth from each voxel centre to the box along the cheapest of the six axis
+    directions, [z][y][x] float64 (an upper bound on the depth to the nearest way out)."""
+    d = grid.density.astype(np.float64) * float(density_scale)
+    best = np.full(d.shape, np.inf)
+    for axis, h in ((2, grid.cell_size[0]), (1, grid.cell_size[1]), (0, grid.cell_size[2])):
+        fwd = np.cumsum(d, axis=axis) * float(h)
+        back = np.flip(np.cumsum(np.flip(d, axis), axis=axis), axis) * float(h)
+        half = 0.5 * d * float(h)                  # from the voxel centre, not its far face
+        np.minimum(best, fwd - half, out=best)
+        np.minimum(best, back - half, out=best)
+    return best
+
+
+# Density-weighted points are also weighted by exp(-escape depth / ESCAPE_SCALE) + ESCAPE_FLOOR:
+# deep inside an optically thick medium F is ~0 and no camera sees it, so most points go within
+# a few mean free paths of a way out, and a few stay inside (the lattice has such points too).
+ESCAPE_SCALE = 4.0
+ESCAPE_FLOOR = 0.002
+
+
 def sample_points(spec: DatasetSpec, grid, v: int, c: int) -> np.ndarray:
-    """points_per_config world points: density-weighted voxel picks jittered within the voxel,
-    plus a ``uniform_fraction`` drawn uniformly in the box (empty space near the medium is on
-    the renderer's lattice too)."""
-    rng = _rng(spec, 3, v, c)
+    """points_per_config world points: voxel picks with probability ~ density x (exp(-escape
+    depth / ESCAPE_SCALE) + ESCAPE_FLOOR), jittered within the voxel, plus a
+    ``uniform_fraction`` drawn uniformly in the box (empty space near the medium is on the
+    renderer's lattice too)."""
+    base, idx = _vkey(spec, v)
+    rng = _rng(spec, base + 3, idx, c)
     n = spec.points_per_config
     n_uni = int(round(spec.uniform_fraction * n))
-    dens = grid.density.astype(np.float64).ravel()
+    scale = config_params(spec, v, c, grid)["density_scale"]
+    dens = grid.density.astype(np.float64)
+    w = (dens * (np.exp(-escape_depth(grid, scale) / ESCAPE_SCALE) + ESCAPE_FLOOR)).ravel()
     lo, hi = np.asarray(grid.bbox_min, np.float64), np.asarray(grid.bbox_max, np.float64)
-    total = dens.sum()
+    total = w.sum()
     if total <= 0:           # an empty volume: all uniform
         n_uni = n
-    idx = rng.choice(dens.size, n - n_uni, p=dens / total) if n > n_uni else np.zeros(0, int)
+    idx_v = rng.choice(w.size, n - n_uni, p=w / total) if n > n_uni else np.zeros(0, int)
     nz, ny, nx = grid.density.shape
-    zyx = np.stack(np.unravel_index(idx, (nz, ny, nx)), axis=1)
-    inside = lo + (zyx[:, ::-1] + rng.uniform(0, 1, (len(idx), 3))) * np.asarray(grid.cell_size)
+    zyx = np.stack(np.unravel_index(idx_v, (nz, ny, nx)), axis=1)
+    inside = lo + (zyx[:, ::-1] + rng.uniform(0, 1, (len(idx_v), 3))) * np.asarray(grid.cell_size)
     uni = lo + rng.uniform(0, 1, (n_uni, 3)) * (hi - lo)
     return np.concatenate([inside, uni]).astype(np.float32)
 
@@ -261,13 +408,14 @@ def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runti
     from .kernels.transmittance import graded_transmittance
     from .pathtrace import point_query
     t0 = time.perf_counter()
-    scene = scene_for(spec, v, c)
     grid = grid if grid is not None else make_volume(spec, v)
+    scene = scene_for(spec, v, c, grid)
     pyramid = pyramid if pyramid is not None else build_pyramid(grid, spec.base_resolution, runtime)
     pts = sample_points(spec, grid, v, c)
     om = np.asarray(scene.camera.origin, np.float64) - pts
     om /= np.linalg.norm(om, axis=1, keepdims=True)
-    qseed = int(_rng(spec, 4, v, c).integers(0, 2**31 - 1))
+    base, idx = _vkey(spec, v)
+    qseed = int(_rng(spec, base + 4, idx, c).integers(0, 2**31 - 1))
     lab = point_query(scene, pts, om, spec.n_paths, seed=qseed, grid=grid, runtime=runtime)
     t_labels = time.perf_counter() - t0
     l = np.asarray(scene.light.direction, np.float64)
@@ -280,8 +428,9 @@ def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runti
         if not np.all(np.isfinite(a)):
             raise DatasetError(f"shard ({v}, {c}): non-finite values in {k}")
     meta = {"format": DATASET_FORMAT, "format_version": DATASET_VERSION, "spec": spec.to_dict(),
-            "volume_index": v, "config_index": c, "volume": volume_params(spec, v),
-            "config": config_params(spec, v, c), "camera_origin": list(scene.camera.origin),
+            "volume_index": v, "config_index": c, "heldout_volume": spec.is_heldout(v),
+            "volume": volume_params(spec, v),
+            "config": config_params(spec, v, c, grid), "camera_origin": list(scene.camera.origin),
             "query_seed": qseed, "paths_truncated": int(lab["truncated"]),
             "contract": _code_contract(spec),
             "seconds": {"labels": round(t_labels, 3), "total": round(time.perf_counter() - t0, 3)},
@@ -446,9 +595,10 @@ def read_shard(path) -> Shard:
         raise
     except Exception as exc:
         raise DatasetError(f"{path}: cannot read shard ({type(exc).__name__}: {exc})") from None
-    if meta.get("format") != DATASET_FORMAT or meta.get("format_version") != DATASET_VERSION:
+    if meta.get("format") != DATASET_FORMAT or meta.get("format_version") not in READABLE_VERSIONS:
         raise DatasetError(f"{path}: [format] {meta.get('format')!r} version "
-                           f"{meta.get('format_version')!r}; expected {DATASET_FORMAT!r} {DATASET_VERSION}")
+                           f"{meta.get('format_version')!r}; expected {DATASET_FORMAT!r} "
+                           f"{' or '.join(map(str, READABLE_VERSIONS))}")
     return Shard(path, arrays, meta)
 
 

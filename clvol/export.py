@@ -12,7 +12,11 @@ so ``np.load(allow_pickle=False)`` reads it) holding
   the phase parameterisation, the learned per-level transmittance weights and bias (the
   seed's 3D-CNN as a 1x1x1 convolution across levels, baked by the gather at render time),
   the input normalisation and the output encoding;
-- ``training``: free-form notes (data, steps, loss), never checked.
+- ``training``: free-form notes (data, steps, loss), never checked;
+- ``domain`` (optional): the validity domain of the training data, exactly the keys of
+  ``DOMAIN_KEYS``: {"albedo": [lo, hi], "g": [lo, hi], "max_lobes": n,
+  "optical_thickness": [lo, hi], "resolution": [lo, hi]}. A file without it is read as
+  ``DEFAULT_DOMAIN`` (the domain of the first shipped model, cloud_small).
 
 ``load_weights`` refuses a file of another format version, a tensor of another shape, a
 non-finite value, or a contract that differs from the one the caller's gather produces,
@@ -70,6 +74,10 @@ PHASE_PARAMETERISATION = (
     "to 1; g_mean = sum w_k g_k is the one g of the attention squeeze; phase features log1p(f*f*) "
     "of cone-averaged HG (DESIGN.md)")
 OUTPUT_ENCODING = "y = log(F / albedo^4 + 1), F = multiple scattering (orders >= 2) for unit irradiance"
+
+DOMAIN_KEYS = ("albedo", "g", "max_lobes", "optical_thickness", "resolution")
+# cloud_small's data (clvol/data/weights/cloud_small.md): what a file without "domain" covers.
+DEFAULT_DOMAIN = {"albedo": [0.8, 0.999], "g": [0.0, 0.9], "max_lobes": 3}
 
 
 # --------------------------------------------------------------------------- architecture
@@ -283,11 +291,44 @@ def _check_params(params: dict, arch: Architecture, where: str) -> dict:
     return out
 
 
+def check_domain(domain, where: str = "domain") -> dict:
+    """A validity domain with exactly DOMAIN_KEYS: [lo, hi] pairs (lo <= hi, finite) and an
+    integer max_lobes in 1..3; returned as plain JSON types."""
+    if not isinstance(domain, dict) or set(domain) != set(DOMAIN_KEYS):
+        got = sorted(domain) if isinstance(domain, dict) else domain
+        raise WeightsError(f"{where}: [domain] must have exactly the keys {list(DOMAIN_KEYS)}, got {got!r}")
+    out = {}
+    for k in DOMAIN_KEYS:
+        v = domain[k]
+        if k == "max_lobes":
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 3:
+                raise WeightsError(f"{where}: [domain.max_lobes] = {v!r} must be an integer in [1, 3]")
+            out[k] = int(v)
+            continue
+        try:
+            lo, hi = (float(x) for x in v)
+        except (TypeError, ValueError):
+            raise WeightsError(f"{where}: [domain.{k}] = {v!r} must be [low, high]") from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise WeightsError(f"{where}: [domain.{k}] = {v!r} must be finite with low <= high")
+        out[k] = [int(lo), int(hi)] if k == "resolution" else [lo, hi]
+    return out
+
+
+def weights_domain(meta: dict) -> dict:
+    """The validity domain of a weight file's meta (``read_meta``): its "domain", or
+    DEFAULT_DOMAIN for a file written before domains were recorded."""
+    d = meta.get("domain")
+    return dict(DEFAULT_DOMAIN) if d is None else check_domain(d)
+
+
 def save_weights(path, arch: Architecture, params: dict, contract: dict,
-                 training: dict | None = None) -> Path:
-    """Write a weight file (atomically: a temporary file renamed into place)."""
+                 training: dict | None = None, domain: dict | None = None) -> Path:
+    """Write a weight file (atomically: a temporary file renamed into place). ``domain``: the
+    training data's validity domain (``check_domain``; clvol.dataset.dataset_domain makes it)."""
     path = Path(path)
     params = _check_params(params, arch, str(path))
+    domain = None if domain is None else check_domain(domain, str(path))
     if "n_levels" in contract and contract["n_levels"] != arch.n_levels:
         raise WeightsError(f"{path}: the network has {arch.n_levels} transmittance levels, the contract "
                            f"{contract['n_levels']} (base resolution {contract.get('base_resolution')})")
@@ -307,6 +348,8 @@ def save_weights(path, arch: Architecture, params: dict, contract: dict,
     meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "architecture": arch.to_dict(),
             "contract": contract, "training": training or {},
             "counts": {"params": arch.n_params(), "macs": arch.n_macs()}}
+    if domain is not None:
+        meta["domain"] = domain
     blob = np.frombuffer(json.dumps(meta, indent=1, sort_keys=True).encode("utf-8"), np.uint8)
     buf = io.BytesIO()
     np.savez(buf, **{META_KEY: blob}, **params)
@@ -366,6 +409,8 @@ def load_weights(path, expect_contract: dict | None = None) -> MlpWeights:
         raise WeightsError(f"{where}: feature contract mismatch: " + "; ".join(diffs))
     if arch.layer_counts != tuple(contract["layer_counts"]) or arch.n_levels != contract.get("n_levels"):
         raise WeightsError(f"{where}: [architecture.layer_counts/n_levels] disagree with [contract]")
+    if "domain" in meta:
+        check_domain(meta["domain"], where)
     params = _check_params({n: npz[n] for n in files if n != META_KEY}, arch, where)
     return MlpWeights(arch=arch, params=params, contract=contract, meta=meta, path=where)
 

@@ -111,11 +111,12 @@ class Model(nn.Module):
         m.load_numpy_params(w.params)
         return m
 
-    def export(self, path, contract: dict, training: dict | None = None):
+    def export(self, path, contract: dict, training: dict | None = None, domain: dict | None = None):
         """Write the weight file (clvol/export.py) with the contract of the gather that made the
         training features: ``clvol.export.gather_contract(base_resolution, lam)`` for the
-        packaged templates (there is no default: a wrong one would pass the loader's check)."""
-        return save_weights(path, self.arch, self.numpy_params(), contract, training)
+        packaged templates (there is no default: a wrong one would pass the loader's check),
+        and the training data's validity ``domain`` (clvol.dataset.dataset_domain)."""
+        return save_weights(path, self.arch, self.numpy_params(), contract, training, domain)
 
 
 def count_parameters(model: nn.Module) -> int:

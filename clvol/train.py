@@ -20,6 +20,7 @@ labels (``encode_labels``):
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -220,7 +221,7 @@ class RunConfig:
     weight_decay: float = 0.0
     seed: int = 0
     floor: float = 0.05
-    holdout_volumes: tuple = (1,)     # whole volumes never seen in training (+ the first solid)
+    holdout_volumes: tuple = ()       # extra whole volumes never trained on (split_shards)
     holdout_config: int = -1          # this configuration index of every volume is held out too
     eval_every: int = 500
     checkpoint_every: int = 250
@@ -233,15 +234,22 @@ class RunConfig:
 
 
 def split_shards(shards, cfg: RunConfig):
-    """(train shards, held-out shards): held out are all configurations of the volumes in
-    ``cfg.holdout_volumes`` and of the first solid volume (if the data set has solids), and
-    configuration ``cfg.holdout_config`` (negative: from the end) of every other volume. Held-out
-    points therefore come from volumes or light/view/phase/albedo draws training never saw."""
+    """(train shards, held-out shards). Held out are all configurations of the held-out volumes
+    and configuration ``cfg.holdout_config`` (negative: from the end) of every other volume, so
+    held-out points come from volumes or light/view/phase/albedo draws training never saw.
+
+    Held-out volumes: those of ``cfg.holdout_volumes``, plus, for a version-2 data set, its
+    held-out stream (``n_heldout_volumes``, generator seeds training never sees), or, for a
+    version-1 one, volume 1 (when no others are named) and the first solid."""
     spec = shards[0].meta["spec"]
     n_cfg = spec["configs_per_volume"]
     hv = set(int(v) for v in cfg.holdout_volumes)
-    if spec["n_solids"] > 0:
-        hv.add(spec["n_volumes"] - spec["n_solids"])
+    if "n_heldout_volumes" in spec:
+        hv |= set(range(spec["n_volumes"] - spec["n_heldout_volumes"], spec["n_volumes"]))
+    else:   # version 1: volume 1 (a cloud) unless others are named, and the first solid
+        hv |= set() if cfg.holdout_volumes else {1}
+        if spec.get("n_solids", 0) > 0:
+            hv.add(spec["n_volumes"] - spec["n_solids"])
     hc = cfg.holdout_config % n_cfg
     held = [s for s in shards if s.volume in hv or s.config_index == hc]
     train = [s for s in shards if not (s.volume in hv or s.config_index == hc)]
@@ -296,12 +304,18 @@ class Trainer:
     def state_dict(self) -> dict:
         return {"model": self.model.state_dict(), "opt": self.opt.state_dict(),
                 "sched": self.sched.state_dict(), "gen": self.gen.get_state(), "step": self.step,
-                "history": self.history, "config": self.cfg.to_dict()}
+                "history": self.history, "config": self.cfg.to_dict(),
+                "architecture": self.model.arch.to_dict()}
 
     def load_state_dict(self, st: dict) -> None:
         if st["config"] != self.cfg.to_dict():
             diff = sorted(k for k in st["config"] if st["config"][k] != self.cfg.to_dict().get(k))
             raise ValueError(f"checkpoint was made with other run settings ({diff}); use the same "
+                             f"settings or another output folder")
+        have = st.get("architecture", self.model.arch.to_dict())   # older checkpoints: not recorded
+        if have != self.model.arch.to_dict():
+            diff = sorted(k for k in have if have[k] != self.model.arch.to_dict().get(k))
+            raise ValueError(f"checkpoint was made with another architecture ({diff}); use the same "
                              f"settings or another output folder")
         self.model.load_state_dict(st["model"])
         self.opt.load_state_dict(st["opt"])
@@ -316,6 +330,8 @@ class Trainer:
         until = min(int(until), self.cfg.steps)
         n = len(self.train)
         window = []
+        t0 = time.perf_counter()
+        done_before = self.history["eval"][-1].get("seconds", 0.0) if self.history["eval"] else 0.0
         while self.step < until:
             self.model.train()
             idx = torch.randint(0, n, (min(self.cfg.batch, n),), generator=self.gen).numpy()
@@ -329,7 +345,9 @@ class Trainer:
             window.append(float(loss.detach()))
             last = self.step == until
             if self.cfg.eval_every and (self.step % self.cfg.eval_every == 0 or last):
-                row = {"step": self.step, "train": float(np.mean(window))}
+                row = {"step": self.step, "train": float(np.mean(window)),
+                       # wall seconds of training so far, over resumed sessions too
+                       "seconds": round(done_before + time.perf_counter() - t0, 1)}
                 window = []
                 if held is not None:
                     row["held_out"] = evaluate(self.model, held)

@@ -3,9 +3,14 @@
 configurations, path-traced F_>=2 labels, train-mode gather features (clvol/dataset.py).
 The same as `clvol dataset make` (docs/dataset.md):
 
-    python scripts/make_dataset.py runs/data [--seed 0] [--volumes 10] [--solids 2]
-        [--configs 12] [--points 256] [--paths 384] [--resolution 32] [--base 64]
+    python scripts/make_dataset.py runs/data [--seed 0] [--volumes 30] [--heldout 10]
+        [--configs 8] [--points 128] [--paths 128] [--resolution 32,128] [--base 64]
+        [--optical-thickness 1,1000] [--albedo 0.3,0.999] [--g -0.9,0.99] [--max-lobes 3]
+        [--families cumulus,flat_cumulus,...]
         [--address auto|HOST:PORT|ray://HOST:PORT] [--workers N] [--serial]
+
+--volumes counts every volume; the last --heldout of them come from a separate random stream
+(held out of training by construction). Volumes cycle through the families.
 
 Runs on a local Ray using all cores (or on a cluster with --address) if Ray is installed
 (pip install 'clvol[scale]'), else serially. Resumable: rerun the same command after an

@@ -3,6 +3,7 @@
 
     python scripts/train.py runs/data runs/train [--steps 6000] [--batch 256] [--lr 2e-3]
         [--seed 0] [--threads 1] [--export clvol/data/weights/cloud_small.npz]
+        [--module-width 32] [--head-widths 64,32] [--se-hidden 8]
 
 Resumable: OUT/checkpoint.pt is written atomically every --checkpoint-every steps; rerunning the
 same command continues from it (same settings required). Prints the training loss and the
@@ -28,7 +29,8 @@ def main(argv=None) -> int:
     from clvol.export import gather_contract
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("data", help="data set folder (scripts/make_dataset.py)")
+    ap.add_argument("data", help="data set folder (scripts/make_dataset.py), or several, comma-separated "
+                                 "(each split into training and held-out shards by its own spec)")
     ap.add_argument("out", help="run folder (checkpoint, report)")
     d = tr.RunConfig()
     ap.add_argument("--steps", type=int, default=d.steps)
@@ -42,6 +44,14 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1,
                     help="torch threads (default 1: the machine is shared; results depend on it)")
     ap.add_argument("--until", type=int, default=None, help="stop at this step (resume later)")
+    from clvol.export import Architecture
+    da = Architecture()
+    ap.add_argument("--module-width", type=int, default=da.module_width,
+                    help="width of each module's output and of the per-type merges")
+    ap.add_argument("--head-widths", default=",".join(map(str, da.head_widths)),
+                    help="hidden widths of the head MLP, comma-separated")
+    ap.add_argument("--se-hidden", type=int, default=da.se_hidden,
+                    help="hidden width of the squeeze-and-excitation layers")
     ap.add_argument("--export", default=None, help="weight file to write at the end")
     ap.add_argument("--evaluate", metavar="WEIGHTS.npz", default=None,
                     help="no training: held-out losses of a weight file, per held-out group")
@@ -54,11 +64,20 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     try:
-        shards = load_shards(args.data)
+        folders = [load_shards(d) for d in args.data.split(",") if d]
     except ClvolError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    train_sh, held_sh = tr.split_shards(shards, cfg)
+    shards = [s for f in folders for s in f]
+    c0 = shards[0].meta["contract"]
+    for f in folders[1:]:
+        if f[0].meta["contract"] != c0:
+            print(f"error: {f[0].path.parent}: [contract] differs from {shards[0].path.parent}'s "
+                  f"(other base resolution, lambda or templates)", file=sys.stderr)
+            return 2
+    splits = [tr.split_shards(f, cfg) for f in folders]
+    train_sh = [s for t, _ in splits for s in t]
+    held_sh = [s for _, h in splits for s in h]
     train = tr.shard_samples(train_sh, cfg.floor)
     held = tr.shard_samples(held_sh, cfg.floor)
     spec = shards[0].meta["spec"]
@@ -69,7 +88,17 @@ def main(argv=None) -> int:
     print(f"held-out loss of the mean predictor {base_loss:.5f}; label noise (mean var_y) {noise:.5f}")
     if args.evaluate:
         return evaluate_weights(args.evaluate, train, held_sh, cfg, base_loss)
-    trainer = tr.Trainer(train, cfg)
+    try:
+        arch = Architecture(n_levels=train.levels.shape[1], module_width=args.module_width,
+                            head_widths=tuple(int(w) for w in args.head_widths.split(",") if w),
+                            se_hidden=args.se_hidden)
+    except ValueError as exc:
+        print(f"error: architecture: {exc}", file=sys.stderr)
+        return 2
+    print(f"architecture: module width {arch.module_width}, head {arch.head_widths}, SE hidden "
+          f"{arch.se_hidden}: {arch.n_params()} parameters, {arch.n_macs()['total']} multiply-adds "
+          f"per evaluation")
+    trainer = tr.Trainer(train, cfg, arch)
     ckpt = out / tr.CHECKPOINT
     if ckpt.exists():
         try:
@@ -83,6 +112,7 @@ def main(argv=None) -> int:
     secs = time.perf_counter() - t0
     final = trainer.history["eval"][-1] if trainer.history["eval"] else {}
     report = {"data": str(args.data), "spec": spec, "run": cfg.to_dict(), "threads": args.threads,
+              "architecture": arch.to_dict(), "macs": arch.n_macs(), "params": arch.n_params(),
               "shards": {"train": len(train_sh), "held_out": len(held_sh),
                          "held_out_names": [s.path.name for s in held_sh]},
               "samples": {"train": len(train), "held_out": len(held)},
@@ -94,9 +124,23 @@ def main(argv=None) -> int:
         contract = gather_contract(spec["base_resolution"], spec["lam"])
         notes = {k: report[k] for k in ("spec", "run", "samples", "step", "held_out_mean_predictor",
                                          "held_out_label_noise", "final")}
-        trainer.model.export(args.export, contract, training=notes)
+        notes["seconds_training"] = final.get("seconds")
+        from clvol.dataset import dataset_domain
+        trainer.model.export(args.export, contract, training=notes,
+                             domain=union_domain([dataset_domain(f[0].meta["spec"]) for f in folders]))
         print(f"exported {args.export}")
     return 0
+
+
+def union_domain(domains):
+    """The smallest domain holding every data set's (None if any is a version-1 data set, whose
+    domain the weight file's default describes)."""
+    if not domains or any(d is None for d in domains):
+        return None
+    out = {"max_lobes": max(d["max_lobes"] for d in domains)}
+    for k in ("albedo", "g", "optical_thickness", "resolution"):
+        out[k] = [min(d[k][0] for d in domains), max(d[k][1] for d in domains)]
+    return out
 
 
 def evaluate_weights(path, train, held_sh, cfg, base_loss) -> int:
@@ -108,10 +152,17 @@ def evaluate_weights(path, train, held_sh, cfg, base_loss) -> int:
     from clvol.export import load_weights
     from clvol.model import Model
     model = Model.from_weights(load_weights(path))
-    hv = {s.volume for s in held_sh if sum(t.volume == s.volume for t in held_sh) > 1}
+    vid = (lambda s: (str(s.path.parent), s.volume))
+    count = {}
+    for s in held_sh:
+        count[vid(s)] = count.get(vid(s), 0) + 1
+    hv = {k for k, n in count.items() if n > 1}
     groups = {"all held out": held_sh,
-              "unseen volumes": [s for s in held_sh if s.volume in hv],
-              "unseen configurations of seen volumes": [s for s in held_sh if s.volume not in hv]}
+              "unseen volumes": [s for s in held_sh if vid(s) in hv],
+              "unseen configurations of seen volumes": [s for s in held_sh if vid(s) not in hv]}
+    fams = sorted({s.meta["volume"].get("family", "") for s in held_sh} - {""})
+    for f in fams:     # version-2 data: unseen volumes per family
+        groups[f"  unseen {f}"] = [s for s in held_sh if vid(s) in hv and s.meta["volume"].get("family") == f]
     m = float(np.average(train.y, weights=train.weight))
     for name, shards in groups.items():
         if not shards:

@@ -14,8 +14,8 @@ import pytest
 
 from clvol import dataset as ds
 
-TINY = dict(n_volumes=2, n_solids=1, resolution=12, base_resolution=16, configs_per_volume=2,
-            points_per_config=24, n_paths=16)
+TINY = dict(n_volumes=2, n_heldout_volumes=1, resolution=12, base_resolution=16,
+            configs_per_volume=2, points_per_config=24, n_paths=16, families=("cumulus", "blob"))
 
 
 def test_shard_is_deterministic_and_records_its_parameters():
@@ -28,7 +28,8 @@ def test_shard_is_deterministic_and_records_its_parameters():
     assert not np.array_equal(other["arrays"]["points"], a["arrays"]["points"])
     m = a["meta"]
     assert m["spec"]["seed"] == 3 and m["volume_index"] == 1 and m["config_index"] == 1
-    assert m["volume"]["generator"] in ("blob", "sphere")         # volume 1 is the solid
+    # volume 1 is the held-out one: first of its stream, so the first family
+    assert m["volume"]["family"] == "cumulus" and m["heldout_volume"] is True
     assert 1 <= len(m["config"]["lobes"]) <= 3 and "query_seed" in m
     arr = a["arrays"]
     n, L = spec.points_per_config, int(np.log2(spec.base_resolution)) + 1
@@ -76,12 +77,90 @@ def test_folder_of_another_spec_is_refused(tmp_path):
     ds.make_dataset(ds.DatasetSpec(seed=0, **TINY), out, progress=False, max_shards=0)
     with pytest.raises(ds.DatasetError, match=r"spec.json.*\['seed'\]"):
         ds.make_dataset(ds.DatasetSpec(seed=1, **TINY), out, progress=False, max_shards=0)
-    with pytest.raises(ds.DatasetError, match=r"\[n_solids\] = 5"):
-        ds.DatasetSpec(n_volumes=2, n_solids=5)
+    with pytest.raises(ds.DatasetError, match=r"\[n_heldout_volumes\] = 5"):
+        ds.DatasetSpec(n_volumes=2, n_heldout_volumes=5)
+    with pytest.raises(ds.DatasetError, match=r"\[g\] = \(0.5, 0.2\)"):
+        ds.DatasetSpec(g=(0.5, 0.2))
+    with pytest.raises(ds.DatasetError, match=r"\[families\]"):
+        ds.DatasetSpec(families=("cumulus", "teapot"))
     bad = out / "shard_009_009.npz"
     bad.write_bytes(b"not a zip")
     with pytest.raises(ds.DatasetError, match="shard_009_009.npz: cannot read shard"):
         ds.load_shards(out)
+
+
+def test_configurations_cover_the_domain():
+    """Draws of the default spec span what the spec says: g from < -0.5 to > 0.95 (backward and
+    strongly forward lobes), 1-3 lobes, per-channel albedo from < 0.5 to > 0.99 with chromatic
+    ones, target optical thickness over 3 decades, lights from below and grazing, every family,
+    and resolutions 32-128. 400 configurations: each check fails with probability < 1e-6 if the
+    sampler draws what its code says (e.g. P(no g < -0.5 in 400 first lobes) ~ 0.8^400)."""
+    spec = ds.DatasetSpec(seed=0, n_volumes=50, n_heldout_volumes=10, configs_per_volume=8)
+    grid = ds.make_volume(spec, 5)          # the density scale needs a grid; the draws do not
+    cps = [ds.config_params(spec, v, c, grid) for v in range(50) for c in range(8)]
+    gs = [g for cp in cps for g, _ in cp["lobes"]]
+    assert min(gs) >= spec.g[0] and max(gs) <= spec.g[1]
+    assert min(gs) < -0.8 and max(gs) > 0.97
+    assert {len(cp["lobes"]) for cp in cps} == {1, 2, 3}
+    assert all(abs(sum(w for _, w in cp["lobes"]) - 1) < 1e-12 for cp in cps)
+    alb = np.array([cp["albedo"] for cp in cps])
+    assert alb.min() >= spec.albedo[0] and alb.max() <= spec.albedo[1]
+    assert alb.min() < 0.5 and alb.max() > 0.99 and np.mean(alb.max(1) - alb.min(1) > 0.05) > 0.3
+    tau = np.array([cp["optical_thickness"] for cp in cps])
+    assert tau.min() >= 1.0 and tau.max() <= 1000.0 and tau.min() < 3 and tau.max() > 300
+    light = np.array([cp["light"] for cp in cps])
+    np.testing.assert_allclose(np.linalg.norm(light, axis=1), 1.0, atol=1e-9)
+    assert np.mean(light[:, 1] < -0.5) > 0.05 and np.mean(np.abs(light[:, 1]) < 0.15) > 0.2
+    vps = [ds.volume_params(spec, v) for v in range(50)]
+    assert {vp["family"] for vp in vps} == set(ds.FAMILIES)
+    assert {vp["resolution"] for vp in vps} == set(ds.RESOLUTIONS)
+
+
+def test_density_scale_gives_the_target_optical_thickness():
+    spec = ds.DatasetSpec(seed=0, resolution=(32, 32))
+    for v in (0, 6):
+        grid = ds.make_volume(spec, v)
+        cp = ds.config_params(spec, v, 0, grid)
+        # unit_optical_thickness: mean column integral over occupied columns, 3 axes
+        d = grid.density.astype(np.float64) * cp["density_scale"]
+        h = float(grid.cell_size[0])
+        taus = [np.mean(col[col > 0]) for col in (d.sum(axis=a) * h for a in range(3))]
+        assert np.mean(taus) == pytest.approx(cp["optical_thickness"], rel=1e-4)
+
+
+def test_heldout_volumes_come_from_their_own_stream():
+    """Held-out volume i is the same whatever the number of training volumes (its draws are keyed
+    by its held-out index), and no held-out generator seed equals a training one."""
+    a = ds.DatasetSpec(seed=2, n_volumes=25, n_heldout_volumes=5)
+    b = ds.DatasetSpec(seed=2, n_volumes=45, n_heldout_volumes=5)
+    for i in range(5):
+        assert ds.volume_params(a, 20 + i) == ds.volume_params(b, 40 + i)
+        assert a.is_heldout(20 + i) and not a.is_heldout(19)
+    train_seeds = {ds.volume_params(b, v)["seed"] for v in range(40)}
+    held_seeds = {ds.volume_params(b, v)["seed"] for v in range(40, 45)}
+    assert not train_seeds & held_seeds
+    assert {ds.volume_params(b, v)["family"] for v in range(40, 45)} == set(ds.FAMILIES[:5])
+
+
+def test_version_1_shards_still_load(tmp_path):
+    """A shard written by the first data set version (cloud_small's data) reads and splits as
+    before: volume 1 and the first solid held out, plus the last configuration."""
+    from clvol import train as tr
+    spec = ds.DatasetSpec(seed=0, **TINY)
+    sh = ds.make_shard(spec, 0, 0)
+    v1 = {"seed": 0, "n_volumes": 3, "n_solids": 1, "resolution": 12, "base_resolution": 16,
+          "lam": spec.lam, "configs_per_volume": 2, "points_per_config": 24, "uniform_fraction": 0.2,
+          "n_paths": 16, "cloud_density_scale": [16.0, 96.0], "solid_density_scale": [20.0, 200.0]}
+    (tmp_path / ds.SPEC_FILE).write_text(json.dumps({"format": ds.DATASET_FORMAT, "format_version": 1,
+                                                      "spec": v1}))
+    for v in range(3):
+        for c in range(2):
+            meta = dict(sh["meta"], format_version=1, spec=v1, volume_index=v, config_index=c)
+            ds.write_shard(tmp_path, v, c, ds.shard_bytes(sh["arrays"], meta))
+    shards = ds.load_shards(tmp_path)
+    train, held = tr.split_shards(shards, tr.RunConfig())
+    assert sorted(s.path.name for s in train) == ["shard_000_000.npz"]
+    assert ds.dataset_domain(v1) is None
 
 
 def _synthetic_samples(n=64, L=5, seed=0):
@@ -135,7 +214,7 @@ def test_train_script_end_to_end(tmp_path):
     import subprocess
     import sys
     from clvol.export import gather_contract, load_weights
-    spec = ds.DatasetSpec(seed=1, **dict(TINY, n_volumes=3, n_solids=1))
+    spec = ds.DatasetSpec(seed=1, **dict(TINY, n_volumes=3, n_heldout_volumes=1))
     data = tmp_path / "data"
     ds.make_dataset(spec, data, progress=False)
     run = tmp_path / "run"
@@ -144,17 +223,47 @@ def test_train_script_end_to_end(tmp_path):
             "--eval-every", "2", "--checkpoint-every", "2", "--holdout-volumes", "0",
             "--export", str(w)]
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    p = subprocess.run(args + ["--until", "2"], cwd=root, capture_output=True, text=True)
+    env = dict(os.environ, PYTHONPATH=root)    # this checkout's clvol, not an installed one
+    p = subprocess.run(args + ["--until", "2"], cwd=root, capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr
     assert not w.exists()                      # not finished: nothing exported
-    p = subprocess.run(args, cwd=root, capture_output=True, text=True)
+    p = subprocess.run(args, cwd=root, capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr
     assert "resumed from" in p.stdout and "held_out" in p.stdout
     rep = json.loads((run / "report.json").read_text())
     assert rep["step"] == 4 and rep["shards"]["held_out"] > 0
-    # held out: all of volume 0 and of the first solid (volume 2), and the last configuration
+    # held out: all of volume 0 (named) and of the held-out stream (volume 2), and the last configuration
     assert {n for n in rep["shards"]["held_out_names"]} == {
         "shard_000_000.npz", "shard_000_001.npz", "shard_002_000.npz", "shard_002_001.npz",
         "shard_001_001.npz"}
     wts = load_weights(w, expect_contract=gather_contract(spec.base_resolution, spec.lam))
     assert wts.arch.n_levels == 5 and wts.meta["training"]["step"] == 4
+    # the weight file records the data set's validity domain
+    assert wts.meta["domain"] == {"albedo": list(spec.albedo), "g": list(spec.g),
+                                  "max_lobes": spec.max_lobes,
+                                  "optical_thickness": list(spec.optical_thickness),
+                                  "resolution": list(spec.resolution)}
+
+
+def test_escape_depth_and_point_placement():
+    """escape_depth on a uniform slab equals the distance to the nearer face times the
+    extinction; in an optically thick sphere most density-weighted points lie within a few
+    mean free paths of the surface, but a few are deeper."""
+    from clvol.volume.grid import Grid
+    d = np.ones((4, 6, 8), np.float32)
+    g = Grid(d, np.array([0.0, 0.0, 0.0]), np.array([8.0, 6.0, 4.0]))    # 1-unit voxels
+    e = ds.escape_depth(g, 2.0)
+    z, y, x = np.meshgrid(np.arange(4), np.arange(6), np.arange(8), indexing="ij")
+    dist = np.minimum.reduce([x + 0.5, 7.5 - x, y + 0.5, 5.5 - y, z + 0.5, 3.5 - z])
+    np.testing.assert_allclose(e, 2.0 * dist)
+    spec = ds.DatasetSpec(seed=0, resolution=(48, 48), families=("sphere",), points_per_config=400,
+                          uniform_fraction=0.0, n_volumes=2, n_heldout_volumes=1)
+    grid = ds.make_volume(spec, 0)
+    c = next(c for c in range(50) if ds.config_params(spec, 0, c, grid)["optical_thickness"] > 200)
+    cp = ds.config_params(spec, 0, c, grid)
+    radius = ds.volume_params(spec, 0)["params"]["radius"]
+    pts = ds.sample_points(ds.DatasetSpec(**{**spec.to_dict(), "families": ("sphere",)}), grid, 0, c)
+    mfp = 1.0 / (cp["density_scale"] * 1.0)        # sphere density 1 inside
+    depth = radius - np.linalg.norm(pts, axis=1)
+    assert np.mean(depth < 12 * mfp + 1.5 / 48) > 0.8      # near the surface (edge ~1.5 voxels)
+    assert np.mean(depth > 0.3 * radius) > 0.005           # but not only there (~5% expected)

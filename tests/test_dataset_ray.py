@@ -23,10 +23,13 @@ from clvol import cli
 from clvol import dataset as ds
 from clvol import distributed as dist
 
-SPEC = ds.DatasetSpec(seed=67, n_volumes=2, n_solids=0, resolution=12, base_resolution=16,
-                      configs_per_volume=2, points_per_config=24, n_paths=16)
-SPEC_ARGS = ["--seed", "67", "--volumes", "2", "--solids", "0", "--resolution", "12", "--base", "16",
-             "--configs", "2", "--points", "24", "--paths", "16", "--no-progress"]
+# Tiny and cheap: two volumes of cheap families (no plume), one of them held out.
+SPEC = ds.DatasetSpec(seed=67, n_volumes=2, n_heldout_volumes=1, resolution=(12, 12),
+                      base_resolution=16, configs_per_volume=2, points_per_config=24, n_paths=16,
+                      families=("cumulus", "blob"))
+SPEC_ARGS = ["--seed", "67", "--volumes", "2", "--heldout", "1", "--resolution", "12,12",
+             "--base", "16", "--configs", "2", "--points", "24", "--paths", "16",
+             "--families", "cumulus,blob", "--no-progress"]
 ROOT = Path(__file__).resolve().parent.parent
 
 

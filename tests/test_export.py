@@ -222,3 +222,36 @@ def test_level_count_must_match_contract(tmp_path):
     w = load_weights(save_weights(tmp_path / "y.npz", arch, p, gather_contract(64)),
                      expect_contract=gather_contract(64))
     assert w.arch.n_levels == 7 and len(w.contract["level_weights"]) == 7
+
+
+DOMAIN = {"albedo": [0.3, 0.999], "g": [-0.9, 0.99], "max_lobes": 3,
+          "optical_thickness": [1.0, 1000.0], "resolution": [32, 128]}
+
+
+def test_domain_round_trip_and_default(tmp_path, params, saved):
+    from clvol.export import DEFAULT_DOMAIN, weights_domain
+    p = save_weights(tmp_path / "d.npz", ARCH, params, gather_contract(), domain=DOMAIN)
+    w = load_weights(p, expect_contract=gather_contract())
+    assert w.meta["domain"] == DOMAIN and weights_domain(w.meta) == DOMAIN
+    # a file written without a domain reads as the first shipped model's
+    assert "domain" not in read_meta(saved)
+    assert weights_domain(read_meta(saved)) == DEFAULT_DOMAIN == {
+        "albedo": [0.8, 0.999], "g": [0.0, 0.9], "max_lobes": 3}
+
+
+@pytest.mark.parametrize("change, pattern", [
+    ({"extra": [0, 1]}, r"exactly the keys"),
+    ({"g": [0.9, -0.9]}, r"\[domain\.g\].*low <= high"),
+    ({"albedo": [0.3]}, r"\[domain\.albedo\].*\[low, high\]"),
+    ({"max_lobes": 4}, r"\[domain\.max_lobes\]"),
+    ({"optical_thickness": [1.0, float("inf")]}, r"\[domain\.optical_thickness\]"),
+])
+def test_bad_domain_refused_on_save_and_load(tmp_path, params, saved, change, pattern):
+    bad = dict(DOMAIN, **change)
+    with pytest.raises(WeightsError, match=pattern):
+        save_weights(tmp_path / "x.npz", ARCH, params, gather_contract(), domain=bad)
+    assert not (tmp_path / "x.npz").exists()
+    if "optical_thickness" not in change:     # (strict JSON has no inf to write into a file)
+        meta = dict(read_meta(saved), domain=bad)
+        with pytest.raises(WeightsError, match=pattern):
+            load_weights(_rewrite(saved, meta=meta))

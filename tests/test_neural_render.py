@@ -184,3 +184,18 @@ def test_shipped_weights_match_this_gather():
     w = load_network_weights(path)
     assert w.contract["base_resolution"] == 64 and w.arch.n_levels == 7
     assert np.all(np.isfinite(w.level_weights)) and w.meta["training"]["step"] == 16000
+
+
+def test_shipped_domain_model_matches_this_gather_and_records_its_domain():
+    """clvol/data/weights/domain_small.npz loads against the packaged templates and layout, and
+    its meta["domain"] is the whole-domain data sets' (exactly the keys the renderer reads)."""
+    from pathlib import Path
+    from clvol.export import DOMAIN_KEYS, weights_domain
+    from clvol.raymarch import load_network_weights
+    path = Path(__file__).resolve().parents[1] / "clvol" / "data" / "weights" / "domain_small.npz"
+    w = load_network_weights(path)
+    assert w.contract["base_resolution"] == 64 and w.arch.n_levels == 7
+    assert tuple(sorted(w.meta["domain"])) == tuple(sorted(DOMAIN_KEYS))
+    assert weights_domain(w.meta) == {"albedo": [0.3, 0.999], "g": [-0.9, 0.99], "max_lobes": 3,
+                                      "optical_thickness": [1.0, 1000.0], "resolution": [32, 128]}
+    assert w.meta["training"]["step"] == 12000

@@ -2,8 +2,9 @@
 beta -> 0 limit, normalisation, the lookup error bound against an independent Legendre
 series, g < 0 symmetry, MHG sums, and the per-frame phase-feature table.
 
-Tolerances: ``phasetable.ERROR_BOUND`` (1%) is the stated worst relative error of a table
-lookup for |g| <= 0.99 (measured 0.7% at g = 0.99 on 3000 random (mu, beta), mostly at tiny
+Tolerances: ``phasetable.PACKED_BOUND`` (1e-3) bounds the packaged (g, beta, theta) table,
+interpolated in g, against the exact cap averages at the table's nodes. ``phasetable.ERROR_BOUND``
+(1%) is the stated worst relative error of a table lookup for |g| <= 0.99 (measured 0.7% at g = 0.99 on 3000 random (mu, beta), mostly at tiny
 beta on the peak's shoulder); node values themselves are ~1e-7 relative or better.
 """
 import numpy as np
@@ -45,7 +46,7 @@ def random_queries(n, seed):
     return mu, beta
 
 
-@pytest.mark.parametrize("g", [0.3, 0.857, 0.99, -0.857])
+@pytest.mark.parametrize("g", [0.3, 0.857, 0.99, -0.857, 0.123, -0.9, -0.99])
 def test_lookup_within_error_bound(g):
     vp = P.volume_phase([(g, 1.0)])
     mu, beta = random_queries(600, seed=int(abs(g) * 1000))
@@ -55,13 +56,65 @@ def test_lookup_within_error_bound(g):
 
 
 def test_node_values_match_series():
+    # the exact path's quadrature (what the packaged table is made of), node by node
     betas, thetas = P._grid()
-    tab = P.lobe_table(0.99)
     rs = np.random.default_rng(5)
     j = rs.integers(1, len(betas), 30)
     k = rs.integers(0, thetas.shape[1], 30)
+    got = np.array([P._cap_average(thetas[a, b:b + 1], betas[a], 0.99)[0] for a, b in zip(j, k)])
     want = legendre_series(np.cos(thetas[j, k]), betas[j], 0.99)
-    np.testing.assert_allclose(tab[j, k], want, rtol=2e-6)
+    np.testing.assert_allclose(got, want, rtol=2e-6)
+
+
+def _exact_rows(g, rows):
+    """Rows of lobe_table_exact(g) without the whole table (the cap-average reference)."""
+    betas, thetas = P._grid()
+    ga = abs(g)
+    out = np.array([P._hg_theta(thetas[0], ga) if m == 0 else P._cap_average(thetas[m], betas[m], ga)
+                    for m in rows])
+    return out[:, ::-1] if g < 0 else out
+
+
+@pytest.mark.parametrize("g", [0.05, 0.2, 0.45, 0.7, 0.857, 0.93, 0.975, 0.985, 0.99,
+                               -0.3, -0.9, -0.99])
+def test_packaged_table_matches_the_exact_cap_average(g):
+    """The packaged table interpolated to g (mostly between its nodes) against the exact cap
+    averages on every theta node of 10 beta rows (incl. the smallest and largest cones):
+    within PACKED_BOUND = 1e-3 relative (measured worst 5.4e-4 at the midpoint nearest 0.99)."""
+    assert P._packed() is not None, "clvol/data/phase_lobes.npz missing or made for another grid"
+    rows = [0, 1, 2, 5, 20, 50, 80, 100, 110, P.N_BETA - 1]
+    got = P.lobe_table(g)[rows]
+    want = _exact_rows(g, rows)
+    assert np.max(np.abs(got / want - 1)) < P.PACKED_BOUND
+
+
+def test_packaged_table_is_used_for_any_g(monkeypatch):
+    """No cap-average quadrature runs for |g| <= 0.99 (what made a cold render slow); above it
+    the exact path runs."""
+    def boom(*a, **k):
+        raise AssertionError("exact quadrature called")
+    monkeypatch.setattr(P, "_cap_average", boom)
+    for g in (0.123457, -0.654321, 0.99):
+        assert np.all(np.isfinite(P.volume_phase([(g, 1.0)]).table))
+    with pytest.raises(AssertionError, match="exact quadrature"):
+        P.lobe_table(0.995)
+
+
+def test_packaged_file_is_small_and_rebuildable():
+    """A few MB of package data, made by scripts/make_phase_table.py for this grid."""
+    path = P._packed_path()
+    assert path.stat().st_size < 4_000_000
+    with np.load(path) as z:
+        import json
+        assert json.loads(z["meta"].tobytes().decode()) == P.packed_grid_meta()
+        assert z["q"].shape == (len(P.PACKED_U), P.N_BETA, P.N_THETA)
+    # the stored spline basis is scipy's not-a-knot cubic spline through the nodes
+    from scipy.interpolate import CubicSpline
+    u = np.asarray(P.PACKED_U)
+    ref = CubicSpline(u, np.eye(len(u)), axis=0, bc_type="not-a-knot")
+    basis_c, _ = P._packed()
+    for x in np.concatenate([u, np.random.default_rng(0).uniform(0, u[-1], 50)]):
+        np.testing.assert_allclose(P._spline_weights(basis_c, x), ref(x), atol=1e-12)
 
 
 def test_cone_average_of_isotropic_is_exact():

@@ -27,6 +27,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field
+from statistics import NormalDist
 from typing import Callable
 
 import numpy as np
@@ -427,6 +428,91 @@ def _blob(dom: _Domain, seed: int, *, count, radius, blend, wobble, density, edg
     return _solid_density(dom, sdf, density, edge)
 
 
+def _stratus(dom: _Domain, seed: int, *, layers, thickness, coverage, scale, octaves, detail,
+             density) -> np.ndarray:
+    """Horizontal sheets across the box: each layer a vertical tent profile (1 at its mid-height,
+    0 at half its thickness away), carved by fBm that is flattened (stretched 3x along x and z)
+    so the sheets break into wide patches rather than towers."""
+    rng = _rng(seed, 0)
+    # Layer mid-heights spread over the box height, the lowest at 0.2-0.4, others above it.
+    mids = np.sort(rng.uniform(0.2, 0.8, layers))
+    thick = thickness * rng.uniform(0.7, 1.3, layers)
+    fy = dom.frac[1]
+    prof = np.zeros_like(fy)
+    for m, t in zip(mids, thick):
+        prof = np.maximum(prof, 1.0 - np.abs(fy - m) / (0.5 * t))
+    prof = dom.axis(np.clip(prof, 0.0, 1.0), 1)
+    # Flattened noise: a horizontal period 3x the vertical one, from two octave sets.
+    wide = _fbm(dom, seed, 1, 3.0 * scale, octaves) * np.float32(1 / 0.11)
+    fine = _fbm(dom, seed, 2, scale, max(octaves - 1, 1)) * np.float32(1 / 0.11)
+    noise = np.float32(0.7) * wide + np.float32(0.3) * fine
+    f = prof + np.float32(0.35) * noise
+    threshold = 1.0 - 1.6 * coverage
+    d = _smoothstep(threshold, threshold + 0.35, f)
+    if detail > 0:
+        ero = np.float32(detail) * np.clip(0.5 + 0.5 * _fbm(dom, seed, 3, scale / 4.0, 3), 0.0, 1.0)
+        d = np.clip((d - ero) / (1.0 - ero), 0.0, 1.0)
+    d *= _box_taper(dom, 0.08)
+    return (np.float32(density) * d).astype(np.float32)
+
+
+def _noise(dom: _Domain, seed: int, *, scale, octaves, gain, coverage, softness, density) -> np.ndarray:
+    """Thresholded fractal (fBm) noise filling the box: heterogeneous media with no envelope."""
+    n = _fbm(dom, seed, 1, scale, octaves, gain=gain)
+    # Normalise by the field's own deviation so `coverage` means about the same at any gain
+    # and octave count; the threshold is the (1 - coverage) quantile of a normal field.
+    n = (n - n.mean(dtype=np.float64)) / max(float(n.std(dtype=np.float64)), 1e-6)
+    thr = NormalDist().inv_cdf(min(max(1.0 - coverage, 1e-3), 1.0 - 1e-3))
+    d = _smoothstep(thr - 0.5 * softness, thr + 0.5 * softness, n.astype(np.float32))
+    d *= _box_taper(dom, 0.06)
+    return (np.float32(density) * d).astype(np.float32)
+
+
+def _union(dom: _Domain, seed: int, *, count, size, blend, density, edge) -> np.ndarray:
+    """Union of random primitives (spheres, rounded boxes, tori, capsules), each at a random
+    position with a random principal axis; hard union (min) for blend 0, else a polynomial
+    smooth minimum of width ``blend``."""
+    rng = _rng(seed, 0)
+    x, y, z = _centred(dom)
+    sdf = None
+    for i in range(count):
+        kind = int(rng.integers(4))
+        c = rng.uniform(-0.5 + 1.2 * size, 0.5 - 1.2 * size, 3) if size < 0.4 else np.zeros(3)
+        axis = int(rng.integers(3))
+        s = size * rng.uniform(0.6, 1.0)
+        p = [x - np.float32(c[0]), y - np.float32(c[1]), z - np.float32(c[2])]
+        # rotate the frame so the primitive's main axis is `axis` (cyclic permutation)
+        p = p[axis:] + p[:axis]
+        if kind == 0:      # sphere
+            d = np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) - np.float32(s)
+        elif kind == 1:    # rounded box, sides 0.8-2 x s
+            half = s * rng.uniform(0.4, 1.0, 3)
+            r = np.float32(0.3 * half.min())
+            q = [np.abs(p[a]) - np.float32(half[a] - r) for a in range(3)]
+            o = [np.maximum(qa, 0) for qa in q]
+            d = (np.sqrt(o[0] * o[0] + o[1] * o[1] + o[2] * o[2])
+                 + np.minimum(np.maximum(np.maximum(q[0], q[1]), q[2]), 0.0) - r)
+        elif kind == 2:    # torus around the first axis
+            minor = s * rng.uniform(0.2, 0.4)
+            ring = np.sqrt(p[1] * p[1] + p[2] * p[2]) - np.float32(s - minor)
+            d = np.sqrt(ring * ring + p[0] * p[0]) - np.float32(minor)
+        else:              # capsule along the first axis
+            rad = s * rng.uniform(0.25, 0.5)
+            h = np.float32(s - rad)
+            a0 = np.clip(p[0], -h, h)
+            dx = p[0] - a0
+            d = np.sqrt(dx * dx + p[1] * p[1] + p[2] * p[2]) - np.float32(rad)
+        if sdf is None:
+            sdf = d
+        elif blend > 0:
+            k = np.float32(blend)
+            hmix = np.clip(0.5 + 0.5 * (d - sdf) / k, 0.0, 1.0)
+            sdf = sdf * hmix + d * (1 - hmix) - k * hmix * (1 - hmix)
+        else:
+            sdf = np.minimum(sdf, d)
+    return _solid_density(dom, sdf, density, edge)
+
+
 _DENSITY = Param(1.0, 1e-3, 1e3, "peak density (extinction = density x density_scale)")
 _EDGE = Param(1.5, 0.25, 16.0, "width of the soft surface in voxels (smoothstep of the signed distance)")
 
@@ -506,6 +592,45 @@ GENERATORS: dict[str, GeneratorInfo] = {g.name: g for g in [
             "edge": _EDGE,
         },
         _blob),
+    GeneratorInfo(
+        "stratus",
+        "Layered stratus: one to three horizontal sheets across the box, each a soft slab broken "
+        "into wide patches by horizontally stretched fBm, edges eroded by fine noise.",
+        {
+            "layers": Param(2, 1, 3, "number of sheets (mid-heights drawn from the seed, 0.2-0.8 of the box height)"),
+            "thickness": Param(0.15, 0.03, 0.5, "typical sheet thickness, fraction of the box height (each 0.7-1.3 x this)"),
+            "coverage": Param(0.6, 0.0, 1.0, "how much of each sheet is filled (0 almost empty, 1 solid)"),
+            "scale": Param(0.15, 0.02, 1.0, "vertical size of the patches, world units (3x wider horizontally)"),
+            "octaves": Param(4, 1, 8, "octaves of gradient noise"),
+            "detail": Param(0.25, 0.0, 0.95, "erosion of the soft edges by fine noise (0 = none)"),
+            "density": _DENSITY,
+        },
+        _stratus),
+    GeneratorInfo(
+        "noise",
+        "Fractal noise: gradient-noise fBm over the whole box, thresholded at a quantile so that "
+        "about `coverage` of the box is filled, with a soft transition and a taper at the faces.",
+        {
+            "scale": Param(0.3, 0.02, 1.0, "size of the largest features (first octave's lattice spacing), world units"),
+            "octaves": Param(5, 1, 8, "octaves of gradient noise"),
+            "gain": Param(0.5, 0.2, 0.8, "amplitude ratio of successive octaves (higher = rougher)"),
+            "coverage": Param(0.35, 0.02, 0.98, "fraction of the box above the threshold, before the face taper"),
+            "softness": Param(0.8, 0.05, 4.0, "width of the transition, in standard deviations of the noise"),
+            "density": _DENSITY,
+        },
+        _noise),
+    GeneratorInfo(
+        "union",
+        "An SDF union of random primitives (spheres, rounded boxes, tori, capsules) at random "
+        "positions and axes, hard (min) or smoothly blended, with a soft surface.",
+        {
+            "count": Param(4, 1, 12, "number of primitives"),
+            "size": Param(0.18, 0.03, 0.45, "typical primitive radius / half-size (each 0.6-1 x this), world units"),
+            "blend": Param(0.0, 0.0, 0.2, "width of the smooth union, world units (0 = hard union)"),
+            "density": _DENSITY,
+            "edge": _EDGE,
+        },
+        _union),
 ]}
 
 
