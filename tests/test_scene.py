@@ -601,20 +601,29 @@ def test_examples_exist():
 
 
 @pytest.mark.parametrize("path", EXAMPLE_FILES, ids=[p.stem for p in EXAMPLE_FILES])
-def test_example_loads_and_camera_frames_the_box(path):
+def test_example_camera_is_outside_and_frames_the_medium(path):
+    """The camera looks at the volume from outside its box, and (almost) all of the medium is
+    in the frame: the examples are framed tight on the medium, not on the box (whose corners
+    may be cut off). tests/test_examples.py checks that the medium fills the frame."""
     s = load_scene(path)
     assert s.volume.file is None, "examples keep their volumes generated (no binary files)"
-    lo = np.array(s.volume.bbox_min if s.volume.bbox_min else [-0.5] * 3)
-    hi = np.array(s.volume.bbox_max if s.volume.bbox_max else [0.5] * 3)
+    grid = s.volume.load()
+    lo, hi = np.asarray(grid.bbox_min), np.asarray(grid.bbox_max)
+    origin = np.array(s.camera.origin)
+    assert np.any((origin < lo) | (origin > hi)), "camera inside the box"
     fwd, right, up = s.camera.basis()
     tan_half = math.tan(math.radians(s.camera.fov_y) / 2)
     aspect = s.camera.width / s.camera.height
-    for corner in np.array(np.meshgrid(*zip(lo, hi))).reshape(3, -1).T:
-        v = corner - np.array(s.camera.origin)
-        depth = np.dot(v, fwd)
-        assert depth > 0
-        assert abs(np.dot(v, right) / depth) < tan_half * aspect
-        assert abs(np.dot(v, up) / depth) < tan_half
+    d = np.asarray(grid.density)
+    idx = np.argwhere(d > 0.01 * d.max())                      # (z, y, x) of the medium
+    n = np.array(d.shape)
+    centres = lo + (idx[:, ::-1] + 0.5) / n[::-1] * (hi - lo)
+    v = centres - origin
+    depth = v @ fwd
+    assert np.all(depth > 0)
+    inside = (np.abs(v @ right / depth) < tan_half * aspect) & (np.abs(v @ up / depth) < tan_half)
+    # At most 2% of the medium's voxels (stray wisps at the edge) may fall outside.
+    assert inside.mean() >= 0.98, inside.mean()
 
 
 @pytest.mark.parametrize("name", ["jade", "milk"])
