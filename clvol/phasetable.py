@@ -180,11 +180,9 @@ def lobe_table(g: float, n_theta: int = N_THETA, n_beta: int = N_BETA) -> np.nda
     theta_nodes(beta_m)[k], theta the angle between the cone axis and the lobe's axis.
 
     For |g| <= G_PACKED_MAX on the default grid, interpolated from the packaged table
-    (``packed_lobe_table``, milliseconds; within PACKED_BOUND of ``lobe_table_exact`` at every
-    node); otherwise the exact cap averages (~1.5 s per |g|)."""
-    g = float(g)
-    if not -1.0 < g < 1.0:
-        raise PhaseTableError(f"HG g = {g!r} must be in (-1, 1)")
+    (``packed_lobe_table``; within PACKED_BOUND of ``lobe_table_exact`` at every node);
+    otherwise the exact cap averages (slow: a quadrature per node; costs in docs/neural.md)."""
+    g = _check_g(g)
     if g == 0.0:
         return np.full((n_beta, n_theta), INV_4PI)
     if g < 0.0:
@@ -194,13 +192,18 @@ def lobe_table(g: float, n_theta: int = N_THETA, n_beta: int = N_BETA) -> np.nda
     return lobe_table_exact(g, n_theta, n_beta)
 
 
+def _check_g(g) -> float:
+    g = float(g)
+    if not -1.0 < g < 1.0:
+        raise PhaseTableError(f"HG g = {g!r} must be in (-1, 1)")
+    return g
+
+
 @lru_cache(maxsize=4)
 def lobe_table_exact(g: float, n_theta: int = N_THETA, n_beta: int = N_BETA) -> np.ndarray:
     """``lobe_table`` from the cap-average quadrature at every node (the reference; also what
     scripts/make_phase_table.py packs)."""
-    g = float(g)
-    if not -1.0 < g < 1.0:
-        raise PhaseTableError(f"HG g = {g!r} must be in (-1, 1)")
+    g = _check_g(g)
     if g == 0.0:
         return np.full((n_beta, n_theta), INV_4PI)
     if g < 0.0:
