@@ -24,12 +24,11 @@ from ..errors import ClvolError
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..kernels.phase import phase_defines
 from ..runtime import DeviceArray, get_runtime
-from .medium import DeviceMedium
+from .medium import DEFAULT_BLOCK, DeviceMedium
 from .sources import MsPlan, MsSource, NoMs
 
 DEFAULT_STEP = 1.0         # segment length in voxels of the density grid
 DEFAULT_THRESHOLD = 1e-3   # early termination when T_cam falls below this
-DEFAULT_BLOCK = 8          # voxels per majorant block per axis (empty-space skipping)
 MAX_LIGHT_RESOLUTION = 256
 MAX_SUPERSAMPLE = 8
 
