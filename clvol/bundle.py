@@ -19,7 +19,6 @@ point count and the recorded defines against a Python render.
 """
 from __future__ import annotations
 
-import math
 import shutil
 from pathlib import Path
 
@@ -256,7 +255,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["camera.forward"] = fwd.tolist()
     m["camera.right"] = right.tolist()
     m["camera.up"] = up.tolist()
-    m["camera.tan_half"] = math.tan(math.radians(cam.fov_y) / 2)
+    m["camera.tan_half"] = cam.tan_half_fov
     m["camera.width"] = cam.width
     m["camera.height"] = cam.height
 

@@ -30,14 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from .errors import SceneError, VolumeError
+from .errors import ClvolError, SceneError, VolumeError
 
 # --------------------------------------------------------------------------- limits
 
 HG_G_LIMIT = 0.99          # |g| above this makes HG peaks too narrow for our tables (docs/conventions.md)
 MHG_MAX_LOBES = 3
 MHG_WEIGHT_TOL = 1e-4      # lobe weights must sum to 1 within this, then are renormalised
-MAX_RESOLUTION = 1024
 MAX_IMAGE_SIZE = 16384
 VOLUME_SUFFIXES = (".vol", ".npy", ".npz", ".vdb")
 MAX_VDB_RESOLUTION = 16384   # [volume.max_resolution]: voxels on the longest axis, border included
@@ -207,10 +206,10 @@ class Camera:
             try:
                 j = np.broadcast_to(j, (h, w, 2))
             except ValueError:
-                raise ValueError(f"jitter of shape {np.shape(jitter)} does not broadcast "
+                raise ClvolError(f"jitter of shape {np.shape(jitter)} does not broadcast "
                                  f"to (height, width, 2) = ({h}, {w}, 2)") from None
             if not (np.all(j >= -0.5) and np.all(j <= 0.5)):   # also catches NaN
-                raise ValueError("jitter must be in [-0.5, 0.5] pixels")
+                raise ClvolError("jitter must be in [-0.5, 0.5] pixels")
             col = col + j[..., 0]
             row = row + j[..., 1]
         tan_half = self.tan_half_fov
@@ -415,7 +414,8 @@ _VOLUME_GENERATOR_KEYS = ("generator", "seed", "resolution", "params", "bbox_min
 
 
 def _parse_generator(ctx: "_Ctx", t: dict):
-    from .volume.generators import GENERATORS   # lazy: the volume package is optional here
+    # lazy: the volume package is optional here
+    from .volume.generators import GENERATORS, _check_resolution as check_resolution
     name = t["generator"]
     if not isinstance(name, str) or name not in GENERATORS:
         raise ctx.error("volume.generator", name, "unknown generator; allowed: "
@@ -437,14 +437,16 @@ def _parse_generator(ctx: "_Ctx", t: dict):
                 raise ctx.error("volume.resolution", res,
                                 f"must be one integer or a list of 3 integers [nx, ny, nz] "
                                 f"(got {len(res)} values)")
-            for r in res:
-                if isinstance(r, bool) or not isinstance(r, int) or not 1 <= r <= MAX_RESOLUTION:
-                    raise ctx.error("volume.resolution", res,
-                                    f"each component must be an integer in 1..{MAX_RESOLUTION}")
+            if any(isinstance(r, bool) or not isinstance(r, int) for r in res):
+                raise ctx.error("volume.resolution", res, "each component must be an integer")
             res = tuple(res)
-        elif isinstance(res, bool) or not isinstance(res, int) or not 1 <= res <= MAX_RESOLUTION:
+        elif isinstance(res, bool) or not isinstance(res, int):
             raise ctx.error("volume.resolution", res,
-                            f"must be an integer in 1..{MAX_RESOLUTION} or [nx, ny, nz]")
+                            "must be an integer or a list of 3 integers [nx, ny, nz]")
+        try:            # the limits are the generators' (clvol/volume/generators.py)
+            check_resolution(res)
+        except VolumeError as e:
+            raise ctx.error("volume.resolution", res, str(e)) from None
     raw = t.get("params", {})
     if not isinstance(raw, dict):
         raise ctx.error("volume.params", raw, "must be a table of generator parameters")

@@ -54,6 +54,7 @@ import numpy as np
 
 from .errors import ClvolError
 from .layout import DIFFUSE_LAYER_COUNTS, HIGHLIGHT_LAYER_COUNTS
+from .layout import n_levels as layout_n_levels
 
 SEED_RESOLUTION = 256            # the "2^8" of seed eq. 4
 HIGHLIGHT_HALF_ANGLE_DEG = 15.0  # cone around the light ray
@@ -343,7 +344,7 @@ class Templates:
 def level_for_spacing(spacing_voxels, base_resolution: int):
     """clamp(round(log2(spacing in base voxels)), 0, n_levels - 1), as the kernel computes it:
     floor(log2(s) + 0.5). A spacing of 0 (t_enter = 0) reads level 0."""
-    n_levels = int(round(math.log2(base_resolution))) + 1
+    n_levels = layout_n_levels(base_resolution)
     s = np.asarray(spacing_voxels, np.float64)
     with np.errstate(divide="ignore"):
         lv = np.floor(np.log2(s) + 0.5)

@@ -9,6 +9,7 @@ dF/dy = albedo^4 exp(y). Weights are He-scaled with positive biases so ReLUs sta
 import numpy as np
 import pytest
 
+from clvol.errors import NetworkInputError
 from clvol.export import Architecture, MlpWeights, default_params, feature_contract
 from clvol.kernels.mlp import MlpKernel, pack_params
 from reference import mlp as ref
@@ -135,11 +136,11 @@ def test_packed_layout(weights):
 
 def test_bad_inputs(net):
     f, c = ref.random_inputs(4, np.random.default_rng(0))
-    with pytest.raises(ValueError, match=r"features \(4, 3, 265\)"):
+    with pytest.raises(NetworkInputError, match=r"features \(4, 3, 265\)"):
         net.forward(f[:, :, :-1], c)
-    with pytest.raises(ValueError, match=r"config \(4, 8\)"):
+    with pytest.raises(NetworkInputError, match=r"config \(4, 8\)"):
         net.forward(f, c[:, :-1])
-    with pytest.raises(ValueError, match=r"channel_albedo must be 3 values in \[0, 1\]"):
+    with pytest.raises(NetworkInputError, match=r"channel_albedo must be 3 values in \[0, 1\]"):
         net.forward(f, c, channel_albedo=(0.5, 1.5, 0.5))
     assert net.forward(f[:0], c[:0]).shape == (0,)
 

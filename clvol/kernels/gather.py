@@ -45,8 +45,7 @@ class GatherError(ClvolError):
 
 def coarse_level(base_resolution: int) -> int:
     """Pyramid level used as the coarse occupancy grid for t_enter (<= 32^3 cells)."""
-    n_levels = int(np.log2(base_resolution)) + 1
-    return max(0, n_levels - 1 - int(np.log2(MAX_COARSE)))
+    return max(0, layout.n_levels(base_resolution) - 1 - int(np.log2(MAX_COARSE)))
 
 
 def _lobes(medium):

@@ -129,7 +129,8 @@ class PathTracer:
         mx, my, mz = self.mres
         self._medium_args = (
             device_medium.density.buffer, device_medium.majorant.buffer, np.int32(nx),
-            np.int32(ny), np.int32(nz), np.int32(mx), np.int32(my), np.int32(mz), f4(med.bbox_min), f4(med.bbox_max), self.bsize,
+            np.int32(ny), np.int32(nz), np.int32(mx), np.int32(my), np.int32(mz),
+            f4(med.bbox_min), f4(med.bbox_max), self.bsize,
             np.float32(med.density_scale), f4(med.albedo), self.lobe_g, self.lobe_w,
             f4(med.light_dir), f4(med.sun), f4(env))
         self.max_order = int(med.max_order or 0)
@@ -167,7 +168,7 @@ class PathTracer:
         k = self.program.kernel("pt_render", _RENDER_DTYPES)
         self._launch(k, n, self._medium_args + (
             f4(camera.origin), f4(fwd), f4(right), f4(up),
-            np.float32(np.tan(np.radians(camera.fov_y) / 2)), np.int32(w), np.int32(h),
+            np.float32(camera.tan_half_fov), np.int32(w), np.int32(h),
             np.uint64(seed), np.uint32(sample0), np.int32(spl), np.int32(self.max_order), out),
             RENDER_LANES)
         return rt.from_device(out, (spl, w * h, PT_OUT))
