@@ -13,7 +13,7 @@ The seed says 182 diffuse points but its per-layer counts sum to 194; we follow 
 Per query (one point p, view direction omega toward the camera, one colour channel):
   features  float32 [N][3][N_POINTS]     type-major: index FEATURE_TYPES
       density        log1p(optical thickness of one voxel of the layer's mip level),
-                     i.e. log1p(sigma_t,i * dx_i)  (DESIGN.md: invariant to scale x size)
+                     i.e. log1p(sigma_t,i * dx_i)  (docs/conventions.md: invariant to scale x size)
       transmittance  the combined graded transmittance sum_m w_m T_m + b (rendering), in
                      the units of T (no log); training uses ``levels`` below instead.
                      Each T_m is sampled at the voxel centres of the point's *density* level

@@ -12,7 +12,7 @@ passes of cl/pathtrace.cl, averaged in float64 on the host. Layers:
 The header records spp, seconds, seed, what was simulated and skipped (the kernel is
 specialised with -D defines for what the scene needs), and paths cut at the vertex limit.
 
-Point queries (``point_query``): the training-label API, F(p, omega) of DESIGN.md for a sun
+Point queries (``point_query``): the training-label API, F(p, omega) of docs/conventions.md for a sun
 of irradiance 1 and no environment, split into F_1 and F_>=2, with standard errors.
 
 The estimator, random-number layout and Russian roulette policy are documented at the top
@@ -174,7 +174,7 @@ def render(scene, args) -> RenderResult:
 def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
                 max_order: int | None = None, grid=None, runtime=None,
                 majorant_block: int = DEFAULT_BLOCK, device_medium=None) -> dict:
-    """In-scattered radiance F(p, omega) for a sun of irradiance 1 (DESIGN.md).
+    """In-scattered radiance F(p, omega) for a sun of irradiance 1 (docs/conventions.md).
 
     points (N, 3) world positions; omegas (N, 3) unit directions toward the camera.
     The sun is the scene's light direction with irradiance 1 in every channel; the

@@ -1,6 +1,6 @@
 """cl/mlp.cl (via clvol/kernels/mlp.py) against reference/mlp.py (float64).
 
-Tolerance (issue 5): |y_cl - y_ref| <= 1e-5 |y_ref| + 1e-5 * max|y_ref|. The kernel is float32
+Tolerance (the parity bound of docs/network.md): |y_cl - y_ref| <= 1e-5 |y_ref| + 1e-5 * max|y_ref|. The kernel is float32
 with fused multiply-adds; rounding enters each layer's sums (<= 105 terms, ~20 layers deep) at
 the scale of the activations, which is the output's scale, so the error is absolute at about
 that scale (measured <= 1e-6 * max|y|). Decoded F = albedo^4 (exp(y) - 1) inherits it through

@@ -325,7 +325,7 @@ def test_base_scene_values(tmp_path, gens):
     assert (s.camera.width, s.camera.height, s.camera.fov_y) == (32, 24, 35.0)
 
 
-# DESIGN.md's preset table, typed in independently: (albedo, lobes as (g, weight), type).
+# docs/conventions.md's preset table, typed in independently: (albedo, lobes as (g, weight), type).
 DESIGN_PRESETS = {
     "cloud": ((0.999,) * 3, [(0.857, 1.0)], "hg"),
     "fog": ((0.95,) * 3, [(0.7, 1.0)], "hg"),
