@@ -244,8 +244,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["medium.config_phase"] = cfg[0, :7].tolist()
 
     m.comment("light: direction toward the light (unit), irradiance RGB, background RGB")
-    l = np.asarray(light.direction, np.float64)
-    m["light.direction"] = (l / np.linalg.norm(l)).tolist()
+    m["light.direction"] = kt.check_light_dir(light.direction, "light.direction").tolist()
     m["light.irradiance"] = [float(v) for v in light.irradiance]
     m["light.background"] = [float(v) for v in plan.background]
 
