@@ -31,7 +31,7 @@ from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate
 
 TARGET_MS = 60.0
-BAKE_TARGET_MS = 100.0   # "well under 100 ms-class" (issue 4 discussion): part of a light change
+BAKE_TARGET_MS = 100.0   # "well under 100 ms": part of a light change (docs/templates.md)
 
 
 def cpu_seconds() -> float:

@@ -14,7 +14,7 @@ runs alternate within each repeat and medians are reported, with the load averag
 after: the cores are shared, so other processes' load lowers every figure. The last two
 columns divide by the process's CPU time instead of wall time (evaluations per CPU-second, for
 OpenCL and 1-thread torch): less sensitive to the load; 2 idle cores give at most twice that.
-Target (issue 5): >= 5x torch.
+Target: >= 5x torch.
 """
 from __future__ import annotations
 

@@ -88,7 +88,7 @@ class Before:
         out = rt.empty((n, PT_OUT))
         rt.launch(self.render_k, n, pt._medium_args + (
             f4(camera.origin), f4(fwd), f4(right), f4(up),
-            np.float32(np.tan(np.radians(camera.fov_y) / 2)), np.int32(camera.width),
+            np.float32(camera.tan_half_fov), np.int32(camera.width),
             np.int32(camera.height), np.uint64(seed), np.uint32(sample0), np.int32(spl),
             np.int32(pt.max_order), out))
         return rt.from_device(out, (spl, camera.width * camera.height, PT_OUT))

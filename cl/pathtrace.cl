@@ -1,6 +1,6 @@
 /* Reference volumetric path tracer: images and point queries (ground truth, training labels).
  *
- * Estimator (DESIGN.md; seed: the ground truth its network learns, "F(p, omega)")
+ * Estimator (docs/conventions.md; seed: the ground truth its network learns, "F(p, omega)")
  *   pixel = T(cam, exit) L_env + integral T(cam, x) sigma_s(x) [E F(x, omega) + env part] dt
  * sampled as a random walk:
  *   - free flight by delta tracking against the majorant grid (majorant.h; a 1-cell grid is

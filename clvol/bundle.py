@@ -19,7 +19,6 @@ point count and the recorded defines against a Python render.
 """
 from __future__ import annotations
 
-import math
 import shutil
 from pathlib import Path
 
@@ -245,8 +244,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["medium.config_phase"] = cfg[0, :7].tolist()
 
     m.comment("light: direction toward the light (unit), irradiance RGB, background RGB")
-    l = np.asarray(light.direction, np.float64)
-    m["light.direction"] = (l / np.linalg.norm(l)).tolist()
+    m["light.direction"] = kt.check_light_dir(light.direction, "light.direction").tolist()
     m["light.irradiance"] = [float(v) for v in light.irradiance]
     m["light.background"] = [float(v) for v in plan.background]
 
@@ -256,7 +254,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["camera.forward"] = fwd.tolist()
     m["camera.right"] = right.tolist()
     m["camera.up"] = up.tolist()
-    m["camera.tan_half"] = math.tan(math.radians(cam.fov_y) / 2)
+    m["camera.tan_half"] = cam.tan_half_fov
     m["camera.width"] = cam.width
     m["camera.height"] = cam.height
 

@@ -31,3 +31,7 @@ class BuildError(ClvolError):
 
 class WeightsError(ClvolError):
     """A weight file is missing, malformed, of another version or of another feature contract."""
+
+
+class NetworkInputError(ClvolError):
+    """Inputs to the network (features, config, albedo) that do not match its layout."""

@@ -13,7 +13,7 @@ The seed says 182 diffuse points but its per-layer counts sum to 194; we follow 
 Per query (one point p, view direction omega toward the camera, one colour channel):
   features  float32 [N][3][N_POINTS]     type-major: index FEATURE_TYPES
       density        log1p(optical thickness of one voxel of the layer's mip level),
-                     i.e. log1p(sigma_t,i * dx_i)  (DESIGN.md: invariant to scale x size)
+                     i.e. log1p(sigma_t,i * dx_i)  (docs/conventions.md: invariant to scale x size)
       transmittance  the combined graded transmittance sum_m w_m T_m + b (rendering), in
                      the units of T (no log); training uses ``levels`` below instead.
                      Each T_m is sampled at the voxel centres of the point's *density* level
@@ -56,9 +56,20 @@ DEFAULT_BASE_RESOLUTION = 256
 DEFAULT_LAMBDA = 0.6
 
 
+# Base resolutions a network can be trained at and run with (a power of two in this range).
+MIN_NETWORK_BASE, MAX_NETWORK_BASE = 2, 512
+
+
+def is_power_of_two(n) -> bool:
+    """``n`` is an integer (not a bool) >= 1 with a single bit set."""
+    return (isinstance(n, (int, np.integer)) and not isinstance(n, (bool, np.bool_))
+            and n >= 1 and (int(n) & (int(n) - 1)) == 0)
+
+
 def n_levels(base_resolution: int = DEFAULT_BASE_RESOLUTION) -> int:
-    """Mip levels from base^3 down to 1^3 (9 for 256, 11 for 1024)."""
-    return int(np.log2(base_resolution)) + 1
+    """Mip levels from base^3 down to 1^3 (9 for 256, 11 for 1024): log2(base) + 1 for the
+    power-of-two bases the pyramid takes."""
+    return int(base_resolution).bit_length()
 
 
 N_LEVELS = n_levels()

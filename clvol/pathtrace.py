@@ -12,7 +12,7 @@ passes of cl/pathtrace.cl, averaged in float64 on the host. Layers:
 The header records spp, seconds, seed, what was simulated and skipped (the kernel is
 specialised with -D defines for what the scene needs), and paths cut at the vertex limit.
 
-Point queries (``point_query``): the training-label API, F(p, omega) of DESIGN.md for a sun
+Point queries (``point_query``): the training-label API, F(p, omega) of docs/conventions.md for a sun
 of irradiance 1 and no environment, split into F_1 and F_>=2, with standard errors.
 
 The estimator, random-number layout and Russian roulette policy are documented at the top
@@ -29,10 +29,10 @@ from .kernels.pathtrace import (PT_OUT, ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_
                                 ROW_VERTICES, Medium, PathTracer)
 from .progress import Progress
 from .render import RenderResult
+from .render.medium import DEFAULT_BLOCK
 from .runtime import get_runtime
 
 DEFAULT_SPP = 64
-DEFAULT_BLOCK = 8
 # Paths per launch: enough work-items to fill the device, few enough for a responsive
 # progress bar and a time budget that stops close to its limit.
 PATHS_PER_LAUNCH = 1 << 16
@@ -73,12 +73,13 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
                      max_order: int | None = None, time_budget: float | None = None,
                      runtime=None, majorant_block: int = DEFAULT_BLOCK, grid=None,
                      progress: bool = True, specialise: bool = True,
-                     extra_defines: dict | None = None) -> RenderResult:
+                     extra_defines: dict | None = None, device_medium=None) -> RenderResult:
     """Path-trace ``scene``: ``spp`` samples per pixel (None = until ``time_budget``).
 
     With ``time_budget`` (seconds) the render stops before a sample pass that would end
     after the budget (judged from the passes so far; at least one pass always runs).
-    ``grid`` overrides ``scene.volume.load()``. Same seed, same device: same image, bit
+    ``grid`` overrides ``scene.volume.load()``; ``device_medium`` is that grid already on the
+    device (clvol/render/medium.py, built with ``majorant_block``). Same seed, same device: same image, bit
     for bit, whatever the budget cut (passes are fixed sample-index ranges).
     """
     spp = _check_int("--spp", spp, 1)
@@ -93,7 +94,8 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
     light = scene.light
     med = _medium(scene, grid, max_order, light.irradiance, light.environment)
     med.extra_defines = dict(extra_defines or {})
-    pt = PathTracer(med, majorant_block, specialise=specialise, runtime=runtime)
+    pt = PathTracer(med, majorant_block, specialise=specialise, runtime=runtime,
+                    device_medium=device_medium)
     cam = scene.camera
     npix = cam.width * cam.height
     spl_max = max(1, PATHS_PER_LAUNCH // npix)
@@ -171,8 +173,8 @@ def render(scene, args) -> RenderResult:
 
 def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
                 max_order: int | None = None, grid=None, runtime=None,
-                majorant_block: int = DEFAULT_BLOCK) -> dict:
-    """In-scattered radiance F(p, omega) for a sun of irradiance 1 (DESIGN.md).
+                majorant_block: int = DEFAULT_BLOCK, device_medium=None) -> dict:
+    """In-scattered radiance F(p, omega) for a sun of irradiance 1 (docs/conventions.md).
 
     points (N, 3) world positions; omegas (N, 3) unit directions toward the camera.
     The sun is the scene's light direction with irradiance 1 in every channel; the
@@ -184,6 +186,7 @@ def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
     plus "paths" (n_paths) and "truncated" (paths cut at the vertex limit). Points outside
     the box or where the density is 0 are valid (the walk starts there all the same).
     Query q's path j uses the random stream (seed, q, j): same inputs, same output.
+    ``device_medium``: the grid already on the device (as in ``render_pathtrace``).
     """
     n_paths = _check_int("n_paths", n_paths, 1, allow_none=False)
     max_order = _check_int("max_order", max_order, 1)
@@ -200,7 +203,7 @@ def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
     rt = runtime or get_runtime()
     grid = grid if grid is not None else scene.volume.load()
     med = _medium(scene, grid, max_order, (1.0, 1.0, 1.0), None)
-    pt = PathTracer(med, majorant_block, runtime=rt)
+    pt = PathTracer(med, majorant_block, runtime=rt, device_medium=device_medium)
     nq = len(p)
     out = {k: np.zeros((nq, 3)) for k in ("F1", "F1_se", "Fms", "Fms_se")}
     out["paths"] = n_paths

@@ -1,7 +1,7 @@
 """NumPy twin of cl/include/grid.h: trilinear grid lookups, ray/box intersection, camera rays.
 
 Grids are density[z][y][x]; voxel centres at bmin + (i + 0.5) * cell; trilinear between
-centres, clamped at the edges; 0 outside the box (DESIGN.md).
+centres, clamped at the edges; 0 outside the box (docs/conventions.md).
 """
 import numpy as np
 

@@ -6,7 +6,7 @@ template points, diffuse layers then highlight layers), config float32 [N][9]
 transmittance feature by sum_l level_weights[l] * levels[:, l] + level_bias (the seed's 3D-CNN);
 at render time the gather has already done that sum with the exported weights.
 
-The architecture (seed III.C with DESIGN.md's FC-ReLU-FC-sigmoid excitation) is written out in
+The architecture (seed III.C with the FC-ReLU-FC-sigmoid excitation of docs/conventions.md) is written out in
 clvol/export.py's docstring; this file is its executable statement, in float64 by default so it can
 serve as the yardstick for the float32 torch and OpenCL versions.
 

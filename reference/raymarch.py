@@ -1,7 +1,7 @@
 """NumPy twin of cl/raymarch.cl: the ray marcher (exact single scattering + a pluggable
 multiple-scattering source), one ray per pixel centre, all rays marched together.
 
-Pixel equation (DESIGN.md), omega = -d toward the camera, l toward the light:
+Pixel equation (docs/conventions.md), omega = -d toward the camera, l toward the light:
 
     L = int_0^D T_cam(t) sigma_s(x_t) E (F_1 + F_ms)(x_t, omega) dt + T_cam(D) L_background
 

@@ -41,7 +41,7 @@ def _rewrite(path, meta=None, arrays=None, drop=()):
 
 
 def test_counts_within_budget():
-    """Issue 5: at most ~100K parameters and ~100K multiply-adds per evaluation."""
+    """The network's budget (docs/network.md): at most ~100K parameters and ~100K multiply-adds per evaluation."""
     assert ARCH.n_params() <= 100_000
     assert ARCH.n_macs()["total"] <= 100_000
     # dense multiply-adds equal the linear weights: every weight is used once per evaluation

@@ -1,4 +1,4 @@
-"""cl/include/grid.h (via cl/grid.cl) against reference/grid.py and the DESIGN.md conventions.
+"""cl/include/grid.h (via cl/grid.cl) against reference/grid.py and the docs/conventions.md conventions.
 
 Tolerances: a trilinear lookup is 7 lerps of float32 values in [0, 1]; kernel and float64
 twin agree within 2e-6 absolute (~16 ULP of 1.0; the kernel's position -> voxel arithmetic
@@ -16,7 +16,7 @@ def _grid(shape=(5, 3, 7), seed=0):
 
 
 def test_mitsuba_row_convention():
-    """DESIGN.md: a 4-voxel row [0,1,2,3] over x in [0,1] is 0 at x=0.125, 1 at 0.375, 3 at 1."""
+    """docs/conventions.md: a 4-voxel row [0,1,2,3] over x in [0,1] is 0 at x=0.125, 1 at 0.375, 3 at 1."""
     d = np.arange(4, dtype=np.float32).reshape(1, 1, 4)
     pts = np.array([[0.125, 0.5, 0.5], [0.375, 0.5, 0.5], [1.0, 0.5, 0.5], [0.0, 0.5, 0.5],
                     [0.25, 0.5, 0.5]], np.float32)

@@ -2,7 +2,7 @@
 parity with the float64 NumPy reference, the learned level combination, the noise-aware
 targets, and short training runs (synthetic target; real path-traced labels).
 
-Parity tolerance: |y_torch - y_ref| <= 1e-5 |y_ref| + 1e-5 * max|y_ref| (issue 5: 1e-5 relative
+Parity tolerance: |y_torch - y_ref| <= 1e-5 |y_ref| + 1e-5 * max|y_ref| (docs/network.md: 1e-5 relative
 plus an absolute tolerance tied to the output scale). float32 rounding enters every layer's sums
 (<= 105 terms, ~20 layers deep) relative to the activations' scale, which is the output's scale
 here, so the error is absolute at about that scale; measured ~1e-6 * max|y|, 10x below the bound.
@@ -187,7 +187,7 @@ def _cloud_scene(light):
 
 @pytest.mark.slow
 def test_features_carry_light_transport():
-    """Issue 5's evidence test. One procedural cloud (32^3, optical depth ~20 across, albedo
+    """Evidence that the features carry light transport. One procedural cloud (32^3, optical depth ~20 across, albedo
     0.95, HG 0.857), 4 configurations (2 sun directions x 2 view directions, alpha 40-106 deg),
     700 points each inside the medium, labels F_>=2 path-traced with 128 paths (median relative
     error ~35%), features gathered from a 64^3 pyramid. A 300-step run (batch 128) on 75% of the

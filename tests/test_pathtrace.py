@@ -445,3 +445,19 @@ def test_pathtrace_tiny():
     w = np.array([[0, 0, 1], [0, 1, 0]], np.float32)
     k = pt.query_batch(pt.rt.to_device(p), pt.rt.to_device(w), 2, 1, 0, 1)
     assert agreement(k, rpt.query_paths(twin(med), p, w, 1, [0])) == 1.0
+
+
+def test_shared_device_medium_gives_the_same_rows_and_refuses_a_mismatch():
+    from clvol.render.medium import DeviceMedium
+    med = make_medium(lobes=[(0.5, 1.0)])
+    dm = DeviceMedium.upload(med, 2)
+    own = PathTracer(med, majorant_block=2).render_batch(CAM, 5, 0, 2)
+    shared = PathTracer(med, majorant_block=2, device_medium=dm)
+    assert shared.dm is dm
+    np.testing.assert_array_equal(shared.render_batch(CAM, 5, 0, 2), own)
+    with pytest.raises(ClvolError, match="majorant block"):
+        PathTracer(med, majorant_block=0, device_medium=dm)
+    with pytest.raises(ClvolError, match="shape"):
+        PathTracer(make_medium(density=_spiky()), majorant_block=2, device_medium=dm)
+    with pytest.raises(ClvolError, match="3-D"):
+        PathTracer(make_medium(density=np.ones((4, 4), np.float32)))

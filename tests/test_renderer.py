@@ -324,3 +324,5 @@ def test_per_frame_seed_is_path_tracer_only_and_reproducible():
         clvol.Renderer(scene).render(seed=1)
     with pytest.raises(ClvolError, match="seed"):
         pt.render(seed=-1)
+    # Every frame read the one volume uploaded at the first.
+    assert pt.counts["device_medium"] == 1 and pt.counts["pathtrace"] == 3

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clvol.errors import SceneError, VolumeError
+from clvol.errors import ClvolError, SceneError, VolumeError
 from clvol.scene import (PRESETS, Camera, Lobe, Phase, VolumeSpec, dumps_scene, load_scene,
                          scene_from_dict)
 
@@ -76,6 +76,9 @@ def _fake_generators():
 
     mod.generate = generate
     mod.calls = calls
+    # The resolution limits are the real generators' (the scene parser asks them).
+    from clvol.volume import generators as real
+    mod._check_resolution = real._check_resolution
     return mod
 
 
@@ -139,12 +142,14 @@ BAD = [
     ("volume.seed", -1, "volume.seed", "integer >= 0"),
     ("volume.seed", 1.5, "volume.seed", "integer >= 0"),
     ("volume.seed", True, "volume.seed", "integer >= 0"),
-    ("volume.resolution", 0, "volume.resolution", "1..1024"),
-    ("volume.resolution", 1025, "volume.resolution", "1..1024"),
-    ("volume.resolution", 64.0, "volume.resolution", "1..1024"),
-    ("volume.resolution", "64", "volume.resolution", "1..1024"),
+    ("volume.resolution", 0, "volume.resolution", "every axis must be in [1, 2048]"),
+    ("volume.resolution", 2049, "volume.resolution", "every axis must be in [1, 2048]"),
+    ("volume.resolution", 1024, "volume.resolution", "the limit is 134217728"),
+    ("volume.resolution", 64.0, "volume.resolution", "must be an integer or a list of 3"),
+    ("volume.resolution", "64", "volume.resolution", "must be an integer or a list of 3"),
     ("volume.resolution", [64, 64], "volume.resolution", "got 2 values"),
-    ("volume.resolution", [64, 0, 64], "volume.resolution", "each component"),
+    ("volume.resolution", [64, 0, 64], "volume.resolution", "every axis must be in [1, 2048]"),
+    ("volume.resolution", [64, 1.5, 64], "volume.resolution", "each component"),
     ("volume.params", 3, "volume.params", "must be a table"),
     ("volume.params", {"coverag": 0.5}, "volume.params.coverag",
      "allowed: coverage in [0, 1], octaves in [1, 8]"),
@@ -320,7 +325,7 @@ def test_base_scene_values(tmp_path, gens):
     assert (s.camera.width, s.camera.height, s.camera.fov_y) == (32, 24, 35.0)
 
 
-# DESIGN.md's preset table, typed in independently: (albedo, lobes as (g, weight), type).
+# docs/conventions.md's preset table, typed in independently: (albedo, lobes as (g, weight), type).
 DESIGN_PRESETS = {
     "cloud": ((0.999,) * 3, [(0.857, 1.0)], "hg"),
     "fog": ((0.95,) * 3, [(0.7, 1.0)], "hg"),
@@ -530,11 +535,11 @@ def test_jitter_moves_within_the_pixel():
 
 def test_jitter_rejects_bad_input():
     cam = _cam()
-    with pytest.raises(ValueError, match="broadcast"):
+    with pytest.raises(ClvolError, match="broadcast"):
         cam.pixel_directions(jitter=np.zeros((2, 4, 3)))
-    with pytest.raises(ValueError, match=r"\[-0.5, 0.5\]"):
+    with pytest.raises(ClvolError, match=r"\[-0.5, 0.5\]"):
         cam.pixel_directions(jitter=np.full((2, 4, 2), 0.75))
-    with pytest.raises(ValueError, match=r"\[-0.5, 0.5\]"):
+    with pytest.raises(ClvolError, match=r"\[-0.5, 0.5\]"):
         cam.pixel_directions(jitter=np.full((2, 4, 2), np.nan))
 
 

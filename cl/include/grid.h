@@ -1,4 +1,4 @@
-/* Dense grids, boxes and camera rays: the conventions of DESIGN.md in device code.
+/* Dense grids, boxes and camera rays: the conventions of docs/conventions.md in device code.
  *
  * A grid is float density[z][y][x] (x fastest) filling the box bmin..bmax.
  * Voxel i sits at the centre of cell i: bmin + (i + 0.5) * cell. Lookups are

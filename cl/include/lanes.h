@@ -1,5 +1,5 @@
 /* Helpers for kernels written with 16 explicit lanes per work-item (float16 across rays,
- * queries or template points), the style that makes PoCL fast on CPUs (DESIGN.md).
+ * queries or template points), the style that makes PoCL fast on CPUs (docs/conventions.md).
  * Twin: plain NumPy fancy indexing (p[i]) in each kernel's reference. */
 #ifndef CLVOL_LANES_H
 #define CLVOL_LANES_H

@@ -77,7 +77,7 @@ int maj_dda_init(maj_dda *s, float3 o, float3 d, float3 bmin, float3 bmax, float
     s->mx = mres.x;
     s->my = mres.y;
     s->mz = mres.z;
-    /* Cell of the entry point; clamping first makes the cast a floor (DESIGN.md). */
+    /* Cell of the entry point; clamping first makes the cast a floor (docs/conventions.md). */
     float3 c = clamp((o + t0 * d - bmin) / bsize, (float3)(0.0f), convert_float3(mres - 1));
     s->cx = (int)c.x;
     s->cy = (int)c.y;

@@ -1,6 +1,6 @@
 /* Phase functions: isotropic, Henyey-Greenstein (HG) and multi-lobe HG (MHG).
  *
- * Convention (DESIGN.md): the cosine is taken between *propagation* directions, so
+ * Convention (docs/conventions.md): the cosine is taken between *propagation* directions, so
  * g > 0 scatters forward. HG is normalised over the sphere:
  *     f(mu; g) = (1 - g^2) / (4 pi (1 + g^2 - 2 g mu)^(3/2)).
  * An MHG phase is sum_k w_k f(mu; g_k), weights summing to 1, passed as float4 lobe g's

@@ -33,7 +33,7 @@ from ..templates import load_templates
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
 from .pyramid import Pyramid
-from .transmittance import GradedT
+from .transmittance import GradedT, check_level_weights
 
 MODES = ("train", "render")
 MAX_COARSE = 32   # t_enter is found on the pyramid level with at most 32^3 cells
@@ -45,8 +45,7 @@ class GatherError(ClvolError):
 
 def coarse_level(base_resolution: int) -> int:
     """Pyramid level used as the coarse occupancy grid for t_enter (<= 32^3 cells)."""
-    n_levels = int(np.log2(base_resolution)) + 1
-    return max(0, n_levels - 1 - int(np.log2(MAX_COARSE)))
+    return max(0, layout.n_levels(base_resolution) - 1 - int(np.log2(MAX_COARSE)))
 
 
 def _lobes(medium):
@@ -110,13 +109,7 @@ BAKE_PAD = 8
 
 
 def _check_weights(level_weights, bias, n_levels):
-    w = np.asarray(level_weights, np.float64)
-    if w.shape != (n_levels,) or not np.all(np.isfinite(w)):
-        raise GatherError(f"level_weights must be {n_levels} finite numbers (one per graded level), "
-                          f"got {np.asarray(level_weights).tolist()!r}")
-    if not np.isfinite(float(bias)):
-        raise GatherError(f"bias = {bias!r} must be finite")
-    return w, float(bias)
+    return check_level_weights(level_weights, bias, n_levels, "level_weights", GatherError)
 
 
 def _taufac(pyramid: Pyramid, density_scale: float) -> np.ndarray:

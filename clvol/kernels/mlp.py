@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from ..errors import NetworkInputError
 from ..export import GAMMA, TYPES, MlpWeights
 from ..layout import CONFIG_DIM, CONFIG_FIELDS
 from ..runtime import get_runtime
@@ -60,7 +61,7 @@ class MlpKernel:
         """``defines``: extra -D options, overriding the defaults (a value of None removes
         one: tests use {"MLP_TRANSPOSE16": None} for the per-lane load path)."""
         if GAMMA != 4.0:  # the kernel's decode hard-codes albedo^4
-            raise ValueError("cl/mlp.cl decodes with gamma = 4")
+            raise RuntimeError("bug: clvol/export.py's GAMMA is not the 4 cl/mlp.cl decodes with")
         self.weights = weights
         self.arch = weights.arch
         self.rt = runtime or get_runtime()
@@ -109,7 +110,7 @@ class MlpKernel:
         rt = self.rt
         if isinstance(features, cl.Buffer) or isinstance(config, cl.Buffer):
             if n is None:
-                raise ValueError("pass n with device buffers")
+                raise NetworkInputError("MlpKernel.forward: pass n with device buffers")
             fb, cb = features, config
         else:
             features = np.asarray(features)
@@ -117,8 +118,8 @@ class MlpKernel:
             n = len(features)
             want_f = (n, len(TYPES), self.arch.n_points)
             if features.shape != want_f or config.shape != (n, CONFIG_DIM):
-                raise ValueError(f"features {features.shape} / config {config.shape}: expected "
-                                 f"{want_f} / {(n, CONFIG_DIM)} (clvol/layout.py)")
+                raise NetworkInputError(f"features {features.shape} / config {config.shape}: "
+                                        f"expected {want_f} / {(n, CONFIG_DIM)} (clvol/layout.py)")
             fb = rt.to_device(np.ascontiguousarray(features, np.float32))
             cb = rt.to_device(np.ascontiguousarray(config, np.float32))
         channels = 1 if channel_albedo is None else 3
@@ -148,5 +149,5 @@ class MlpKernel:
 def _channel_albedo(a) -> np.ndarray:
     a = np.asarray(a, np.float32).ravel()
     if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a < 0) or np.any(a > 1):
-        raise ValueError(f"channel_albedo must be 3 values in [0, 1], got {a.tolist()}")
+        raise NetworkInputError(f"channel_albedo must be 3 values in [0, 1], got {a.tolist()}")
     return a

@@ -1,6 +1,7 @@
 """Host wrapper for cl/pathtrace.cl: one launch = one batch of independent paths.
 
-``PathTracer`` uploads a medium once (density, majorant grid), picks the ``-D``
+``PathTracer`` takes a volume on the device (a ``DeviceMedium``: density and majorant grid,
+shared with the other methods, or uploaded here when none is given), picks the ``-D``
 specialisation the scene allows, and runs render or query batches, returning the raw
 per-path rows (layout ``ROW_*`` below) for the caller to average. Rendering policy
 (progress, time budget, images, standard errors) lives in ``clvol/pathtrace.py``.
@@ -11,10 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import ClvolError
 from ..runtime import get_runtime
 from . import phase as kphase
 from .grid import f4
-from .majorant import build_majorant_buffer, majorant_args
+from .majorant import majorant_args
 
 # Per-path output row of the kernels (PT_OUT floats).
 ROW_BG, ROW_L1, ROW_LMS = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -92,30 +94,43 @@ def specialisation(med: Medium, specialise: bool = True) -> tuple[dict, list[str
 class PathTracer:
     """A medium on the device and the kernels specialised for it."""
 
-    def __init__(self, med: Medium, majorant_block: int = 8, specialise: bool = True,
-                 runtime=None):
+    def __init__(self, med: Medium, majorant_block: int | None = None, specialise: bool = True,
+                 runtime=None, device_medium=None):
+        """``device_medium``: ``med``'s density already on the device with its majorant
+        (clvol/render/medium.py), built with ``majorant_block`` (None: its default);
+        None uploads one."""
         self.rt = rt = runtime or get_runtime()
         self.med = med
-        d = np.ascontiguousarray(med.density, np.float32)
-        if d.ndim != 3:
-            raise ValueError(f"density must be 3-D [z][y][x], got shape {d.shape}")
-        self.shape = d.shape
-        block = int(majorant_block) if majorant_block else max(d.shape)  # 0: global majorant
-        self.block = block
-        self._density = rt.to_device(d)
-        self._maj, _ = build_majorant_buffer(self._density, d.shape, block, rt)
-        (self.mres, self.bsize) = majorant_args(d.shape, med.bbox_min, med.bbox_max, block)
+        if device_medium is None:
+            from ..render.medium import DEFAULT_BLOCK, DeviceMedium
+            block = DEFAULT_BLOCK if majorant_block is None else majorant_block
+            device_medium = DeviceMedium.upload(med, block, rt)
+        else:
+            from ..render.medium import majorant_block as resolve_block
+            if np.shape(med.density) != device_medium.density.shape:
+                raise ClvolError(f"PathTracer: device medium of shape "
+                                 f"{device_medium.density.shape} for a density of shape "
+                                 f"{np.shape(med.density)}")
+            if (majorant_block is not None and resolve_block(
+                    majorant_block, device_medium.density.shape) != device_medium.block):
+                raise ClvolError(f"PathTracer: majorant block {majorant_block} but the device "
+                                 f"medium's is {device_medium.block}")
+        self.dm = device_medium
+        self.shape = device_medium.density.shape
+        self.block = block = device_medium.block
+        (self.mres, self.bsize) = majorant_args(self.shape, med.bbox_min, med.bbox_max, block)
         self.defines, self.simulated, self.skipped = specialisation(med, specialise)
         self.program = rt.program("pathtrace", {"PT_LANES": RENDER_LANES, **self.defines})
         self._query_program = None
         lobes = med.lobes if med.lobes else [(0.0, 1.0)]
         self.lobe_g, self.lobe_w = kphase.lobe_vectors(lobes)
         env = med.environment if med.environment is not None else (0.0, 0.0, 0.0)
-        nz, ny, nx = d.shape
+        nz, ny, nx = self.shape
         mx, my, mz = self.mres
         self._medium_args = (
-            self._density, self._maj, np.int32(nx), np.int32(ny), np.int32(nz), np.int32(mx),
-            np.int32(my), np.int32(mz), f4(med.bbox_min), f4(med.bbox_max), self.bsize,
+            device_medium.density.buffer, device_medium.majorant.buffer, np.int32(nx),
+            np.int32(ny), np.int32(nz), np.int32(mx), np.int32(my), np.int32(mz),
+            f4(med.bbox_min), f4(med.bbox_max), self.bsize,
             np.float32(med.density_scale), f4(med.albedo), self.lobe_g, self.lobe_w,
             f4(med.light_dir), f4(med.sun), f4(env))
         self.max_order = int(med.max_order or 0)
@@ -153,7 +168,7 @@ class PathTracer:
         k = self.program.kernel("pt_render", _RENDER_DTYPES)
         self._launch(k, n, self._medium_args + (
             f4(camera.origin), f4(fwd), f4(right), f4(up),
-            np.float32(np.tan(np.radians(camera.fov_y) / 2)), np.int32(w), np.int32(h),
+            np.float32(camera.tan_half_fov), np.int32(w), np.int32(h),
             np.uint64(seed), np.uint32(sample0), np.int32(spl), np.int32(self.max_order), out),
             RENDER_LANES)
         return rt.from_device(out, (spl, w * h, PT_OUT))

@@ -29,6 +29,7 @@ import pyopencl as cl
 from scipy import sparse
 
 from ..errors import ClvolError
+from ..layout import is_power_of_two, n_levels
 from ..runtime import Runtime, get_runtime
 from ..volume.grid import Grid
 
@@ -84,10 +85,6 @@ def level_offsets(base_resolution: int) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(sizes[:-1])]).astype(np.int64)
 
 
-def n_levels(base_resolution: int) -> int:
-    return int(base_resolution).bit_length()
-
-
 def pyramid_size(base_resolution: int) -> int:
     """Total number of floats in all levels."""
     return sum((base_resolution >> l) ** 3 for l in range(n_levels(base_resolution)))
@@ -95,10 +92,7 @@ def pyramid_size(base_resolution: int) -> int:
 
 def check_base_resolution(base_resolution, runtime: Runtime | None = None) -> int:
     """Return the base resolution as an int, or raise ClvolError naming the allowed values."""
-    ok = (isinstance(base_resolution, (int, np.integer)) and not isinstance(base_resolution, bool)
-          and 1 <= base_resolution <= MAX_BASE_RESOLUTION
-          and (int(base_resolution) & (int(base_resolution) - 1)) == 0)
-    if not ok:
+    if not (is_power_of_two(base_resolution) and base_resolution <= MAX_BASE_RESOLUTION):
         raise ClvolError(
             f"pyramid base_resolution = {base_resolution!r} must be a power of two from 1 to "
             f"{MAX_BASE_RESOLUTION} (e.g. 128, 256, 512)")

@@ -80,6 +80,19 @@ class GradedT:
 
 # ----------------------------------------------------------------------------- checks
 
+def check_level_weights(weights, bias, n_levels: int, name: str = "level_weights",
+                        error=ClvolError) -> tuple[np.ndarray, float]:
+    """(float64 weights, float bias) of a learned combination of the graded levels, or
+    ``error`` naming ``name`` (the gather raises its GatherError)."""
+    w = np.asarray(weights, np.float64)
+    if w.shape != (n_levels,) or not np.all(np.isfinite(w)):
+        raise error(f"{name} must be {n_levels} finite numbers (one per graded level), "
+                    f"got {np.asarray(weights).tolist()!r}")
+    if not np.isfinite(float(bias)):
+        raise error(f"{name}: bias = {bias!r} must be finite")
+    return w, float(bias)
+
+
 def check_light_dir(light_dir, where: str = "light_dir") -> np.ndarray:
     d = np.asarray(light_dir, dtype=np.float64)
     if d.shape != (3,) or not np.isfinite(d).all() or not np.linalg.norm(d) > 0:
@@ -268,12 +281,7 @@ def combine_levels(graded: GradedT, weights, bias: float = 0.0, as_buffer: bool 
     if graded.quantity != "transmittance":
         raise ClvolError(f"combine_levels needs transmittance fields, got quantity = "
                          f"{graded.quantity!r} (call graded_transmittance with the default quantity)")
-    w = np.asarray(weights, dtype=np.float64)
-    if w.shape != (graded.n_levels,) or not np.isfinite(w).all():
-        raise ClvolError(f"combine_levels weights must be {graded.n_levels} finite numbers (one "
-                         f"per level), got {np.asarray(weights).tolist()!r}")
-    if not np.isfinite(float(bias)):
-        raise ClvolError(f"combine_levels bias = {bias!r} must be finite")
+    w, bias = check_level_weights(weights, bias, graded.n_levels, "combine_levels weights")
     rt = graded.pyramid.runtime
     base = graded.base_resolution
     k = rt.program("transmittance").kernel("combine_levels",

@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from ..errors import ClvolError, WeightsError
+from ..layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
 from ..runtime import Stopwatch, get_runtime
 from .sources import GridMs, MsGrid, MsPlan, check_ms_grid, ms_lattice, register
 
@@ -65,9 +66,9 @@ def load_network_weights(path):
         path = path.path
     c = read_meta(path)["contract"]
     base, lam = c.get("base_resolution"), c.get("lambda")
-    if not (isinstance(base, int) and 2 <= base <= 512 and base & (base - 1) == 0):
+    if not (is_power_of_two(base) and MIN_NETWORK_BASE <= base <= MAX_NETWORK_BASE):
         raise WeightsError(f"{path}: [contract.base_resolution] = {base!r}: must be a power of two "
-                           f"from 2 to 512")
+                           f"from {MIN_NETWORK_BASE} to {MAX_NETWORK_BASE}")
     if not (isinstance(lam, (int, float)) and 0 < lam <= 1):
         raise WeightsError(f"{path}: [contract.lambda] = {lam!r}: must be in (0, 1]")
     return load_weights(path, expect_contract=gather_contract(base, float(lam)))

@@ -21,15 +21,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ClvolError
-from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..kernels.phase import phase_defines
+from ..kernels.pyramid import MAX_BASE_RESOLUTION
+from ..kernels.raymarch import LIGHT_QUANTITIES, launch
+from ..layout import is_power_of_two
 from ..runtime import DeviceArray, get_runtime
-from .medium import DeviceMedium
+from .medium import DEFAULT_BLOCK, DeviceMedium
 from .sources import MsPlan, MsSource, NoMs
 
 DEFAULT_STEP = 1.0         # segment length in voxels of the density grid
 DEFAULT_THRESHOLD = 1e-3   # early termination when T_cam falls below this
-DEFAULT_BLOCK = 8          # voxels per majorant block per axis (empty-space skipping)
 MAX_LIGHT_RESOLUTION = 256
 MAX_SUPERSAMPLE = 8
 
@@ -41,10 +42,10 @@ def check_march_options(step, threshold, light_resolution, supersample, light_in
         raise bad("step", step, "must be in [0.01, 64] voxels")
     if not (isinstance(threshold, (int, float)) and math.isfinite(threshold) and 0 <= threshold < 1):
         raise bad("threshold", threshold, "must be in [0, 1) (0 disables early termination)")
-    if light_resolution is not None and not (
-            isinstance(light_resolution, (int, np.integer)) and 1 <= light_resolution <= 1024
-            and light_resolution & (light_resolution - 1) == 0):
-        raise bad("light_resolution", light_resolution, "must be a power of two from 1 to 1024")
+    if light_resolution is not None and not (  # the light field's pyramid base
+            is_power_of_two(light_resolution) and light_resolution <= MAX_BASE_RESOLUTION):
+        raise bad("light_resolution", light_resolution,
+                  f"must be a power of two from 1 to {MAX_BASE_RESOLUTION}")
     if not (isinstance(supersample, (int, np.integer)) and 1 <= supersample <= MAX_SUPERSAMPLE):
         raise bad("supersample", supersample, f"must be an integer from 1 to {MAX_SUPERSAMPLE}")
     if light_interp not in LIGHT_QUANTITIES:

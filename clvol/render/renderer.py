@@ -13,7 +13,7 @@ refused (clvol/render/options.py). Device state (the volume and its majorant, th
 field, the network's pyramid and lattice) is kept between calls and rebuilt only when a
 change invalidates it:
 
-    volume, device_medium   once per Renderer
+    volume, device_medium   once per Renderer (both methods read the same DeviceMedium)
     light_field             light direction or density scale changed
     graded_transmittance    the same, for the network's pyramid
     ms_lattice              camera position, light direction or medium changed (network)
@@ -66,6 +66,7 @@ class Renderer:
         self.counts: Counter = Counter()
         self._grid = grid
         self._marcher = None
+        self._device_medium = None
         self._warned: set = set()
         self.source = self.fallback = None
         self._tau1 = self.thin = None
@@ -82,6 +83,17 @@ class Renderer:
             self._grid = self.scene.volume.load()
             self._count("volume")
         return self._grid
+
+    @property
+    def device_medium(self):
+        """The volume on the device with its majorant (uploaded on first use, shared by
+        every frame and method)."""
+        if self._device_medium is None:
+            from .medium import DeviceMedium
+            self._device_medium = DeviceMedium.upload(self.grid, self.options["majorant_block"],
+                                                      self.rt)
+            self._count("device_medium")
+        return self._device_medium
 
     # ------------------------------------------------------------------ raymarch
     def _setup_raymarch(self) -> None:
@@ -172,8 +184,8 @@ class Renderer:
                 grid = self.grid
             if self._marcher is None:
                 self._marcher = RayMarcher(grid, medium, self.rt, o["majorant_block"],
-                                           o["light_resolution"], o["light_interp"])
-                self._count("device_medium")
+                                           o["light_resolution"], o["light_interp"],
+                                           device_medium=self.device_medium)
             rm = self._marcher
             rm.set_medium(medium)
             if s > 1:
@@ -234,9 +246,10 @@ class Renderer:
         from ..pathtrace import render_pathtrace
         o = self.options
         scene = dataclasses.replace(self.scene, camera=cam, light=light, medium=medium)
-        res = render_pathtrace(scene, spp=o["spp"], seed=o["seed"] if seed is None else seed, max_order=o["max_order"],
-                               time_budget=o["time"], runtime=self.rt,
-                               majorant_block=o["majorant_block"], grid=self.grid)
+        res = render_pathtrace(scene, spp=o["spp"], seed=o["seed"] if seed is None else seed,
+                               max_order=o["max_order"], time_budget=o["time"], runtime=self.rt,
+                               majorant_block=o["majorant_block"], grid=self.grid,
+                               device_medium=self.device_medium)
         self._count("pathtrace")
         res.header = {"method": "pathtrace",
                       "method.description": "volumetric path tracing (reference)", **res.header}

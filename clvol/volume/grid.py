@@ -1,6 +1,6 @@
 """The dense density grid every part of clvol shares.
 
-Conventions (docs/volumes.md, DESIGN.md):
+Conventions (docs/volumes.md, docs/conventions.md):
 - ``density`` is float32, C-contiguous, shape ``(nz, ny, nx)``: indexed ``[z][y][x]``, x fastest,
   the layout of Mitsuba's ``.vol``. Values are finite and >= 0 (extinction = density * density_scale).
 - The grid fills the axis-aligned box ``bbox_min..bbox_max`` (float64, x, y, z order). Voxel ``i``

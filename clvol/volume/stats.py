@@ -1,7 +1,7 @@
 """Summary numbers for a density grid (``clvol volume info``).
 
 Optical thickness along an axis-aligned line through a row of voxel centres: with trilinear
-interpolation clamped at the edges (DESIGN.md), the density along the row is piecewise linear
+interpolation clamped at the edges (docs/conventions.md), the density along the row is piecewise linear
 between centres and constant over the half cells at both ends, so its integral over the box is
 exactly ``sum(density) * cell``. ``max_optical_thickness`` is the largest such value over all
 rows along x, y and z, times ``density_scale``: how opaque the grid is at its thickest.
