@@ -98,11 +98,11 @@ class Architecture:
         object.__setattr__(self, "layer_counts", tuple(int(c) for c in self.layer_counts))
         object.__setattr__(self, "head_widths", tuple(int(c) for c in self.head_widths))
         if not 1 <= self.n_diffuse_layers < len(self.layer_counts):
-            raise ValueError("need at least one diffuse and one highlight layer")
+            raise WeightsError("need at least one diffuse and one highlight layer")
         if min(self.layer_counts) < 1 or min(self.head_widths, default=1) < 1:
-            raise ValueError("layer counts and widths must be positive")
+            raise WeightsError("layer counts and widths must be positive")
         if self.config_dim != layout.CONFIG_DIM:  # the forward reads g_mean, albedo, alpha by index
-            raise ValueError(f"config_dim must be {layout.CONFIG_DIM} (clvol.layout.CONFIG_FIELDS)")
+            raise WeightsError(f"config_dim must be {layout.CONFIG_DIM} (clvol.layout.CONFIG_FIELDS)")
 
     @property
     def n_points(self) -> int:
@@ -192,7 +192,7 @@ class Architecture:
                 raise WeightsError(f"{where}: [architecture.{k}] is {d[k]!r}; this code supports {want!r}")
         try:
             return cls(**{k: d[k] for k in keys})
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, WeightsError) as exc:
             raise WeightsError(f"{where}: [architecture] is invalid: {exc}") from None
 
 

@@ -1,6 +1,6 @@
 """Volume-phase tables (seed eq. 6) and the per-frame phase-feature table (seed eq. 5).
 
-Volume phase (DESIGN.md): the phase function *averaged* over the cone of directions that a
+Volume phase (docs/conventions.md): the phase function *averaged* over the cone of directions that a
 template point's volume subtends from the query point,
 
     fbar(mu, beta) = 1 / (2 pi (1 - cos beta)) * integral over {phi : angle(phi, d) <= beta} of f(a . phi) dphi

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from . import layout
+from .errors import ClvolError
 from .export import GAMMA, TYPES
 from .model import Model
 
@@ -254,7 +255,7 @@ def split_shards(shards, cfg: RunConfig):
     held = [s for s in shards if s.volume in hv or s.config_index == hc]
     train = [s for s in shards if not (s.volume in hv or s.config_index == hc)]
     if not train or not held:
-        raise ValueError(f"held-out split of {len(shards)} shards leaves {len(train)} for training "
+        raise ClvolError(f"held-out split of {len(shards)} shards leaves {len(train)} for training "
                          f"and {len(held)} held out (held-out volumes {sorted(hv)}, configuration "
                          f"{hc}); both must be non-empty")
     return train, held
