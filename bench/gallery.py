@@ -150,8 +150,9 @@ def write_markdown(path: Path, rows, args, machine: str) -> None:
         "yellow-white). One exposure per row (from the reference), filmic tone curve; "
         f"{args.size}x{args.size} pixels.",
         "",
-        "Times: median of warm frames with the device state kept (`clvol.Renderer`); the "
-        "reference's time is its whole render. MRPNN: RMSE x100 of 8-bit codes after the MRPNN "
+        "Times: median of warm frames with the device state kept (`clvol.Renderer`), the "
+        "same view each frame, so the paper's method reuses its F_ms lattice (a moving camera "
+        "refills it: `bench/bench_orbit.py`); the reference's time is its whole render. MRPNN: RMSE x100 of 8-bit codes after the MRPNN "
         "exposure (`clvol.metrics.mrpnn_metric`); relMSE; mean: image mean over the "
         "reference's. Errors include the reference's own noise.",
         "",
