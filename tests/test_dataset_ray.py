@@ -214,12 +214,15 @@ def test_two_node_loopback_cluster_makes_the_serial_bytes(serial, tmp_path):
     out, out_client, logs = tmp_path / "data", tmp_path / "data_client", tmp_path / "logs"
     logs.mkdir()
     env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0",
+           # The Ray Client proxy starts a Python server process per client; on two busy
+           # cores that can take longer than its default 30 s readiness wait.
+           "RAY_CLIENT_SERVER_CHECK_CHANNEL_TIMEOUT_S": "150",
            "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
            "PY": sys.executable, "OUT": str(out), "OUT_CLIENT": str(out_client), "LOGS": str(logs)}
     env.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)     # a real (multi-node) cluster
     p = subprocess.run(["unshare", "--net", "--pid", "--fork", "--mount-proc", "bash", "-c",
                         CLUSTER, "cluster", *SPEC_ARGS], env=env, cwd=tmp_path,
-                       capture_output=True, text=True, timeout=240)
+                       capture_output=True, text=True, timeout=420)
     assert p.returncode == 0, (p.stdout + p.stderr)[-3000:]
     nodes = json.loads(next(line for line in p.stdout.splitlines()
                             if line.startswith("NODES "))[6:])
