@@ -72,7 +72,7 @@ DEFAULT_CONFIG_SCALE = tuple(1.0 / math.pi if f == "alpha" else 1.0 for f in lay
 PHASE_PARAMETERISATION = (
     "config g0 g1 g2 w0 w1 w2: up to 3 Henyey-Greenstein lobes (unused: g 0, weight 0), weights sum "
     "to 1; g_mean = sum w_k g_k is the one g of the attention squeeze; phase features log1p(f*f*) "
-    "of cone-averaged HG (DESIGN.md)")
+    "of cone-averaged HG (docs/conventions.md)")
 OUTPUT_ENCODING = "y = log(F / albedo^4 + 1), F = multiple scattering (orders >= 2) for unit irradiance"
 
 DOMAIN_KEYS = ("albedo", "g", "max_lobes", "optical_thickness", "resolution")
