@@ -238,7 +238,8 @@ def make_app(scene, save_dir: Path | None = None):
                                   "methods": list(METHODS)})
 
     async def websocket(request):
-        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE_BYTES * 4)
+        # No per-message deflate: frames are PNG (already compressed), so it would only cost CPU.
+        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE_BYTES * 4, compress=False)
         await ws.prepare(request)
         conn = Connection(ws, maker, initial, save_dir)
         app["connections"].add(conn)
