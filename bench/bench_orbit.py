@@ -138,11 +138,13 @@ def main(argv=None) -> int:
                 if motion == "camera" and size == 256:
                     verdicts.append(f"camera motion, {volume}, 256^2: default / plain = "
                                     f"{md / mp:.2f} wall, {cd / cp:.2f} cpu (target <= 1.5): "
-                                    f"{'met' if max(md / mp, cd / cp) <= 1.5 else 'NOT met'}")
+                                    f"wall {'met' if md / mp <= 1.5 else 'NOT met'}, "
+                                    f"cpu {'met' if cd / cp <= 1.5 else 'NOT met'}")
                 if motion == "light" and volume == "cloud128":
                     verdicts.append(f"light change, 128^3, {size}^2: {md * 1e3:.0f} ms per frame "
                                     f"wall, {cd * 1e3:.0f} ms cpu (target <= 250 ms): "
-                                    f"{'met' if max(md, cd) <= 0.25 else 'NOT met'}")
+                                    f"wall {'met' if md <= 0.25 else 'NOT met'}, "
+                                    f"cpu {'met' if cd <= 0.25 else 'NOT met'}")
     print("\n".join(verdicts))
     print(machine(rt))
     return 0
