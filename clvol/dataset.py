@@ -35,6 +35,7 @@ import io
 import json
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -563,10 +564,34 @@ def make_dataset(spec: DatasetSpec, out_dir, runtime=None, progress: bool = True
     return {"made": made, "skipped": spec.n_shards - len(todo)}
 
 
+class ShardArrays(Mapping):
+    """A shard's arrays, read from its file when asked for (a training set of thousands of
+    shards would not fit in memory twice: the trainer copies each array once, then drops it)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in ARRAYS:
+            raise KeyError(name)
+        try:
+            with np.load(self.path, allow_pickle=False) as z:
+                return z[name]
+        except Exception as exc:
+            raise DatasetError(f"{self.path}: cannot read array {name!r} "
+                               f"({type(exc).__name__}: {exc})") from None
+
+    def __iter__(self):
+        return iter(ARRAYS)
+
+    def __len__(self) -> int:
+        return len(ARRAYS)
+
+
 @dataclass
 class Shard:
     path: Path
-    arrays: dict
+    arrays: Mapping
     meta: dict
 
     @property
@@ -590,7 +615,6 @@ def read_shard(path) -> Shard:
             missing = [k for k in ARRAYS if k not in z.files]
             if missing:
                 raise DatasetError(f"{path}: shard lacks array(s) {missing}")
-            arrays = {k: z[k] for k in ARRAYS}
     except DatasetError:
         raise
     except Exception as exc:
@@ -599,7 +623,7 @@ def read_shard(path) -> Shard:
         raise DatasetError(f"{path}: [format] {meta.get('format')!r} version "
                            f"{meta.get('format_version')!r}; expected {DATASET_FORMAT!r} "
                            f"{' or '.join(map(str, READABLE_VERSIONS))}")
-    return Shard(path, arrays, meta)
+    return Shard(path, ShardArrays(path), meta)
 
 
 def load_shards(data_dir) -> list[Shard]:

@@ -53,9 +53,13 @@ def encode_labels(F, se, albedo, gamma: float = GAMMA, floor: float = 0.05):
 
 @dataclass
 class Samples:
-    """Training samples as float32 arrays: features [S][3][P], levels [S][L][P] or None,
-    config [S][9], target y [S], weight [S], var_y [S], and key [S] (an int naming the
-    configuration the sample came from, for per-configuration baselines)."""
+    """Training samples as float32 arrays: features [Q][3][P], levels [Q][L][P] or None,
+    config [S][9], target y [S], weight [S], var_y [S], key [S] (an int naming the
+    configuration the sample came from, for per-configuration baselines), and row [S] or None.
+
+    A chromatic query gives up to three samples that share its features and levels, so these
+    are stored once per query and sample i reads row ``row[i]`` (None: row i). Without the
+    indirection a million-label data set would hold every feature block up to three times."""
     features: np.ndarray
     config: np.ndarray
     y: np.ndarray
@@ -63,14 +67,23 @@ class Samples:
     var: np.ndarray
     levels: np.ndarray | None = None
     key: np.ndarray | None = None
+    row: np.ndarray | None = None
 
     def __len__(self):
         return len(self.y)
 
+    def rows(self, idx=slice(None)) -> np.ndarray:
+        """Feature rows of samples ``idx``."""
+        return np.arange(len(self.y))[idx] if self.row is None else self.row[idx]
+
     def subset(self, idx) -> "Samples":
-        pick = (lambda a: None if a is None else a[idx])
-        return Samples(self.features[idx], self.config[idx], self.y[idx], self.weight[idx],
-                       self.var[idx], pick(self.levels), pick(self.key))
+        return Samples(self.features, self.config[idx], self.y[idx], self.weight[idx],
+                       self.var[idx], self.levels, None if self.key is None else self.key[idx],
+                       row=self.rows(idx))
+
+    def row_counts(self) -> np.ndarray:
+        """How many samples read each feature row."""
+        return np.bincount(self.rows(), minlength=len(self.features))
 
 
 def make_samples(features, config, F, F_se, albedo_rgb, levels=None, key=None,
@@ -99,20 +112,34 @@ def make_samples(features, config, F, F_se, albedo_rgb, levels=None, key=None,
     y = np.concatenate([p[0] for p in parts])
     var = np.concatenate([p[1] for p in parts])
     w = 1.0 / (var + floor ** 2) if math.isfinite(floor) else np.ones_like(y)
-    return Samples(features=np.asarray(features, np.float32)[idx],
+    return Samples(features=np.asarray(features, np.float32),
                    config=np.concatenate([p[2] for p in parts]),
                    y=y.astype(np.float32), weight=(w / w.mean()).astype(np.float32),
                    var=var.astype(np.float32),
-                   levels=None if levels is None else np.asarray(levels, np.float32)[idx],
-                   key=None if key is None else np.asarray(key)[idx])
+                   levels=None if levels is None else np.asarray(levels, np.float32),
+                   key=None if key is None else np.asarray(key)[idx], row=idx.astype(np.int64))
 
 
 def concat_samples(items) -> Samples:
+    """One sample set from several; feature rows are copied once into preallocated arrays
+    (the inputs may be views of shard files that are released as soon as they are copied)."""
     items = list(items)
     cat = (lambda name: None if getattr(items[0], name) is None
            else np.concatenate([getattr(s, name) for s in items]))
-    s = Samples(*(cat(n) for n in ("features", "config", "y", "weight", "var")),
-                levels=cat("levels"), key=cat("key"))
+    n_rows = sum(len(s.features) for s in items)
+    features = np.empty((n_rows,) + items[0].features.shape[1:], np.float32)
+    levels = (None if items[0].levels is None
+              else np.empty((n_rows,) + items[0].levels.shape[1:], np.float32))
+    rows, start = [], 0
+    for s in items:
+        n = len(s.features)
+        features[start:start + n] = s.features
+        if levels is not None:
+            levels[start:start + n] = s.levels
+        rows.append(s.rows() + start)
+        start += n
+    s = Samples(features, *(cat(n) for n in ("config", "y", "weight", "var")),
+                levels=levels, key=cat("key"), row=np.concatenate(rows))
     s.weight = (s.weight / s.weight.mean()).astype(np.float32)
     return s
 
@@ -128,23 +155,35 @@ def weighted_loss(y_hat: torch.Tensor, y: torch.Tensor, weight: torch.Tensor | N
 def set_normalisation(model: Model, samples: Samples) -> None:
     """Feature shift/scale per type from the training data (mean and 1/std; the transmittance
     statistics are of the initial level combination when levels are given)."""
-    f = samples.features.astype(np.float64)
+    # Statistics over samples (a row counts as often as samples read it), accumulated per type
+    # in float64 over blocks of rows so no float64 copy of the whole feature array is made.
+    counts = samples.row_counts().astype(np.float64)
     if samples.levels is not None:
         with torch.no_grad():
             w = model.level_weights.detach().double().numpy()
             b = float(model.level_bias.detach())
-        f = f.copy()
-        f[:, T_INDEX] = np.einsum("nlp,l->np", samples.levels.astype(np.float64), w) + b
-    mean = f.mean(axis=(0, 2))
-    std = f.std(axis=(0, 2))
+    n_types = samples.features.shape[1]
+    s1, s2 = np.zeros(n_types), np.zeros(n_types)
+    for i in range(0, len(counts), 8192):
+        f = samples.features[i:i + 8192].astype(np.float64)
+        if samples.levels is not None:
+            f[:, T_INDEX] = np.einsum("nlp,l->np", samples.levels[i:i + 8192].astype(np.float64), w) + b
+        c = counts[i:i + 8192]
+        s1 += np.einsum("n,ntp->t", c, f)
+        s2 += np.einsum("n,ntp->t", c, f * f)
+    total = counts.sum() * samples.features.shape[2]
+    mean = s1 / total
+    std = np.sqrt(np.maximum(s2 / total - mean * mean, 0.0))
     with torch.no_grad():
         model.feature_shift.copy_(torch.tensor(mean, dtype=torch.float32))
         model.feature_scale.copy_(torch.tensor(1.0 / np.maximum(std, 1e-3), dtype=torch.float32))
 
 
-def _tensors(s: Samples, idx=None):
-    pick = (lambda a: None if a is None else torch.from_numpy(np.ascontiguousarray(a if idx is None else a[idx])))
-    return pick(s.features), pick(s.config), pick(s.levels), pick(s.y), pick(s.weight)
+def _tensors(s: Samples, idx=slice(None)):
+    pick = (lambda a, i: None if a is None else torch.from_numpy(np.ascontiguousarray(a[i])))
+    rows = s.rows(idx)
+    return (pick(s.features, rows), pick(s.config, idx), pick(s.levels, rows), pick(s.y, idx),
+            pick(s.weight, idx))
 
 
 def evaluate(model: Model, s: Samples, batch: int = 4096, weighted: bool = False) -> float:
@@ -224,6 +263,7 @@ class RunConfig:
     floor: float = 0.05
     holdout_volumes: tuple = ()       # extra whole volumes never trained on (split_shards)
     holdout_config: int = -1          # this configuration index of every volume is held out too
+    train_fraction: float = 1.0       # train on the first fraction of each data set's training volumes
     eval_every: int = 500
     checkpoint_every: int = 250
 
@@ -254,6 +294,14 @@ def split_shards(shards, cfg: RunConfig):
     hc = cfg.holdout_config % n_cfg
     held = [s for s in shards if s.volume in hv or s.config_index == hc]
     train = [s for s in shards if not (s.volume in hv or s.config_index == hc)]
+    if not 0.0 < cfg.train_fraction <= 1.0:
+        raise ClvolError(f"train_fraction {cfg.train_fraction}: must be in (0, 1]")
+    if cfg.train_fraction < 1.0:
+        # whole volumes, the first ones (families cycle through volume indices, so every
+        # family keeps its share); the held-out shards stay the same for every fraction
+        vols = sorted({s.volume for s in train})
+        keep = set(vols[:max(1, round(cfg.train_fraction * len(vols)))])
+        train = [s for s in train if s.volume in keep]
     if not train or not held:
         raise ClvolError(f"held-out split of {len(shards)} shards leaves {len(train)} for training "
                          f"and {len(held)} held out (held-out volumes {sorted(hv)}, configuration "
@@ -264,14 +312,29 @@ def split_shards(shards, cfg: RunConfig):
 def shard_samples(shards, floor: float = 0.05) -> Samples:
     """Samples of a list of clvol.dataset.Shard: one per (query, distinct non-zero albedo), key
     = the shard's position in the data set (volume * configs + configuration)."""
+    labels = [s.arrays["Fms"] for s in shards]
+    starts = np.concatenate([[0], np.cumsum([len(F) for F in labels])])
+    features = levels = None
     parts = []
-    for s in shards:
+    for s, F, start in zip(shards, labels, starts):
         a = s.arrays
         n_cfg = s.meta["spec"]["configs_per_volume"]
-        key = np.full(len(a["Fms"]), s.volume * n_cfg + s.config_index)
-        parts.append(make_samples(a["features"], a["config"], a["Fms"], a["Fms_se"], s.albedo,
-                                  levels=a["levels"], key=key, floor=floor))
-    return concat_samples(parts)
+        key = np.full(len(F), s.volume * n_cfg + s.config_index)
+        part = make_samples(a["features"], a["config"], F, a["Fms_se"], s.albedo,
+                            levels=a["levels"], key=key, floor=floor)
+        if features is None:     # one copy of every feature row, filled shard by shard
+            features = np.empty((starts[-1],) + part.features.shape[1:], np.float32)
+            levels = np.empty((starts[-1],) + part.levels.shape[1:], np.float32)
+        features[start:start + len(F)] = part.features
+        levels[start:start + len(F)] = part.levels
+        part.features, part.levels, part.row = features, levels, part.rows() + start
+        parts.append(part)
+    out = Samples(features, *(np.concatenate([getattr(p, n) for p in parts])
+                              for n in ("config", "y", "weight", "var")),
+                  levels=levels, key=np.concatenate([p.key for p in parts]),
+                  row=np.concatenate([p.row for p in parts]))
+    out.weight = (out.weight / out.weight.mean()).astype(np.float32)
+    return out
 
 
 def save_checkpoint(path, state: dict) -> None:
@@ -309,8 +372,10 @@ class Trainer:
                 "architecture": self.model.arch.to_dict()}
 
     def load_state_dict(self, st: dict) -> None:
-        if st["config"] != self.cfg.to_dict():
-            diff = sorted(k for k in st["config"] if st["config"][k] != self.cfg.to_dict().get(k))
+        # settings added since a checkpoint was written count as their defaults
+        have_cfg = {**RunConfig().to_dict(), **st["config"]}
+        if have_cfg != self.cfg.to_dict():
+            diff = sorted(k for k in have_cfg if have_cfg[k] != self.cfg.to_dict().get(k))
             raise ValueError(f"checkpoint was made with other run settings ({diff}); use the same "
                              f"settings or another output folder")
         have = st.get("architecture", self.model.arch.to_dict())   # older checkpoints: not recorded

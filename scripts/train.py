@@ -39,6 +39,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=d.seed)
     ap.add_argument("--floor", type=float, default=d.floor)
     ap.add_argument("--holdout-volumes", default=",".join(map(str, d.holdout_volumes)))
+    ap.add_argument("--train-fraction", type=float, default=d.train_fraction,
+                    help="train on the first fraction of each data set's training volumes "
+                         "(the held-out shards stay the same): the error-against-data curve")
     ap.add_argument("--eval-every", type=int, default=d.eval_every)
     ap.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every)
     ap.add_argument("--threads", type=int, default=1,
@@ -60,7 +63,8 @@ def main(argv=None) -> int:
     cfg = tr.RunConfig(steps=args.steps, batch=args.batch, lr=args.lr, seed=args.seed,
                        floor=args.floor,
                        holdout_volumes=tuple(int(v) for v in args.holdout_volumes.split(",") if v),
-                       eval_every=args.eval_every, checkpoint_every=args.checkpoint_every)
+                       train_fraction=args.train_fraction, eval_every=args.eval_every,
+                       checkpoint_every=args.checkpoint_every)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     try:

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from clvol import dataset as ds
+from clvol.errors import ClvolError
 
 TINY = dict(n_volumes=2, n_heldout_volumes=1, resolution=12, base_resolution=16,
             configs_per_volume=2, points_per_config=24, n_paths=16, families=("cumulus", "blob"))
@@ -161,6 +162,31 @@ def test_version_1_shards_still_load(tmp_path):
     train, held = tr.split_shards(shards, tr.RunConfig())
     assert sorted(s.path.name for s in train) == ["shard_000_000.npz"]
     assert ds.dataset_domain(v1) is None
+
+
+def test_shard_samples_read_each_file_once_per_array_and_match_eager_samples(tmp_path):
+    """The streaming loader (lazy shard arrays, one preallocated copy of the feature rows) gives
+    exactly the samples of loading every shard eagerly and concatenating; train_fraction keeps
+    whole leading training volumes and leaves the held-out shards unchanged."""
+    from clvol import train as tr
+    spec = ds.DatasetSpec(seed=5, **dict(TINY, n_volumes=4, n_heldout_volumes=1))
+    ds.make_dataset(spec, tmp_path, progress=False)
+    shards = ds.load_shards(tmp_path)
+    assert not isinstance(shards[0].arrays, dict)          # nothing read until asked for
+    got = tr.shard_samples(shards)
+    eager = tr.concat_samples(
+        tr.make_samples(s.arrays["features"], s.arrays["config"], s.arrays["Fms"], s.arrays["Fms_se"],
+                        s.albedo, levels=s.arrays["levels"], key=np.zeros(len(s.arrays["Fms"])))
+        for s in shards)
+    assert len(got.features) == sum(len(s.arrays["Fms"]) for s in shards)
+    for a, b in zip(tr._tensors(got), tr._tensors(eager)):
+        assert np.array_equal(a.numpy(), b.numpy())
+    full_train, full_held = tr.split_shards(shards, tr.RunConfig())
+    part_train, part_held = tr.split_shards(shards, tr.RunConfig(train_fraction=0.5))
+    assert [s.path for s in part_held] == [s.path for s in full_held]
+    assert {s.volume for s in full_train} == {0, 1, 2} and {s.volume for s in part_train} == {0, 1}
+    with pytest.raises(ClvolError, match="train_fraction"):
+        tr.split_shards(shards, tr.RunConfig(train_fraction=0.0))
 
 
 def _synthetic_samples(n=64, L=5, seed=0):

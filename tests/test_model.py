@@ -144,6 +144,13 @@ def test_make_samples_channels_and_albedo_zero():
     assert np.all(s.y >= y_expect - 1e-6)         # bias correction only raises the target
     s3 = tr.make_samples(f, c, F, None, (0.5, 0.8, 0.9))
     assert len(s3) == 30 and np.allclose(s3.weight, 1.0)
+    # the three channels of a query share one feature row (stored once, read three times)
+    assert len(s3.features) == 10 and np.array_equal(s3.row_counts(), np.full(10, 3))
+    feats, cfg3 = tr._tensors(s3)[:2]
+    assert np.array_equal(feats[0].numpy(), f[0]) and np.array_equal(feats[10].numpy(), f[0])
+    assert sorted(cfg3[[0, 10, 20], ref.ALBEDO].tolist()) == pytest.approx([0.5, 0.8, 0.9])
+    sub = s3.subset(np.array([25, 3]))
+    assert np.array_equal(tr._tensors(sub)[0].numpy(), f[[5, 3]])
     with pytest.raises(ValueError, match="albedo 0"):
         tr.make_samples(f, c, F, None, (0, 0, 0))
 
