@@ -246,11 +246,12 @@ def median_time(fn, n: int = 3):
     return out, statistics.median(times)
 
 
-def render_methods(scene, grid, weights, repeats: int = 3) -> dict:
-    """{method: (image, seconds, spp or None)} for METHODS, each warmed up once untimed."""
+def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None) -> dict:
+    """{method: (image, seconds, spp or None)} for METHODS, each warmed up once untimed.
+    ``ms_resolution``: the network's F_ms lattice (None: the renderer's default)."""
     out = {}
     for method, ms in (("network", "network"), ("wrenninge", "wrenninge"), ("single", "none")):
-        kw = {"weights": weights} if ms == "network" else {}
+        kw = {"weights": weights, "ms_resolution": ms_resolution} if ms == "network" else {}
         render_raymarch(scene, ms=ms, grid=grid, **kw)              # build kernels, tables
         res, s = median_time(lambda: render_raymarch(scene, ms=ms, grid=grid, **kw), repeats)
         out[method] = (res.layers["total"], s, None)
@@ -348,6 +349,9 @@ def main(argv=None) -> int:
     ap.add_argument("--refs-only", action="store_true", help="build missing references and stop")
     ap.add_argument("--rebuild-refs", action="store_true", help="re-render every reference")
     ap.add_argument("--repeats", type=int, default=3, help="timed renders per method (median)")
+    ap.add_argument("--ms-resolution", type=int, default=None,
+                    help="the network's F_ms lattice (default: the renderer's); the target is "
+                         "judged at the default, other values show what the lattice costs")
     ap.add_argument("--out", help="also write the table to this .md or .csv file")
     args = ap.parse_args(argv)
     try:
@@ -383,7 +387,8 @@ def run(args) -> int:
     print(machine(rt))
     print(f"command: {' '.join(sys.argv)}")
     print(f"{len(scenes)} scenes at {args.size}x{args.size}; references {args.ref_spp} spp "
-          f"(2 x {args.ref_spp // 2}) in {cache}; weights {weights}", flush=True)
+          f"(2 x {args.ref_spp // 2}) in {cache}; weights {weights}; network F_ms lattice "
+          f"{args.ms_resolution or 'default'}", flush=True)
 
     rows = []
     for name, path in scenes.items():
@@ -392,7 +397,7 @@ def run(args) -> int:
         h1, h2, _ = reference(name, scene, grid, args.ref_spp // 2, cache, args.rebuild_refs)
         if args.refs_only:
             continue
-        renders = render_methods(scene, grid, weights, args.repeats)
+        renders = render_methods(scene, grid, weights, args.repeats, args.ms_resolution)
         floor_flip = flip(h1, h2)
         for method in METHODS:
             img, secs, spp = renders[method]
