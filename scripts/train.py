@@ -118,8 +118,10 @@ def main(argv=None) -> int:
     report = {"data": str(args.data), "spec": spec, "run": cfg.to_dict(), "threads": args.threads,
               "architecture": arch.to_dict(), "macs": arch.n_macs(), "params": arch.n_params(),
               "shards": {"train": len(train_sh), "held_out": len(held_sh),
+                         "train_volumes": len({(str(s.path.parent), s.volume) for s in train_sh}),
                          "held_out_names": [s.path.name for s in held_sh]},
-              "samples": {"train": len(train), "held_out": len(held)},
+              "samples": {"train": len(train), "held_out": len(held),
+                          "train_queries": len(train.features)},
               "step": trainer.step, "seconds_this_session": round(secs, 1),
               "held_out_mean_predictor": base_loss, "held_out_label_noise": noise,
               "final": final, "history": trainer.history["eval"]}

@@ -293,3 +293,29 @@ def test_escape_depth_and_point_placement():
     depth = radius - np.linalg.norm(pts, axis=1)
     assert np.mean(depth < 12 * mfp + 1.5 / 48) > 0.8      # near the surface (edge ~1.5 voxels)
     assert np.mean(depth > 0.3 * radius) > 0.005           # but not only there (~5% expected)
+
+
+def test_data_curve_script_trains_each_fraction_on_fewer_volumes(tmp_path):
+    """scripts/data_curve.py: one run per fraction (fewer training volumes and samples for the
+    smaller one, the same held-out shards), a table row for each, and a rerun that finds every
+    point finished trains nothing."""
+    import subprocess
+    import sys
+    spec = ds.DatasetSpec(seed=2, **dict(TINY, n_volumes=5, n_heldout_volumes=1))
+    data = tmp_path / "data"
+    ds.make_dataset(spec, data, progress=False)
+    out = tmp_path / "curve"
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PYTHONPATH=root)
+    args = [sys.executable, "scripts/data_curve.py", str(data), str(out), "--fractions", "0.5,1",
+            "--steps", "4", "--jobs", "2", "--", "--batch", "8"]
+    p = subprocess.run(args, cwd=root, capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr + p.stdout
+    half, full = (json.loads((out / f"frac_{f}" / "report.json").read_text()) for f in ("0.5", "1"))
+    assert (half["shards"]["train_volumes"], full["shards"]["train_volumes"]) == (2, 4)
+    assert half["samples"]["train"] < full["samples"]["train"]
+    assert half["shards"]["held_out_names"] == full["shards"]["held_out_names"]
+    rows = [r for r in (out / "curve.md").read_text().splitlines() if r.startswith("| 0.5") or r.startswith("| 1 ")]
+    assert len(rows) == 2
+    p = subprocess.run(args, cwd=root, capture_output=True, text=True, env=env)
+    assert p.returncode == 0 and "start fraction" not in p.stdout
