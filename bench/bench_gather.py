@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 from _common import cpu_model  # bench/ is on sys.path
-from clvol import layout
+from clvol.neural import layout
 from clvol.kernels import gather as kg
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance

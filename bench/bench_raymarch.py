@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from _common import machine  # noqa: E402  (bench/ is on sys.path)
 from clvol.kernels.pyramid import build_pyramid  # noqa: E402
-from clvol.raymarch import RayMarcher, render_raymarch  # noqa: E402
+from clvol.render.raymarch import RayMarcher, render_raymarch  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 from clvol.volume.generators import generate  # noqa: E402

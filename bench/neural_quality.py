@@ -62,7 +62,8 @@ from clvol.errors import ClvolError  # noqa: E402
 from clvol.metrics import (LUMA, flip, flip_available, mrpnn_exposure,  # noqa: E402
                            tonemap_srgb)
 from clvol.pathtrace import DEFAULT_BLOCK, render_pathtrace  # noqa: E402
-from clvol.raymarch import render_raymarch, shipped_weights  # noqa: E402
+from clvol.render.network import shipped_weights  # noqa: E402
+from clvol.render.raymarch import render_raymarch  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 
 SCENES = {

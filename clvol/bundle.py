@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import layout
+from .neural import layout
 from .errors import ClvolError
 
 FORMAT = "clvol-bundle"
@@ -238,7 +238,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     g4, w4 = lobe_vectors(med_lobes)
     m["medium.lobe_g"] = g4.tolist()
     m["medium.lobe_w"] = w4.tolist()
-    # config fields g0 g1 g2 w0 w1 w2 g_mean of every query (clvol/layout.py), as the gather
+    # config fields g0 g1 g2 w0 w1 w2 g_mean of every query (clvol/neural/layout.py), as the gather
     # makes them; the host adds albedo and alpha per query
     cfg = kg.config_vectors(medium, 0.0, np.array([[0.0, 0.0, 1.0]]), np.array([0.0, 0.0, 1.0]))
     m["medium.config_phase"] = cfg[0, :7].tolist()

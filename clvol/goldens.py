@@ -108,8 +108,8 @@ class _Levels:
 
 
 def write_goldens(out_dir) -> Path:
-    from . import layout
-    from .export import load_weights
+    from .neural import layout
+    from .neural.export import load_weights
     from .kernels import gather as kg
     from .kernels import mlp as km
     from .kernels.phase import lobe_vectors, phase_defines

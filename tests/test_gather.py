@@ -1,5 +1,5 @@
 """cl/gather.cl against reference/gather.py, the render/train consistency, edge cases, and
-the template's invariance under rotations (clvol/layout.py is the contract under test).
+the template's invariance under rotations (clvol/neural/layout.py is the contract under test).
 
 Tolerances (absolute; features are log1p values or T in [0, 1]):
 - density log1p(tau) and T levels: 2e-5, float32 trilinear lookups and frame arithmetic in the
@@ -17,7 +17,7 @@ Tolerances (absolute; features are log1p values or T in [0, 1]):
 import numpy as np
 import pytest
 
-from clvol import layout
+from clvol.neural import layout
 from clvol.kernels import gather as kgather
 from clvol.kernels.gather import GatherError, gather
 from clvol.kernels.pyramid import build_pyramid

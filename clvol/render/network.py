@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from ..errors import ClvolError, WeightsError
-from ..layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
+from ..neural.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
 from ..runtime import Stopwatch, get_runtime
 from .sources import GridMs, MsGrid, MsPlan, check_ms_grid, ms_lattice, register
 
@@ -61,7 +61,7 @@ def load_network_weights(path):
     """A weight file checked against the contract of the gather that will feed it: this
     code's layout and packaged templates (hash, level map) at the file's base resolution and
     lambda (the pyramid is built to match those). Raises WeightsError naming the field."""
-    from ..export import MlpWeights, gather_contract, load_weights, read_meta
+    from ..neural.export import MlpWeights, gather_contract, load_weights, read_meta
     if isinstance(path, MlpWeights):
         path = path.path
     c = read_meta(path)["contract"]

@@ -24,7 +24,7 @@ from ..errors import ClvolError
 from ..kernels.phase import phase_defines
 from ..kernels.pyramid import MAX_BASE_RESOLUTION
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
-from ..layout import is_power_of_two
+from ..neural.layout import is_power_of_two
 from ..runtime import DeviceArray, get_runtime
 from .medium import DEFAULT_BLOCK, DeviceMedium
 from .sources import MsPlan, MsSource, NoMs
