@@ -89,8 +89,8 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     from .kernels import pyramid as kp
     from .kernels import raymarch as kr
     from .kernels import transmittance as kt
+    from .kernels.majorant import majorant_block
     from .kernels.phase import lobe_vectors, phase_defines
-    from .render.medium import majorant_block
     from .render.network import (NETWORK_CHUNK, NetworkMs, lattice_reach, lattice_reach_mask,
                                  load_network_weights)
     from .render.raymarch import Plan, auto_light_resolution, is_lit

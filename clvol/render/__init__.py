@@ -1,9 +1,10 @@
 """Rendering: the method registry, the result type, and (in this package) the pipeline.
 
 Layout: ``renderer`` (the stateful ``Renderer`` applications hold), ``options`` (options
-bound to methods), ``medium`` (a volume on the device), ``raymarch`` (the ray marcher and its
-plan), ``sources`` (multiple-scattering sources: none, octaves, grid) and ``network`` (the
-network source). The path tracer lives in clvol/pathtrace.py.
+bound to methods), ``raymarch`` (the ray marcher and its plan), ``sources`` (multiple-scattering
+sources: none, octaves, grid) and ``network`` (the network source). The volume on the device
+that every method reads (``DeviceMedium``) is clvol/kernels/majorant.py's. The path tracer
+lives in clvol/pathtrace.py.
 
 Render-method registry shared by the CLI and Python callers.
 

@@ -21,12 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ClvolError
+from ..kernels.majorant import DEFAULT_BLOCK, DeviceMedium
 from ..kernels.phase import phase_defines
 from ..kernels.pyramid import MAX_BASE_RESOLUTION
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..neural.layout import is_power_of_two
 from ..runtime import DeviceArray, get_runtime
-from .medium import DEFAULT_BLOCK, DeviceMedium
 from .sources import MsPlan, MsSource, NoMs
 
 DEFAULT_STEP = 1.0         # segment length in voxels of the density grid
