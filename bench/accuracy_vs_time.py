@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 from _common import machine  # noqa: E402  (bench/ is on sys.path)
 from clvol.image import read_exr, write_exr  # noqa: E402
 from clvol.metrics import compare_images  # noqa: E402
-from clvol.pathtrace import point_query, render_pathtrace  # noqa: E402
+from clvol.render.pathtrace import point_query, render_pathtrace  # noqa: E402
 from clvol.render.network import NetworkSource  # noqa: E402
 from clvol.render.raymarch import RayMarcher  # noqa: E402
 from clvol.render.sources import fill_ms_grid  # noqa: E402

@@ -119,7 +119,7 @@ def bench_frames(args, rt):
 
 
 def _pt_reference(scene, spp, cache: Path, name: str, size: int):
-    from clvol.pathtrace import render_pathtrace
+    from clvol.render.pathtrace import render_pathtrace
     cache.mkdir(parents=True, exist_ok=True)
     f = cache / f"{name}_{size}px_{spp}spp.npz"
     if f.exists():

@@ -33,7 +33,7 @@ def test_imports_resolve_relative_names():
 
 
 def test_kernels_do_not_import_the_render_layer():
-    above = ("clvol.render", "clvol.pathtrace", "clvol.viewer", "clvol.cli", "clvol.bundle")
+    above = ("clvol.render", "clvol.viewer", "clvol.cli", "clvol.bundle")
     bad = {p.name: sorted(m for m in imports(p) if m.startswith(above))
            for p in modules(CLVOL / "kernels")}
     assert not {k: v for k, v in bad.items() if v}

@@ -198,7 +198,7 @@ def test_features_carry_light_transport():
     from clvol.kernels.gather import gather
     from clvol.kernels.pyramid import build_pyramid
     from clvol.kernels.transmittance import graded_transmittance
-    from clvol.pathtrace import point_query
+    from clvol.render.pathtrace import point_query
 
     rng = np.random.default_rng(0)
     lights = [(0.6, 0.9, 0.3), (-0.7, 0.3, -0.4)]

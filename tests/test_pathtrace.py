@@ -342,7 +342,7 @@ def _scene(**medium_kw):
 
 
 def test_render_pathtrace_layers_header_and_budget():
-    from clvol.pathtrace import render_pathtrace
+    from clvol.render.pathtrace import render_pathtrace
     scene, grid = _scene(environment=(0.1, 0.2, 0.3))
     res = render_pathtrace(scene, spp=8, seed=3, grid=grid, progress=False)
     L = res.layers
@@ -365,7 +365,7 @@ def test_render_pathtrace_layers_header_and_budget():
 
 
 def test_render_rejects_bad_options():
-    from clvol.pathtrace import render_pathtrace
+    from clvol.render.pathtrace import render_pathtrace
     scene, grid = _scene()
     for kw in (dict(spp=0), dict(max_order=0), dict(spp=None, time_budget=-1.0), dict(seed=-1)):
         with pytest.raises(ClvolError):
@@ -373,7 +373,7 @@ def test_render_rejects_bad_options():
 
 
 def test_point_query_outside_points_and_errors():
-    from clvol.pathtrace import point_query
+    from clvol.render.pathtrace import point_query
     scene, grid = _scene(environment=(5.0, 5.0, 5.0))
     l = np.asarray(scene.light.direction)
     p = np.array([[0.0, 0.0, 0.0], 3.0 * l, [0.1, 0.1, 0.1]])   # centre, far toward the sun, inside

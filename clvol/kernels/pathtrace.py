@@ -4,7 +4,7 @@
 shared with the other methods, or uploaded here when none is given), picks the ``-D``
 specialisation the scene allows, and runs render or query batches, returning the raw
 per-path rows (layout ``ROW_*`` below) for the caller to average. Rendering policy
-(progress, time budget, images, standard errors) lives in ``clvol/pathtrace.py``.
+(progress, time budget, images, standard errors) lives in ``clvol/render/pathtrace.py``.
 """
 from __future__ import annotations
 

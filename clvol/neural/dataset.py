@@ -14,7 +14,7 @@ direction, camera position, phase, albedo, optical thickness -> density scale):
     features float32 [n][3][P]     train-mode gather (clvol/neural/layout.py; features[:, 1] is 0: the
     levels   float32 [n][L][P]     model combines ``levels`` itself)
     config   float32 [n][9]        the gather's config (albedo of channel 0; training sets each channel's)
-    Fms, Fms_se, F1  float64 [n][3]  labels from clvol.pathtrace.point_query (unit sun, orders >= 2)
+    Fms, Fms_se, F1  float64 [n][3]  labels from clvol.render.pathtrace.point_query (unit sun, orders >= 2)
     __meta__ uint8                 UTF-8 JSON: spec, shard indices, volume, medium, light, camera,
                                    query seed, code contract (layout version, template hash)
 
@@ -406,7 +406,7 @@ def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runti
     from ..kernels.gather import gather
     from ..kernels.pyramid import build_pyramid
     from ..kernels.transmittance import graded_transmittance
-    from ..pathtrace import point_query
+    from ..render.pathtrace import point_query
     t0 = time.perf_counter()
     grid = grid if grid is not None else make_volume(spec, v)
     scene = scene_for(spec, v, c, grid)

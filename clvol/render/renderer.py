@@ -243,7 +243,7 @@ class Renderer:
 
     # ------------------------------------------------------------------ pathtrace
     def _render_pathtrace(self, cam, light, medium, seed=None) -> RenderResult:
-        from ..pathtrace import render_pathtrace
+        from .pathtrace import render_pathtrace
         o = self.options
         scene = dataclasses.replace(self.scene, camera=cam, light=light, medium=medium)
         res = render_pathtrace(scene, spp=o["spp"], seed=o["seed"] if seed is None else seed,

@@ -56,7 +56,7 @@ def render_raymarch_golden(name: str, ms: str) -> dict:
 
 
 def render_pathtrace_golden(name: str) -> dict:
-    from clvol.pathtrace import render_pathtrace
+    from clvol.render.pathtrace import render_pathtrace
     res = render_pathtrace(golden_scene(name), spp=PT_SPP, seed=PT_SEED, progress=False)
     return {"total": res.layers["total"]}
 

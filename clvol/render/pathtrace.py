@@ -24,13 +24,13 @@ import time
 
 import numpy as np
 
-from .errors import ClvolError
-from .kernels.majorant import DEFAULT_BLOCK
-from .kernels.pathtrace import (PT_OUT, ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED,
+from ..errors import ClvolError
+from ..kernels.majorant import DEFAULT_BLOCK
+from ..kernels.pathtrace import (PT_OUT, ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED,
                                 ROW_VERTICES, Medium, PathTracer)
-from .progress import Progress
-from .render import RenderResult
-from .runtime import get_runtime
+from ..progress import Progress
+from ..runtime import get_runtime
+from . import RenderResult
 
 DEFAULT_SPP = 64
 # Paths per launch: enough work-items to fill the device, few enough for a responsive
