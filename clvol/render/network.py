@@ -7,8 +7,8 @@ template gather at the lattice points, the fused OpenCL MLP. ``NetworkMs`` is th
 source built on it: it refills the lattice only when the camera position, the light or the
 medium changed.
 
-The weight file states the domain it was trained on (``domain_of``); ``check_domain`` says
-whether a medium is inside it.
+The weight file states the domain it was trained on (clvol/neural/export.py's
+``weights_domain``); ``outside_domain`` says how a medium lies outside it.
 """
 from __future__ import annotations
 
@@ -24,9 +24,6 @@ from .sources import GridMs, MsGrid, MsPlan, check_ms_grid, ms_lattice, register
 
 DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
 NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
-# The domain of a weight file without meta["domain"] (how cloud_small.npz was made:
-# clvol/data/weights/cloud_small.md).
-DEFAULT_DOMAIN = {"albedo": [0.8, 0.999], "g": [0.0, 0.9], "max_lobes": 3}
 # Outside the domain the network is still the best source measured, except for strongly
 # backward phases (docs/raymarch.md, "Validity domain"; bench/domain_fallback.py).
 BACKWARD_LIMIT = -0.8          # mean cosine below this: an analytic source instead
@@ -85,14 +82,7 @@ def check_ms_resolution(r):
 
 # --------------------------------------------------------------------------- domain
 
-def domain_of(weights) -> dict:
-    """The validity domain a weight file records (meta["domain"]), or DEFAULT_DOMAIN."""
-    meta = getattr(weights, "meta", None) or {}
-    d = meta.get("domain")
-    return dict(DEFAULT_DOMAIN) if not isinstance(d, dict) else d
-
-
-def check_domain(domain: dict, medium, optical_thickness: float | None = None) -> list[str]:
+def outside_domain(domain: dict, medium, optical_thickness: float | None = None) -> list[str]:
     """The ways ``medium`` lies outside ``domain`` (empty: inside). Channels of albedo 0 are
     not checked (the network is not evaluated there)."""
     out = []

@@ -128,13 +128,14 @@ class Renderer:
                                   ms_directions=o["ms_directions"], ms_refresh=o["ms_refresh"])
         self.source.count = self._count
         if ms == "network":
-            from .network import domain_of, load_network_weights
-            self.domain = domain_of(load_network_weights(self.source.weights_path))
+            from ..neural.export import weights_domain
+            from .network import load_network_weights
+            self.domain = weights_domain(load_network_weights(self.source.weights_path).meta)
 
     def _active_source(self, medium, grid):
         """The configured source, or the measured alternative when the medium lies outside
         the network's training domain (one warning per distinct reason)."""
-        from .network import THIN_OPTICAL_THICKNESS, NetworkMs, check_domain, fallback_for
+        from .network import THIN_OPTICAL_THICKNESS, NetworkMs, fallback_for, outside_domain
         if not isinstance(self.source, NetworkMs):
             return self.source, None
         if self._tau1 is None:                 # optical thickness at density scale 1
@@ -145,7 +146,7 @@ class Renderer:
             self.thin = ot
             return self._other("none"), None
         self.thin = None
-        out = check_domain(self.domain, medium, ot)
+        out = outside_domain(self.domain, medium, ot)
         if not out:
             return self.source, None
         alt = None if self.options["no_domain_fallback"] else fallback_for(medium)
