@@ -208,19 +208,14 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
             m[f"program.{name}.options_pocl"] = _define_flags(pocl)
 
     m.comment("host constants of the launches (clvol/runtime.py, clvol/kernels/*.py)")
-    m["host.pad"] = DEFAULT_PAD
-    m["host.sweep_pad"] = kt.SWEEP_PAD
-    m["host.sweep_block"] = kt.SWEEP_BLOCK
-    m["host.sweep_slack"] = kt.SWEEP_SLACK
-    m["host.sweep_group"] = kt.SWEEP_GROUP
-    m["host.sweep_vector_min_n"] = kt.VECTOR_MIN_N
-    m["host.bake_min_row_level"] = kg.MIN_ROW_LEVEL
-    m["host.bake_span"] = kg.BAKE_SPAN
-    m["host.bake_pad"] = kg.BAKE_PAD
-    m["host.sort_bits"] = kg.SORT_BITS
-    m["host.mlp_queries_per_item"] = km.QUERIES_PER_ITEM
-    m["host.raymarch_tile"] = kr.TILE
-    m["host.raymarch_local_size"] = kr.LOCAL_SIZE
+    host = {"pad": DEFAULT_PAD, "sweep_pad": kt.SWEEP_PAD, "sweep_block": kt.SWEEP_BLOCK,
+            "sweep_slack": kt.SWEEP_SLACK, "sweep_group": kt.SWEEP_GROUP,
+            "sweep_vector_min_n": kt.VECTOR_MIN_N, "bake_min_row_level": kg.MIN_ROW_LEVEL,
+            "bake_span": kg.BAKE_SPAN, "bake_pad": kg.BAKE_PAD, "sort_bits": kg.SORT_BITS,
+            "mlp_queries_per_item": km.QUERIES_PER_ITEM, "raymarch_tile": kr.TILE,
+            "raymarch_local_size": kr.LOCAL_SIZE}
+    for key, value in host.items():
+        m[f"host.{key}"] = value
 
     m.comment("volume: raw density [nz][ny][nx] float32, sigma_t = density * density_scale")
     m["density.file"] = "density.f32"
