@@ -22,6 +22,7 @@ import pytest
 from clvol.errors import ClvolError, WeightsError
 from clvol.neural.export import Architecture, default_params, gather_contract, save_weights
 from clvol.scene import scene_from_dict
+from scene_toml import SMALL_CLOUD, write_scene
 
 BASE = 16
 
@@ -151,13 +152,7 @@ def test_cli_network_source(weights_file, tmp_path):
     """clvol render --ms network --weights FILE writes an EXR whose header has the time split."""
     from clvol.cli import main
     from clvol.image import read_exr
-    scene_path = tmp_path / "s.toml"
-    scene_path.write_text(
-        '[volume]\ngenerator = "cloud"\nseed = 4\nresolution = 16\n'
-        '[medium]\npreset = "cloud"\ndensity_scale = 30.0\n'
-        '[light]\ndirection = [0.5, 0.8, 0.3]\n'
-        '[camera]\norigin = [0.3, 0.4, 2.2]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 35.0\n'
-        'width = 12\nheight = 10\n')
+    scene_path = write_scene(tmp_path / "s.toml", **SMALL_CLOUD)
     out = tmp_path / "o.exr"
     rc = main(["render", str(scene_path), "--method", "raymarch", "--ms", "network",
                "--weights", str(weights_file), "--ms-resolution", "6", "-o", str(out)])

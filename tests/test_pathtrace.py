@@ -24,6 +24,7 @@ from clvol.kernels.pathtrace import (ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRU
 from clvol.scene import Camera
 from reference import pathtrace as rpt
 from reference.phase import phase_eval
+from scene_toml import CAMERA, write_scene
 
 BMIN = np.array([-0.5, -0.4, -0.5])
 BMAX = np.array([0.5, 0.5, 0.6])
@@ -404,25 +405,12 @@ def test_point_query_outside_points_and_errors():
 def test_cli_render_writes_layers_and_header(tmp_path):
     from clvol.cli import main
     from clvol.image import read_exr
-    scene = tmp_path / "s.toml"
-    scene.write_text("""
-[volume]
-generator = "sphere"
-resolution = 8
-[medium]
-density_scale = 4.0
-albedo = [0.9, 0.8, 0.7]
-phase = { type = "hg", g = 0.5 }
-[light]
-direction = [0.0, 1.0, 0.0]
-[camera]
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-fov_y = 30.0
-width = 6
-height = 4
-""")
+    scene = write_scene(tmp_path / "s.toml", volume={"generator": "sphere", "resolution": 8},
+                        medium={"density_scale": 4.0, "albedo": [0.9, 0.8, 0.7],
+                                "phase": {"type": "hg", "g": 0.5}},
+                        light={"direction": [0.0, 1.0, 0.0]},
+                        camera={**CAMERA, "origin": [0.0, 0.0, 3.0], "up": [0.0, 1.0, 0.0],
+                                "fov_y": 30.0, "width": 6, "height": 4})
     out = tmp_path / "o.exr"
     assert main(["render", str(scene), "--method", "pathtrace", "--spp", "4", "--max-order", "3",
                  "-o", str(out)]) == 0
