@@ -22,10 +22,10 @@ import time
 import numpy as np
 
 from _common import cpu_model  # bench/ is on sys.path
-from clvol.neural import layout
 from clvol.kernels import gather as kg
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
+from clvol.neural import layout
 from clvol.runtime import get_runtime
 from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate

@@ -29,8 +29,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # reference/ lives in the checkout
 
-from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract  # noqa: E402
 from clvol.kernels.mlp import MlpKernel  # noqa: E402
+from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from reference import mlp as ref  # noqa: E402
 

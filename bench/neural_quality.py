@@ -61,8 +61,8 @@ from clvol.atomic import atomic_open  # noqa: E402
 from clvol.errors import ClvolError  # noqa: E402
 from clvol.metrics import (LUMA, flip, flip_available, mrpnn_exposure,  # noqa: E402
                            tonemap_srgb)
-from clvol.render.pathtrace import DEFAULT_BLOCK, render_pathtrace  # noqa: E402
 from clvol.render.network import shipped_weights  # noqa: E402
+from clvol.render.pathtrace import DEFAULT_BLOCK, render_pathtrace  # noqa: E402
 from clvol.render.raymarch import render_raymarch  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .neural import layout
 from .errors import ClvolError
+from .neural import layout
 
 FORMAT = "clvol-bundle"
 FORMAT_VERSION = 1

@@ -118,11 +118,11 @@ class _Levels:
 
 
 def write_goldens(out_dir) -> Path:
-    from .neural import layout
-    from .neural.export import load_weights
     from .kernels import gather as kg
     from .kernels import mlp as km
     from .kernels.phase import lobe_vectors, phase_defines
+    from .neural import layout
+    from .neural.export import load_weights
     from .render.network import shipped_weights
     from .runtime import DEFAULT_PAD, cl_source_dir, include_dir
     rgather, rmajorant, rmlp, rpyramid, rtrans = _reference()

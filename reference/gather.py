@@ -15,8 +15,8 @@ base_resolution, n_levels, cube_min, cube_size, level_offsets, data works, e.g. 
 """
 import numpy as np
 
-from clvol.neural import phasetable
 from clvol.kernels.gather import coarse_level
+from clvol.neural import phasetable
 from clvol.neural.templates import level_for_spacing, load_templates, template_frame
 from reference.grid import grid_lookup
 

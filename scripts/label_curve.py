@@ -52,9 +52,9 @@ def emulate(shards, k: int, p: int, seed: int, floor: float):
 
 def main(argv=None) -> int:
     import torch
+    from clvol.errors import ClvolError
     from clvol.neural import train as tr
     from clvol.neural.dataset import load_shards
-    from clvol.errors import ClvolError
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data")
     ap.add_argument("out")

@@ -23,9 +23,9 @@ def main(argv=None) -> int:
     import numpy as np
     import torch
 
+    from clvol.errors import ClvolError
     from clvol.neural import train as tr
     from clvol.neural.dataset import load_shards
-    from clvol.errors import ClvolError
     from clvol.neural.export import gather_contract
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clvol.errors import ClvolError
 from clvol.neural import layout
 from clvol.neural.export import (FORMAT_VERSION, META_KEY, Architecture, WeightsError, default_params,
-                          feature_contract, gather_contract, load_weights, params_digest,
-                          read_meta, save_weights)
-from clvol.errors import ClvolError
+                                 feature_contract, gather_contract, load_weights, params_digest,
+                                 read_meta, save_weights)
 
 ARCH = Architecture()
 

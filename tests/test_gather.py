@@ -17,11 +17,11 @@ Tolerances (absolute; features are log1p values or T in [0, 1]):
 import numpy as np
 import pytest
 
-from clvol.neural import layout
 from clvol.kernels import gather as kgather
 from clvol.kernels.gather import GatherError, gather
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
+from clvol.neural import layout
 from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate
 from clvol.volume.grid import Grid

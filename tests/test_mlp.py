@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from clvol.errors import NetworkInputError
-from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract
 from clvol.kernels.mlp import MlpKernel, pack_params
+from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract
 from reference import mlp as ref
 
 ARCH = Architecture()

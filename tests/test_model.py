@@ -13,9 +13,9 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from clvol.neural import layout  # noqa: E402
+from clvol.neural import train as tr  # noqa: E402
 from clvol.neural.export import Architecture, default_params, load_weights, gather_contract  # noqa: E402
 from clvol.neural.model import Model, count_parameters  # noqa: E402
-from clvol.neural import train as tr  # noqa: E402
 from reference import mlp as ref  # noqa: E402
 
 # One thread: the suite shares 2 cores, and torch's OpenMP pool spins at every small op when

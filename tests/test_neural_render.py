@@ -102,8 +102,8 @@ def test_lattice_matches_numpy_reference(weights_file):
     of lattice point (i, j, k) (voxel centre, omega toward the camera): checks the point order,
     the baked level weights and the channel handling on an anisotropic lattice (5 x 6 x 7)."""
     import reference.mlp as ref
-    from clvol.neural.export import load_weights
     from clvol.kernels.gather import gather
+    from clvol.neural.export import load_weights
     from clvol.render.network import NetworkSource
     from clvol.render.sources import ms_lattice
     sc = _scene([0.9, 0.95, 0.0], [(0.7, 0.6), (-0.3, 0.4)])

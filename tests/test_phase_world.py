@@ -33,8 +33,8 @@ from clvol.kernels.gather import gather
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
 from clvol.neural.phasetable import N_ALPHA, volume_phase
-from clvol.scene import Medium, Phase
 from clvol.neural.templates import load_templates
+from clvol.scene import Medium, Phase
 from clvol.volume.grid import Grid
 
 G = 0.857

@@ -26,8 +26,8 @@ from functools import lru_cache
 import numpy as np
 import pyopencl as cl
 
-from ..neural import layout
 from ..errors import ClvolError
+from ..neural import layout
 from ..neural.phasetable import N_ALPHA, phase_feature_table, volume_phase
 from ..neural.templates import load_templates
 from .grid import f4

@@ -40,9 +40,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import layout
 from ..atomic import atomic_open
 from ..errors import ClvolError
+from . import layout
 
 DATASET_FORMAT = "clvol-dataset"
 # Version 2: the whole material domain (volume families, resolutions, optical thickness, g < 0,

@@ -26,8 +26,8 @@ import signal
 import sys
 from pathlib import Path
 
-from . import dataset as ds
 from ..errors import ClvolError
+from . import dataset as ds
 
 INSTALL_HINT = "pip install 'clvol[scale]' (or pip install ray)"
 DEFAULT_RETRIES = 3

@@ -52,9 +52,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import layout
 from ..atomic import atomic_open
 from ..errors import ClvolError, WeightsError  # noqa: F401 (re-exported)
+from . import layout
 
 FORMAT = "clvol-mlp"
 FORMAT_VERSION = 1

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from . import layout
 from ..errors import ClvolError
+from . import layout
 from .export import GAMMA, TYPES
 from .model import Model
 

@@ -27,7 +27,7 @@ import numpy as np
 from ..errors import ClvolError
 from ..kernels.majorant import DEFAULT_BLOCK
 from ..kernels.pathtrace import (PT_OUT, ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED,
-                                ROW_VERTICES, Medium, PathTracer)
+                                 ROW_VERTICES, Medium, PathTracer)
 from ..progress import Progress
 from ..runtime import get_runtime
 from . import RenderResult
