@@ -101,7 +101,6 @@ class BakedGrid:
     c_out: float
 
 
-_BAKED: dict = {}
 MIN_ROW_LEVEL = 16        # levels at least this wide are baked by rows of 16 (bake_rows)
 BAKE_SPAN = 64            # voxels of a row per bake_rows work-item (cl/gather.cl BAKE_SPAN)
 MAX_RENDER_FLOATS = 2**31 - 1   # the render kernel indexes the (tau, C) pairs with int
@@ -154,13 +153,14 @@ def _xpass_layout(pyramid: Pyramid, lvl: int) -> tuple[np.ndarray, int]:
 
 def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, level_weights,
                      bias: float = 0.0) -> BakedGrid:
-    """The render-time grid (cached per graded fields, scale, weights and bias): for every
-    voxel of every level, (rho * density_scale * voxel size, sum_m w_m T_m(centre) + bias)."""
+    """The render-time grid: for every voxel of every level, (rho * density_scale * voxel
+    size, sum_m w_m T_m(centre) + bias). The last bake is kept in ``pyramid.cache`` and
+    returned again for the same graded fields, scale, weights and bias."""
     w, b = _check_weights(level_weights, bias, pyramid.n_levels)
-    key = (id(graded), float(density_scale), w.tobytes(), b)
-    hit = _BAKED.get(key)
-    if hit is not None and hit[0] is graded:
-        return hit[1]
+    key = (float(density_scale), w.tobytes(), b)
+    hit = pyramid.cache.get("gather_bake")
+    if hit is not None and hit[0] is graded and hit[1] == key:
+        return hit[2]
     rt = pyramid.runtime
     total = int(pyramid.data.size)
     if 2 * total + BAKE_PAD > MAX_RENDER_FLOATS:
@@ -208,8 +208,7 @@ def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, le
                   (pyramid.buffer, graded.buffer, st["loff"], np.int32(L), np.int32(n0),
                    np.int32(first), rt.to_device(taufac), wbuf, np.float32(b), out))
     baked = BakedGrid(out, tuple(w), b, float(np.float32(w.sum() + b)))
-    _BAKED.clear()                 # one light at a time: keep the memory bounded
-    _BAKED[key] = (graded, baked)
+    pyramid.cache["gather_bake"] = (graded, key, baked)   # one light at a time per pyramid
     return baked
 
 
