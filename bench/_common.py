@@ -1,13 +1,21 @@
-"""What every benchmark prints about the machine it ran on (imported as ``_common``:
-benchmarks run as ``python bench/<name>.py``, which puts bench/ on sys.path)."""
+"""What every benchmark shares (imported as ``_common``: benchmarks run as
+``python bench/<name>.py``, which puts bench/ on sys.path): the machine line they print,
+their common options, and ``ROOT``, the checkout, which importing this module puts first on
+sys.path so a benchmark measures this checkout's clvol (and can import reference/) whatever
+clvol is installed."""
 import argparse
 import dataclasses
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path[:1]:
+    sys.path.insert(0, str(ROOT))
 
 
 def cpu_model() -> str:

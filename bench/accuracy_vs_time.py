@@ -32,10 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from _common import machine, square  # noqa: E402  (bench/ is on sys.path)
+from _common import ROOT, machine, square  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from clvol.image import read_exr, write_exr  # noqa: E402
 from clvol.metrics import compare_images  # noqa: E402
 from clvol.render.network import NetworkSource  # noqa: E402

@@ -27,14 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # reference/ lives in the checkout
-
+from _common import machine  # bench/ is on sys.path; puts the checkout (reference/) first
 from clvol.kernels.mlp import MlpKernel  # noqa: E402
 from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from reference import mlp as ref  # noqa: E402
-
-from _common import machine  # noqa: E402  (bench/ is on sys.path when run as a script)
 
 TARGET_RATIO = 5.0
 

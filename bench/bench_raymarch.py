@@ -32,10 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from _common import machine  # noqa: E402  (bench/ is on sys.path)
+from _common import ROOT, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from clvol.kernels.pyramid import build_pyramid  # noqa: E402
 from clvol.render.raymarch import RayMarcher, render_raymarch  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402

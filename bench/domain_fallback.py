@@ -14,11 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from _common import machine, parser, rms, square  # noqa: E402
+from _common import ROOT, machine, parser, rms, square  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402

@@ -25,7 +25,7 @@ import numpy as np
 
 import _common
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = _common.ROOT
 EXAMPLES = ("cloud", "cloud_large", "jade", "milk", "wax", "smoke")
 ERROR_GAIN = 4.0
 GAP = 4
