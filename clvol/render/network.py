@@ -298,6 +298,18 @@ class NetworkMs(GridMs):
         self.setup_seconds = 0.0
         self._key = None
 
+    @classmethod
+    def from_options(cls, o: dict, runtime=None) -> "NetworkMs":
+        r = o.get("ms_resolution")
+        return cls(o.get("weights"), DEFAULT_NETWORK_RESOLUTION if r is None else r, runtime,
+                   o.get("ms_directions", 0), o.get("ms_refresh", 1))
+
+    def training_domain(self) -> dict:
+        """The validity domain the weight file records (clvol/neural/export.py); loading it
+        also checks the file against this gather's contract."""
+        from ..neural.export import weights_domain
+        return weights_domain(load_network_weights(self.weights_path).meta)
+
     def prepare(self, frame) -> None:
         self.count = frame.count
         # The header's seconds.* are this frame's costs: 0 for work an earlier frame did.

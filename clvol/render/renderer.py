@@ -97,8 +97,9 @@ class Renderer:
 
     # ------------------------------------------------------------------ raymarch
     def _setup_raymarch(self) -> None:
+        from .network import NetworkMs
         from .raymarch import check_march_options, make_source
-        from .sources import SOURCES, Octaves
+        from .sources import SOURCES
         o, given = self.options, self.given
         mo = o["max_order"]
         if mo is not None:
@@ -122,15 +123,10 @@ class Renderer:
                                  f"(method 'raymarch' with --ms {ms} does not read it)")
         check_march_options(o["step"], o["threshold"], o["light_resolution"], o["supersample"],
                             o["light_interp"])
-        oct_ = Octaves(o["octaves"], float(o["ms_a"]), float(o["ms_b"]), float(o["ms_c"]))
-        self.source = make_source(ms, octaves=oct_, ms_grid=o["ms_grid"], weights=o["weights"],
-                                  ms_resolution=o["ms_resolution"], runtime=self.rt,
-                                  ms_directions=o["ms_directions"], ms_refresh=o["ms_refresh"])
+        self.source = make_source(ms, o, self.rt)
         self.source.count = self._count
-        if ms == "network":
-            from ..neural.export import weights_domain
-            from .network import load_network_weights
-            self.domain = weights_domain(load_network_weights(self.source.weights_path).meta)
+        if isinstance(self.source, NetworkMs):
+            self.domain = self.source.training_domain()
 
     def _active_source(self, medium, grid):
         """The configured source, or the measured alternative when the medium lies outside
