@@ -28,19 +28,17 @@ import argparse
 import csv
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from _common import machine  # noqa: E402  (bench/ is on sys.path)
+from _common import ROOT, machine, square  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from clvol.image import read_exr, write_exr  # noqa: E402
 from clvol.metrics import compare_images  # noqa: E402
-from clvol.pathtrace import point_query, render_pathtrace  # noqa: E402
-from clvol.raymarch import NetworkSource, RayMarcher, fill_ms_grid  # noqa: E402
+from clvol.render.network import NetworkSource  # noqa: E402
+from clvol.render.pathtrace import point_query, render_pathtrace  # noqa: E402
+from clvol.render.raymarch import RayMarcher  # noqa: E402
+from clvol.render.sources import fill_ms_grid  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 
@@ -94,8 +92,7 @@ def main(argv=None) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
 
     rt = get_runtime()
-    scene = load_scene(args.scene)
-    scene = replace(scene, camera=replace(scene.camera, width=args.size, height=args.size))
+    scene = square(load_scene(args.scene), args.size)
     grid = scene.volume.load()
     print(machine(rt))
     print(f"scene: {args.scene}, {args.size}x{args.size}, grid {grid.resolution}, "

@@ -21,17 +21,13 @@ import dataclasses
 import re
 import shutil
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from _common import machine  # noqa: E402  (bench/ is on sys.path)
+from _common import ROOT, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from clvol.bundle import write_bundle  # noqa: E402
 from clvol.kernels.gather import bake_render_grid  # noqa: E402
 from clvol.render.network import NetworkSource, shipped_weights  # noqa: E402

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import _common
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = _common.ROOT
 
 
 def run(out: Path, spec_args: list[str], extra: list[str]) -> float:

@@ -22,10 +22,10 @@ import time
 import numpy as np
 
 from _common import cpu_model  # bench/ is on sys.path
-from clvol import layout
 from clvol.kernels import gather as kg
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
+from clvol.neural import layout
 from clvol.runtime import get_runtime
 from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate
@@ -122,7 +122,7 @@ def main():
     kg.phase_table(tuple((l.g, l.weight) for l in med.phase.lobes))    # built once per phase
 
     def bake():
-        kg._BAKED.clear()
+        pyr.cache.pop("gather_bake", None)
         kg.bake_render_grid(pyr, gt, med.density_scale, w, 0.1)
     bake()                                            # compile + warm
     d, c, wl, best, nl = measure(rt, clock, bake, args.repeats, {"bake_xpass", "bake_rows", "bake_small"})

@@ -21,13 +21,10 @@ import dataclasses
 import math
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from _common import machine  # noqa: E402
+from _common import ROOT, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402

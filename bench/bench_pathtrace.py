@@ -10,7 +10,7 @@ Prints the machine, then
    the lane kernel and, side by side in the same run, the scalar kernel it replaced
    (built from git commit BEFORE, one path per work-item); lane statistics (-D PT_STATS);
 2. training labels: labels/s of point_query for the dataset's default configuration
-   (clvol.dataset.DatasetSpec(): shard (0, 0), its points and paths per label), before
+   (clvol.neural.dataset.DatasetSpec(): shard (0, 0), its points and paths per label), before
    and after, and the largest label difference between the two;
 3. Mitsuba 3 volpath on the cloud scene if it is installed and renders (llvm_ad_rgb first,
    then scalar_rgb), and the ratio; llvm_ad_rgb needs libLLVM >= 17 (docs/pathtrace.md);
@@ -43,7 +43,7 @@ from clvol.kernels.grid import f4
 from clvol.kernels.pathtrace import (_QUERY_DTYPES, _RENDER_DTYPES, PT_OUT, ROW_L1, ROW_LMS,
                                      ROW_STEPS, ROW_VERTICES, PathTracer)
 from clvol.metrics import compare_images
-from clvol.pathtrace import PATHS_PER_LAUNCH, _medium, point_query, render_pathtrace
+from clvol.render.pathtrace import PATHS_PER_LAUNCH, _medium, point_query, render_pathtrace
 from clvol.runtime import _define_flags, get_runtime
 from clvol.scene import Camera, Light, Phase, Scene, VolumeSpec
 from clvol.scene import Medium as SceneMedium
@@ -162,8 +162,8 @@ def labels(rt, repeats, before=True):
     """point_query at the dataset's defaults (shard (0, 0) of DatasetSpec()): labels/s of
     the lane kernel (the public API, end to end) and of the scalar kernel of BEFORE (the
     same launches and sums), interleaved."""
-    from clvol.dataset import DatasetSpec, make_volume, sample_points, scene_for
-    from clvol.pathtrace import DEFAULT_BLOCK
+    from clvol.neural.dataset import DatasetSpec, make_volume, sample_points, scene_for
+    from clvol.render.pathtrace import DEFAULT_BLOCK
     spec = DatasetSpec()
     scene, grid = scene_for(spec, 0, 0), make_volume(spec, 0)
     pts = sample_points(spec, grid, 0, 0).astype(np.float64)
@@ -222,7 +222,7 @@ sys.path.insert(0, sys.argv[4])
 variant, density_scale, spp = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
 mi.set_variant(variant)
 from bench_pathtrace import bench_scene
-from clvol.pathtrace import mitsuba_scene_dict
+from clvol.render.pathtrace import mitsuba_scene_dict
 scene = bench_scene(density_scale, 256)
 grid = scene.volume.load()
 mscene = mi.load_dict(mitsuba_scene_dict(scene, grid, spp))

@@ -32,12 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from _common import machine  # noqa: E402  (bench/ is on sys.path)
+from _common import ROOT, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from clvol.kernels.pyramid import build_pyramid  # noqa: E402
-from clvol.raymarch import RayMarcher, render_raymarch  # noqa: E402
+from clvol.render.raymarch import RayMarcher, render_raymarch  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 from clvol.volume.generators import generate  # noqa: E402
@@ -119,7 +116,7 @@ def bench_frames(args, rt):
 
 
 def _pt_reference(scene, spp, cache: Path, name: str, size: int):
-    from clvol.pathtrace import render_pathtrace
+    from clvol.render.pathtrace import render_pathtrace
     cache.mkdir(parents=True, exist_ok=True)
     f = cache / f"{name}_{size}px_{spp}spp.npz"
     if f.exists():

@@ -25,10 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from _common import machine  # noqa: E402  (bench/ is on sys.path)
+from _common import ROOT, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from tests.openvdb_fixtures import openvdb_missing, run_openvdb  # noqa: E402
 
 # Soft balls scattered over the extent, written 128^3 chunk by chunk (the dense 1024^3 array

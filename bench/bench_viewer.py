@@ -15,11 +15,10 @@ import subprocess
 import sys
 import tempfile
 import time
-from pathlib import Path
 
 import _common
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = _common.ROOT
 ORBIT_JS = """
 const seconds = arguments[0], done = arguments[arguments.length - 1];
 const start = performance.now(), n0 = window.clvol.framesReceived;

@@ -12,16 +12,10 @@ docs/raymarch.md ("Validity domain") records a run and the choice it supports.
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
-from pathlib import Path
 
-import numpy as np
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from _common import machine  # noqa: E402
+from _common import ROOT, machine, parser, rms, square  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
@@ -39,26 +33,22 @@ CASES = [  # (scene, albedo, phase)
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=int, default=32)
-    ap.add_argument("--spp", type=int, default=64)
-    args = ap.parse_args(argv)
+    args = parser(__doc__, size=32, spp=64).parse_args(argv)
     print(machine(get_runtime()))
     print(f"{'scene':6s} {'albedo':>6s} {'phase':28s} {'ref mean':>9s} {'ref se':>8s} "
           f"{'none':>8s} {'wrenninge':>9s} {'network':>8s}  best")
     for name, albedo, phase in CASES:
-        sc = load_scene(ROOT / "tests" / "data" / "scenes" / f"{name}.toml")
-        sc = dataclasses.replace(
-            sc, camera=dataclasses.replace(sc.camera, width=args.size, height=args.size),
-            medium=dataclasses.replace(sc.medium, albedo=(albedo,) * 3, phase=phase))
+        sc = square(load_scene(ROOT / "tests" / "data" / "scenes" / f"{name}.toml"), args.size)
+        sc = dataclasses.replace(sc, medium=dataclasses.replace(sc.medium, albedo=(albedo,) * 3,
+                                                                phase=phase))
         grid = sc.volume.load()
         ref = Renderer(sc, "pathtrace", spp=args.spp, seed=1, grid=grid).render()
-        se = float(np.sqrt(np.mean(ref.layers["total_se"] ** 2)))
+        se = rms(ref.layers["total_se"])
         err = {}
         for ms in ("none", "wrenninge", "network"):
             kw = {"no_domain_fallback": True} if ms == "network" else {}
             img = Renderer(sc, ms=ms, grid=grid, **kw).render()
-            err[ms] = float(np.sqrt(np.mean((img.total - ref.total) ** 2)))
+            err[ms] = rms(img.total - ref.total)
         lobes = ",".join(f"{l.g:g}x{l.weight:g}" for l in phase.lobes)
         print(f"{name:6s} {albedo:6g} {lobes:28s} {float(ref.total.mean()):9.5f} {se:8.5f} "
               f"{err['none']:8.5f} {err['wrenninge']:9.5f} {err['network']:8.5f}  "

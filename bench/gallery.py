@@ -16,7 +16,6 @@ and relMSE, both against the reference, whose own noise is included in them.
 """
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
@@ -26,7 +25,7 @@ import numpy as np
 
 import _common
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = _common.ROOT
 EXAMPLES = ("cloud", "cloud_large", "jade", "milk", "wax", "smoke")
 ERROR_GAIN = 4.0
 GAP = 4
@@ -65,9 +64,7 @@ def timed_render(renderer, warm_frames: int) -> tuple[object, float]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=int, default=160, help="image side in pixels (default 160)")
-    ap.add_argument("--spp", type=int, default=1024, help="reference samples per pixel")
+    ap = _common.parser(__doc__, size=160, spp=1024)
     ap.add_argument("--warm-frames", type=int, default=3, help="timed warm frames per method")
     ap.add_argument("--examples", nargs="+", default=list(EXAMPLES))
     ap.add_argument("--out", default=str(ROOT / "docs" / "gallery"), help="folder for the PNGs")
@@ -77,7 +74,6 @@ def main(argv=None) -> int:
     if args.quick:
         args.size, args.spp, args.warm_frames = 64, 16, 1
 
-    import dataclasses
     import clvol
     from clvol.image import auto_exposure, encode_png_rgb8, tonemap_srgb8
     from clvol.metrics import mrpnn_metric, relmse
@@ -92,9 +88,7 @@ def main(argv=None) -> int:
     rows = []
     bar = Progress(len(args.examples) * len(METHODS), label="gallery", unit=" images")
     for name in args.examples:
-        scene = clvol.load_scene(ROOT / "examples" / f"{name}.toml")
-        scene = dataclasses.replace(scene, camera=dataclasses.replace(
-            scene.camera, width=args.size, height=args.size))
+        scene = _common.square(clvol.load_scene(ROOT / "examples" / f"{name}.toml"), args.size)
         images, facts = {}, {}
         for label, options in METHODS.items():
             if label == "reference":

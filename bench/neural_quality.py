@@ -61,8 +61,9 @@ from clvol.atomic import atomic_open  # noqa: E402
 from clvol.errors import ClvolError  # noqa: E402
 from clvol.metrics import (LUMA, flip, flip_available, mrpnn_exposure,  # noqa: E402
                            tonemap_srgb)
-from clvol.pathtrace import DEFAULT_BLOCK, render_pathtrace  # noqa: E402
-from clvol.raymarch import render_raymarch, shipped_weights  # noqa: E402
+from clvol.render.network import shipped_weights  # noqa: E402
+from clvol.render.pathtrace import DEFAULT_BLOCK, render_pathtrace  # noqa: E402
+from clvol.render.raymarch import render_raymarch  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 
 SCENES = {
@@ -87,7 +88,7 @@ PT_EQUAL_SEED = 11
 CACHE_FORMAT = 1
 PATHTRACER_SOURCES = ("cl/pathtrace.cl", "cl/include/rng.h", "cl/include/grid.h",
                       "cl/include/phase.h", "cl/include/majorant.h",
-                      "clvol/kernels/pathtrace.py", "clvol/pathtrace.py")
+                      "clvol/kernels/pathtrace.py", "clvol/render/pathtrace.py")
 
 
 # --------------------------------------------------------------------------- metrics

@@ -6,17 +6,11 @@ camera (RMSE of the total image, and the reference's own noise).
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import sys
-from pathlib import Path
 
-import numpy as np
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from _common import machine  # noqa: E402
+from _common import ROOT, machine, parser, rms, square  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
@@ -29,14 +23,9 @@ SETTINGS = {"per-position lattice 32^3 (default)": {}, "lattice 64^3": {"ms_reso
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=int, default=32)
-    ap.add_argument("--spp", type=int, default=4096)
-    args = ap.parse_args(argv)
+    args = parser(__doc__, size=32, spp=4096).parse_args(argv)
     print(machine(get_runtime()))
-    sc = load_scene(ROOT / "tests" / "data" / "scenes" / "cloud.toml")
-    sc = dataclasses.replace(sc, camera=dataclasses.replace(sc.camera, width=args.size,
-                                                            height=args.size))
+    sc = square(load_scene(ROOT / "tests" / "data" / "scenes" / "cloud.toml"), args.size)
     grid = sc.volume.load()
 
     def cam(i):
@@ -46,14 +35,14 @@ def main(argv=None) -> int:
                                                       -x * math.sin(a) + z * math.cos(a)))
     last = dataclasses.replace(sc, camera=cam(8))
     ref = Renderer(last, "pathtrace", spp=args.spp, seed=5, grid=grid).render()
-    noise = float(np.sqrt(np.mean(ref.layers["total_se"] ** 2)))
+    noise = rms(ref.layers["total_se"])
     print(f"reference: {args.spp} spp at {args.size}^2, image mean {ref.total.mean():.5f}, "
           f"RMS standard error {noise:.2e}")
     for name, opts in SETTINGS.items():
         r = Renderer(sc, grid=grid, **opts)
         for i in range(9):
             img = r.render(camera=cam(i))
-        err = float(np.sqrt(np.mean((img.total - ref.total) ** 2)))
+        err = rms(img.total - ref.total)
         print(f"{name:38s} RMSE {err:.3e}", flush=True)
     return 0
 

@@ -1,7 +1,7 @@
 /* Template gather: the network's input features for N query points (seed III.B.2-5), and the
  * render-time bake of the combined graded transmittance it reads.
  *
- * Contract: clvol/layout.py (features [N][3][NP], levels [N][L][NP]); docs/templates.md.
+ * Contract: clvol/neural/layout.py (features [N][3][NP], levels [N][L][NP]); docs/templates.md.
  * Twin: reference/gather.py. Host wrapper: clvol/kernels/gather.py.
  *
  * For query q (point p, unit omega toward the camera) and template point j:
@@ -151,7 +151,7 @@ void store_chunk(__global float *row, int c, v16 v) {
     }
 }
 
-/* The template frame of docs/conventions.md (twin: clvol.templates.template_frame): f[0..2] = x,
+/* The template frame of docs/conventions.md (twin: clvol.neural.templates.template_frame): f[0..2] = x,
  * f[3..5] = y. In scalars: Oclgrind's uninitialised-value checker crashed on the float3
  * merged after the fallback branch (a vector phi). */
 __attribute__((always_inline))

@@ -259,31 +259,9 @@ typedef struct {
  * The same formulas as the scalar helpers, one lane per path (the twin tests compare the
  * result path by path, so a slip here fails them). */
 
-/* hg_eval of phase.h: f(mu; g), g the same in every lane. */
-__attribute__((always_inline))
-vf pt_hg_eval_v(vf mu, float g) {
-    vf m = g < 0.0f ? -mu : mu;
-    float ga = fabs(g), a = 1.0f - ga;
-    vf denom = a * a + 2.0f * ga * (1.0f - m);
-    return a * (1.0f + ga) * CLVOL_INV_4PI / (denom * sqrt(denom));
-}
-
-/* phase_eval of phase.h. */
-__attribute__((always_inline))
-vf pt_phase_eval_v(vf mu, float4 lobe_g, float4 lobe_w) {
-#ifdef PHASE_ISOTROPIC
-    return (vf)(CLVOL_INV_4PI);
-#else
-    vf f = lobe_w.x * pt_hg_eval_v(mu, lobe_g.x);
-#if PHASE_LOBES >= 2
-    f += lobe_w.y * pt_hg_eval_v(mu, lobe_g.y);
-#endif
-#if PHASE_LOBES >= 3
-    f += lobe_w.z * pt_hg_eval_v(mu, lobe_g.z);
-#endif
-    return f;
-#endif
-}
+/* hg_eval and phase_eval of phase.h on every lane (the lobes the same in every lane). */
+HG_EVAL_T(pt_hg_eval_v, vf)
+PHASE_EVAL_T(pt_phase_eval_v, vf, pt_hg_eval_v)
 
 /* phase_sample of phase.h (lobe by u0, hg_sample_one_minus_mu by u1, direction_around
  * with the onb by u2): the new direction replaces (*wx, *wy, *wz). */

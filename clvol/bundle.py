@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import layout
 from .errors import ClvolError
+from .neural import layout
 
 FORMAT = "clvol-bundle"
 FORMAT_VERSION = 1
@@ -89,8 +89,8 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     from .kernels import pyramid as kp
     from .kernels import raymarch as kr
     from .kernels import transmittance as kt
+    from .kernels.majorant import majorant_block
     from .kernels.phase import lobe_vectors, phase_defines
-    from .render.medium import majorant_block
     from .render.network import (NETWORK_CHUNK, NetworkMs, lattice_reach, lattice_reach_mask,
                                  load_network_weights)
     from .render.raymarch import Plan, auto_light_resolution, is_lit
@@ -208,19 +208,14 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
             m[f"program.{name}.options_pocl"] = _define_flags(pocl)
 
     m.comment("host constants of the launches (clvol/runtime.py, clvol/kernels/*.py)")
-    m["host.pad"] = DEFAULT_PAD
-    m["host.sweep_pad"] = kt.SWEEP_PAD
-    m["host.sweep_block"] = kt.SWEEP_BLOCK
-    m["host.sweep_slack"] = kt.SWEEP_SLACK
-    m["host.sweep_group"] = kt.SWEEP_GROUP
-    m["host.sweep_vector_min_n"] = kt.VECTOR_MIN_N
-    m["host.bake_min_row_level"] = kg.MIN_ROW_LEVEL
-    m["host.bake_span"] = kg.BAKE_SPAN
-    m["host.bake_pad"] = kg.BAKE_PAD
-    m["host.sort_bits"] = kg.SORT_BITS
-    m["host.mlp_queries_per_item"] = km.QUERIES_PER_ITEM
-    m["host.raymarch_tile"] = kr.TILE
-    m["host.raymarch_local_size"] = kr.LOCAL_SIZE
+    host = {"pad": DEFAULT_PAD, "sweep_pad": kt.SWEEP_PAD, "sweep_block": kt.SWEEP_BLOCK,
+            "sweep_slack": kt.SWEEP_SLACK, "sweep_group": kt.SWEEP_GROUP,
+            "sweep_vector_min_n": kt.VECTOR_MIN_N, "bake_min_row_level": kg.MIN_ROW_LEVEL,
+            "bake_span": kg.BAKE_SPAN, "bake_pad": kg.BAKE_PAD, "sort_bits": kg.SORT_BITS,
+            "mlp_queries_per_item": km.QUERIES_PER_ITEM, "raymarch_tile": kr.TILE,
+            "raymarch_local_size": kr.LOCAL_SIZE}
+    for key, value in host.items():
+        m[f"host.{key}"] = value
 
     m.comment("volume: raw density [nz][ny][nx] float32, sigma_t = density * density_scale")
     m["density.file"] = "density.f32"
@@ -238,7 +233,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     g4, w4 = lobe_vectors(med_lobes)
     m["medium.lobe_g"] = g4.tolist()
     m["medium.lobe_w"] = w4.tolist()
-    # config fields g0 g1 g2 w0 w1 w2 g_mean of every query (clvol/layout.py), as the gather
+    # config fields g0 g1 g2 w0 w1 w2 g_mean of every query (clvol/neural/layout.py), as the gather
     # makes them; the host adds albedo and alpha per query
     cfg = kg.config_vectors(medium, 0.0, np.array([[0.0, 0.0, 1.0]]), np.array([0.0, 0.0, 1.0]))
     m["medium.config_phase"] = cfg[0, :7].tolist()

@@ -41,12 +41,13 @@ def _reference():
 class _Kernel:
     """One kernel's folder: arrays, arguments, tolerances."""
 
-    def __init__(self, root: Path, name: str, source: str, kernel: str, doc: str):
+    def __init__(self, root: Path, name: str, source: str, kernel: str, doc: str,
+                 work_size: str = ""):
         self.dir = root / name
         self.dir.mkdir(parents=True, exist_ok=True)
         self.info = {"kernel": kernel, "source": f"cl/{source}.cl", "doc": doc, "defines": {},
                      "defines_pocl": {}, "options": "", "args": [], "outputs": {},
-                     "work_size": "", "tolerance": {}}
+                     "work_size": work_size, "tolerance": {}}
         self.kv = {"kernel": kernel}
         self.stem = source
 
@@ -88,6 +89,15 @@ class _Kernel:
         (self.dir / "manifest.txt").write_text("\n".join(lines) + "\n")
 
 
+def _density(rng, shape, high: float, empty=None):
+    """float32 density uniform in [0, high) with zeros at ``empty`` (an index: an empty slab,
+    so the goldens cover T = 1 and entry points on an edge)."""
+    d = rng.uniform(0, high, shape).astype(np.float32)
+    if empty is not None:
+        d[empty] = 0.0
+    return d
+
+
 def _unit(v):
     v = np.asarray(v, np.float64)
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
@@ -108,11 +118,11 @@ class _Levels:
 
 
 def write_goldens(out_dir) -> Path:
-    from . import layout
-    from .export import load_weights
     from .kernels import gather as kg
     from .kernels import mlp as km
     from .kernels.phase import lobe_vectors, phase_defines
+    from .neural import layout
+    from .neural.export import load_weights
     from .render.network import shipped_weights
     from .runtime import DEFAULT_PAD, cl_source_dir, include_dir
     rgather, rmajorant, rmlp, rpyramid, rtrans = _reference()
@@ -128,7 +138,9 @@ def write_goldens(out_dir) -> Path:
     w = load_weights(shipped_weights())
     arch = w.arch
     k = _Kernel(root, "mlp", "mlp", "mlp_forward",
-                "the network's fused forward pass; y = log(F / albedo^4 + 1), F decoded")
+                "the network's fused forward pass; y = log(F / albedo^4 + 1), F decoded",
+                f"ceil(n / {km.QUERIES_PER_ITEM}) work-items; local size 1 on CPU devices "
+                f"(private arrays), else any")
     lobes = ((0.6, 0.8), (-0.2, 0.2))
     f, c = rmlp.random_inputs(37, rng, arch=arch, lobes=lobes)
     c[3, layout.CONFIG_FIELDS.index("alpha")] = 0.0           # looking into the light
@@ -149,8 +161,6 @@ def write_goldens(out_dir) -> Path:
     pocl = {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}
     k.program(km.kernel_defines(arch, 1, True), pocl, "mlp_y")
     k.program(km.kernel_defines(arch, 3, True), pocl, "mlp_F")
-    k.info["work_size"] = (f"ceil(n / {km.QUERIES_PER_ITEM}) work-items; local size 1 on CPU "
-                           f"devices (private arrays), else any")
     k.kv["host.mlp_queries_per_item"] = km.QUERIES_PER_ITEM
     k.tolerance("mlp_y", 1e-4, 1e-6, "atol x max|F|: float32 vs the float64 twin over ~86k "
                 "multiply-adds, amplified by the decode exp(y) - 1 (tests/test_mlp.py)")
@@ -161,8 +171,7 @@ def write_goldens(out_dir) -> Path:
     # ---- gather (render mode) and its bake, on a 64^3 pyramid (the shipped weights' base, so
     # the programs are the ones a bundle builds) with an empty slab
     base = 64
-    d0 = rng.uniform(0, 1.5, (base, base, base)).astype(np.float32)
-    d0[:, :, :24] = 0.0                                      # empty slab: T = 1, t_enter edges
+    d0 = _density(rng, (base, base, base), 1.5, np.s_[:, :, :24])
     cube_min, cube_size = np.array([-0.5, -0.4, -0.6]), 1.2
     pyr = _Levels(d0, cube_min, cube_size, rpyramid)
     L = pyr.n_levels
@@ -187,7 +196,8 @@ def write_goldens(out_dir) -> Path:
     ptab = kg._phase_table_padded(lobes)
     g4, w4 = lobe_vectors(lobes)
     k = _Kernel(root, "gather", "gather", "gather",
-                "template gather, render mode: features of N queries from the baked grid")
+                "template gather, render mode: features of N queries from the baked grid",
+                f"N work-items (padded to a multiple of {DEFAULT_PAD}; guarded)")
     k.array("dens", pyr.data, np.float32, "pyramid levels concatenated (read for t_enter)")
     k.info["args"].append({"name": "tlev", "same_as": "dens", "doc": "train mode only"})
     k.array("baked", baked, np.float32, "float2 (tau, C) per voxel of every level + BAKE_PAD zeros")
@@ -221,7 +231,6 @@ def write_goldens(out_dir) -> Path:
     k.kv["gather.np"] = layout.N_POINTS
     k.program(dict(phase_defines(lobes), NP=layout.N_POINTS, COARSE_LEVEL=kg.coarse_level(base),
                    GATHER_RENDER=1), {"GATHER_SHUFFLE": 1} if kg.USE_SHUFFLE else {}, "gather")
-    k.info["work_size"] = f"N work-items (padded to a multiple of {DEFAULT_PAD}; guarded)"
     k.tolerance("t_enter", 0.0, 1e-5 * cube_size, "float32 DDA vs float64 slab tests")
     k.tolerance("density", 0.0, 2e-5, "log1p(tau): float32 trilinear lookups vs float64")
     k.tolerance("transmittance", 0.0, 2e-5, "baked C read trilinearly vs the twin's per-level sum")
@@ -231,7 +240,8 @@ def write_goldens(out_dir) -> Path:
 
     k = _Kernel(root, "bake", "gather", "bake_small",
                 "render-time (tau, C) grid, one voxel per work-item (bake_rows/bake_xpass for "
-                "levels >= 16 give the same values to rounding)")
+                "levels >= 16 give the same values to rounding)",
+                "total voxels of levels first.. (padded; guarded)")
     k.array("dens", pyr.data, np.float32, "pyramid")
     k.array("tlev", graded, np.float32, "graded T, same layout")
     k.array("loff", pyr.level_offsets, np.int32, "level offsets")
@@ -244,14 +254,14 @@ def write_goldens(out_dir) -> Path:
     k.scalar("bias", float(bias), "float", "level bias")
     k.array("baked", baked, np.float32, "(tau, C) pairs + BAKE_PAD zeros", output=True)
     k.program({})
-    k.info["work_size"] = "total voxels of levels first.. (padded; guarded)"
     k.tolerance("tau", 1e-6, 0.0, "one float32 product")
     k.tolerance("C", 0.0, 2e-6, "float32 sum of L weighted lerps (tests/test_gather.py)")
     k.write()
 
     # ---- pyramid: mip_reduce on an 8^3 level
-    lv0 = rng.uniform(0, 2, (8, 8, 8)).astype(np.float32)
-    k = _Kernel(root, "pyramid", "pyramid", "mip_reduce", "one 2x2x2 mean step of the mip chain")
+    lv0 = _density(rng, (8, 8, 8), 2.0)
+    k = _Kernel(root, "pyramid", "pyramid", "mip_reduce", "one 2x2x2 mean step of the mip chain",
+                "n_dst^3 per launch (padded; guarded)")
     chain = rpyramid.mip_chain(lv0)
     k.array("data_in", np.concatenate([lv0.ravel(), np.zeros(sum(c.size for c in chain[1:]))]),
             np.float32, "the pyramid buffer before: level 0 filled (launch once per level)")
@@ -259,15 +269,14 @@ def write_goldens(out_dir) -> Path:
             "after launches (src_off, dst_off, n_dst) = (0, 512, 4), (512, 576, 2), (576, 584, 1)",
             output=True)
     k.program({})
-    k.info["work_size"] = "n_dst^3 per launch (padded; guarded)"
     k.tolerance("data", 0.0, 0.0, "the twin adds in the kernel's order: identical bits")
     k.write()
 
     # ---- majorant: 11 x 9 x 7 grid, block 4 (partial blocks on every axis)
-    dens = rng.uniform(0, 1, (7, 9, 11)).astype(np.float32)
-    dens[:, :, :4] = 0.0
+    dens = _density(rng, (7, 9, 11), 1.0, np.s_[:, :, :4])
     k = _Kernel(root, "majorant", "majorant", "majorant_build",
-                "per-block max density incl. the one-voxel trilinear apron")
+                "per-block max density incl. the one-voxel trilinear apron",
+                "3-D (mx, my, mz), first dimension padded")
     k.array("density", dens, np.float32, "[nz][ny][nx]")
     k.scalar("nx", 11, "int", "")
     k.scalar("ny", 9, "int", "")
@@ -276,13 +285,11 @@ def write_goldens(out_dir) -> Path:
     k.array("maj", rmajorant.build_majorant(dens, 4), np.float32, "[mz][my][mx] = [2][3][3]",
             output=True)
     k.program({})
-    k.info["work_size"] = "3-D (mx, my, mz), first dimension padded"
     k.tolerance("maj", 0.0, 0.0, "a max: identical bits")
     k.write()
 
     # ---- transmittance: one level's optical depth by the sweep (oblique light)
-    lv = rng.uniform(0, 1, (16, 16, 16)).astype(np.float32)
-    lv[4:9] = 0.0
+    lv = _density(rng, (16, 16, 16), 1.0, np.s_[4:9])
     ldir = _unit([0.35, -0.2, 0.9])
     tscale = 0.3
     k = _Kernel(root, "transmittance", "transmittance", "transmittance_sweep_block",

@@ -1,12 +1,12 @@
-"""NumPy twin of cl/gather.cl: the template gather (clvol/layout.py is the contract).
+"""NumPy twin of cl/gather.cl: the template gather (clvol/neural/layout.py is the contract).
 
 Written independently of the kernel's loop structure, in float64:
-- frame from clvol.templates.template_frame;
+- frame from clvol.neural.templates.template_frame;
 - t_enter by slab-testing the ray p + t l against every non-empty cell of the coarse level and
   taking the largest exit parameter (no DDA);
 - density and graded levels by explicit trilinear weights over the level's voxel centres
   (reference.grid.grid_lookup for the T_m values at those centres);
-- phase at the exact alpha of each query (clvol.phasetable.phase_features), not the alpha table;
+- phase at the exact alpha of each query (clvol.neural.phasetable.phase_features), not the alpha table;
 - render transmittance as sum_m w_m levels[m] + b (no baked grid);
 - ``baked_grid``: the twin of the bake kernels (gather_bake's definition), by direct trilinear
   lookups of every level at every level's voxel centres (the kernels split them into passes).
@@ -15,9 +15,9 @@ base_resolution, n_levels, cube_min, cube_size, level_offsets, data works, e.g. 
 """
 import numpy as np
 
-from clvol import phasetable
 from clvol.kernels.gather import coarse_level
-from clvol.templates import level_for_spacing, load_templates, template_frame
+from clvol.neural import phasetable
+from clvol.neural.templates import level_for_spacing, load_templates, template_frame
 from reference.grid import grid_lookup
 
 

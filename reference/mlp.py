@@ -1,13 +1,13 @@
-"""NumPy twin of cl/mlp.cl and of clvol.model.Model: the network's forward pass.
+"""NumPy twin of cl/mlp.cl and of clvol.neural.model.Model: the network's forward pass.
 
-Inputs follow clvol/layout.py: features float32 [N][3][P] (density, transmittance, phase; P = 266
+Inputs follow clvol/neural/layout.py: features float32 [N][3][P] (density, transmittance, phase; P = 266
 template points, diffuse layers then highlight layers), config float32 [N][9]
 (g0 g1 g2 w0 w1 w2 g_mean albedo alpha). In training, ``levels`` [N][L][P] replaces the
 transmittance feature by sum_l level_weights[l] * levels[:, l] + level_bias (the seed's 3D-CNN);
 at render time the gather has already done that sum with the exported weights.
 
 The architecture (seed III.C with the FC-ReLU-FC-sigmoid excitation of docs/conventions.md) is written out in
-clvol/export.py's docstring; this file is its executable statement, in float64 by default so it can
+clvol/neural/export.py's docstring; this file is its executable statement, in float64 by default so it can
 serve as the yardstick for the float32 torch and OpenCL versions.
 
 Output y = log(F / albedo^4 + 1) per query (seed eq. 20's normalised log space); ``decode`` turns
@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from clvol import layout
-from clvol.export import GAMMA, TEMPLATES, TYPES, Architecture
+from clvol.neural import layout
+from clvol.neural.export import GAMMA, TEMPLATES, TYPES, Architecture
 
 G_MEAN = layout.CONFIG_FIELDS.index("g_mean")
 ALBEDO = layout.CONFIG_FIELDS.index("albedo")

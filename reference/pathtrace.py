@@ -89,42 +89,42 @@ def sigma(P: Params, p) -> float:
         * P.density_scale
 
 
-def free_flight(P: Params, x, w, rs: Stream, c: Counters):
-    """Delta tracking with the global majorant: the real collision point or None."""
+def tentative_collisions(P: Params, x, w, rs: Stream, c: Counters):
+    """The tentative collision points along x + t w at the global majorant's rate (one
+    exponential draw each, counted in c.steps), until the ray leaves the box. Delta and ratio
+    tracking draw their own numbers between two points."""
     t0, t1 = box_intersect(x[None], w[None], P.bbox_min, P.bbox_max, 0.0)
     t0, t1 = float(t0[0]), float(t1[0])
     if not t0 <= t1:
-        return None
+        return
     t, sm = t0, P.sigma_maj
     while True:
         tau = -math.log(1.0 - rs.next())
         if not (sm > 0 and sm * (t1 - t) >= tau):
-            return None
+            return
         t = min(t + tau / sm, t1)
         c.steps += 1
-        p = x + t * w
-        if rs.next() * sm < sigma(P, p):
+        yield x + t * w
+
+
+def free_flight(P: Params, x, w, rs: Stream, c: Counters):
+    """Delta tracking with the global majorant: the real collision point or None."""
+    for p in tentative_collisions(P, x, w, rs, c):
+        if rs.next() * P.sigma_maj < sigma(P, p):
             return p
+    return None
 
 
 def transmittance(P: Params, x, w, rs: Stream, c: Counters) -> float:
     """Ratio tracking with roulette below T_RR (survive with probability T / T_RR)."""
-    t0, t1 = box_intersect(x[None], w[None], P.bbox_min, P.bbox_max, 0.0)
-    t0, t1 = float(t0[0]), float(t1[0])
-    if not t0 <= t1:
-        return 1.0
-    t, sm, T = t0, P.sigma_maj, 1.0
-    while True:
-        tau = -math.log(1.0 - rs.next())
-        if not (sm > 0 and sm * (t1 - t) >= tau):
-            return T
-        t = min(t + tau / sm, t1)
-        c.steps += 1
-        T *= max(0.0, 1.0 - sigma(P, x + t * w) / sm)
+    T = 1.0
+    for p in tentative_collisions(P, x, w, rs, c):
+        T *= max(0.0, 1.0 - sigma(P, p) / P.sigma_maj)
         if T < T_RR:
             if rs.next() * T_RR >= T:
                 return 0.0
             T = T_RR
+    return T
 
 
 def walk(P: Params, x, w, beta, k: int, rs: Stream, c: Counters, single_only=False):

@@ -30,7 +30,7 @@ import numpy as np
 
 def emulate(shards, k: int, p: int, seed: int, floor: float):
     """Training samples with k labels per configuration at p paths (see the module docstring)."""
-    from clvol import train as tr
+    from clvol.neural import train as tr
     parts = []
     for s in shards:
         a = s.arrays
@@ -52,9 +52,9 @@ def emulate(shards, k: int, p: int, seed: int, floor: float):
 
 def main(argv=None) -> int:
     import torch
-    from clvol import train as tr
-    from clvol.dataset import load_shards
     from clvol.errors import ClvolError
+    from clvol.neural import train as tr
+    from clvol.neural.dataset import load_shards
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data")
     ap.add_argument("out")

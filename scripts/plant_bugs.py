@@ -120,7 +120,7 @@ def _shadow_sigma_bias(text: str) -> str:
 PATCHES = {"mirrored-frame": _mirrored_frame, "lattice-corners": _lattice_corners,
            "shadow-bias": _shadow_rate_bias, "shadow-bias-ratio": _shadow_sigma_bias}
 BUGS = [
-    Bug("mirrored-frame", "clvol/phasetable.py",
+    Bug("mirrored-frame", "clvol/neural/phasetable.py",
         "phase feature's view term with the camera reflected across the light axis"),
     Bug("lattice-corners", "clvol/render/sources.py",
         "F_ms lattice points at cell corners instead of cell centres (ms_lattice)"),

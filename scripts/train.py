@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Train the network on a clvol data set and export a weight file (clvol/train.py, clvol/dataset.py).
+"""Train the network on a clvol data set and export a weight file (clvol/neural/train.py, clvol/neural/dataset.py).
 
     python scripts/train.py runs/data runs/train [--steps 6000] [--batch 256] [--lr 2e-3]
         [--seed 0] [--threads 1] [--export clvol/data/weights/cloud_small.npz]
@@ -23,10 +23,10 @@ def main(argv=None) -> int:
     import numpy as np
     import torch
 
-    from clvol import train as tr
-    from clvol.dataset import load_shards
     from clvol.errors import ClvolError
-    from clvol.export import gather_contract
+    from clvol.neural import train as tr
+    from clvol.neural.dataset import load_shards
+    from clvol.neural.export import gather_contract
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data", help="data set folder (scripts/make_dataset.py), or several, comma-separated "
@@ -47,7 +47,7 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1,
                     help="torch threads (default 1: the machine is shared; results depend on it)")
     ap.add_argument("--until", type=int, default=None, help="stop at this step (resume later)")
-    from clvol.export import Architecture
+    from clvol.neural.export import Architecture
     da = Architecture()
     ap.add_argument("--module-width", type=int, default=da.module_width,
                     help="width of each module's output and of the per-type merges")
@@ -131,7 +131,7 @@ def main(argv=None) -> int:
         notes = {k: report[k] for k in ("spec", "run", "samples", "step", "held_out_mean_predictor",
                                          "held_out_label_noise", "final")}
         notes["seconds_training"] = final.get("seconds")
-        from clvol.dataset import dataset_domain
+        from clvol.neural.dataset import dataset_domain
         trainer.model.export(args.export, contract, training=notes,
                              domain=union_domain([dataset_domain(f[0].meta["spec"]) for f in folders]))
         print(f"exported {args.export}")
@@ -154,9 +154,9 @@ def evaluate_weights(path, train, held_sh, cfg, base_loss) -> int:
     of seen volumes, with the mean predictor's loss and the labels' noise, and the median
     relative error of the decoded F against the labels."""
     import numpy as np
-    from clvol import train as tr
-    from clvol.export import load_weights
-    from clvol.model import Model
+    from clvol.neural import train as tr
+    from clvol.neural.export import load_weights
+    from clvol.neural.model import Model
     model = Model.from_weights(load_weights(path))
     vid = (lambda s: (str(s.path.parent), s.volume))
     count = {}

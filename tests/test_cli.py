@@ -9,6 +9,7 @@ import pytest
 
 from clvol.cli import main
 from clvol.image import write_exr
+from scene_toml import CAMERA, write_scene
 
 
 def run(capsys, *argv):
@@ -98,13 +99,10 @@ def test_render_bad_scene_is_exit_2_with_field(tmp_path, capsys):
 
 
 def test_render_writes_exr_png_and_header(tmp_path, capsys):
-    scene = tmp_path / "s.toml"
-    scene.write_text(
-        "[volume]\ngenerator = 'sphere'\nresolution = 12\n"
-        "[medium]\npreset = 'milk'\ndensity_scale = 8.0\n"
-        "[light]\ndirection = [0.3, 1.0, 0.4]\n"
-        "[camera]\norigin = [0.0, 0.2, 2.2]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 35.0\n"
-        "width = 9\nheight = 7\n")
+    scene = write_scene(tmp_path / "s.toml", volume={"generator": "sphere", "resolution": 12},
+                        medium={"preset": "milk", "density_scale": 8.0},
+                        light={"direction": [0.3, 1.0, 0.4]},
+                        camera={**CAMERA, "origin": [0.0, 0.2, 2.2], "width": 9, "height": 7})
     out = tmp_path / "o.exr"
     code, _, err = run(capsys, "render", scene, "--method", "raymarch", "-o", out, "--png")
     assert code == 0, err
@@ -117,13 +115,10 @@ def test_render_writes_exr_png_and_header(tmp_path, capsys):
 
 def test_render_profile_and_device_options(tmp_path, capsys):
     from clvol import runtime
-    scene = tmp_path / "s.toml"
-    scene.write_text(
-        "[volume]\ngenerator = 'sphere'\nresolution = 10\n"
-        "[medium]\npreset = 'smoke'\ndensity_scale = 8.0\n"
-        "[light]\ndirection = [0.0, 1.0, 0.0]\n"
-        "[camera]\norigin = [0.0, 0.0, 2.5]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 35.0\n"
-        "width = 8\nheight = 8\n")
+    scene = write_scene(tmp_path / "s.toml", volume={"generator": "sphere", "resolution": 10},
+                        medium={"preset": "smoke", "density_scale": 8.0},
+                        light={"direction": [0.0, 1.0, 0.0]},
+                        camera={**CAMERA, "width": 8, "height": 8})
     spec = runtime.list_devices()[0].spec
     try:
         code, _, err = run(capsys, "render", scene, "--method", "raymarch", "-o",
@@ -144,14 +139,11 @@ def test_rendering_never_imports_torch(tmp_path):
         f"assert main(['render', {str(tmp_path / 's.toml')!r}, '-o', {str(tmp_path / 'o.exr')!r}]) == 0\n"
         f"assert main(['render', {str(tmp_path / 's.toml')!r}, '--method', 'pathtrace', '--spp', '1',"
         f" '-o', {str(tmp_path / 'p.exr')!r}]) == 0\n"
-        "import clvol.export, clvol.kernels.mlp, clvol.kernels.gather\n"
+        "import clvol.neural.export, clvol.kernels.mlp, clvol.kernels.gather\n"
         "assert 'torch' not in sys.modules, 'torch was imported'\n")
-    (tmp_path / "s.toml").write_text(
-        "[volume]\ngenerator = 'sphere'\nresolution = 8\n"
-        "[medium]\npreset = 'cloud'\ndensity_scale = 8.0\n"
-        "[light]\ndirection = [0.0, 1.0, 0.0]\n"
-        "[camera]\norigin = [0.0, 0.0, 2.5]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 35.0\n"
-        "width = 6\nheight = 5\n")
+    write_scene(tmp_path / "s.toml", volume={"generator": "sphere", "resolution": 8},
+                medium={"preset": "cloud", "density_scale": 8.0},
+                light={"direction": [0.0, 1.0, 0.0]}, camera={**CAMERA, "width": 6, "height": 5})
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
 

@@ -1,5 +1,5 @@
 """cl/gather.cl against reference/gather.py, the render/train consistency, edge cases, and
-the template's invariance under rotations (clvol/layout.py is the contract under test).
+the template's invariance under rotations (clvol/neural/layout.py is the contract under test).
 
 Tolerances (absolute; features are log1p values or T in [0, 1]):
 - density log1p(tau) and T levels: 2e-5, float32 trilinear lookups and frame arithmetic in the
@@ -17,11 +17,11 @@ Tolerances (absolute; features are log1p values or T in [0, 1]):
 import numpy as np
 import pytest
 
-from clvol import layout
 from clvol.kernels import gather as kgather
 from clvol.kernels.gather import GatherError, gather
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
+from clvol.neural import layout
 from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate
 from clvol.volume.grid import Grid
@@ -272,6 +272,25 @@ def test_bake_matches_twin_every_level():
     np.testing.assert_array_equal(flat[2 * pyr.data.size:], 0.0)   # the padding the kernel reads
     assert float(np.float32(w.sum() + 0.07)) == baked.c_out
 
+
+
+def test_bake_is_kept_per_pyramid_until_its_inputs_change():
+    """The last bake lives in its pyramid's cache: the same inputs return it without a launch,
+    another bias re-bakes (into the same buffer), and a second pyramid keeps its own."""
+    g = generate("sphere", seed=0, resolution=16)
+    pyr, gt = setup(g.density, 16, (0.2, 0.3, 0.9))
+    pyr2, gt2 = setup(g.density, 16, (0.9, 0.3, 0.2))
+    w = np.linspace(0.1, 0.3, pyr.n_levels)
+    a = kgather.bake_render_grid(pyr, gt, MEDIUM.density_scale, w, 0.1)
+    b2 = kgather.bake_render_grid(pyr2, gt2, MEDIUM.density_scale, w, 0.1)
+    assert kgather.bake_render_grid(pyr, gt, MEDIUM.density_scale, w, 0.1) is a   # not evicted
+    assert kgather.bake_render_grid(pyr2, gt2, MEDIUM.density_scale, w, 0.1) is b2
+    c = kgather.bake_render_grid(pyr, gt, MEDIUM.density_scale, w, 0.2)
+    assert c is not a and c.c_out == pytest.approx(a.c_out + 0.1)
+    n = pyr.data.size
+    comb = pyr.runtime.from_device(c.buffer, (c.buffer.size // 4,))[1:2 * n:2]
+    want = rgather.baked_grid(pyr, gt.data, MEDIUM.density_scale, w, 0.2)
+    np.testing.assert_allclose(comb[:want[0][1].size], want[0][1].ravel(), atol=2e-6)
 
 def _render_vs_train(pyr, gt, pts, om, w, b):
     train = gather(pyr, gt, pts, om, gt.light_dir, MEDIUM, 0.9, mode="train", level_weights=w, bias=b)

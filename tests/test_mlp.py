@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from clvol.errors import NetworkInputError
-from clvol.export import Architecture, MlpWeights, default_params, feature_contract
 from clvol.kernels.mlp import MlpKernel, pack_params
+from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract
 from reference import mlp as ref
 
 ARCH = Architecture()
@@ -165,7 +165,7 @@ def test_tiny_architecture():
 def test_matches_torch(weights):
     """OpenCL vs torch directly (test_model.py holds torch to the same reference)."""
     torch = pytest.importorskip("torch")
-    from clvol.model import Model
+    from clvol.neural.model import Model
     m = Model(ARCH)
     m.load_numpy_params(weights.params)
     f, c = ref.random_inputs(64, np.random.default_rng(12), lobes=LOBES[1])

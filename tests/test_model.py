@@ -1,4 +1,4 @@
-"""The torch model (clvol/model.py) and training helpers (clvol/train.py): shapes and counts,
+"""The torch model (clvol/neural/model.py) and training helpers (clvol/neural/train.py): shapes and counts,
 parity with the float64 NumPy reference, the learned level combination, the noise-aware
 targets, and short training runs (synthetic target; real path-traced labels).
 
@@ -12,10 +12,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from clvol import layout  # noqa: E402
-from clvol.export import Architecture, default_params, load_weights, gather_contract  # noqa: E402
-from clvol.model import Model, count_parameters  # noqa: E402
-from clvol import train as tr  # noqa: E402
+from clvol.neural import layout  # noqa: E402
+from clvol.neural import train as tr  # noqa: E402
+from clvol.neural.export import Architecture, default_params, load_weights, gather_contract  # noqa: E402
+from clvol.neural.model import Model, count_parameters  # noqa: E402
 from reference import mlp as ref  # noqa: E402
 
 # One thread: the suite shares 2 cores, and torch's OpenMP pool spins at every small op when
@@ -205,7 +205,7 @@ def test_features_carry_light_transport():
     from clvol.kernels.gather import gather
     from clvol.kernels.pyramid import build_pyramid
     from clvol.kernels.transmittance import graded_transmittance
-    from clvol.pathtrace import point_query
+    from clvol.render.pathtrace import point_query
 
     rng = np.random.default_rng(0)
     lights = [(0.6, 0.9, 0.3), (-0.7, 0.3, -0.4)]

@@ -30,7 +30,8 @@ import math
 
 import numpy as np
 
-from clvol.raymarch import fill_ms_grid, render_raymarch
+from clvol.render.raymarch import render_raymarch
+from clvol.render.sources import fill_ms_grid
 from clvol.scene import Camera, Light, Medium, Phase, Scene, VolumeSpec
 from clvol.volume.grid import Grid
 

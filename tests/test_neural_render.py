@@ -1,4 +1,4 @@
-"""The network as the ray marcher's multiple-scattering source (clvol/raymarch.py, ms="network").
+"""The network as the ray marcher's multiple-scattering source (clvol/render/network.py, ms="network").
 
 A tiny random-weight network (the real architecture, He-scaled weights, last layer scaled down so
 y stays O(1)) on a 16^3 cloud with a 16^3 pyramid: training is not the point here, the wiring is
@@ -20,8 +20,9 @@ import numpy as np
 import pytest
 
 from clvol.errors import ClvolError, WeightsError
-from clvol.export import Architecture, default_params, gather_contract, save_weights
+from clvol.neural.export import Architecture, default_params, gather_contract, save_weights
 from clvol.scene import scene_from_dict
+from scene_toml import SMALL_CLOUD, write_scene
 
 BASE = 16
 
@@ -59,7 +60,7 @@ def _scene(albedo=0.95, lobes=None):
 
 @pytest.mark.parametrize("albedo,lobes", [(0.95, None), ([0.9, 0.95, 0.99], [(0.7, 0.6), (-0.3, 0.4)])])
 def test_network_source_renders(weights_file, albedo, lobes):
-    from clvol.raymarch import render_raymarch
+    from clvol.render.raymarch import render_raymarch
     res = render_raymarch(_scene(albedo, lobes), ms="network", weights=str(weights_file),
                           ms_resolution=8)
     for name in ("total", "single", "multiple"):
@@ -76,7 +77,8 @@ def test_network_source_renders(weights_file, albedo, lobes):
 
 
 def test_grey_shortcut_equals_three_channels(weights_file):
-    from clvol.raymarch import NetworkSource, render_raymarch
+    from clvol.render.network import NetworkSource
+    from clvol.render.raymarch import render_raymarch
     sc = _scene(0.95)
     grid = sc.volume.load()
     src = NetworkSource(weights_file, grid, sc.medium)
@@ -100,9 +102,10 @@ def test_lattice_matches_numpy_reference(weights_file):
     of lattice point (i, j, k) (voxel centre, omega toward the camera): checks the point order,
     the baked level weights and the channel handling on an anisotropic lattice (5 x 6 x 7)."""
     import reference.mlp as ref
-    from clvol.export import load_weights
     from clvol.kernels.gather import gather
-    from clvol.raymarch import NetworkSource, ms_lattice
+    from clvol.neural.export import load_weights
+    from clvol.render.network import NetworkSource
+    from clvol.render.sources import ms_lattice
     sc = _scene([0.9, 0.95, 0.0], [(0.7, 0.6), (-0.3, 0.4)])
     grid = sc.volume.load()
     src = NetworkSource(weights_file, grid, sc.medium)
@@ -126,7 +129,7 @@ def test_lattice_matches_numpy_reference(weights_file):
 
 
 def test_mismatched_weights_refused(weights_file, tmp_path):
-    from clvol.raymarch import render_raymarch
+    from clvol.render.raymarch import render_raymarch
     arch, p = _params()
     bad = gather_contract(BASE, 0.6)
     bad["template_hash"] = "0" * 64
@@ -139,9 +142,6 @@ def test_mismatched_weights_refused(weights_file, tmp_path):
     save_weights(path, arch, p, levels)
     with pytest.raises(WeightsError, match=r"\[contract.level_map\]"):
         render_raymarch(_scene(), ms="network", weights=str(path), ms_resolution=4)
-    with pytest.raises(ClvolError, match="needs a weight file"):  # the check itself
-        from clvol.raymarch import _check_network_options
-        _check_network_options(None, 4)
     with pytest.raises(ClvolError, match="ms_resolution = 1"):
         render_raymarch(_scene(), ms="network", weights=str(weights_file), ms_resolution=1)
     with pytest.raises(WeightsError, match="no such weight file"):
@@ -152,13 +152,7 @@ def test_cli_network_source(weights_file, tmp_path):
     """clvol render --ms network --weights FILE writes an EXR whose header has the time split."""
     from clvol.cli import main
     from clvol.image import read_exr
-    scene_path = tmp_path / "s.toml"
-    scene_path.write_text(
-        '[volume]\ngenerator = "cloud"\nseed = 4\nresolution = 16\n'
-        '[medium]\npreset = "cloud"\ndensity_scale = 30.0\n'
-        '[light]\ndirection = [0.5, 0.8, 0.3]\n'
-        '[camera]\norigin = [0.3, 0.4, 2.2]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 35.0\n'
-        'width = 12\nheight = 10\n')
+    scene_path = write_scene(tmp_path / "s.toml", **SMALL_CLOUD)
     out = tmp_path / "o.exr"
     rc = main(["render", str(scene_path), "--method", "raymarch", "--ms", "network",
                "--weights", str(weights_file), "--ms-resolution", "6", "-o", str(out)])
@@ -179,7 +173,7 @@ def test_shipped_weights_match_this_gather():
     """clvol/data/weights/cloud_small.npz must load against the packaged templates and layout
     (a template or layout change without retraining fails here, not at render time)."""
     from pathlib import Path
-    from clvol.raymarch import load_network_weights
+    from clvol.render.network import load_network_weights
     path = Path(__file__).resolve().parents[1] / "clvol" / "data" / "weights" / "cloud_small.npz"
     w = load_network_weights(path)
     assert w.contract["base_resolution"] == 64 and w.arch.n_levels == 7
@@ -190,8 +184,8 @@ def test_shipped_domain_model_matches_this_gather_and_records_its_domain():
     """clvol/data/weights/domain_small.npz loads against the packaged templates and layout, and
     its meta["domain"] is the whole-domain data sets' (exactly the keys the renderer reads)."""
     from pathlib import Path
-    from clvol.export import DOMAIN_KEYS, weights_domain
-    from clvol.raymarch import load_network_weights
+    from clvol.neural.export import DOMAIN_KEYS, weights_domain
+    from clvol.render.network import load_network_weights
     path = Path(__file__).resolve().parents[1] / "clvol" / "data" / "weights" / "domain_small.npz"
     w = load_network_weights(path)
     assert w.contract["base_resolution"] == 64 and w.arch.n_levels == 7

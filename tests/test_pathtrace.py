@@ -24,6 +24,7 @@ from clvol.kernels.pathtrace import (ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRU
 from clvol.scene import Camera
 from reference import pathtrace as rpt
 from reference.phase import phase_eval
+from scene_toml import CAMERA, write_scene
 
 BMIN = np.array([-0.5, -0.4, -0.5])
 BMAX = np.array([0.5, 0.5, 0.6])
@@ -342,7 +343,7 @@ def _scene(**medium_kw):
 
 
 def test_render_pathtrace_layers_header_and_budget():
-    from clvol.pathtrace import render_pathtrace
+    from clvol.render.pathtrace import render_pathtrace
     scene, grid = _scene(environment=(0.1, 0.2, 0.3))
     res = render_pathtrace(scene, spp=8, seed=3, grid=grid, progress=False)
     L = res.layers
@@ -365,7 +366,7 @@ def test_render_pathtrace_layers_header_and_budget():
 
 
 def test_render_rejects_bad_options():
-    from clvol.pathtrace import render_pathtrace
+    from clvol.render.pathtrace import render_pathtrace
     scene, grid = _scene()
     for kw in (dict(spp=0), dict(max_order=0), dict(spp=None, time_budget=-1.0), dict(seed=-1)):
         with pytest.raises(ClvolError):
@@ -373,7 +374,7 @@ def test_render_rejects_bad_options():
 
 
 def test_point_query_outside_points_and_errors():
-    from clvol.pathtrace import point_query
+    from clvol.render.pathtrace import point_query
     scene, grid = _scene(environment=(5.0, 5.0, 5.0))
     l = np.asarray(scene.light.direction)
     p = np.array([[0.0, 0.0, 0.0], 3.0 * l, [0.1, 0.1, 0.1]])   # centre, far toward the sun, inside
@@ -404,25 +405,12 @@ def test_point_query_outside_points_and_errors():
 def test_cli_render_writes_layers_and_header(tmp_path):
     from clvol.cli import main
     from clvol.image import read_exr
-    scene = tmp_path / "s.toml"
-    scene.write_text("""
-[volume]
-generator = "sphere"
-resolution = 8
-[medium]
-density_scale = 4.0
-albedo = [0.9, 0.8, 0.7]
-phase = { type = "hg", g = 0.5 }
-[light]
-direction = [0.0, 1.0, 0.0]
-[camera]
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-fov_y = 30.0
-width = 6
-height = 4
-""")
+    scene = write_scene(tmp_path / "s.toml", volume={"generator": "sphere", "resolution": 8},
+                        medium={"density_scale": 4.0, "albedo": [0.9, 0.8, 0.7],
+                                "phase": {"type": "hg", "g": 0.5}},
+                        light={"direction": [0.0, 1.0, 0.0]},
+                        camera={**CAMERA, "origin": [0.0, 0.0, 3.0], "up": [0.0, 1.0, 0.0],
+                                "fov_y": 30.0, "width": 6, "height": 4})
     out = tmp_path / "o.exr"
     assert main(["render", str(scene), "--method", "pathtrace", "--spp", "4", "--max-order", "3",
                  "-o", str(out)]) == 0
@@ -448,7 +436,7 @@ def test_pathtrace_tiny():
 
 
 def test_shared_device_medium_gives_the_same_rows_and_refuses_a_mismatch():
-    from clvol.render.medium import DeviceMedium
+    from clvol.kernels.majorant import DeviceMedium
     med = make_medium(lobes=[(0.5, 1.0)])
     dm = DeviceMedium.upload(med, 2)
     own = PathTracer(med, majorant_block=2).render_batch(CAM, 5, 0, 2)

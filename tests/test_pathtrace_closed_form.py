@@ -26,7 +26,7 @@ Measured z of the estimates: within +-1.7 (pooled within +-1.1).
 import numpy as np
 import pytest
 
-from clvol.pathtrace import point_query
+from clvol.render.pathtrace import point_query
 from clvol.scene import Camera, Light, Medium, Phase, Scene, VolumeSpec
 from clvol.volume.grid import Grid
 

@@ -49,7 +49,7 @@ def _blocks(img):
 
 @pytest.mark.slow
 def test_matches_mitsuba_volpath(mitsuba_ready):
-    from clvol.pathtrace import mitsuba_scene_dict, render_pathtrace
+    from clvol.render.pathtrace import mitsuba_scene_dict, render_pathtrace
     scene, grid = _scene()
     ours = render_pathtrace(scene, spp=1024, seed=1, grid=grid, progress=False)
     mean_ours = _blocks(ours.layers["total"].astype(np.float64))

@@ -21,11 +21,13 @@ import pytest
 from clvol.errors import ClvolError
 from clvol.kernels import raymarch as kraymarch
 from clvol.kernels.majorant import build_majorant
-from clvol.raymarch import MsGrid, Octaves, render_raymarch
+from clvol.render.raymarch import render_raymarch
+from clvol.render.sources import MsGrid, Octaves
 from clvol.scene import scene_from_dict
 from clvol.volume.grid import Grid
 from reference import raymarch as rraymarch
 from reference.phase import phase_eval
+from scene_toml import CAMERA, write_scene
 
 LAYER_NAMES = ("total", "single", "multiple", "alpha", "depth")
 REL_TOL = 2e-5
@@ -378,13 +380,11 @@ def test_octaves_energy_flag():
 def test_cli_renders_a_scene_with_the_ray_marcher(tmp_path):
     from clvol.cli import main
     from clvol.image import read_exr
-    scene = tmp_path / "s.toml"
-    scene.write_text(
-        '[volume]\ngenerator = "cloud"\nseed = 2\nresolution = 24\n'
-        '[medium]\npreset = "cloud"\ndensity_scale = 30.0\n'
-        '[light]\ndirection = [0.6, 0.9, 0.3]\nenvironment = [0.1, 0.1, 0.1]\n'
-        '[camera]\norigin = [0.0, 0.3, 2.4]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 30.0\n'
-        'width = 20\nheight = 16\n')
+    scene = write_scene(tmp_path / "s.toml", volume={"generator": "cloud", "seed": 2, "resolution": 24},
+                        medium={"preset": "cloud", "density_scale": 30.0},
+                        light={"direction": [0.6, 0.9, 0.3], "environment": [0.1, 0.1, 0.1]},
+                        camera={**CAMERA, "origin": [0.0, 0.3, 2.4], "fov_y": 30.0, "width": 20,
+                                "height": 16})
     out = tmp_path / "o.exr"
     assert main(["render", str(scene), "--method", "raymarch", "--ms", "none", "--step", "0.5",
                  "-o", str(out)]) == 0

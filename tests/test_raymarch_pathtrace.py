@@ -11,8 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clvol.pathtrace import point_query, render_pathtrace
-from clvol.raymarch import fill_ms_grid, render_raymarch
+from clvol.render.pathtrace import point_query, render_pathtrace
+from clvol.render.raymarch import render_raymarch
+from clvol.render.sources import fill_ms_grid
 from clvol.scene import scene_from_dict
 
 

@@ -66,6 +66,7 @@ import clvol  # noqa: E402
 from clvol.cli import main  # noqa: E402
 from clvol.errors import ClvolError  # noqa: E402
 from clvol.scene import Phase, scene_from_dict  # noqa: E402
+from scene_toml import SMALL_CLOUD, write_scene  # noqa: E402
 
 SMALL = {
     "volume": {"generator": "cloud", "seed": 4, "resolution": 16},
@@ -85,12 +86,7 @@ def small_scene(**medium):
 @pytest.fixture(scope="module")
 def scene_file(tmp_path_factory):
     p = tmp_path_factory.mktemp("scene") / "s.toml"
-    p.write_text('[volume]\ngenerator = "cloud"\nseed = 4\nresolution = 16\n'
-                 '[medium]\npreset = "cloud"\ndensity_scale = 30.0\n'
-                 '[light]\ndirection = [0.5, 0.8, 0.3]\n'
-                 '[camera]\norigin = [0.3, 0.4, 2.2]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 35.0\n'
-                 'width = 12\nheight = 10\n')
-    return p
+    return write_scene(p, **SMALL_CLOUD)
 
 
 def test_default_is_raymarch_with_the_shipped_network(scene_file):

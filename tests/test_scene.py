@@ -650,3 +650,14 @@ def test_example_round_trips(tmp_path, path):
     s2 = load_scene(out)
     assert (s2.volume, s2.medium, s2.light, s2.camera) == (s1.volume, s1.medium, s1.light,
                                                          s1.camera)
+
+
+def test_the_tests_scene_writer_writes_what_it_is_given(tmp_path):
+    """tests/scene_toml.py (the small scenes other tests render) writes its tables as given."""
+    import tomllib
+    from scene_toml import CAMERA, SMALL_CLOUD, write_scene
+    tables = {**SMALL_CLOUD, "medium": {"density_scale": 4.0, "albedo": [0.9, 0.8, 0.7],
+                                        "phase": {"type": "hg", "g": 0.5}, "preset": 'a"b'}}
+    path = write_scene(tmp_path / "s.toml", **tables)
+    assert tomllib.loads(path.read_text()) == tables
+    assert load_scene(write_scene(tmp_path / "c.toml", **SMALL_CLOUD)).camera.fov_y == CAMERA["fov_y"]

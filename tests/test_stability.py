@@ -12,7 +12,7 @@ the cross-cutting net.
 import numpy as np
 import pytest
 
-from clvol.pathtrace import point_query, render_pathtrace
+from clvol.render.pathtrace import point_query, render_pathtrace
 from clvol.render.raymarch import render_raymarch
 from clvol.scene import scene_from_dict
 from clvol.volume.grid import Grid

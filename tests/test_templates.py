@@ -1,12 +1,12 @@
-"""Sampling-template tables (clvol/data/templates.npz, clvol/templates.py): counts, radii per
+"""Sampling-template tables (clvol/data/templates.npz, clvol/neural/templates.py): counts, radii per
 seed eq. 4, D(S_i), shells, evenness, determinism, level map, and the template frame."""
 import math
 
 import numpy as np
 import pytest
 
-from clvol import layout
-from clvol import templates as T
+from clvol.neural import layout
+from clvol.neural import templates as T
 
 
 @pytest.fixture(scope="module")

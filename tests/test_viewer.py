@@ -22,32 +22,20 @@ import pytest
 
 from clvol.scene import load_scene
 from clvol.viewer.state import LIMITS, ViewerMessageError, ViewState, orbit_frame
+from scene_toml import write_scene
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENE_TOML = """
-[volume]
-generator = "cloud"
-seed = 3
-resolution = 32
-[medium]
-preset = "cloud"
-density_scale = 32.0
-[light]
-direction = [0.6, 0.9, 0.3]
-[camera]
-origin = [0.0, 0.3, 2.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-fov_y = 40.0
-width = 64
-height = 64
-"""
+SCENE = {"volume": {"generator": "cloud", "seed": 3, "resolution": 32},
+         "medium": {"preset": "cloud", "density_scale": 32.0},
+         "light": {"direction": [0.6, 0.9, 0.3]},
+         "camera": {"origin": [0.0, 0.3, 2.0], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0],
+                    "fov_y": 40.0, "width": 64, "height": 64}}
 
 
 @pytest.fixture(scope="module")
 def scene_path(tmp_path_factory):
     p = tmp_path_factory.mktemp("view") / "small.toml"
-    p.write_text(SCENE_TOML)
+    write_scene(p, **SCENE)
     return p
 
 

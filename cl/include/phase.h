@@ -21,36 +21,49 @@
 #define PHASE_LOBES 3
 #endif
 
-/* HG with 1 - mu' given, mu' the cosine with respect to the lobe's own axis (g >= 0). */
-__attribute__((always_inline))
-float hg_eval_abs(float one_minus_mu, float ga) {
-    float a = 1.0f - ga;
-    float denom = a * a + 2.0f * ga * one_minus_mu;
-    return a * (1.0f + ga) * CLVOL_INV_4PI / (denom * sqrt(denom));
-}
+/* HG and MHG evaluation are written once for any float type T (float here; the path tracer's
+ * lanes, cl/pathtrace.cl, define a vector version with the same two macros), g and the
+ * lobes being the same for every lane.
+ *
+ * HG_EVAL_T(NAME, T): T NAME(T mu, float g) = f(mu; g). f(mu; g) = f(-mu; -g): the
+ * forward-peaked form is evaluated, with 1 - mu' for mu' = sign(g) mu. */
+#define HG_EVAL_T(NAME, T)                                                          \
+    __attribute__((always_inline)) T NAME(T mu, float g) {                          \
+        T m = g < 0.0f ? -mu : mu;                                                  \
+        float ga = fabs(g), a = 1.0f - ga;                                          \
+        T denom = a * a + 2.0f * ga * (1.0f - m);                                   \
+        return a * (1.0f + ga) * CLVOL_INV_4PI / (denom * sqrt(denom));             \
+    }
 
-__attribute__((always_inline))
-float hg_eval(float mu, float g) {
-    /* f(mu; g) = f(-mu; -g): evaluate the forward-peaked form. */
-    float m = g < 0.0f ? -mu : mu;
-    return hg_eval_abs(1.0f - m, fabs(g));
-}
-
-__attribute__((always_inline))
-float phase_eval(float mu, float4 lobe_g, float4 lobe_w) {
-#ifdef PHASE_ISOTROPIC
-    return CLVOL_INV_4PI;
-#else
-    float f = lobe_w.x * hg_eval(mu, lobe_g.x);
+/* PHASE_EVAL_T(NAME, T, HG): T NAME(T mu, float4 lobe_g, float4 lobe_w), the MHG sum of the
+ * PHASE_LOBES lobes with HG(T mu, float g) (or 1 / (4 pi) with PHASE_ISOTROPIC). */
 #if PHASE_LOBES >= 2
-    f += lobe_w.y * hg_eval(mu, lobe_g.y);
+#define PHASE_LOBE_Y(s) s
+#else
+#define PHASE_LOBE_Y(s)
 #endif
 #if PHASE_LOBES >= 3
-    f += lobe_w.z * hg_eval(mu, lobe_g.z);
+#define PHASE_LOBE_Z(s) s
+#else
+#define PHASE_LOBE_Z(s)
 #endif
-    return f;
+#ifdef PHASE_ISOTROPIC
+#define PHASE_EVAL_T(NAME, T, HG)                                                   \
+    __attribute__((always_inline)) T NAME(T mu, float4 lobe_g, float4 lobe_w) {     \
+        return (T)(CLVOL_INV_4PI);                                                  \
+    }
+#else
+#define PHASE_EVAL_T(NAME, T, HG)                                                   \
+    __attribute__((always_inline)) T NAME(T mu, float4 lobe_g, float4 lobe_w) {     \
+        T f = lobe_w.x * HG(mu, lobe_g.x);                                          \
+        PHASE_LOBE_Y(f += lobe_w.y * HG(mu, lobe_g.y);)                             \
+        PHASE_LOBE_Z(f += lobe_w.z * HG(mu, lobe_g.z);)                             \
+        return f;                                                                   \
+    }
 #endif
-}
+
+HG_EVAL_T(hg_eval, float)
+PHASE_EVAL_T(phase_eval, float, hg_eval)
 
 /* Inverse-CDF sample of HG: returns 1 - mu for uniform u in [0, 1).
  * With a = 1 - g + 2 g u:  1 - mu = (1 - g)^2 (1 - u) (2 + 2 g u) / a^2.

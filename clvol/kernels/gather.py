@@ -1,4 +1,4 @@
-"""Host wrapper for cl/gather.cl: the template gather that feeds the network (clvol/layout.py).
+"""Host wrapper for cl/gather.cl: the template gather that feeds the network (clvol/neural/layout.py).
 
     pyr = build_pyramid(grid, 256)
     gt = graded_transmittance(pyr, medium.density_scale, light.direction)
@@ -16,7 +16,7 @@ one trilinear read serves both features (``bake_render_grid``; cached). Queries 
 coarse cell (``query_order``; results unchanged). Train mode returns every
 level T_l sampled at the centres of the point's density level and interpolated with the same
 trilinear weights, so sum_l w_l levels[:, l] + b equals the render feature (to rounding).
-Phase features come from a per-frame table over alpha (clvol/phasetable.py) built once per phase.
+Phase features come from a per-frame table over alpha (clvol/neural/phasetable.py) built once per phase.
 """
 from __future__ import annotations
 
@@ -26,10 +26,10 @@ from functools import lru_cache
 import numpy as np
 import pyopencl as cl
 
-from .. import layout
 from ..errors import ClvolError
-from ..phasetable import N_ALPHA, phase_feature_table, volume_phase
-from ..templates import load_templates
+from ..neural import layout
+from ..neural.phasetable import N_ALPHA, phase_feature_table, volume_phase
+from ..neural.templates import load_templates
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
 from .pyramid import Pyramid
@@ -101,7 +101,6 @@ class BakedGrid:
     c_out: float
 
 
-_BAKED: dict = {}
 MIN_ROW_LEVEL = 16        # levels at least this wide are baked by rows of 16 (bake_rows)
 BAKE_SPAN = 64            # voxels of a row per bake_rows work-item (cl/gather.cl BAKE_SPAN)
 MAX_RENDER_FLOATS = 2**31 - 1   # the render kernel indexes the (tau, C) pairs with int
@@ -154,13 +153,14 @@ def _xpass_layout(pyramid: Pyramid, lvl: int) -> tuple[np.ndarray, int]:
 
 def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, level_weights,
                      bias: float = 0.0) -> BakedGrid:
-    """The render-time grid (cached per graded fields, scale, weights and bias): for every
-    voxel of every level, (rho * density_scale * voxel size, sum_m w_m T_m(centre) + bias)."""
+    """The render-time grid: for every voxel of every level, (rho * density_scale * voxel
+    size, sum_m w_m T_m(centre) + bias). The last bake is kept in ``pyramid.cache`` and
+    returned again for the same graded fields, scale, weights and bias."""
     w, b = _check_weights(level_weights, bias, pyramid.n_levels)
-    key = (id(graded), float(density_scale), w.tobytes(), b)
-    hit = _BAKED.get(key)
-    if hit is not None and hit[0] is graded:
-        return hit[1]
+    key = (float(density_scale), w.tobytes(), b)
+    hit = pyramid.cache.get("gather_bake")
+    if hit is not None and hit[0] is graded and hit[1] == key:
+        return hit[2]
     rt = pyramid.runtime
     total = int(pyramid.data.size)
     if 2 * total + BAKE_PAD > MAX_RENDER_FLOATS:
@@ -208,8 +208,7 @@ def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, le
                   (pyramid.buffer, graded.buffer, st["loff"], np.int32(L), np.int32(n0),
                    np.int32(first), rt.to_device(taufac), wbuf, np.float32(b), out))
     baked = BakedGrid(out, tuple(w), b, float(np.float32(w.sum() + b)))
-    _BAKED.clear()                 # one light at a time: keep the memory bounded
-    _BAKED[key] = (graded, baked)
+    pyramid.cache["gather_bake"] = (graded, key, baked)   # one light at a time per pyramid
     return baked
 
 
@@ -247,7 +246,7 @@ def _check_inputs(pyramid, graded, points, omegas, light_dir, medium, mode):
 
 
 def config_vectors(medium, channel_albedo, omegas, light_dir) -> np.ndarray:
-    """[N][CONFIG_DIM] per clvol.layout.CONFIG_FIELDS."""
+    """[N][CONFIG_DIM] per clvol.neural.layout.CONFIG_FIELDS."""
     n = len(omegas)
     lobes = _lobes(medium)
     cfg = np.zeros((n, layout.CONFIG_DIM), np.float32)
@@ -293,7 +292,7 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
            mode: str = "train", level_weights=None, bias: float = 0.0,
            return_t_enter: bool = False, as_buffers: bool = False, sort: bool = True,
            reuse: dict | None = None) -> dict:
-    """Features for N queries (clvol/layout.py): ``features`` float32 [N][3][NP], ``levels``
+    """Features for N queries (clvol/neural/layout.py): ``features`` float32 [N][3][NP], ``levels``
     [N][L][NP] (train mode only), ``config`` [N][CONFIG_DIM] (and ``t_enter`` [N] on request).
 
     ``points`` world positions (N, 3); ``omegas`` unit directions toward the camera; ``light_dir``

@@ -1,4 +1,12 @@
-"""Host wrapper for cl/majorant.cl: the coarse majorant grid and its DDA (cl/include/majorant.h).
+"""Host wrapper for cl/majorant.cl: the coarse majorant grid and its DDA (cl/include/majorant.h),
+and ``DeviceMedium``, a volume on the device (its density and the majorant grid built from it).
+
+``DeviceMedium.upload(grid, block)`` is what every render method needs of a volume before any
+light or camera: the density grid (raw, sigma_t = density * density_scale) and the per-block
+maximum that empty-space skipping and delta tracking read. Derived device data (e.g. the
+light field's pyramid) is kept in its ``cache`` and lives as long as the medium. The ray
+marcher (clvol/render/raymarch.py) and the path tracer (clvol/kernels/pathtrace.py) both read
+it; a ``Renderer`` uploads one per volume.
 
 ``build_majorant(density, block)`` returns the grid as a NumPy array;
 ``build_majorant_buffer`` keeps it on the device for kernels that include majorant.h;
@@ -7,11 +15,17 @@ size (world units) those kernels take. A global majorant is ``block >= max(nx, n
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from ..errors import ClvolError
-from ..runtime import get_runtime
+from ..runtime import DeviceArray, get_runtime
 from .grid import f4
+
+# Voxels per majorant block per axis, for every method: small enough to skip the empty space
+# around a cloud, large enough that the coarse grid's DDA takes few steps.
+DEFAULT_BLOCK = 8
 
 _BUILD_ARGS = [None, np.int32, np.int32, np.int32, np.int32, np.int32, np.int32, np.int32, None]
 
@@ -32,7 +46,7 @@ def majorant_args(grid_shape, bmin, bmax, block: int):
     return (mx, my, mz), f4(cell * block)
 
 
-def build_majorant_buffer(density_buf, grid_shape, block: int = 8, runtime=None):
+def build_majorant_buffer(density_buf, grid_shape, block: int = DEFAULT_BLOCK, runtime=None):
     """Majorant grid of a density buffer already on the device: (cl.Buffer, (mz, my, mx))."""
     rt = runtime or get_runtime()
     nz, ny, nx = (int(n) for n in grid_shape)
@@ -44,7 +58,7 @@ def build_majorant_buffer(density_buf, grid_shape, block: int = 8, runtime=None)
     return out, (mz, my, mx)
 
 
-def build_majorant(density: np.ndarray, block: int = 8, runtime=None) -> np.ndarray:
+def build_majorant(density: np.ndarray, block: int = DEFAULT_BLOCK, runtime=None) -> np.ndarray:
     """float32 [ceil(nz/b)][ceil(ny/b)][ceil(nx/b)]: per coarse cell, the max of every fine
     voxel the trilinear lookup can blend inside it (its block plus one voxel around)."""
     rt = runtime or get_runtime()
@@ -53,6 +67,36 @@ def build_majorant(density: np.ndarray, block: int = 8, runtime=None) -> np.ndar
         raise ClvolError(f"density must be 3-D [z][y][x], got shape {density.shape}")
     buf, shape = build_majorant_buffer(rt.to_device(density), density.shape, block, rt)
     return rt.from_device(buf, shape)
+
+
+def majorant_block(block, grid_shape) -> int:
+    """Voxels per majorant block per axis; 0 means one global majorant."""
+    if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 0:
+        raise ClvolError(f"majorant block = {block!r}: must be an integer >= 0 (0 = one global "
+                         f"majorant)")
+    return int(block) if block else max(grid_shape)
+
+
+@dataclass(eq=False)
+class DeviceMedium:
+    """``grid``: the volume (a clvol Grid, or anything with a [z][y][x] ``density`` and
+    ``bbox_min``/``bbox_max``); ``block``: voxels per majorant cell (already resolved: never 0)."""
+    grid: object
+    block: int
+    density: DeviceArray
+    majorant: DeviceArray
+    runtime: object = field(repr=False)
+    cache: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def upload(cls, grid, block: int = DEFAULT_BLOCK, runtime=None) -> "DeviceMedium":
+        rt = runtime or get_runtime()
+        if np.ndim(grid.density) != 3:
+            raise ClvolError(f"density must be 3-D [z][y][x], got shape {np.shape(grid.density)}")
+        b = majorant_block(block, grid.density.shape)
+        density = rt.upload(grid.density)
+        buf, shape = build_majorant_buffer(density.buffer, density.shape, b, rt)
+        return cls(grid, b, density, DeviceArray(buf, shape, np.dtype(np.float32), rt), rt)
 
 
 def dda_segments(origins, dirs, bmin, bmax, grid_shape, maj: np.ndarray, block: int,

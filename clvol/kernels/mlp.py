@@ -7,7 +7,7 @@
     F = net.radiance(features, config, albedo_rgb)    # F [N][3], grey media: one evaluation
     net.enqueue(features_buf, config_buf, n, out_buf, ...)   # gather buffers -> device output
 
-``features``/``config`` are the gather's arrays or buffers (clvol/layout.py). With
+``features``/``config`` are the gather's arrays or buffers (clvol/neural/layout.py). With
 ``channel_albedo`` one evaluation per distinct non-zero channel albedo is run in the kernel
 (grey: pass the config's albedo and no channel_albedo, one evaluation); albedo-0 channels give 0.
 """
@@ -17,8 +17,8 @@ import numpy as np
 import pyopencl as cl
 
 from ..errors import NetworkInputError
-from ..export import GAMMA, TYPES, MlpWeights
-from ..layout import CONFIG_DIM, CONFIG_FIELDS
+from ..neural.export import GAMMA, TYPES, MlpWeights
+from ..neural.layout import CONFIG_DIM, CONFIG_FIELDS
 from ..runtime import get_runtime
 
 QUERIES_PER_ITEM = 16   # float16 lanes of one work-item
@@ -61,7 +61,7 @@ class MlpKernel:
         """``defines``: extra -D options, overriding the defaults (a value of None removes
         one: tests use {"MLP_TRANSPOSE16": None} for the per-lane load path)."""
         if GAMMA != 4.0:  # the kernel's decode hard-codes albedo^4
-            raise RuntimeError("bug: clvol/export.py's GAMMA is not the 4 cl/mlp.cl decodes with")
+            raise RuntimeError("bug: clvol/neural/export.py's GAMMA is not the 4 cl/mlp.cl decodes with")
         self.weights = weights
         self.arch = weights.arch
         self.rt = runtime or get_runtime()
@@ -119,7 +119,7 @@ class MlpKernel:
             want_f = (n, len(TYPES), self.arch.n_points)
             if features.shape != want_f or config.shape != (n, CONFIG_DIM):
                 raise NetworkInputError(f"features {features.shape} / config {config.shape}: "
-                                        f"expected {want_f} / {(n, CONFIG_DIM)} (clvol/layout.py)")
+                                        f"expected {want_f} / {(n, CONFIG_DIM)} (clvol/neural/layout.py)")
             fb = rt.to_device(np.ascontiguousarray(features, np.float32))
             cb = rt.to_device(np.ascontiguousarray(config, np.float32))
         channels = 1 if channel_albedo is None else 3

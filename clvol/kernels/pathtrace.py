@@ -4,7 +4,7 @@
 shared with the other methods, or uploaded here when none is given), picks the ``-D``
 specialisation the scene allows, and runs render or query batches, returning the raw
 per-path rows (layout ``ROW_*`` below) for the caller to average. Rendering policy
-(progress, time budget, images, standard errors) lives in ``clvol/pathtrace.py``.
+(progress, time budget, images, standard errors) lives in ``clvol/render/pathtrace.py``.
 """
 from __future__ import annotations
 
@@ -16,7 +16,8 @@ from ..errors import ClvolError
 from ..runtime import get_runtime
 from . import phase as kphase
 from .grid import f4
-from .majorant import majorant_args
+from .majorant import DEFAULT_BLOCK, DeviceMedium, majorant_args
+from .majorant import majorant_block as resolve_block
 
 # Per-path output row of the kernels (PT_OUT floats).
 ROW_BG, ROW_L1, ROW_LMS = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -97,16 +98,14 @@ class PathTracer:
     def __init__(self, med: Medium, majorant_block: int | None = None, specialise: bool = True,
                  runtime=None, device_medium=None):
         """``device_medium``: ``med``'s density already on the device with its majorant
-        (clvol/render/medium.py), built with ``majorant_block`` (None: its default);
+        (clvol/kernels/majorant.py), built with ``majorant_block`` (None: its default);
         None uploads one."""
         self.rt = rt = runtime or get_runtime()
         self.med = med
         if device_medium is None:
-            from ..render.medium import DEFAULT_BLOCK, DeviceMedium
             block = DEFAULT_BLOCK if majorant_block is None else majorant_block
             device_medium = DeviceMedium.upload(med, block, rt)
         else:
-            from ..render.medium import majorant_block as resolve_block
             if np.shape(med.density) != device_medium.density.shape:
                 raise ClvolError(f"PathTracer: device medium of shape "
                                  f"{device_medium.density.shape} for a density of shape "

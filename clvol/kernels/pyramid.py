@@ -29,7 +29,7 @@ import pyopencl as cl
 from scipy import sparse
 
 from ..errors import ClvolError
-from ..layout import is_power_of_two, n_levels
+from ..neural.layout import is_power_of_two, n_levels
 from ..runtime import Runtime, get_runtime
 from ..volume.grid import Grid
 

@@ -1,9 +1,10 @@
 """Rendering: the method registry, the result type, and (in this package) the pipeline.
 
 Layout: ``renderer`` (the stateful ``Renderer`` applications hold), ``options`` (options
-bound to methods), ``medium`` (a volume on the device), ``raymarch`` (the ray marcher and its
-plan), ``sources`` (multiple-scattering sources: none, octaves, grid) and ``network`` (the
-network source). The path tracer lives in clvol/pathtrace.py.
+bound to methods), the two methods ``raymarch`` (the ray marcher and its plan) and
+``pathtrace`` (the reference path tracer and point queries), ``sources`` (multiple-scattering
+sources: none, octaves, grid) and ``network`` (the network source). The volume on the device
+that every method reads (``DeviceMedium``) is clvol/kernels/majorant.py's.
 
 Render-method registry shared by the CLI and Python callers.
 
@@ -26,7 +27,7 @@ from ..errors import ClvolError
 
 # name -> (module, one-line description)
 METHODS: dict[str, tuple[str, str]] = {
-    "pathtrace": ("clvol.pathtrace", "reference volumetric path tracer (ground truth, noisy, slow)"),
+    "pathtrace": ("clvol.render.pathtrace", "reference volumetric path tracer (ground truth, noisy, slow)"),
     "raymarch": ("clvol.render.raymarch", "real-time ray marcher: exact single scattering + "
                  "multiple scattering from the trained network (default) or an analytic source"),
 }

@@ -7,8 +7,8 @@ template gather at the lattice points, the fused OpenCL MLP. ``NetworkMs`` is th
 source built on it: it refills the lattice only when the camera position, the light or the
 medium changed.
 
-The weight file states the domain it was trained on (``domain_of``); ``check_domain`` says
-whether a medium is inside it.
+The weight file states the domain it was trained on (clvol/neural/export.py's
+``weights_domain``); ``outside_domain`` says how a medium lies outside it.
 """
 from __future__ import annotations
 
@@ -18,15 +18,12 @@ import math
 import numpy as np
 
 from ..errors import ClvolError, WeightsError
-from ..layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
+from ..neural.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
 from ..runtime import Stopwatch, get_runtime
 from .sources import GridMs, MsGrid, MsPlan, check_ms_grid, ms_lattice, register
 
 DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
 NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
-# The domain of a weight file without meta["domain"] (how cloud_small.npz was made:
-# clvol/data/weights/cloud_small.md).
-DEFAULT_DOMAIN = {"albedo": [0.8, 0.999], "g": [0.0, 0.9], "max_lobes": 3}
 # Outside the domain the network is still the best source measured, except for strongly
 # backward phases (docs/raymarch.md, "Validity domain"; bench/domain_fallback.py).
 BACKWARD_LIMIT = -0.8          # mean cosine below this: an analytic source instead
@@ -61,7 +58,7 @@ def load_network_weights(path):
     """A weight file checked against the contract of the gather that will feed it: this
     code's layout and packaged templates (hash, level map) at the file's base resolution and
     lambda (the pyramid is built to match those). Raises WeightsError naming the field."""
-    from ..export import MlpWeights, gather_contract, load_weights, read_meta
+    from ..neural.export import MlpWeights, gather_contract, load_weights, read_meta
     if isinstance(path, MlpWeights):
         path = path.path
     c = read_meta(path)["contract"]
@@ -85,14 +82,7 @@ def check_ms_resolution(r):
 
 # --------------------------------------------------------------------------- domain
 
-def domain_of(weights) -> dict:
-    """The validity domain a weight file records (meta["domain"]), or DEFAULT_DOMAIN."""
-    meta = getattr(weights, "meta", None) or {}
-    d = meta.get("domain")
-    return dict(DEFAULT_DOMAIN) if not isinstance(d, dict) else d
-
-
-def check_domain(domain: dict, medium, optical_thickness: float | None = None) -> list[str]:
+def outside_domain(domain: dict, medium, optical_thickness: float | None = None) -> list[str]:
     """The ways ``medium`` lies outside ``domain`` (empty: inside). Channels of albedo 0 are
     not checked (the network is not evaluated there)."""
     out = []
@@ -307,6 +297,18 @@ class NetworkMs(GridMs):
         self.info = None
         self.setup_seconds = 0.0
         self._key = None
+
+    @classmethod
+    def from_options(cls, o: dict, runtime=None) -> "NetworkMs":
+        r = o.get("ms_resolution")
+        return cls(o.get("weights"), DEFAULT_NETWORK_RESOLUTION if r is None else r, runtime,
+                   o.get("ms_directions", 0), o.get("ms_refresh", 1))
+
+    def training_domain(self) -> dict:
+        """The validity domain the weight file records (clvol/neural/export.py); loading it
+        also checks the file against this gather's contract."""
+        from ..neural.export import weights_domain
+        return weights_domain(load_network_weights(self.weights_path).meta)
 
     def prepare(self, frame) -> None:
         self.count = frame.count

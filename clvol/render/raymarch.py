@@ -21,12 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ClvolError
+from ..kernels.majorant import DEFAULT_BLOCK, DeviceMedium
 from ..kernels.phase import phase_defines
 from ..kernels.pyramid import MAX_BASE_RESOLUTION
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
-from ..layout import is_power_of_two
+from ..neural.layout import is_power_of_two
 from ..runtime import DeviceArray, get_runtime
-from .medium import DEFAULT_BLOCK, DeviceMedium
 from .sources import MsPlan, MsSource, NoMs
 
 DEFAULT_STEP = 1.0         # segment length in voxels of the density grid
@@ -190,7 +190,8 @@ class RayMarcher:
         if ms is not None:
             source = ms
         if isinstance(source, str):
-            source = make_source(source, octaves=octaves, ms_grid=ms_grid, runtime=self.rt)
+            opts = {"ms_grid": ms_grid, **(octaves.as_options() if octaves is not None else {})}
+            source = make_source(source, opts, self.rt)
         plan = Plan.make(self.medium, light, source, shortcuts, skip_empty)
         if plan.lit:
             self.ensure_light(light.direction)
@@ -216,28 +217,14 @@ class RayMarcher:
         return res + (plan,)
 
 
-def make_source(ms: str, *, octaves=None, ms_grid=None, weights=None, ms_resolution=None,
-                runtime=None, ms_directions: int = 0, ms_refresh: int = 1) -> MsSource:
-    """The source named ``ms`` (``--ms``) with its options."""
-    from .network import DEFAULT_NETWORK_RESOLUTION
-    from .sources import SOURCES, GridMs, Octaves, OctavesMs
+def make_source(ms: str, options: dict | None = None, runtime=None) -> MsSource:
+    """The source named ``ms`` (``--ms``), built from render ``options`` by the source itself
+    (``MsSource.from_options``)."""
+    from . import network  # noqa: F401  (registers the network source)
+    from .sources import SOURCES
     if ms not in SOURCES:
         raise ClvolError(f"raymarch option ms = {ms!r}: choose one of {sorted(SOURCES)}")
-    cls = SOURCES[ms]
-    if issubclass(cls, OctavesMs):
-        return cls(octaves if octaves is not None else Octaves())
-    if cls is GridMs:
-        if ms_grid is None:
-            raise ClvolError("raymarch option ms = 'grid' needs an ms grid (--ms-grid FILE.npz, "
-                             "or ms_grid=MsGrid(...) in Python)")
-        if not hasattr(ms_grid, "values"):
-            from .sources import load_ms_grid
-            ms_grid = load_ms_grid(ms_grid)
-        return cls(ms_grid, runtime)
-    if ms == "network":
-        return cls(weights, DEFAULT_NETWORK_RESOLUTION if ms_resolution is None else ms_resolution,
-                   runtime, ms_directions, ms_refresh)
-    return cls()
+    return SOURCES[ms].from_options(options or {}, runtime)
 
 
 def downsample(layers: dict, s: int) -> dict:
@@ -274,16 +261,14 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
     the weights' training domain unless ``domain_fallback`` (the Renderer's default).
     """
     from .renderer import Renderer
+    from .sources import SOURCES
     opts = dict(ms=ms, step=step, threshold=threshold, no_skip_empty=not skip_empty,
                 majorant_block=block, light_resolution=light_resolution,
                 light_interp=light_interp, supersample=supersample, no_shortcuts=not shortcuts)
-    if ms == "wrenninge":
-        opts.update(octaves=octaves, ms_a=a, ms_b=b, ms_c=c)
-    elif ms == "grid":
-        opts["ms_grid"] = ms_grid
-    elif ms == "network":
-        opts.update(weights=weights, ms_resolution=ms_resolution,
-                    no_domain_fallback=not domain_fallback)
+    per_source = dict(octaves=octaves, ms_a=a, ms_b=b, ms_c=c, ms_grid=ms_grid, weights=weights,
+                      ms_resolution=ms_resolution, no_domain_fallback=not domain_fallback)
+    read = getattr(SOURCES.get(ms), "options", ())     # those of the source asked for
+    opts.update({k: v for k, v in per_source.items() if k in read})
     opts = {k: v for k, v in opts.items() if v is not None}
     return Renderer(scene, "raymarch", grid=grid, runtime=runtime, **opts).render()
 

@@ -89,7 +89,7 @@ class Renderer:
         """The volume on the device with its majorant (uploaded on first use, shared by
         every frame and method)."""
         if self._device_medium is None:
-            from .medium import DeviceMedium
+            from ..kernels.majorant import DeviceMedium
             self._device_medium = DeviceMedium.upload(self.grid, self.options["majorant_block"],
                                                       self.rt)
             self._count("device_medium")
@@ -97,8 +97,9 @@ class Renderer:
 
     # ------------------------------------------------------------------ raymarch
     def _setup_raymarch(self) -> None:
+        from .network import NetworkMs
         from .raymarch import check_march_options, make_source
-        from .sources import SOURCES, Octaves
+        from .sources import SOURCES
         o, given = self.options, self.given
         mo = o["max_order"]
         if mo is not None:
@@ -122,19 +123,15 @@ class Renderer:
                                  f"(method 'raymarch' with --ms {ms} does not read it)")
         check_march_options(o["step"], o["threshold"], o["light_resolution"], o["supersample"],
                             o["light_interp"])
-        oct_ = Octaves(o["octaves"], float(o["ms_a"]), float(o["ms_b"]), float(o["ms_c"]))
-        self.source = make_source(ms, octaves=oct_, ms_grid=o["ms_grid"], weights=o["weights"],
-                                  ms_resolution=o["ms_resolution"], runtime=self.rt,
-                                  ms_directions=o["ms_directions"], ms_refresh=o["ms_refresh"])
+        self.source = make_source(ms, o, self.rt)
         self.source.count = self._count
-        if ms == "network":
-            from .network import domain_of, load_network_weights
-            self.domain = domain_of(load_network_weights(self.source.weights_path))
+        if isinstance(self.source, NetworkMs):
+            self.domain = self.source.training_domain()
 
     def _active_source(self, medium, grid):
         """The configured source, or the measured alternative when the medium lies outside
         the network's training domain (one warning per distinct reason)."""
-        from .network import THIN_OPTICAL_THICKNESS, NetworkMs, check_domain, fallback_for
+        from .network import THIN_OPTICAL_THICKNESS, NetworkMs, fallback_for, outside_domain
         if not isinstance(self.source, NetworkMs):
             return self.source, None
         if self._tau1 is None:                 # optical thickness at density scale 1
@@ -145,7 +142,7 @@ class Renderer:
             self.thin = ot
             return self._other("none"), None
         self.thin = None
-        out = check_domain(self.domain, medium, ot)
+        out = outside_domain(self.domain, medium, ot)
         if not out:
             return self.source, None
         alt = None if self.options["no_domain_fallback"] else fallback_for(medium)
@@ -243,7 +240,7 @@ class Renderer:
 
     # ------------------------------------------------------------------ pathtrace
     def _render_pathtrace(self, cam, light, medium, seed=None) -> RenderResult:
-        from ..pathtrace import render_pathtrace
+        from .pathtrace import render_pathtrace
         o = self.options
         scene = dataclasses.replace(self.scene, camera=cam, light=light, medium=medium)
         res = render_pathtrace(scene, spp=o["spp"], seed=o["seed"] if seed is None else seed,

@@ -47,6 +47,16 @@ class Octaves:
     def energy_conserving(self) -> bool:
         return self.b <= self.a
 
+    @classmethod
+    def from_options(cls, o: dict) -> "Octaves":
+        """From render options (octaves, ms_a, ms_b, ms_c); the defaults above for any missing."""
+        d = cls()
+        return cls(o.get("octaves", d.n), float(o.get("ms_a", d.a)), float(o.get("ms_b", d.b)),
+                   float(o.get("ms_c", d.c)))
+
+    def as_options(self) -> dict:
+        return {"octaves": self.n, "ms_a": self.a, "ms_b": self.b, "ms_c": self.c}
+
     def check(self) -> "Octaves":
         def bad(name, value, allowed):
             return ClvolError(f"raymarch option {name} = {value!r}: {allowed}")
@@ -184,6 +194,12 @@ class MsSource:
     label = "no multiple scattering"
     options: tuple[str, ...] = ()      # the Renderer options this source reads
 
+    @classmethod
+    def from_options(cls, o: dict, runtime=None) -> "MsSource":
+        """The source built from render options (it reads those in ``options``; a missing
+        one takes its default)."""
+        return cls()
+
     def prepare(self, frame: Frame) -> None:
         """Fill this source's data for the frame (nothing to do for an analytic source)."""
 
@@ -206,6 +222,10 @@ class OctavesMs(MsSource):
 
     def __init__(self, octaves: Octaves = Octaves()):
         self.octaves = octaves.check()
+
+    @classmethod
+    def from_options(cls, o: dict, runtime=None) -> "OctavesMs":
+        return cls(Octaves.from_options(o))
 
     def plan(self, medium, shortcuts: bool) -> MsPlan:
         o = self.octaves
@@ -237,6 +257,13 @@ class GridMs(MsSource):
         self._uploaded = None        # (ms_grid, grey?, DeviceArray)
         self.count = None
 
+    @classmethod
+    def from_options(cls, o: dict, runtime=None) -> "GridMs":
+        g = o.get("ms_grid")
+        if g is None:
+            raise _no_grid()
+        return cls(g if hasattr(g, "values") else load_ms_grid(g), runtime)
+
     def planes_for(self, medium, shortcuts: bool):
         """((C, gz, gy, gx) planes on the device, grey shortcut taken?)."""
         planes = self.ms_grid.planes()
@@ -258,8 +285,7 @@ class GridMs(MsSource):
 
     def plan(self, medium, shortcuts: bool) -> MsPlan:
         if self.ms_grid is None:
-            raise ClvolError("raymarch option ms = 'grid' needs an ms grid (--ms-grid FILE.npz, "
-                             "or ms_grid=MsGrid(...) in Python)")
+            raise _no_grid()
         planes, grey = self.planes_for(medium, shortcuts)
         gz, gy, gx = planes.shape[1:]
         p = MsPlan(ms_defines("grid", channels=planes.shape[0]), planes=planes,
@@ -269,6 +295,11 @@ class GridMs(MsSource):
         p.simulated.append(f"multiple scattering ({self.what} {gx}x{gy}x{gz}, "
                            f"{planes.shape[0]} channel(s))")
         return p
+
+
+def _no_grid() -> ClvolError:
+    return ClvolError("raymarch option ms = 'grid' needs an ms grid (--ms-grid FILE.npz, "
+                      "or ms_grid=MsGrid(...) in Python)")
 
 
 SOURCES: dict[str, type] = {"none": NoMs, "wrenninge": OctavesMs, "grid": GridMs}

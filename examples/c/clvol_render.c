@@ -187,6 +187,9 @@ static void manifest_free(manifest *m) {
     free(m->key);
     free(m->val);
     free(m->where);
+    m->n = 0;   /* empty again: freeing twice is harmless */
+    m->key = m->val = NULL;
+    m->where = NULL;
 }
 
 static const char *mf_find(const manifest *m, const char *key) {
@@ -416,6 +419,17 @@ static void choose_device(clvol_host *h, const char *spec) {
     }
     if (!best || best_rank == 99) fail("no OpenCL device matches %s", spec ? spec : "(any)");
     h->device = best;
+}
+
+/* A new context and in-order queue on the device `spec` picks (choose_device), owned by `h`. */
+static void open_device(clvol_host *h, const char *spec) {
+    cl_int err;
+    choose_device(h, spec);
+    h->ctx = clCreateContext(NULL, 1, &h->device, NULL, NULL, &err);
+    CLE(err, "clCreateContext");
+    h->queue = clCreateCommandQueue(h->ctx, h->device, 0, &err);
+    CLE(err, "clCreateCommandQueue");
+    h->owns_context = 1;
 }
 
 static void describe_device(clvol_host *h) {
@@ -1217,13 +1231,7 @@ clvol_host *clvol_host_create(const char *bundle_dir, cl_context context, cl_com
         h->queue = queue;
         CL(clGetCommandQueueInfo(queue, CL_QUEUE_DEVICE, sizeof h->device, &h->device, NULL));
     } else {
-        cl_int err;
-        choose_device(h, device);
-        h->ctx = clCreateContext(NULL, 1, &h->device, NULL, NULL, &err);
-        CLE(err, "clCreateContext");
-        h->queue = clCreateCommandQueue(h->ctx, h->device, 0, &err);
-        CLE(err, "clCreateCommandQueue");
-        h->owns_context = 1;
+        open_device(h, device);
     }
     describe_device(h);
     setup_volume(h);
@@ -1328,43 +1336,64 @@ static int compare(const char *what, const float *got, const float *want, long n
     return bad;
 }
 
+/* compare() with the manifest's tolerance.<key> = rtol, atol; atol in units of `scale`. */
+static int compare_tol(const clvol_host *h, const char *what, const char *key, const float *got,
+                       const float *want, long n, long stride, long first, long len, double scale) {
+    char k[64];
+    double tol[2];
+    snprintf(k, sizeof k, "tolerance.%s", key);
+    mf_doubles(&h->mf, k, tol, 2);
+    return compare(what, got, want, n, stride, first, len, tol[1] * scale, tol[0]);
+}
+
+/* The golden folder's NAME (float32 or int32) as a device buffer released with the host;
+ * *count: its number of elements. */
+static cl_mem npy_buffer(clvol_host *h, const char *name, long *count) {
+    void *data = npy(h->dir, name, count);
+    cl_mem m = buffer(h, 4 * (size_t)*count, data);
+    free(data);
+    return m;
+}
+
+/* One kernel's golden folder ROOT/<name>: its manifest read into h->mf, h->dir set. */
+static char *golden_open(clvol_host *h, const char *root, const char *name) {
+    char *mp;
+    h->dir = path_join(root, name);
+    mp = path_join(h->dir, "manifest.txt");
+    manifest_read(&h->mf, mp);
+    free(mp);
+    return h->dir;
+}
+
+static void golden_close(clvol_host *h) {
+    manifest_free(&h->mf);
+    free(h->dir);
+    h->dir = NULL;
+}
+
 /* Golden vectors of `clvol goldens DIR` for the MLP and the gather (DIR/<kernel>/manifest.txt
  * lists the programs and tolerances, the .npy files the arguments). */
 static int run_goldens(const char *root, const char *device) {
     int failures = 0;
     clvol_host *h = calloc(1, sizeof *h);
     if (!h) fail("out of host memory");
-    cl_int err;
-    choose_device(h, device);
+    open_device(h, device);
     describe_device(h);
-    h->ctx = clCreateContext(NULL, 1, &h->device, NULL, NULL, &err);
-    CLE(err, "clCreateContext");
-    h->queue = clCreateCommandQueue(h->ctx, h->device, 0, &err);
-    CLE(err, "clCreateCommandQueue");
-    h->owns_context = 1;
 
     /* MLP: grey (1 channel, y) and chromatic (3 channels, decoded F) */
     {
-        char *dir = path_join(root, "mlp");
-        char *mp = path_join(dir, "manifest.txt");
-        manifest_read(&h->mf, mp);
-        free(mp);
-        h->dir = dir;
-        long nf, nc, np, ny, nF, na;
-        float *feats = npy(dir, "features.npy", &nf);
-        float *cfg = npy(dir, "config.npy", &nc);
-        float *params = npy(dir, "params.npy", &np);
+        char *dir = golden_open(h, root, "mlp");
+        long n, ny, nF, na;
         float *want_y = npy(dir, "y.npy", &ny);
         float *want_F = npy(dir, "F.npy", &nF);
         float *alb = npy(dir, "channel_albedo.npy", &na);
         int N = (int)ny, qpi = mf_int(&h->mf, "host.mlp_queries_per_item");
-        cl_mem df = buffer(h, 4 * (size_t)nf, feats), dc = buffer(h, 4 * (size_t)nc, cfg),
-               dp = buffer(h, 4 * (size_t)np, params), dy = buffer(h, 4 * (size_t)N, NULL),
+        cl_mem df = npy_buffer(h, "features.npy", &n), dc = npy_buffer(h, "config.npy", &n),
+               dp = npy_buffer(h, "params.npy", &n), dy = buffer(h, 4 * (size_t)N, NULL),
                dF = buffer(h, 12 * (size_t)N, NULL);
         const char *names[2] = {"mlp_y", "mlp_F"};
         for (int v = 0; v < 2; ++v) {
             /* build each variant as its own program (program.mlp_y / program.mlp_F) */
-            char key[64];
             build_program(h, P_MLP, names[v]);
             cl_kernel k = kernel(h, P_MLP, "mlp_forward");
             cl_float4 ca = {{0, 0, 0, 0}};
@@ -1380,39 +1409,28 @@ static int run_goldens(const char *root, const char *device) {
             double want_max = 0.0;
             const float *want = v ? want_F : want_y;
             for (long i = 0; i < (v ? 3L : 1L) * N; ++i) want_max = fmax(want_max, fabs(want[i]));
-            snprintf(key, sizeof key, "tolerance.%s", names[v]);
-            double tol[2];
-            mf_doubles(&h->mf, key, tol, 2);   /* rtol, atol as a fraction of max |want| */
-            failures += compare(names[v], got, want, N, v ? 3 : 1, 0, v ? 3 : 1, tol[1] * want_max, tol[0]);
+            /* atol as a fraction of max |want| */
+            failures += compare_tol(h, names[v], names[v], got, want, N, v ? 3 : 1, 0, v ? 3 : 1,
+                                    want_max);
             free(got);
             CL(clReleaseKernel(k));
             CL(clReleaseProgram(h->prog[P_MLP]));
             h->prog[P_MLP] = NULL;
         }
-        free(feats); free(cfg); free(params); free(want_y); free(want_F); free(alb);
-        manifest_free(&h->mf);
-        free(dir);
+        free(want_y); free(want_F); free(alb);
+        golden_close(h);
     }
     /* gather, render mode */
     {
-        char *dir = path_join(root, "gather");
-        char *mp = path_join(dir, "manifest.txt");
-        manifest_read(&h->mf, mp);
-        free(mp);
-        h->dir = dir;
-        long n_pyr, n_baked, n_loff, n_tpl, n_pinfo, n_hl, n_ptab, n_pts, n_om, n_order, n_want, n_te;
-        float *pyr = npy(dir, "dens.npy", &n_pyr);
-        float *baked = npy(dir, "baked.npy", &n_baked);
-        int *loff = npy(dir, "loff.npy", &n_loff);
-        float *tpl = npy(dir, "tpl.npy", &n_tpl);
-        int *pinfo = npy(dir, "pinfo.npy", &n_pinfo);
-        float *hl = npy(dir, "hl_spacing.npy", &n_hl);
-        float *ptab = npy(dir, "ptab.npy", &n_ptab);
-        float *pts = npy(dir, "points.npy", &n_pts);
-        float *om = npy(dir, "omegas.npy", &n_om);
-        int *order = npy(dir, "order.npy", &n_order);
+        char *dir = golden_open(h, root, "gather");
+        long n, n_loff, n_order, n_want, n_te;
         float *want = npy(dir, "features.npy", &n_want);
         float *want_te = npy(dir, "t_enter.npy", &n_te);
+        cl_mem dd = npy_buffer(h, "dens.npy", &n), db = npy_buffer(h, "baked.npy", &n),
+               dl = npy_buffer(h, "loff.npy", &n_loff), dt = npy_buffer(h, "tpl.npy", &n),
+               dpi = npy_buffer(h, "pinfo.npy", &n), dh = npy_buffer(h, "hl_spacing.npy", &n),
+               dpt = npy_buffer(h, "ptab.npy", &n), dp = npy_buffer(h, "points.npy", &n),
+               dom = npy_buffer(h, "omegas.npy", &n), dor = npy_buffer(h, "order.npy", &n_order);
         build_program(h, P_GATHER, "gather");
         cl_kernel k = kernel(h, P_GATHER, "gather");
         int N = (int)n_order, L = (int)n_loff, NP = mf_int(&h->mf, "gather.np");
@@ -1422,12 +1440,7 @@ static int run_goldens(const char *root, const char *device) {
         cl_float4 c4 = f4(cmin), l4 = f4(l), lg, lw;
         mf_float4(&h->mf, "arg.lobe_g", 4, &lg);
         mf_float4(&h->mf, "arg.lobe_w", 4, &lw);
-        cl_mem dd = buffer(h, 4 * (size_t)n_pyr, pyr), db = buffer(h, 4 * (size_t)n_baked, baked),
-               dl = buffer(h, 4 * (size_t)n_loff, loff), dt = buffer(h, 4 * (size_t)n_tpl, tpl),
-               dpi = buffer(h, 4 * (size_t)n_pinfo, pinfo), dh = buffer(h, 4 * (size_t)n_hl, hl),
-               dpt = buffer(h, 4 * (size_t)n_ptab, ptab), dp = buffer(h, 4 * (size_t)n_pts, pts),
-               dom = buffer(h, 4 * (size_t)n_om, om), dor = buffer(h, 4 * (size_t)n_order, order),
-               dout = buffer(h, 4 * (size_t)N * 3 * NP, NULL), dte = buffer(h, 4 * (size_t)N, NULL),
+        cl_mem dout = buffer(h, 4 * (size_t)N * 3 * NP, NULL), dte = buffer(h, 4 * (size_t)N, NULL),
                dummy = buffer(h, 4, NULL);
         set_args(k, "mmmmii4fmmmmmimm444fmimmm", dd, dd, db, dl, L, mf_int(&h->mf, "arg.n0"), &c4,
                  mf_double(&h->mf, "arg.csize"), dummy, dt, dpi, dh, dpt, mf_int(&h->mf, "arg.NA"),
@@ -1436,26 +1449,15 @@ static int run_goldens(const char *root, const char *device) {
         float *got = xmalloc(4 * (size_t)N * 3 * NP), *got_te = xmalloc(4 * (size_t)N);
         CL(clEnqueueReadBuffer(h->queue, dout, CL_TRUE, 0, 4 * (size_t)N * 3 * NP, got, 0, NULL, NULL));
         CL(clEnqueueReadBuffer(h->queue, dte, CL_TRUE, 0, 4 * (size_t)N, got_te, 0, NULL, NULL));
-        double t[2];
-        mf_doubles(&h->mf, "tolerance.t_enter", t, 2);
-        failures += compare("gather t_enter", got_te, want_te, N, 1, 0, 1, t[1], t[0]);
-        mf_doubles(&h->mf, "tolerance.density", t, 2);
-        failures += compare("gather density", got, want, N, 3 * NP, 0, NP, t[1], t[0]);
-        mf_doubles(&h->mf, "tolerance.transmittance", t, 2);
-        failures += compare("gather transmittance", got, want, N, 3 * NP, NP, NP, t[1], t[0]);
-        mf_doubles(&h->mf, "tolerance.phase", t, 2);
-        failures += compare("gather phase", got, want, N, 3 * NP, 2 * NP, NP, t[1], t[0]);
-        free(got); free(got_te);
-        free(pyr); free(baked); free(loff); free(tpl); free(pinfo); free(hl); free(ptab); free(pts);
-        free(om); free(order); free(want); free(want_te);
+        failures += compare_tol(h, "gather t_enter", "t_enter", got_te, want_te, N, 1, 0, 1, 1.0);
+        failures += compare_tol(h, "gather density", "density", got, want, N, 3 * NP, 0, NP, 1.0);
+        failures += compare_tol(h, "gather transmittance", "transmittance", got, want, N, 3 * NP,
+                                NP, NP, 1.0);
+        failures += compare_tol(h, "gather phase", "phase", got, want, N, 3 * NP, 2 * NP, NP, 1.0);
+        free(got); free(got_te); free(want); free(want_te);
         CL(clReleaseKernel(k));
-        manifest_free(&h->mf);
-        free(dir);
+        golden_close(h);
     }
-    h->dir = NULL;
-    h->mf.n = 0;
-    h->mf.key = h->mf.val = NULL;
-    h->mf.where = NULL;
     clvol_host_destroy(h);
     return failures;
 }
@@ -1514,12 +1516,9 @@ int main(int argc, char **argv) {
     cl_command_queue queue = NULL;
     if (external) {   /* what a renderer that already holds OpenCL objects does */
         clvol_host probe = {0};
-        cl_int err;
-        choose_device(&probe, device);
-        ctx = clCreateContext(NULL, 1, &probe.device, NULL, NULL, &err);
-        CLE(err, "clCreateContext");
-        queue = clCreateCommandQueue(ctx, probe.device, 0, &err);
-        CLE(err, "clCreateCommandQueue");
+        open_device(&probe, device);
+        ctx = probe.ctx;
+        queue = probe.queue;
     }
     clvol_host *h = clvol_host_create(paths[0], ctx, queue, device);
     float *rgb = xmalloc(12 * (size_t)h->width * h->height);

@@ -37,7 +37,7 @@ def golden_scene(name: str):
 def golden_ms_grid(scene):
     """A deterministic, view-independent F_ms grid (an analytic field, no estimator): the
     "grid" source's golden needs an input that does not depend on any other code path."""
-    from clvol.raymarch import MsGrid
+    from clvol.render.sources import MsGrid
     g = scene.volume.load()
     n = 8
     ax = (np.arange(n) + 0.5) / n
@@ -61,7 +61,7 @@ def render_raymarch_golden(name: str, ms: str) -> dict:
 
 
 def render_pathtrace_golden(name: str) -> dict:
-    from clvol.pathtrace import render_pathtrace
+    from clvol.render.pathtrace import render_pathtrace
     res = render_pathtrace(golden_scene(name), spp=PT_SPP, seed=PT_SEED, progress=False)
     return {"total": res.layers["total"]}
 

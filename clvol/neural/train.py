@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..errors import ClvolError
 from . import layout
-from .errors import ClvolError
 from .export import GAMMA, TYPES
 from .model import Model
 
@@ -246,7 +246,7 @@ def per_key_mean(train: Samples, test: Samples) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- training runs
-# A run on a clvol.dataset folder: held-out split by volume and configuration, checkpoints
+# A run on a clvol.neural.dataset folder: held-out split by volume and configuration, checkpoints
 # written atomically and resumed exactly, export with the gather's contract.
 
 CHECKPOINT = "checkpoint.pt"
@@ -310,7 +310,7 @@ def split_shards(shards, cfg: RunConfig):
 
 
 def shard_samples(shards, floor: float = 0.05) -> Samples:
-    """Samples of a list of clvol.dataset.Shard: one per (query, distinct non-zero albedo), key
+    """Samples of a list of clvol.neural.dataset.Shard: one per (query, distinct non-zero albedo), key
     = the shard's position in the data set (volume * configs + configuration)."""
     labels = [s.arrays["Fms"] for s in shards]
     starts = np.concatenate([[0], np.cumsum([len(F) for F in labels])])
@@ -339,7 +339,7 @@ def shard_samples(shards, floor: float = 0.05) -> Samples:
 
 def save_checkpoint(path, state: dict) -> None:
     """torch.save through clvol.atomic (a killed run leaves the previous checkpoint whole)."""
-    from .atomic import atomic_open
+    from ..atomic import atomic_open
     with atomic_open(path, "wb") as f:
         torch.save(state, f)
 

@@ -11,10 +11,10 @@ direction, camera position, phase, albedo, optical thickness -> density scale):
 
     points   float32 [n][3]        world positions (density-weighted inside the medium + uniform)
     omegas   float32 [n][3]        unit, toward the configuration's camera (as the renderer's lattice)
-    features float32 [n][3][P]     train-mode gather (clvol/layout.py; features[:, 1] is 0: the
+    features float32 [n][3][P]     train-mode gather (clvol/neural/layout.py; features[:, 1] is 0: the
     levels   float32 [n][L][P]     model combines ``levels`` itself)
     config   float32 [n][9]        the gather's config (albedo of channel 0; training sets each channel's)
-    Fms, Fms_se, F1  float64 [n][3]  labels from clvol.pathtrace.point_query (unit sun, orders >= 2)
+    Fms, Fms_se, F1  float64 [n][3]  labels from clvol.render.pathtrace.point_query (unit sun, orders >= 2)
     __meta__ uint8                 UTF-8 JSON: spec, shard indices, volume, medium, light, camera,
                                    query seed, code contract (layout version, template hash)
 
@@ -26,7 +26,7 @@ Robust to a session ending at any moment: a shard is written to a temporary file
 system), so a ``shard_*.npz`` is always complete; the loader reads only ``shard_*.npz``, and a
 rerun deletes stale temporary files and skips finished shards (one writer per folder at a time). Everything random
 is keyed by (spec.seed, v, c): the same spec gives the same shards bit for bit on the same
-device, in any order and after any interruption, serially or on Ray (clvol/distributed.py:
+device, in any order and after any interruption, serially or on Ray (clvol/neural/distributed.py:
 workers return the bytes, this process writes them).
 """
 from __future__ import annotations
@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_open
+from ..errors import ClvolError
 from . import layout
-from .atomic import atomic_open
-from .errors import ClvolError
 
 DATASET_FORMAT = "clvol-dataset"
 # Version 2: the whole material domain (volume families, resolutions, optical thickness, g < 0,
@@ -168,9 +168,9 @@ class DatasetSpec:
 
 
 def dataset_domain(spec: dict) -> dict | None:
-    """The validity domain a model trained on this data set has (clvol.export's ``domain``), from
+    """The validity domain a model trained on this data set has (clvol.neural.export's ``domain``), from
     a spec dict (``DatasetSpec.to_dict()`` or a shard's meta["spec"]); None for a version-1 spec
-    (clvol.export.DEFAULT_DOMAIN describes that data)."""
+    (clvol.neural.export.DEFAULT_DOMAIN describes that data)."""
     if "optical_thickness" not in spec:
         return None
     return {"albedo": [float(x) for x in spec["albedo"]], "g": [float(x) for x in spec["g"]],
@@ -256,7 +256,7 @@ def volume_params(spec: DatasetSpec, v: int) -> dict:
 
 
 def make_volume(spec: DatasetSpec, v: int):
-    from .volume.generators import generate
+    from ..volume.generators import generate
     p = volume_params(spec, v)
     return generate(p["generator"], seed=p["seed"], resolution=p["resolution"], **p["params"])
 
@@ -328,7 +328,7 @@ def config_params(spec: DatasetSpec, v: int, c: int, grid=None) -> dict:
 def scene_for(spec: DatasetSpec, v: int, c: int, grid=None):
     """The clvol Scene of shard (v, c) (its camera is only a placeholder: labels need the
     sun and the medium)."""
-    from .scene import scene_from_dict
+    from ..scene import scene_from_dict
     vp, cp = volume_params(spec, v), config_params(spec, v, c, grid)
     lobes = cp["lobes"]
     phase = ({"type": "hg", "g": lobes[0][0]} if len(lobes) == 1 else
@@ -404,10 +404,10 @@ def _code_contract(spec: DatasetSpec) -> dict:
 def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runtime=None) -> dict:
     """Arrays and meta of shard (v, c) (nothing written). ``grid``/``pyramid``: volume v's, if
     the caller already has them (they are a pure function of (spec, v))."""
-    from .kernels.gather import gather
-    from .kernels.pyramid import build_pyramid
-    from .kernels.transmittance import graded_transmittance
-    from .pathtrace import point_query
+    from ..kernels.gather import gather
+    from ..kernels.pyramid import build_pyramid
+    from ..kernels.transmittance import graded_transmittance
+    from ..render.pathtrace import point_query
     t0 = time.perf_counter()
     grid = grid if grid is not None else make_volume(spec, v)
     scene = scene_for(spec, v, c, grid)
@@ -511,7 +511,7 @@ class ShardMaker:
 
     def __call__(self, spec: DatasetSpec, v: int, c: int) -> tuple[bytes, dict]:
         """(the shard file's bytes, its meta including the timings the file leaves out)."""
-        from .kernels.pyramid import build_pyramid
+        from ..kernels.pyramid import build_pyramid
         key = (json.dumps(spec.to_dict(), sort_keys=True), v)
         if self._volume[0] != key:
             grid = make_volume(spec, v)
@@ -537,7 +537,7 @@ def write_shard(out_dir, v: int, c: int, data: bytes, log: dict | None = None) -
 
 def shard_progress(n_shards: int, spec: DatasetSpec, progress: bool):
     """The progress bar of a data set run: shards done/total, labels per second, ETA."""
-    from .progress import Progress
+    from ..progress import Progress
     return Progress(n_shards, label="dataset", unit=" shards", delay=0.0 if progress else 1e30,
                     rate_per_unit=spec.points_per_config, rate_unit="labels")
 
@@ -545,7 +545,7 @@ def shard_progress(n_shards: int, spec: DatasetSpec, progress: bool):
 def make_dataset(spec: DatasetSpec, out_dir, runtime=None, progress: bool = True,
                  max_shards: int | None = None, on_shard=None) -> dict:
     """Make every missing shard of ``spec`` in ``out_dir``, serially in this process (Ray:
-    clvol/distributed.py). Returns {"made", "skipped"} counts. ``max_shards``: stop after
+    clvol/neural/distributed.py). Returns {"made", "skipped"} counts. ``max_shards``: stop after
     making this many (tests); ``on_shard(v, c)`` is called after each shard is written."""
     out = Path(out_dir)
     todo = pending_shards(spec, out)

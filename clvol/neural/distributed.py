@@ -2,9 +2,9 @@
 
     make_dataset_ray(spec, "runs/data")                      # a local Ray on this machine's cores
     make_dataset_ray(spec, "runs/data", address="auto")      # the cluster this node belongs to
-    generate(spec, "runs/data", serial=True)                 # clvol.dataset.make_dataset
+    generate(spec, "runs/data", serial=True)                 # clvol.neural.dataset.make_dataset
 
-A worker makes the shard and returns the bytes of its file (clvol.dataset.shard_bytes); only
+A worker makes the shard and returns the bytes of its file (clvol.neural.dataset.shard_bytes); only
 this process (the driver) writes, atomically, so workers need no shared file system, a killed
 worker's task is simply rerun by Ray (``max_retries``), and a shard is written once whatever
 happens to the workers. The folder handling is the serial path's (``pending_shards``: the
@@ -26,8 +26,8 @@ import signal
 import sys
 from pathlib import Path
 
+from ..errors import ClvolError
 from . import dataset as ds
-from .errors import ClvolError
 
 INSTALL_HINT = "pip install 'clvol[scale]' (or pip install ray)"
 DEFAULT_RETRIES = 3
@@ -61,7 +61,7 @@ def import_ray(local: bool):
 def local_init_kwargs(workers: int | None = None) -> dict:
     """ray.init arguments of a private local Ray: loopback only, no dashboard, ``workers``
     CPUs (default: all of them), and workers that import the same clvol as this process."""
-    clvol_root = str(Path(__file__).resolve().parent.parent)
+    clvol_root = str(Path(__file__).resolve().parents[2])  # the folder holding clvol/
     path = os.pathsep.join(p for p in (clvol_root, os.environ.get("PYTHONPATH")) if p)
     kw = {"_node_ip_address": "127.0.0.1", "include_dashboard": False,
           "runtime_env": {"env_vars": {"PYTHONPATH": path}}, "logging_level": "WARNING",
@@ -110,7 +110,7 @@ def make_dataset_ray(spec: ds.DatasetSpec, out_dir, address: str | None = None,
     """Make every missing shard of ``spec`` in ``out_dir`` as Ray tasks. ``address``: None
     starts a private local Ray (``workers`` CPUs, default all), or "auto" / "HOST:PORT" /
     "ray://HOST:PORT" joins a running cluster; if this process already called ray.init, that
-    Ray is used. Returns {"made", "skipped"} like clvol.dataset.make_dataset."""
+    Ray is used. Returns {"made", "skipped"} like clvol.neural.dataset.make_dataset."""
     if workers is not None and address is not None:
         raise DistributedError("--workers applies to a local Ray only; a cluster's size is "
                                "set by `ray start --num-cpus` on its nodes")

@@ -24,13 +24,13 @@ import time
 
 import numpy as np
 
-from .errors import ClvolError
-from .kernels.pathtrace import (PT_OUT, ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED,
-                                ROW_VERTICES, Medium, PathTracer)
-from .progress import Progress
-from .render import RenderResult
-from .render.medium import DEFAULT_BLOCK
-from .runtime import get_runtime
+from ..errors import ClvolError
+from ..kernels.majorant import DEFAULT_BLOCK
+from ..kernels.pathtrace import (PT_OUT, ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED,
+                                 ROW_VERTICES, Medium, PathTracer)
+from ..progress import Progress
+from ..runtime import get_runtime
+from . import RenderResult
 
 DEFAULT_SPP = 64
 # Paths per launch: enough work-items to fill the device, few enough for a responsive
@@ -79,7 +79,7 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
     With ``time_budget`` (seconds) the render stops before a sample pass that would end
     after the budget (judged from the passes so far; at least one pass always runs).
     ``grid`` overrides ``scene.volume.load()``; ``device_medium`` is that grid already on the
-    device (clvol/render/medium.py, built with ``majorant_block``). Same seed, same device: same image, bit
+    device (clvol/kernels/majorant.py, built with ``majorant_block``). Same seed, same device: same image, bit
     for bit, whatever the budget cut (passes are fixed sample-index ranges).
     """
     spp = _check_int("--spp", spp, 1)

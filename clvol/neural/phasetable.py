@@ -51,7 +51,7 @@ from functools import lru_cache
 import numpy as np
 from scipy import special
 
-from .errors import ClvolError
+from ..errors import ClvolError
 
 INV_4PI = 1.0 / (4.0 * np.pi)
 C_LOG = 1e-7
@@ -240,8 +240,9 @@ def packed_grid_meta() -> dict:
 
 
 def _packed_path():
+    from importlib import resources
     from pathlib import Path
-    return Path(__file__).resolve().parent / "data" / PACKED_FILE
+    return Path(str(resources.files("clvol") / "data" / PACKED_FILE))
 
 
 @lru_cache(maxsize=1)
@@ -296,7 +297,7 @@ def write_packed_table(path, tables: np.ndarray) -> dict:
     packaged file; returns {"lo", "step", "max_quantisation_error"}."""
     import json
     from scipy.interpolate import CubicSpline
-    from .atomic import atomic_open
+    from ..atomic import atomic_open
     u = np.asarray(PACKED_U)
     basis_c = CubicSpline(u, np.eye(len(u)), axis=0, bc_type="not-a-knot").c
     logtab = np.log(np.asarray(tables, np.float64))
