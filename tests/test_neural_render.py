@@ -160,7 +160,7 @@ def test_cli_network_source(weights_file, tmp_path):
     img = read_exr(out)
     assert np.all(np.isfinite(img.layers["total"]))
     assert float(img.header["seconds.network"]) >= 0 and "network" in img.header["simulated"]
-    # No --weights: the shipped model (clvol/data/weights/cloud_small.npz) is used.
+    # No --weights: the shipped model (clvol/data/weights/core_domain.npz) is used.
     assert main(["render", str(scene_path), "--method", "raymarch", "--ms", "network",
                  "--ms-resolution", "6", "-o", str(out)]) == 0
     assert "network" in read_exr(out).header["simulated"]
@@ -169,15 +169,27 @@ def test_cli_network_source(weights_file, tmp_path):
                  "--weights", str(tmp_path / "missing.npz"), "-o", str(out)]) == 2
 
 
-def test_shipped_weights_match_this_gather():
-    """clvol/data/weights/cloud_small.npz must load against the packaged templates and layout
-    (a template or layout change without retraining fails here, not at render time)."""
+@pytest.mark.parametrize("name,steps", [("cloud_small", 16000), ("core_domain", 30000)])
+def test_shipped_weights_match_this_gather(name, steps):
+    """Every shipped weight file must load against the packaged templates and layout (a
+    template or layout change without retraining fails here, not at render time)."""
     from pathlib import Path
     from clvol.render.network import load_network_weights
-    path = Path(__file__).resolve().parents[1] / "clvol" / "data" / "weights" / "cloud_small.npz"
+    path = Path(__file__).resolve().parents[1] / "clvol" / "data" / "weights" / f"{name}.npz"
     w = load_network_weights(path)
     assert w.contract["base_resolution"] == 64 and w.arch.n_levels == 7
-    assert np.all(np.isfinite(w.level_weights)) and w.meta["training"]["step"] == 16000
+    assert np.all(np.isfinite(w.level_weights)) and w.meta["training"]["step"] == steps
+
+
+def test_default_model_is_core_domain_with_the_whole_domain():
+    """The default model covers what the quality benchmark tests: back-scattering (g -0.9) and
+    albedo 0.4 are inside its recorded domain, so the renderer uses it there without a warning."""
+    from clvol.neural.export import weights_domain
+    from clvol.render.network import load_network_weights, shipped_weights
+    assert shipped_weights().name == "core_domain.npz"
+    d = weights_domain(load_network_weights(shipped_weights()).meta)
+    assert d["g"] == [-0.9, 0.99] and d["albedo"] == [0.3, 0.999] and d["max_lobes"] == 3
+    assert d["optical_thickness"] == [1.0, 1000.0]
 
 
 def test_shipped_domain_model_matches_this_gather_and_records_its_domain():
@@ -193,3 +205,19 @@ def test_shipped_domain_model_matches_this_gather_and_records_its_domain():
     assert weights_domain(w.meta) == {"albedo": [0.3, 0.999], "g": [-0.9, 0.99], "max_lobes": 3,
                                       "optical_thickness": [1.0, 1000.0], "resolution": [32, 128]}
     assert w.meta["training"]["step"] == 12000
+
+
+def test_network_source_is_registered_whatever_is_imported_first():
+    """render_raymarch and the CLI's --ms choices read the SOURCES registry; in a fresh process
+    where nothing imported clvol/render/network.py yet, "network" (and its options, e.g.
+    ms_resolution) must be there all the same (it once was not, and ms_resolution was dropped)."""
+    import os
+    import subprocess
+    import sys
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    code = ("from clvol.render.raymarch import render_raymarch\n"
+            "from clvol.render.sources import SOURCES\n"
+            "assert 'ms_resolution' in SOURCES['network'].options\n")
+    p = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True,
+                       env=dict(os.environ, PYTHONPATH=root))
+    assert p.returncode == 0, p.stderr

@@ -27,6 +27,7 @@ from ..kernels.pyramid import MAX_BASE_RESOLUTION
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..neural.layout import is_power_of_two
 from ..runtime import DeviceArray, get_runtime
+from . import network  # noqa: F401  (registers the "network" source: SOURCES must list it here)
 from .sources import MsPlan, MsSource, NoMs
 
 DEFAULT_STEP = 1.0         # segment length in voxels of the density grid
@@ -284,7 +285,7 @@ def add_arguments(group) -> None:
                             "--ms-grid), none (single scattering only)")
     group.add_argument("--weights", metavar="FILE.npz",
                        help="network weight file for --ms network (default: the shipped "
-                            "model, clvol/data/weights/cloud_small.npz)")
+                            "model, clvol/data/weights/core_domain.npz)")
     group.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
                        help=f"F_ms lattice points per side filled by the network (default "
                             f"{DEFAULT_NETWORK_RESOLUTION})")
