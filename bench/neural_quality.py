@@ -15,6 +15,9 @@ Methods, each a whole ``render_raymarch`` / ``render_pathtrace`` call on the loa
   pt_equal    the path tracer given the network's wall time (``time_budget``): the network's
               time is the median of 3 warm renders (kernels built, phase tables made, volume
               loaded; the network's pyramid, gather and lattice fill are inside the time)
+  pt_lattice  only with --pt-lattice N: the network's F_ms lattice filled by the path tracer's
+              point queries (N paths per point) instead, then the same march. Not a baseline
+              and not timed: it shows what the lattice itself leaves at this resolution
 
 References: the path tracer at --ref-spp samples per pixel as two independent halves (two seeds,
 --ref-spp / 2 each); the reference is their mean. They are cached in --cache (default
@@ -247,10 +250,21 @@ def median_time(fn, n: int = 3):
     return out, statistics.median(times)
 
 
-def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None) -> dict:
+def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
+                   pt_lattice: int = 0) -> dict:
     """{method: (image, seconds, spp or None)} for METHODS, each warmed up once untimed.
-    ``ms_resolution``: the network's F_ms lattice (None: the renderer's default)."""
+    ``ms_resolution``: the network's F_ms lattice (None: the renderer's default);
+    ``pt_lattice`` > 0: also "pt_lattice", that lattice filled by point queries."""
     out = {}
+    if pt_lattice:
+        from clvol.render.network import DEFAULT_NETWORK_RESOLUTION
+        from clvol.render.pathtrace import point_query
+        from clvol.render.sources import fill_ms_grid
+        res = ms_resolution or DEFAULT_NETWORK_RESOLUTION
+        ms = fill_ms_grid(scene, res, lambda p, w: point_query(scene, p, w, pt_lattice, seed=11,
+                                                                grid=grid)["Fms"])
+        out["pt_lattice"] = (render_raymarch(scene, ms="grid", ms_grid=ms, grid=grid)
+                             .layers["total"], float("nan"), pt_lattice)
     for method, ms in (("network", "network"), ("wrenninge", "wrenninge"), ("single", "none")):
         kw = {"weights": weights, "ms_resolution": ms_resolution} if ms == "network" else {}
         render_raymarch(scene, ms=ms, grid=grid, **kw)              # build kernels, tables
@@ -350,6 +364,9 @@ def main(argv=None) -> int:
     ap.add_argument("--refs-only", action="store_true", help="build missing references and stop")
     ap.add_argument("--rebuild-refs", action="store_true", help="re-render every reference")
     ap.add_argument("--repeats", type=int, default=3, help="timed renders per method (median)")
+    ap.add_argument("--pt-lattice", type=int, default=0, metavar="PATHS",
+                    help="also a row with the F_ms lattice filled by path-traced point queries "
+                         "(PATHS per point): what the lattice leaves, whatever the network")
     ap.add_argument("--ms-resolution", type=int, default=None,
                     help="the network's F_ms lattice (default: the renderer's); the target is "
                          "judged at the default, other values show what the lattice costs")
@@ -369,6 +386,8 @@ def run(args) -> int:
         raise ClvolError(f"--size {args.size}: must be from 8 to 4096 pixels")
     if not (args.ref_spp >= 2 and args.ref_spp % 2 == 0):
         raise ClvolError(f"--ref-spp {args.ref_spp}: must be an even number >= 2 (two halves)")
+    if args.pt_lattice < 0:
+        raise ClvolError(f"--pt-lattice {args.pt_lattice}: must be >= 0 paths per point (0: no row)")
     if args.repeats < 1:
         raise ClvolError(f"--repeats {args.repeats}: must be >= 1")
     out_path = Path(args.out) if args.out else None
@@ -398,9 +417,11 @@ def run(args) -> int:
         h1, h2, _ = reference(name, scene, grid, args.ref_spp // 2, cache, args.rebuild_refs)
         if args.refs_only:
             continue
-        renders = render_methods(scene, grid, weights, args.repeats, args.ms_resolution)
+        renders = render_methods(scene, grid, weights, args.repeats, args.ms_resolution,
+                                 args.pt_lattice)
         floor_flip = flip(h1, h2)
-        for method in METHODS:
+        methods = METHODS + (("pt_lattice",) if args.pt_lattice else ())
+        for method in methods:
             img, secs, spp = renders[method]
             s = scores(img, h1, h2)
             rows.append({"scene": name, "method": method, **s, "seconds": secs, "spp": spp,
@@ -409,7 +430,7 @@ def run(args) -> int:
               f"FLIP(half 1, half 2) {floor_flip:.3f}; load {load_average()})")
         print(f"  {'method':<10} {'rmse100':>8} {'relMSE':>9} {'FLIP':>6} {'mean':>6} "
               f"{'seconds':>8}  (rmse100 without noise removal)")
-        for r in rows[-len(METHODS):]:
+        for r in rows[-len(methods):]:
             extra = f", {r['spp']} spp" if r["spp"] is not None else ""
             print(f"  {r['method']:<10} {r['rmse100']:8.2f} {r['relmse']:9.2e} {r['flip']:6.3f} "
                   f"{r['mean']:6.3f} {r['seconds']:8.3f}  ({r['rmse100_raw']:.2f}{extra})",

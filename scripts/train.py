@@ -181,6 +181,21 @@ def evaluate_weights(path, train, held_sh, cfg, base_loss) -> int:
         print(f"{name:40s} {len(shards):4d} shards {len(h):7d} samples  loss {np.mean((y - h.y) ** 2):.3e}"
               f"  mean predictor {np.mean((m - h.y) ** 2):.3e}  label noise {np.mean(h.var):.3e}"
               f"  median |F - label| / label {np.median(rel):.3f}")
+    # Bias by albedo on unseen volumes: the labels are unbiased in the mean (path-traced), the
+    # loss is in log space, so sum(predicted F) / sum(label F) shows a systematic under- or
+    # over-prediction (the raw labels: the targets' +var/2 correction taken off again).
+    if groups["unseen volumes"]:
+        h = tr.shard_samples(groups["unseen volumes"], cfg.floor)
+        y = tr.predict(model, h).astype(np.float64)
+        alb = h.config[:, tr.ALBEDO].astype(np.float64)
+        F_hat = alb ** 4 * np.expm1(y)
+        F_lab = alb ** 4 * np.expm1(h.y.astype(np.float64) - 0.5 * h.var)
+        print("unseen volumes, sum of predicted F / sum of labels, by albedo:")
+        for lo, hi in ((0.0, 0.9), (0.9, 0.97), (0.97, 0.99), (0.99, 0.997), (0.997, 1.0001)):
+            k = (alb >= lo) & (alb < hi)
+            if k.any():
+                print(f"  albedo [{lo:g}, {min(hi, 1.0):g}): {k.sum():7d} samples  "
+                      f"{F_hat[k].sum() / max(F_lab[k].sum(), 1e-30):.3f}")
     return 0
 
 

@@ -269,6 +269,14 @@ def test_train_script_end_to_end(tmp_path):
                                   "max_lobes": spec.max_lobes,
                                   "optical_thickness": list(spec.optical_thickness),
                                   "resolution": list(spec.resolution)}
+    # --evaluate: per-group held-out losses and the bias of predicted F by albedo
+    p = subprocess.run([sys.executable, "scripts/train.py", str(data), str(tmp_path / "ev"),
+                        "--holdout-volumes", "0", "--evaluate", str(w)],
+                       cwd=root, capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert "unseen volumes" in p.stdout and "sum of predicted F / sum of labels" in p.stdout
+    ratios = [float(line.split()[-1]) for line in p.stdout.splitlines() if line.startswith("  albedo [")]
+    assert ratios and all(np.isfinite(r) and r >= 0 for r in ratios)
 
 
 def test_escape_depth_and_point_placement():

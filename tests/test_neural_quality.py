@@ -190,3 +190,23 @@ def test_tiny_run_writes_the_whole_table(nq, tmp_path, capsys):
     (again, _), _ = nq.load_reference(final, meta["key"])
     assert np.array_equal(again, h1) and not list((tmp_path / "cache").glob("*.half*.npz"))
     assert nq.main(argv + ["--out", str(tmp_path / "t.txt")]) == 2   # refused, one line
+
+
+def test_pt_lattice_row_is_the_lattice_filled_by_point_queries(nq, tmp_path, capsys):
+    """--pt-lattice N adds a row per scene whose image is the march over the F_ms lattice that
+    the path tracer's point queries filled (not a baseline: the target check ignores it), and a
+    negative count is refused."""
+    pytest.importorskip("flip_evaluator")
+    p = tmp_path / "sphere.toml"
+    p.write_text(TINY.format(gen="sphere", albedo="0.95"))
+    argv = ["--scenes", str(p), "--size", "16", "--ref-spp", "8", "--repeats", "1",
+            "--cache", str(tmp_path / "cache"), "--ms-resolution", "8"]
+    assert nq.main(argv + ["--pt-lattice", "-1"]) == 2
+    assert nq.main(argv + ["--pt-lattice", "16", "--out", str(tmp_path / "t.csv")]) == 0
+    with open(tmp_path / "t.csv", newline="") as fh:
+        rows = {r["method"]: r for r in csv.DictReader(fh)}
+    assert set(rows) == set(nq.METHODS) | {"pt_lattice"}
+    lat = rows["pt_lattice"]
+    assert lat["spp"] == "16" and math.isfinite(float(lat["rmse100"]))
+    # the lattice's multiple scattering reaches the image: it differs from single scattering
+    assert float(lat["mean"]) > float(rows["single"]["mean"])
