@@ -89,7 +89,8 @@ UNLIT = {"medium.albedo": [0.0, 0.0, 0.0], "light.environment": [0.2, 0.3, 0.4]}
 # shortcut (--ms none); smoke with a strongly backward phase at albedo 0.95: outside the
 # network's domain, the renderer's fallback is Wrenninge octaves (clvol/render/network.py)
 THIN = {"medium.density_scale": 0.5}
-BACKWARD = {"medium.albedo": [0.95, 0.95, 0.95], "medium.phase": {"type": "hg", "g": -0.85}}
+# beyond the default model's domain (g >= -0.9) and strongly backward: the Wrenninge fallback
+BACKWARD = {"medium.albedo": [0.95, 0.95, 0.95], "medium.phase": {"type": "hg", "g": -0.95}}
 
 
 @pytest.mark.parametrize("name, overrides, grey, lobes, source", [
