@@ -190,12 +190,20 @@ def evaluate_weights(path, train, held_sh, cfg, base_loss) -> int:
         alb = h.config[:, tr.ALBEDO].astype(np.float64)
         F_hat = alb ** 4 * np.expm1(y)
         F_lab = alb ** 4 * np.expm1(h.y.astype(np.float64) - 0.5 * h.var)
-        print("unseen volumes, sum of predicted F / sum of labels, by albedo:")
+        print("unseen volumes, sum of predicted F / sum of labels, by albedo (95% interval: "
+              "bootstrap over configurations, whose points are correlated):")
+        rng = np.random.default_rng(0)
         for lo, hi in ((0.0, 0.9), (0.9, 0.97), (0.97, 0.99), (0.99, 0.997), (0.997, 1.0001)):
-            k = (alb >= lo) & (alb < hi)
-            if k.any():
-                print(f"  albedo [{lo:g}, {min(hi, 1.0):g}): {k.sum():7d} samples  "
-                      f"{F_hat[k].sum() / max(F_lab[k].sum(), 1e-30):.3f}")
+            k = np.flatnonzero((alb >= lo) & (alb < hi))
+            if not len(k):
+                continue
+            groups = [k[h.key[k] == u] for u in np.unique(h.key[k])]
+            ratio = (lambda idx: F_hat[idx].sum() / max(F_lab[idx].sum(), 1e-30))
+            boot = [ratio(np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))]))
+                    for _ in range(1000)]
+            print(f"  albedo [{lo:g}, {min(hi, 1.0):g}): {len(k):7d} samples  ratio {ratio(k):.3f}  "
+                  f"({np.percentile(boot, 2.5):.3f}-{np.percentile(boot, 97.5):.3f} over "
+                  f"{len(groups)} configurations)")
     return 0
 
 

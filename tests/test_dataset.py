@@ -275,8 +275,11 @@ def test_train_script_end_to_end(tmp_path):
                        cwd=root, capture_output=True, text=True, env=env)
     assert p.returncode == 0, p.stderr
     assert "unseen volumes" in p.stdout and "sum of predicted F / sum of labels" in p.stdout
-    ratios = [float(line.split()[-1]) for line in p.stdout.splitlines() if line.startswith("  albedo [")]
-    assert ratios and all(np.isfinite(r) and r >= 0 for r in ratios)
+    rows = [line.split("ratio ")[1].replace("(", "").replace("-", " ").split()[:3]
+            for line in p.stdout.splitlines() if line.startswith("  albedo [")]
+    assert rows
+    for r, lo, hi in (map(float, row) for row in rows):
+        assert np.isfinite(r) and 0 <= lo <= hi, (r, lo, hi)
 
 
 def test_escape_depth_and_point_placement():
