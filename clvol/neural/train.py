@@ -120,28 +120,35 @@ def make_samples(features, config, F, F_se, albedo_rgb, levels=None, key=None,
                    key=None if key is None else np.asarray(key)[idx], row=idx.astype(np.int64))
 
 
-def concat_samples(items) -> Samples:
-    """One sample set from several; feature rows are copied once into preallocated arrays
-    (the inputs may be views of shard files that are released as soon as they are copied)."""
-    items = list(items)
-    cat = (lambda name: None if getattr(items[0], name) is None
-           else np.concatenate([getattr(s, name) for s in items]))
-    n_rows = sum(len(s.features) for s in items)
-    features = np.empty((n_rows,) + items[0].features.shape[1:], np.float32)
-    levels = (None if items[0].levels is None
-              else np.empty((n_rows,) + items[0].levels.shape[1:], np.float32))
-    rows, start = [], 0
+def concat_samples(items, n_rows: int | None = None) -> Samples:
+    """One sample set from several. Feature rows are copied once into preallocated arrays; with
+    ``n_rows`` (the total feature rows) ``items`` may be a generator, consumed one item at a
+    time, so each item's features (e.g. read from a shard file) are dropped once copied."""
+    if n_rows is None:
+        items = list(items)
+        n_rows = sum(len(s.features) for s in items)
+    features = levels = None
+    light, start = [], 0      # the items without their feature rows
     for s in items:
         n = len(s.features)
+        if features is None:
+            features = np.empty((n_rows,) + s.features.shape[1:], np.float32)
+            levels = (None if s.levels is None
+                      else np.empty((n_rows,) + s.levels.shape[1:], np.float32))
         features[start:start + n] = s.features
         if levels is not None:
             levels[start:start + n] = s.levels
-        rows.append(s.rows() + start)
+        light.append(Samples(None, s.config, s.y, s.weight, s.var, None, s.key,
+                             row=s.rows() + start))
         start += n
-    s = Samples(features, *(cat(n) for n in ("config", "y", "weight", "var")),
-                levels=levels, key=cat("key"), row=np.concatenate(rows))
-    s.weight = (s.weight / s.weight.mean()).astype(np.float32)
-    return s
+    if features is None or start != n_rows:
+        raise ValueError(f"concat_samples: {start} feature rows given, {n_rows} expected")
+    cat = (lambda name: None if getattr(light[0], name) is None
+           else np.concatenate([getattr(s, name) for s in light]))
+    out = Samples(features, *(cat(n) for n in ("config", "y", "weight", "var")),
+                  levels=levels, key=cat("key"), row=cat("row"))
+    out.weight = (out.weight / out.weight.mean()).astype(np.float32)
+    return out
 
 
 def weighted_loss(y_hat: torch.Tensor, y: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
@@ -311,30 +318,17 @@ def split_shards(shards, cfg: RunConfig):
 
 def shard_samples(shards, floor: float = 0.05) -> Samples:
     """Samples of a list of clvol.neural.dataset.Shard: one per (query, distinct non-zero albedo), key
-    = the shard's position in the data set (volume * configs + configuration)."""
+    = the shard's position in the data set (volume * configs + configuration). Shards are read
+    one at a time and their feature rows copied once (``concat_samples`` with ``n_rows``)."""
     labels = [s.arrays["Fms"] for s in shards]
-    starts = np.concatenate([[0], np.cumsum([len(F) for F in labels])])
-    features = levels = None
-    parts = []
-    for s, F, start in zip(shards, labels, starts):
-        a = s.arrays
-        n_cfg = s.meta["spec"]["configs_per_volume"]
-        key = np.full(len(F), s.volume * n_cfg + s.config_index)
-        part = make_samples(a["features"], a["config"], F, a["Fms_se"], s.albedo,
-                            levels=a["levels"], key=key, floor=floor)
-        if features is None:     # one copy of every feature row, filled shard by shard
-            features = np.empty((starts[-1],) + part.features.shape[1:], np.float32)
-            levels = np.empty((starts[-1],) + part.levels.shape[1:], np.float32)
-        features[start:start + len(F)] = part.features
-        levels[start:start + len(F)] = part.levels
-        part.features, part.levels, part.row = features, levels, part.rows() + start
-        parts.append(part)
-    out = Samples(features, *(np.concatenate([getattr(p, n) for p in parts])
-                              for n in ("config", "y", "weight", "var")),
-                  levels=levels, key=np.concatenate([p.key for p in parts]),
-                  row=np.concatenate([p.row for p in parts]))
-    out.weight = (out.weight / out.weight.mean()).astype(np.float32)
-    return out
+
+    def parts():
+        for s, F in zip(shards, labels):
+            a = s.arrays
+            key = np.full(len(F), s.volume * s.meta["spec"]["configs_per_volume"] + s.config_index)
+            yield make_samples(a["features"], a["config"], F, a["Fms_se"], s.albedo,
+                               levels=a["levels"], key=key, floor=floor)
+    return concat_samples(parts(), n_rows=sum(len(F) for F in labels))
 
 
 def save_checkpoint(path, state: dict) -> None:
