@@ -216,8 +216,16 @@ def test_network_source_is_registered_whatever_is_imported_first():
     import sys
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     code = ("from clvol.render.raymarch import render_raymarch\n"
-            "from clvol.render.sources import SOURCES\n"
-            "assert 'ms_resolution' in SOURCES['network'].options\n")
+            "from clvol.render.sources import source_classes\n"
+            "assert 'ms_resolution' in source_classes()['network'].options\n"
+            "from clvol.scene import scene_from_dict\n"
+            "sc = scene_from_dict({'volume': {'generator': 'sphere', 'seed': 1, 'resolution': 12},\n"
+            "    'medium': {'density_scale': 20.0, 'albedo': 0.9, 'phase': {'type': 'hg', 'g': 0.5}},\n"
+            "    'light': {'direction': [0.5, 0.8, 0.3], 'irradiance': [1, 1, 1]},\n"
+            "    'camera': {'origin': [0, 0, 2.5], 'target': [0, 0, 0], 'up': [0, 1, 0],\n"
+            "               'fov_y': 30.0, 'width': 8, 'height': 8}}, '<t>')\n"
+            "h = render_raymarch(sc, ms='network', ms_resolution=6).header\n"
+            "assert 'lattice 6x6x6' in h['simulated'], h['simulated']\n")
     p = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True,
                        env=dict(os.environ, PYTHONPATH=root))
     assert p.returncode == 0, p.stderr

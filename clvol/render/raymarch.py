@@ -27,7 +27,6 @@ from ..kernels.pyramid import MAX_BASE_RESOLUTION
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..neural.layout import is_power_of_two
 from ..runtime import DeviceArray, get_runtime
-from . import network  # noqa: F401  (registers the "network" source: SOURCES must list it here)
 from .sources import MsPlan, MsSource, NoMs
 
 DEFAULT_STEP = 1.0         # segment length in voxels of the density grid
@@ -221,11 +220,8 @@ class RayMarcher:
 def make_source(ms: str, options: dict | None = None, runtime=None) -> MsSource:
     """The source named ``ms`` (``--ms``), built from render ``options`` by the source itself
     (``MsSource.from_options``)."""
-    from . import network  # noqa: F401  (registers the network source)
-    from .sources import SOURCES
-    if ms not in SOURCES:
-        raise ClvolError(f"raymarch option ms = {ms!r}: choose one of {sorted(SOURCES)}")
-    return SOURCES[ms].from_options(options or {}, runtime)
+    from .sources import source_class
+    return source_class(ms).from_options(options or {}, runtime)
 
 
 def downsample(layers: dict, s: int) -> dict:
@@ -262,13 +258,13 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
     the weights' training domain unless ``domain_fallback`` (the Renderer's default).
     """
     from .renderer import Renderer
-    from .sources import SOURCES
+    from .sources import source_classes
     opts = dict(ms=ms, step=step, threshold=threshold, no_skip_empty=not skip_empty,
                 majorant_block=block, light_resolution=light_resolution,
                 light_interp=light_interp, supersample=supersample, no_shortcuts=not shortcuts)
     per_source = dict(octaves=octaves, ms_a=a, ms_b=b, ms_c=c, ms_grid=ms_grid, weights=weights,
                       ms_resolution=ms_resolution, no_domain_fallback=not domain_fallback)
-    read = getattr(SOURCES.get(ms), "options", ())     # those of the source asked for
+    read = getattr(source_classes().get(ms), "options", ())     # those of the source asked for
     opts.update({k: v for k, v in per_source.items() if k in read})
     opts = {k: v for k, v in opts.items() if v is not None}
     return Renderer(scene, "raymarch", grid=grid, runtime=runtime, **opts).render()
@@ -278,8 +274,8 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
 
 def add_arguments(group) -> None:
     from .network import DEFAULT_NETWORK_RESOLUTION
-    from .sources import SOURCES
-    group.add_argument("--ms", choices=sorted(SOURCES), default="network",
+    from .sources import source_classes
+    group.add_argument("--ms", choices=sorted(source_classes()), default="network",
                        help="multiple-scattering source: network (the trained network, "
                             "default), wrenninge (analytic octaves), grid (precomputed F_ms, "
                             "--ms-grid), none (single scattering only)")

@@ -99,7 +99,7 @@ class Renderer:
     def _setup_raymarch(self) -> None:
         from .network import NetworkMs
         from .raymarch import check_march_options, make_source
-        from .sources import SOURCES
+        from .sources import source_class, source_classes
         o, given = self.options, self.given
         mo = o["max_order"]
         if mo is not None:
@@ -114,10 +114,9 @@ class Renderer:
                                  f"{given['ms']} adds multiple scattering; drop one of them")
             o["ms"] = "none"
         ms = o["ms"]
-        if ms not in SOURCES:
-            raise ClvolError(f"raymarch option ms = {ms!r}: choose one of {sorted(SOURCES)}")
+        source_class(ms)                          # an unknown name is refused here
         for name in given:
-            owners = [n for n, cls in SOURCES.items() if name in cls.options]
+            owners = [n for n, cls in source_classes().items() if name in cls.options]
             if owners and ms not in owners:
                 raise ClvolError(f"option {flag(name)} is used only with --ms {owners[0]} "
                                  f"(method 'raymarch' with --ms {ms} does not read it)")

@@ -308,3 +308,18 @@ SOURCES: dict[str, type] = {"none": NoMs, "wrenninge": OctavesMs, "grid": GridMs
 def register(cls) -> type:
     SOURCES[cls.name] = cls
     return cls
+
+
+def source_classes() -> dict[str, type]:
+    """Every ``--ms`` source by name. Read the registry through this: the network source
+    registers when clvol/render/network.py is imported (it imports this module, so this module
+    cannot import it at the top), and a reader that came first would miss it."""
+    from . import network  # noqa: F401
+    return SOURCES
+
+
+def source_class(ms: str) -> type:
+    classes = source_classes()
+    if ms not in classes:
+        raise ClvolError(f"raymarch option ms = {ms!r}: choose one of {sorted(classes)}")
+    return classes[ms]
