@@ -32,7 +32,8 @@
  * PT_ENV (a constant environment); PT_NO_SUN (no sun); PT_SINGLE_ONLY (stop after vertex
  * 1); PT_RR_START, PT_MAX_VERTICES; PT_TEST_BIAS (tests only: scales sun NEE by its value);
  * PT_LANES (8 or 16 paths per work-item), PT_BATCH (lanes waiting before the vertex code
- * runs), PT_STATS (loop counts in next[1..4], benchmarks only).
+ * runs), PT_STATS (loop counts in next[1..4], benchmarks only), PT_ORDER_BINS (point
+ * queries: per-order bins after each row, below).
  *
  * Kernels (grid and majorant arguments first, then light, then the per-kernel ones):
  *   density   float [nz][ny][nx]    raw density; sigma_t = density * scale (1/length)
@@ -69,6 +70,34 @@
 /* Ratio-tracking roulette threshold: below it, T survives with probability T / PT_T_RR. */
 #define PT_T_RR 0.1f
 #define PT_OUT 12
+
+/* Per-order point queries (-D PT_ORDER_BINS, grey, sun only; docs/pathtrace.md "Labels per
+ * scattering order"): every sun NEE of vertex k >= 2 adds its value v to bin b(e) of its
+ * path's row, with e = k - 1 the number of real collisions after p (the power of the albedo
+ * in its throughput), and v * e to the bin's first moment. Exponents below PT_ORDER_EXACT
+ * have a bin each; above, each octave [2^o, 2^(o+1)) is split into PT_ORDER_SUB equal bins
+ * (integer arithmetic, so the host and the twin compute the same bins). Row: PT_OUT floats,
+ * then PT_ORDER_BINS sums, then PT_ORDER_BINS first moments. */
+#ifdef PT_ORDER_BINS
+#define PT_ORDER_EXACT 32     /* a power of two: exponents 1..31 exact */
+#define PT_ORDER_EXACT_LOG2 5
+#define PT_ORDER_SUB 8
+#if PT_ORDER_BINS != (PT_ORDER_EXACT - 1 + (17 - PT_ORDER_EXACT_LOG2) * PT_ORDER_SUB)
+#error "PT_ORDER_BINS must cover exponents up to 2^17 - 1 > PT_MAX_VERTICES"
+#endif
+#define PT_ROW (PT_OUT + 2 * PT_ORDER_BINS)
+
+__attribute__((always_inline))
+int pt_order_bin(int e) {
+    if (e < PT_ORDER_EXACT) return e - 1;
+    int o = 31 - (int)clz((uint)e);                       /* floor(log2(e)) */
+    int s = ((e - (1 << o)) * PT_ORDER_SUB) >> o;          /* 0 .. PT_ORDER_SUB - 1 */
+    return min(PT_ORDER_EXACT - 1 + (o - PT_ORDER_EXACT_LOG2) * PT_ORDER_SUB + s,
+               PT_ORDER_BINS - 1);
+}
+#else
+#define PT_ROW PT_OUT
+#endif
 
 /* Colours are structs of three floats (lane vectors in pt_lanes). */
 typedef struct {
@@ -458,7 +487,7 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             VSTORE(e, fin);
             for (int j = 0; j < PT_LANES; ++j) {
                 if (!fin[j]) continue;
-                __global float *o = J->out + PT_OUT * (size_t)S->path[j];
+                __global float *o = J->out + PT_ROW * (size_t)S->path[j];
                 for (int c = 0; c < 9; ++c) o[c] = S->acc[c][j];
                 o[9] = (float)S->vertices[j];
                 o[10] = (float)S->steps[j];
@@ -481,6 +510,12 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
                 int sj = g / J->nstream, stream = g - sj * J->nstream;
                 S->slo[j] = (uint)stream;
                 S->sample[j] = J->sample0 + (uint)sj;
+#ifdef PT_ORDER_BINS
+                {   /* the path's bins start at 0 (the row is its own: no other path adds) */
+                    __global float *o = J->out + PT_ROW * (size_t)g + PT_OUT;
+                    for (int b = 0; b < 2 * PT_ORDER_BINS; ++b) o[b] = 0.0f;
+                }
+#endif
                 if (J->is_query) {
                     /* Vertex 1 at p with beta = 1, w = -omega. */
                     float3 p = vload3(stream, J->points), w = -vload3(stream, J->omegas);
@@ -562,6 +597,21 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             vf br, bg, bb;
             pt_beta_v(S, &br, &bg, &bb);
             pt_add_v(S, e, VLOAD(S->k), L->sun.r * br * s, L->sun.g * bg * s, L->sun.b * bb * s);
+#ifdef PT_ORDER_BINS
+            {
+                int on[PT_LANES];
+                float val[PT_LANES];
+                VSTORE(e & (VLOAD(S->k) >= 2), on);
+                VSTORE(L->sun.r * br * s, val);
+                for (int j = 0; j < PT_LANES; ++j) {
+                    if (!on[j]) continue;
+                    int ex = S->k[j] - 1, b = pt_order_bin(ex);
+                    __global float *o = J->out + PT_ROW * (size_t)S->path[j] + PT_OUT;
+                    o[b] += val[j];
+                    o[PT_ORDER_BINS + b] += val[j] * (float)ex;
+                }
+            }
+#endif
             h = select(h, (vi)(H_CONTINUE), e);
         }
         e = h == H_CONTINUE;

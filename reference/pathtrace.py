@@ -25,6 +25,18 @@ RR_START = 8
 MAX_VERTICES = 100_000
 T_RR = 0.1
 PT_OUT = 12
+# Per-order rows: exponents 1..31 one bin each, then 8 equal bins per octave up to 2^17 - 1.
+ORDER_EXACT, ORDER_SUB, ORDER_TOP_OCTAVE = 32, 8, 16
+ORDER_BINS = ORDER_EXACT - 1 + (ORDER_TOP_OCTAVE + 1 - 5) * ORDER_SUB
+
+
+def order_bin(e: int) -> int:
+    """Bin of albedo exponent e >= 1 (the number of real collisions after the query point)."""
+    if e < ORDER_EXACT:
+        return e - 1
+    o = e.bit_length() - 1
+    width = (1 << o) // ORDER_SUB
+    return min(ORDER_EXACT - 1 + (o - 5) * ORDER_SUB + (e - (1 << o)) // width, ORDER_BINS - 1)
 
 
 @dataclass
@@ -127,8 +139,11 @@ def transmittance(P: Params, x, w, rs: Stream, c: Counters) -> float:
     return T
 
 
-def walk(P: Params, x, w, beta, k: int, rs: Stream, c: Counters, single_only=False):
-    """Continue a path at vertex k; returns (order-1 rgb, orders>=2 rgb)."""
+def walk(P: Params, x, w, beta, k: int, rs: Stream, c: Counters, single_only=False,
+         orders=None):
+    """Continue a path at vertex k; returns (order-1 rgb, orders>=2 rgb). ``orders``: an
+    array [2][ORDER_BINS] that receives each sun NEE of vertex k >= 2 (channel 0) in bin
+    order_bin(k - 1), and its value times k - 1 in the second row."""
     l1, lms = np.zeros(3), np.zeros(3)
     beta = np.asarray(beta, np.float64)
     while True:
@@ -143,6 +158,10 @@ def walk(P: Params, x, w, beta, k: int, rs: Stream, c: Counters, single_only=Fal
                 l1 += contrib
             else:
                 lms += contrib
+                if orders is not None:
+                    b = order_bin(k - 1)
+                    orders[0, b] += contrib[0]
+                    orders[1, b] += contrib[0] * (k - 1)
         if single_only or k == P.max_order:
             break
         if k >= P.max_vertices:
@@ -204,18 +223,23 @@ def render_paths(P: Params, camera, seed: int, samples, pixels=None) -> np.ndarr
     return out
 
 
-def query_paths(P: Params, points, omegas, seed: int, samples) -> np.ndarray:
+def query_paths(P: Params, points, omegas, seed: int, samples, orders: bool = False) -> np.ndarray:
     """Rows (len(samples), n_queries, PT_OUT) like PathTracer.query_batch: the walk starts
-    at p as vertex 1 with w = -omega and beta = 1 (F for a sun of irradiance P.sun)."""
+    at p as vertex 1 with w = -omega and beta = 1 (F for a sun of irradiance P.sun). With
+    ``orders``, each row is followed by its ORDER_BINS per-order sums and first moments."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     omegas = np.asarray(omegas, np.float64).reshape(-1, 3)
-    out = np.zeros((len(samples), len(points), PT_OUT))
+    width = PT_OUT + (2 * ORDER_BINS if orders else 0)
+    out = np.zeros((len(samples), len(points), width))
     for si, s in enumerate(samples):
         for q in range(len(points)):
             rs = Stream(seed, q, int(s))
             c = Counters()
-            l1, lms = walk(P, points[q], -omegas[q], np.ones(3), 1, rs, c)
-            out[si, q] = _row(np.zeros(3), l1, lms, c)
+            bins = np.zeros((2, ORDER_BINS)) if orders else None
+            l1, lms = walk(P, points[q], -omegas[q], np.ones(3), 1, rs, c, orders=bins)
+            out[si, q, :PT_OUT] = _row(np.zeros(3), l1, lms, c)
+            if orders:
+                out[si, q, PT_OUT:] = bins.ravel()
     return out
 
 

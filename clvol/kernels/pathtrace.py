@@ -25,6 +25,25 @@ ROW_VERTICES, ROW_STEPS, ROW_TRUNCATED = 9, 10, 11
 PT_OUT = 12
 RR_START = 8            # cl/pathtrace.cl PT_RR_START default
 MAX_VERTICES = 100_000  # cl/pathtrace.cl PT_MAX_VERTICES default
+# Per-order rows (cl/pathtrace.cl PT_ORDER_BINS): exponents e = 1..ORDER_EXACT-1 one bin
+# each, then ORDER_SUB bins per octave up to 2^17 - 1 (> MAX_VERTICES).
+ORDER_EXACT, ORDER_EXACT_LOG2, ORDER_SUB = 32, 5, 8
+ORDER_BINS = ORDER_EXACT - 1 + (17 - ORDER_EXACT_LOG2) * ORDER_SUB
+
+
+def order_bin_ranges() -> np.ndarray:
+    """[ORDER_BINS][2] int64: the first and last albedo exponent e of each bin (the kernel's
+    pt_order_bin, inverted)."""
+    lo, hi = [], []
+    for e in range(1, ORDER_EXACT):
+        lo.append(e)
+        hi.append(e)
+    for o in range(ORDER_EXACT_LOG2, 17):
+        width = (1 << o) // ORDER_SUB
+        for s in range(ORDER_SUB):
+            lo.append((1 << o) + s * width)
+            hi.append((1 << o) + (s + 1) * width - 1)
+    return np.stack([lo, hi], axis=1).astype(np.int64)
 
 _MEDIUM_DTYPES = [None, None, np.int32, np.int32, np.int32, np.int32, np.int32, np.int32,
                   None, None, None, np.float32, None, None, None, None, None, None]
@@ -121,6 +140,7 @@ class PathTracer:
         self.defines, self.simulated, self.skipped = specialisation(med, specialise)
         self.program = rt.program("pathtrace", {"PT_LANES": RENDER_LANES, **self.defines})
         self._query_program = None
+        self._order_program = None
         lobes = med.lobes if med.lobes else [(0.0, 1.0)]
         self.lobe_g, self.lobe_w = kphase.lobe_vectors(lobes)
         env = med.environment if med.environment is not None else (0.0, 0.0, 0.0)
@@ -172,13 +192,27 @@ class PathTracer:
             RENDER_LANES)
         return rt.from_device(out, (spl, w * h, PT_OUT))
 
-    def query_batch(self, points_buf, omegas_buf, nq: int, seed: int, sample0: int, ppl: int):
-        """Rows (ppl, nq, PT_OUT) for paths sample0..sample0+ppl-1 of every query."""
+    def query_batch(self, points_buf, omegas_buf, nq: int, seed: int, sample0: int, ppl: int,
+                    orders: bool = False):
+        """Rows (ppl, nq, PT_OUT) for paths sample0..sample0+ppl-1 of every query; with
+        ``orders``, (ppl, nq, PT_OUT + 2 ORDER_BINS): each row followed by its per-order
+        sums and first moments (grey media with a sun and no environment only)."""
         rt = self.rt
         n = nq * ppl
-        out = rt.empty((n, PT_OUT))
-        k = self.query_program().kernel("pt_query", _QUERY_DTYPES)
+        width = PT_OUT + (2 * ORDER_BINS if orders else 0)
+        if orders:
+            if "PT_GREY" not in self.defines or "PT_ENV" in self.defines:
+                raise ClvolError("per-order point queries need a grey albedo and no environment")
+            if self._order_program is None:
+                self._order_program = self.rt.program(
+                    "pathtrace", {"PT_LANES": QUERY_LANES, **self.defines,
+                                  "PT_ORDER_BINS": ORDER_BINS})
+            program = self._order_program
+        else:
+            program = self.query_program()
+        out = rt.empty((n, width))
+        k = program.kernel("pt_query", _QUERY_DTYPES)
         self._launch(k, n, self._medium_args + (
             points_buf, omegas_buf, np.int32(nq), np.uint64(seed), np.uint32(sample0),
             np.int32(ppl), np.int32(self.max_order), out), QUERY_LANES)
-        return rt.from_device(out, (ppl, nq, PT_OUT))
+        return rt.from_device(out, (ppl, nq, width))

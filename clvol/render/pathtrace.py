@@ -26,8 +26,8 @@ import numpy as np
 
 from ..errors import ClvolError
 from ..kernels.majorant import DEFAULT_BLOCK
-from ..kernels.pathtrace import (PT_OUT, ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED,
-                                 ROW_VERTICES, Medium, PathTracer)
+from ..kernels.pathtrace import (ORDER_BINS, PT_OUT, ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS,
+                                 ROW_TRUNCATED, ROW_VERTICES, Medium, PathTracer)
 from ..progress import Progress
 from ..runtime import get_runtime
 from . import RenderResult
@@ -231,6 +231,78 @@ def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
         var = np.maximum(q / n - mean * mean, 0.0) * (n / max(n - 1.0, 1.0))
         out[key] = mean
         out[key + "_se"] = np.sqrt(var / n)
+    return out
+
+
+# Albedos at which per-order queries report the label's standard error (the label at any
+# other albedo takes the error of the nearest node in log(1 - albedo); clvol/neural/labels.py).
+SE_ALBEDOS = (1.0, 0.9999, 0.999, 0.997, 0.99, 0.97, 0.9, 0.7, 0.3)
+
+
+def point_query_orders(scene, points, omegas, n_paths: int, seed: int = 0, grid=None,
+                       runtime=None, majorant_block: int = DEFAULT_BLOCK,
+                       device_medium=None) -> dict:
+    """F_>=2(p, omega) for every albedo from one set of paths (docs/pathtrace.md, "Labels per
+    scattering order"): the walks run at albedo 1 (grey), and each sun NEE is binned by its
+    albedo exponent e (real collisions after p), so the label at a homogeneous albedo a is
+    sum_b S_b a^(M_b / S_b) (clvol/neural/labels.py). The scene's albedo is ignored; its
+    density, phase and light direction are used, with a sun of irradiance 1.
+
+    Returns float64 arrays: "S", "M" [N][ORDER_BINS] (per-bin means of the contributions and
+    of contribution x e), "se" [N][len(SE_ALBEDOS)] (standard error of the label at each of
+    SE_ALBEDOS), "F1", "F1_se" [N]; "vertices_mean" [N], "vertices_max" [N] (path lengths),
+    and the counts "paths", "truncated" (paths cut at the vertex limit: their remaining
+    orders are missing from the label, so a data set reports them)."""
+    n_paths = _check_int("n_paths", n_paths, 2, allow_none=False)
+    p = np.asarray(points, np.float64)
+    w = np.asarray(omegas, np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or w.shape != p.shape:
+        raise ClvolError(f"point_query_orders: points {p.shape} and omegas {w.shape} must both be (N, 3)")
+    rt = runtime or get_runtime()
+    grid = grid if grid is not None else scene.volume.load()
+    med = _medium(scene, grid, None, (1.0, 1.0, 1.0), None)
+    med.albedo = (1.0, 1.0, 1.0)
+    pt = PathTracer(med, majorant_block, runtime=rt, device_medium=device_medium)
+    nq = len(p)
+    nodes = np.asarray(SE_ALBEDOS, np.float64)
+    S, M = np.zeros((nq, ORDER_BINS)), np.zeros((nq, ORDER_BINS))
+    xs, xq = np.zeros((nq, len(nodes))), np.zeros((nq, len(nodes)))
+    s1, q1 = np.zeros(nq), np.zeros(nq)
+    vsum, vmax = np.zeros(nq), np.zeros(nq)
+    out = {"paths": n_paths, "truncated": 0}
+    if nq:
+        pbuf = rt.to_device(p.astype(np.float32))
+        wbuf = rt.to_device(w.astype(np.float32))
+        ppl_max = max(1, PATHS_PER_LAUNCH // nq // 4)   # rows are 22x wider than plain ones
+        log_nodes = np.log(np.maximum(nodes, 1e-300))
+        done = 0
+        while done < n_paths:
+            ppl = min(ppl_max, n_paths - done)
+            rows = pt.query_batch(pbuf, wbuf, nq, seed, done, ppl, orders=True).astype(np.float64)
+            sb, mb = rows[..., PT_OUT:PT_OUT + ORDER_BINS], rows[..., PT_OUT + ORDER_BINS:]
+            S += sb.sum(axis=0)
+            M += mb.sum(axis=0)
+            # Each path's label at the nodes, for the standard error (the path's own mean
+            # exponent per bin: exact where a bin holds one order, as the exact bins do).
+            ebar = np.divide(mb, sb, out=np.zeros_like(mb), where=sb > 0)
+            x = np.einsum("pqb,pqbn->pqn", sb, np.exp(ebar[..., None] * log_nodes))
+            xs += x.sum(axis=0)
+            xq += (x * x).sum(axis=0)
+            l1 = rows[..., ROW_L1][..., 0]
+            s1 += l1.sum(axis=0)
+            q1 += (l1 * l1).sum(axis=0)
+            v = rows[..., ROW_VERTICES]
+            vsum += v.sum(axis=0)
+            vmax = np.maximum(vmax, v.max(axis=0))
+            out["truncated"] += int(rows[..., ROW_TRUNCATED].sum())
+            done += ppl
+    n = float(n_paths)
+
+    def se(total, sq):
+        mean = total / n
+        return np.sqrt(np.maximum(sq / n - mean * mean, 0.0) / (n - 1.0))
+    out.update(S=S / n, M=M / n, se=se(xs, xq), F1=s1 / n, F1_se=se(s1, q1),
+               vertices_mean=vsum / n, vertices_max=vmax)
     return out
 
 
