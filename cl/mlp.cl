@@ -39,6 +39,13 @@
 #define CONFIG_DIM 9
 #define CFG_GMEAN 6
 #define CFG_ALBEDO 7
+/* The albedo as the network reads it (-D MLP_ALBEDO_LOG1M: -log(1 - a + 1e-4), which
+ * resolves 0.99 .. 1; docs/network.md), before the config normalisation. */
+#ifdef MLP_ALBEDO_LOG1M
+#define ALBEDO_INPUT(a) (-log1p(1e-4f - (a)))
+#else
+#define ALBEDO_INPUT(a) (a)
+#endif
 #define CFG_ALPHA 8
 #define N_TYPES 3
 #define SQUEEZE 8
@@ -179,6 +186,9 @@ __kernel void mlp_forward(__global const float *features, __global const float *
     for (int i = 0; i < CONFIG_DIM; ++i)
         cfg[i] = (lanes(config, coff, i) - cshift[i]) * cscale[i];
     const V albedo_cfg = lanes(config, coff, CFG_ALBEDO);
+#ifdef MLP_ALBEDO_LOG1M
+    cfg[CFG_ALBEDO] = (ALBEDO_INPUT(albedo_cfg) - cshift[CFG_ALBEDO]) * cscale[CFG_ALBEDO];
+#endif
 
     /* Features, normalised in the same pass that pools them into the squeeze vectors of all
      * layers (channel independent). */
@@ -221,7 +231,7 @@ __kernel void mlp_forward(__global const float *features, __global const float *
             if (albedos[e] == albedos[ch]) same = e;
         if (same >= 0) { res[ch] = res[same]; continue; }
         if (albedos[ch] == 0.0f) { res[ch] = (V)(0.0f); continue; }
-        cfg[CFG_ALBEDO] = (V)((albedos[ch] - cshift[CFG_ALBEDO]) * cscale[CFG_ALBEDO]);
+        cfg[CFG_ALBEDO] = (V)((ALBEDO_INPUT(albedos[ch]) - cshift[CFG_ALBEDO]) * cscale[CFG_ALBEDO]);
 #endif
         __global const float *p = layers;
         V mod[N_TYPES * 2][PAD8(MODULE_WIDTH)];   /* dense writes whole blocks of 8 */

@@ -170,7 +170,7 @@ def _cmd_dataset_make(args) -> int:
                        base_resolution=args.base,
                        optical_thickness=_parse_pair("--optical-thickness", args.optical_thickness),
                        albedo=_parse_pair("--albedo", args.albedo), g=_parse_pair("--g", args.g),
-                       max_lobes=args.max_lobes,
+                       max_lobes=args.max_lobes, per_order_labels=args.per_order_labels,
                        families=tuple(f for f in args.families.split(",") if f))
     t0 = time.perf_counter()
     r = generate(spec, args.out, address=args.address, serial=args.serial, workers=args.workers,
@@ -215,6 +215,9 @@ def add_dataset_make_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-lobes", type=int, default=d.max_lobes)
     p.add_argument("--families", default=",".join(d.families),
                    help="volume families, cycled through (docs/neural.md)")
+    p.add_argument("--per-order-labels", action="store_true",
+                   help="trace labels at albedo 1 and store them per scattering order, so "
+                        "training can label every point at any albedo (docs/pathtrace.md)")
     g = p.add_argument_group("where it runs (default: a local Ray on all cores, if installed)")
     g.add_argument("--address", metavar="auto|HOST:PORT|ray://HOST:PORT",
                    help="join a running Ray cluster instead of starting a local one")

@@ -78,7 +78,9 @@ def forward(params: dict, arch: Architecture, features, config, levels=None,
     x = np.array(features, dtype)
     if levels is not None:
         x[:, TYPES.index("transmittance"), :] = combine_levels(params, levels, dtype)
-    c = np.asarray(config, dtype)
+    c = np.array(config, dtype)
+    if arch.albedo_input == "log1m":      # -log(1 - a + 1e-4): docs/network.md
+        c[:, ALBEDO] = -np.log1p(1e-4 - c[:, ALBEDO])
     x = (x - p["feature_shift"][None, :, None]) * p["feature_scale"][None, :, None]
     c = (c - p["config_shift"]) * p["config_scale"]
     v = squeeze(x, c, arch)

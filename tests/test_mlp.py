@@ -244,3 +244,22 @@ def test_parity_on_gathered_features(cloud, n_lobes, albedo):
         got = net.forward(bufs["features"], bufs["config"], channel_albedo=albedo, n=bufs["n"])
         want = ref.forward_channels(w.params, arch, g["features"], g["config"], albedo)
     _assert_y(got, want)
+
+
+@pytest.mark.parametrize("albedo", [None, (1.0, 0.999, 0.9)])
+def test_log1m_albedo_input_matches_reference(albedo):
+    """-D MLP_ALBEDO_LOG1M (Architecture(albedo_input="log1m")): the kernel reads the albedo as
+    -log(1 - a + 1e-4), as the reference does; albedo 1 is finite."""
+    arch = Architecture(albedo_input="log1m")
+    w = MlpWeights(arch, default_params(arch, np.random.default_rng(23)), feature_contract())
+    f, c = ref.random_inputs(45, np.random.default_rng(9), lobes=LOBES[2])
+    c[::3, 7] = 1.0
+    if albedo is None:
+        want = ref.forward(w.params, arch, f, c)
+        got = MlpKernel(w).forward(f, c)
+    else:
+        want = ref.forward_channels(w.params, arch, f, c, albedo)
+        got = MlpKernel(w).forward(f, c, channel_albedo=albedo)
+    _assert_y(got, want)
+    lin = ref.forward(w.params, ARCH, f, c)       # the same weights read linearly differ
+    assert not np.allclose(lin, ref.forward(w.params, arch, f, c))

@@ -51,6 +51,7 @@ def kernel_defines(arch, channels: int, decode: bool) -> dict:
         "MODULE_WIDTH": arch.module_width, "HEAD_DEPTH": len(arch.head_widths),
         "HEAD_WIDTHS": ",".join(str(w) for w in arch.head_widths),
         "MAXW": maxw, "MLP_CHANNELS": channels, "MLP_DECODE": int(bool(decode)),
+        **({"MLP_ALBEDO_LOG1M": 1} if arch.albedo_input == "log1m" else {}),
     }
 
 

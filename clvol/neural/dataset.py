@@ -54,6 +54,11 @@ READABLE_VERSIONS = (1, 2)
 SPEC_FILE = "spec.json"
 META_KEY = "__meta__"
 ARRAYS = ("points", "omegas", "features", "levels", "config", "Fms", "Fms_se", "F1")
+# With per_order_labels: the per-order bins of clvol.render.pathtrace.point_query_orders
+# (S, M [n][ORDER_BINS]: the label at any albedo; se [n][len(SE_ALBEDOS)]: its standard error
+# at SE_ALBEDOS), from paths traced at albedo 1. Fms and Fms_se are then the relabelled
+# label at the configuration's albedo (clvol/neural/labels.py).
+ORDER_ARRAYS = ("S", "M", "se")
 
 # Volume families, each a generator with a random parameter draw (``volume_params``). Volumes
 # cycle through ``spec.families`` so every family is equally represented, held-out ones too.
@@ -95,6 +100,9 @@ class DatasetSpec:
     albedo: tuple = (0.3, 0.999)        # per channel
     g: tuple = (-0.9, 0.99)             # HG g of every lobe
     max_lobes: int = 3
+    # Labels from one set of albedo-1 paths, binned by scattering order (docs/pathtrace.md):
+    # training may then label every query at any albedo, 1.0 included.
+    per_order_labels: bool = False
 
     def __post_init__(self):
         def bad(name, value, allowed):
@@ -106,6 +114,8 @@ class DatasetSpec:
         if not (isinstance(self.n_heldout_volumes, int) and 0 <= self.n_heldout_volumes < self.n_volumes):
             raise bad("n_heldout_volumes", self.n_heldout_volumes,
                       f"must be an integer in [0, n_volumes - 1 = {self.n_volumes - 1}]")
+        if not isinstance(self.per_order_labels, bool):
+            raise bad("per_order_labels", self.per_order_labels, "must be true or false")
         if self.max_lobes > 3:
             raise bad("max_lobes", self.max_lobes, "must be 1, 2 or 3 (the config has 3 lobe slots)")
         fam = tuple(self.families)
@@ -276,8 +286,17 @@ def unit_optical_thickness(grid) -> float:
     return float(np.mean(out)) if out else 0.0
 
 
+# Albedo 1 cannot be reached by a draw log-uniform in 1 - albedo: with hi = 1 the draw stops at
+# 1 - ALBEDO_GAP and a share ALBEDO_ONE of the draws is exactly 1.
+ALBEDO_GAP, ALBEDO_ONE = 1e-4, 0.15
+
+
 def _draw_albedo(rng, lo: float, hi: float) -> float:
     # log-uniform in 1 - albedo: as many draws in 0.99-0.999 (clouds) as in 0.9-0.99 or below
+    if hi >= 1.0:
+        if rng.uniform() < ALBEDO_ONE or lo >= 1.0:
+            return 1.0
+        hi = 1.0 - ALBEDO_GAP
     return float(1.0 - np.exp(rng.uniform(np.log(1.0 - hi), np.log(1.0 - lo))))
 
 
@@ -407,7 +426,8 @@ def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runti
     from ..kernels.gather import gather
     from ..kernels.pyramid import build_pyramid
     from ..kernels.transmittance import graded_transmittance
-    from ..render.pathtrace import point_query
+    from ..render.pathtrace import SE_ALBEDOS, point_query, point_query_orders
+    from .labels import label_at, se_at
     t0 = time.perf_counter()
     grid = grid if grid is not None else make_volume(spec, v)
     scene = scene_for(spec, v, c, grid)
@@ -417,14 +437,26 @@ def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runti
     om /= np.linalg.norm(om, axis=1, keepdims=True)
     base, idx = _vkey(spec, v)
     qseed = int(_rng(spec, base + 4, idx, c).integers(0, 2**31 - 1))
-    lab = point_query(scene, pts, om, spec.n_paths, seed=qseed, grid=grid, runtime=runtime)
+    order_arrays, path_stats = {}, {}
+    if spec.per_order_labels:
+        o = point_query_orders(scene, pts, om, spec.n_paths, seed=qseed, grid=grid, runtime=runtime)
+        alb = np.asarray(scene.medium.albedo, np.float64)
+        lab = {"Fms": np.stack([label_at(o["S"], o["M"], a) for a in alb], axis=1),
+               "Fms_se": np.stack([se_at(o["se"], SE_ALBEDOS, a) for a in alb], axis=1),
+               "F1": np.repeat(o["F1"][:, None], 3, axis=1), "truncated": o["truncated"]}
+        order_arrays = {"S": o["S"].astype(np.float32), "M": o["M"].astype(np.float32),
+                        "se": o["se"].astype(np.float32)}
+        path_stats = {"vertices_mean": float(o["vertices_mean"].mean()),
+                      "vertices_max": int(o["vertices_max"].max())}
+    else:
+        lab = point_query(scene, pts, om, spec.n_paths, seed=qseed, grid=grid, runtime=runtime)
     t_labels = time.perf_counter() - t0
     l = np.asarray(scene.light.direction, np.float64)
     graded = graded_transmittance(pyramid, scene.medium.density_scale, l, lam=spec.lam)
     g = gather(pyramid, graded, pts, om, l, scene.medium, scene.medium.albedo[0], mode="train")
     arrays = {"points": pts, "omegas": om.astype(np.float32), "features": g["features"],
               "levels": g["levels"], "config": g["config"], "Fms": lab["Fms"],
-              "Fms_se": lab["Fms_se"], "F1": lab["F1"]}
+              "Fms_se": lab["Fms_se"], "F1": lab["F1"], **order_arrays}
     for k, a in arrays.items():
         if not np.all(np.isfinite(a)):
             raise DatasetError(f"shard ({v}, {c}): non-finite values in {k}")
@@ -432,7 +464,7 @@ def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runti
             "volume_index": v, "config_index": c, "heldout_volume": spec.is_heldout(v),
             "volume": volume_params(spec, v),
             "config": config_params(spec, v, c, grid), "camera_origin": list(scene.camera.origin),
-            "query_seed": qseed, "paths_truncated": int(lab["truncated"]),
+            "query_seed": qseed, "paths_truncated": int(lab["truncated"]), **path_stats,
             "contract": _code_contract(spec),
             "seconds": {"labels": round(t_labels, 3), "total": round(time.perf_counter() - t0, 3)},
             "label_median_rel_se": float(np.median(lab["Fms_se"][:, 0] /
@@ -479,6 +511,10 @@ def check_spec_file(out_dir: Path, spec: DatasetSpec) -> None:
             have = json.loads(path.read_text())
         except ValueError as exc:
             raise DatasetError(f"{path}: not valid JSON ({exc})") from None
+        try:   # fields added later take their defaults in an older folder's spec
+            have["spec"] = DatasetSpec.from_dict(have.get("spec", {})).to_dict()
+        except (DatasetError, TypeError):
+            pass
         if have != want:
             diff = [k for k in set(have.get("spec", {})) | set(want["spec"])
                     if have.get("spec", {}).get(k) != want["spec"].get(k)]
@@ -572,7 +608,7 @@ class ShardArrays(Mapping):
         self.path = path
 
     def __getitem__(self, name: str) -> np.ndarray:
-        if name not in ARRAYS:
+        if name not in ARRAYS + ORDER_ARRAYS:
             raise KeyError(name)
         try:
             with np.load(self.path, allow_pickle=False) as z:

@@ -82,6 +82,13 @@ DEFAULT_DOMAIN = {"albedo": [0.8, 0.999], "g": [0.0, 0.9], "max_lobes": 3}
 
 # --------------------------------------------------------------------------- architecture
 
+# Encodings of the config's albedo (Architecture.albedo_input) and the offset of "log1m".
+ALBEDO_INPUTS = ("linear", "log1m")
+ALBEDO_EPS = 1e-4
+# The config normalisation of a "log1m" albedo: shift to a = 0.99, scale ~1/spread.
+LOG1M_SHIFT, LOG1M_SCALE = 4.6, 1.0 / 3.0
+
+
 @dataclass(frozen=True)
 class Architecture:
     """Everything that fixes the network's tensor shapes. ``layer_counts`` is the template's
@@ -93,6 +100,10 @@ class Architecture:
     se_hidden: int = 8
     module_width: int = 32
     head_widths: tuple = (64, 32)
+    # How the config's albedo enters (before the config normalisation): "linear" (the files
+    # before issue 21) or "log1m", -log(1 - a + ALBEDO_EPS), which spreads 0.99 .. 1 over as
+    # wide a range as 0.3 .. 0.99 (F rises steeply as a -> 1; docs/network.md).
+    albedo_input: str = "linear"
 
     def __post_init__(self):
         object.__setattr__(self, "layer_counts", tuple(int(c) for c in self.layer_counts))
@@ -101,6 +112,8 @@ class Architecture:
             raise WeightsError("need at least one diffuse and one highlight layer")
         if min(self.layer_counts) < 1 or min(self.head_widths, default=1) < 1:
             raise WeightsError("layer counts and widths must be positive")
+        if self.albedo_input not in ALBEDO_INPUTS:
+            raise WeightsError(f"albedo_input {self.albedo_input!r}: one of {list(ALBEDO_INPUTS)}")
         if self.config_dim != layout.CONFIG_DIM:  # the forward reads g_mean, albedo, alpha by index
             raise WeightsError(f"config_dim must be {layout.CONFIG_DIM} (clvol.neural.layout.CONFIG_FIELDS)")
 
@@ -176,7 +189,8 @@ class Architecture:
         return {"layer_counts": list(self.layer_counts), "n_diffuse_layers": self.n_diffuse_layers,
                 "config_dim": self.config_dim, "n_levels": self.n_levels,
                 "se_hidden": self.se_hidden, "module_width": self.module_width,
-                "head_widths": list(self.head_widths), "squeeze_dim": SQUEEZE_DIM,
+                "head_widths": list(self.head_widths), "albedo_input": self.albedo_input,
+                "albedo_eps": ALBEDO_EPS, "squeeze_dim": SQUEEZE_DIM,
                 "types": list(TYPES), "templates": list(TEMPLATES), "gamma": GAMMA}
 
     @classmethod
@@ -187,11 +201,12 @@ class Architecture:
         if missing:
             raise WeightsError(f"{where}: missing field(s) {', '.join(missing)}")
         for k, want in (("squeeze_dim", SQUEEZE_DIM), ("types", list(TYPES)),
-                        ("templates", list(TEMPLATES)), ("gamma", GAMMA)):
+                        ("templates", list(TEMPLATES)), ("gamma", GAMMA),
+                        ("albedo_eps", ALBEDO_EPS)):
             if k in d and d[k] != want:
                 raise WeightsError(f"{where}: [architecture.{k}] is {d[k]!r}; this code supports {want!r}")
         try:
-            return cls(**{k: d[k] for k in keys})
+            return cls(**{k: d[k] for k in keys}, albedo_input=d.get("albedo_input", "linear"))
         except (TypeError, ValueError, WeightsError) as exc:
             raise WeightsError(f"{where}: [architecture] is invalid: {exc}") from None
 

@@ -18,10 +18,11 @@ import torch
 from torch import nn
 
 from . import layout
-from .export import (DEFAULT_CONFIG_SCALE, SQUEEZE_DIM, TEMPLATES, TYPES, Architecture,
+from .export import (ALBEDO_EPS, DEFAULT_CONFIG_SCALE, LOG1M_SCALE, LOG1M_SHIFT, SQUEEZE_DIM, TEMPLATES, TYPES, Architecture,
                      MlpWeights, save_weights)
 
 G_MEAN = layout.CONFIG_FIELDS.index("g_mean")
+ALBEDO = layout.CONFIG_FIELDS.index("albedo")
 ALPHA = layout.CONFIG_FIELDS.index("alpha")
 T_INDEX = TYPES.index("transmittance")
 
@@ -63,6 +64,10 @@ class Model(nn.Module):
         self.register_buffer("feature_scale", torch.ones(len(TYPES)))
         self.register_buffer("config_shift", torch.zeros(arch.config_dim))
         self.register_buffer("config_scale", torch.tensor(DEFAULT_CONFIG_SCALE, dtype=torch.float32))
+        if arch.albedo_input == "log1m":
+            with torch.no_grad():
+                self.config_shift[ALBEDO] = LOG1M_SHIFT
+                self.config_scale[ALBEDO] = LOG1M_SCALE
         m = arch.module_width
         self.branches = nn.ModuleDict({
             t: nn.ModuleDict({s: Chain(arch.template_counts(s), arch.config_dim, arch.se_hidden, m)
@@ -80,6 +85,9 @@ class Model(nn.Module):
         # (x - shift) * scale as one fused pass over the large feature tensor
         scale = self.feature_scale[None, :, None]
         x = torch.addcmul(-self.feature_shift[None, :, None] * scale, features, scale)
+        if self.arch.albedo_input == "log1m":
+            a = -torch.log1p(ALBEDO_EPS - config[:, ALBEDO:ALBEDO + 1])
+            config = torch.cat([config[:, :ALBEDO], a, config[:, ALBEDO + 1:]], dim=1)
         c = (config - self.config_shift) * self.config_scale
         gc = c[:, [G_MEAN, ALPHA]]
         parts = [x[:, :, sl] for sl in self._slices]
