@@ -55,6 +55,13 @@ def main(argv=None) -> int:
                     help="hidden widths of the head MLP, comma-separated")
     ap.add_argument("--se-hidden", type=int, default=da.se_hidden,
                     help="hidden width of the squeeze-and-excitation layers")
+    ap.add_argument("--albedo-input", default=da.albedo_input, choices=["linear", "log1m"],
+                    help="how the network reads the albedo (docs/network.md)")
+    ap.add_argument("--albedo-draws", type=int, default=0, metavar="K",
+                    help="per-order data sets: label every training query at K albedos drawn "
+                         "in 0.3..1 (0: the configuration's albedo only)")
+    ap.add_argument("--init", metavar="WEIGHTS.npz", default=None,
+                    help="start from this weight file's parameters (same architecture)")
     ap.add_argument("--export", default=None, help="weight file to write at the end")
     ap.add_argument("--evaluate", metavar="WEIGHTS.npz", default=None,
                     help="no training: held-out losses of a weight file, per held-out group")
@@ -82,8 +89,9 @@ def main(argv=None) -> int:
     splits = [tr.split_shards(f, cfg) for f in folders]
     train_sh = [s for t, _ in splits for s in t]
     held_sh = [s for _, h in splits for s in h]
-    train = tr.shard_samples(train_sh, cfg.floor)
-    held = tr.shard_samples(held_sh, cfg.floor)
+    train = tr.shard_samples(train_sh, cfg.floor, albedo_draws=args.albedo_draws, seed=cfg.seed)
+    held = tr.shard_samples(held_sh, cfg.floor, albedo_draws=args.albedo_draws and 2,
+                            seed=cfg.seed + 1)
     spec = shards[0].meta["spec"]
     print(f"data: {len(shards)} shards ({len(train_sh)} train, {len(held_sh)} held out), "
           f"{len(train)} / {len(held)} samples; base {spec['base_resolution']}, {spec['n_paths']} paths")
@@ -95,7 +103,7 @@ def main(argv=None) -> int:
     try:
         arch = Architecture(n_levels=train.levels.shape[1], module_width=args.module_width,
                             head_widths=tuple(int(w) for w in args.head_widths.split(",") if w),
-                            se_hidden=args.se_hidden)
+                            se_hidden=args.se_hidden, albedo_input=args.albedo_input)
     except ValueError as exc:
         print(f"error: architecture: {exc}", file=sys.stderr)
         return 2
@@ -103,6 +111,21 @@ def main(argv=None) -> int:
           f"{arch.se_hidden}: {arch.n_params()} parameters, {arch.n_macs()['total']} multiply-adds "
           f"per evaluation")
     trainer = tr.Trainer(train, cfg, arch)
+    if args.init:
+        from clvol.neural.export import load_weights
+        w0 = load_weights(args.init)
+        same = (lambda d: {k: v for k, v in d.items() if k != "albedo_input"})
+        if same(w0.arch.to_dict()) != same(arch.to_dict()):
+            print(f"error: --init {args.init}: another architecture", file=sys.stderr)
+            return 2
+        shift, scale = (getattr(trainer.model, n).clone() for n in ("config_shift", "config_scale"))
+        trainer.model.load_numpy_params(w0.params)
+        if w0.arch.albedo_input != arch.albedo_input:   # keep this encoding's normalisation
+            import torch as _t
+            with _t.no_grad():
+                trainer.model.config_shift[tr.ALBEDO] = shift[tr.ALBEDO]
+                trainer.model.config_scale[tr.ALBEDO] = scale[tr.ALBEDO]
+        print(f"initialised from {args.init}")
     ckpt = out / tr.CHECKPOINT
     if ckpt.exists():
         try:
@@ -116,6 +139,7 @@ def main(argv=None) -> int:
     secs = time.perf_counter() - t0
     final = trainer.history["eval"][-1] if trainer.history["eval"] else {}
     report = {"data": str(args.data), "spec": spec, "run": cfg.to_dict(), "threads": args.threads,
+              "albedo_draws": args.albedo_draws, "init": args.init,
               "architecture": arch.to_dict(), "macs": arch.n_macs(), "params": arch.n_params(),
               "shards": {"train": len(train_sh), "held_out": len(held_sh),
                          "train_volumes": len({(str(s.path.parent), s.volume) for s in train_sh}),
@@ -184,27 +208,54 @@ def evaluate_weights(path, train, held_sh, cfg, base_loss) -> int:
     # Bias by albedo on unseen volumes: the labels are unbiased in the mean (path-traced), the
     # loss is in log space, so sum(predicted F) / sum(label F) shows a systematic under- or
     # over-prediction (the raw labels: the targets' +var/2 correction taken off again).
-    if groups["unseen volumes"]:
-        h = tr.shard_samples(groups["unseen volumes"], cfg.floor)
-        y = tr.predict(model, h).astype(np.float64)
-        alb = h.config[:, tr.ALBEDO].astype(np.float64)
-        F_hat = alb ** 4 * np.expm1(y)
-        F_lab = alb ** 4 * np.expm1(h.y.astype(np.float64) - 0.5 * h.var)
-        print("unseen volumes, sum of predicted F / sum of labels, by albedo (95% interval: "
-              "bootstrap over configurations, whose points are correlated):")
-        rng = np.random.default_rng(0)
-        for lo, hi in ((0.0, 0.9), (0.9, 0.97), (0.97, 0.99), (0.99, 0.997), (0.997, 1.0001)):
-            k = np.flatnonzero((alb >= lo) & (alb < hi))
-            if not len(k):
-                continue
-            groups = [k[h.key[k] == u] for u in np.unique(h.key[k])]
-            ratio = (lambda idx: F_hat[idx].sum() / max(F_lab[idx].sum(), 1e-30))
-            boot = [ratio(np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))]))
-                    for _ in range(1000)]
-            print(f"  albedo [{lo:g}, {min(hi, 1.0):g}): {len(k):7d} samples  ratio {ratio(k):.3f}  "
-                  f"({np.percentile(boot, 2.5):.3f}-{np.percentile(boot, 97.5):.3f} over "
-                  f"{len(groups)} configurations)")
+    # Per-order data: every held-out query at every albedo of EVAL_ALBEDOS.
+    unseen = groups["unseen volumes"]
+    if unseen:
+        print_albedo_bias(model, unseen, cfg.floor, "unseen volumes")
+        solids = [s for s in unseen if s.meta["volume"].get("family") in SOLIDS]
+        if solids and len(solids) < len(unseen):
+            print_albedo_bias(model, [s for s in unseen if s not in solids], cfg.floor,
+                              "unseen clouds (non-solid families)")
+            print_albedo_bias(model, solids, cfg.floor, "unseen solids")
     return 0
+
+
+SOLIDS = ("sphere", "blob", "torus", "box", "union")
+# Evaluation albedos of per-order data, and the bins the bias is reported in.
+EVAL_ALBEDOS = (0.3, 0.5, 0.7, 0.8, 0.85, 0.92, 0.95, 0.98, 0.993, 0.995, 0.998, 0.9995, 0.9999, 1.0)
+ALBEDO_BINS = ((0.0, 0.9), (0.9, 0.97), (0.97, 0.99), (0.99, 0.997), (0.997, 0.999),
+               (0.999, 1.0001))
+
+
+def print_albedo_bias(model, shards, floor, name) -> dict:
+    """Print (and return) sum(predicted F) / sum(label F) per albedo bin with a 95% bootstrap
+    interval over configurations (a configuration's points are correlated)."""
+    import numpy as np
+    from clvol.neural import train as tr
+    per_order = all(s.meta["spec"].get("per_order_labels") for s in shards)
+    h = tr.shard_samples(shards, floor, albedos=EVAL_ALBEDOS if per_order else None)
+    y = tr.predict(model, h).astype(np.float64)
+    alb = h.config[:, tr.ALBEDO].astype(np.float64)
+    F_hat = alb ** 4 * np.expm1(y)
+    F_lab = alb ** 4 * np.expm1(h.y.astype(np.float64) - 0.5 * h.var)
+    print(f"{name}, sum of predicted F / sum of labels, by albedo "
+          f"({'at ' + ' '.join(map(str, EVAL_ALBEDOS)) if per_order else 'the configurations'}; "
+          f"95% interval: bootstrap over configurations):")
+    rng = np.random.default_rng(0)
+    out = {}
+    for lo, hi in ALBEDO_BINS:
+        k = np.flatnonzero((alb >= lo) & (alb < hi))
+        if not len(k):
+            continue
+        groups = [k[h.key[k] == u] for u in np.unique(h.key[k])]
+        ratio = (lambda idx: F_hat[idx].sum() / max(F_lab[idx].sum(), 1e-30))
+        boot = [ratio(np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))]))
+                for _ in range(1000)]
+        lo_ci, hi_ci = np.percentile(boot, 2.5), np.percentile(boot, 97.5)
+        out[f"[{lo:g}, {min(hi, 1.0):g}]"] = (ratio(k), lo_ci, hi_ci)
+        print(f"  albedo [{lo:g}, {min(hi, 1.0):g}{']' if hi > 1 else ')'}: {len(k):7d} samples  "
+              f"ratio {ratio(k):.3f}  ({lo_ci:.3f}-{hi_ci:.3f} over {len(groups)} configurations)")
+    return out
 
 
 if __name__ == "__main__":

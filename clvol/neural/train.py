@@ -316,18 +316,65 @@ def split_shards(shards, cfg: RunConfig):
     return train, held
 
 
-def shard_samples(shards, floor: float = 0.05) -> Samples:
-    """Samples of a list of clvol.neural.dataset.Shard: one per (query, distinct non-zero albedo), key
-    = the shard's position in the data set (volume * configs + configuration). Shards are read
-    one at a time and their feature rows copied once (``concat_samples`` with ``n_rows``)."""
+# Albedos drawn for per-order labels (``albedo_draws``): log-uniform in 1 - a over
+# [DRAW_GAP, 1 - DRAW_LOW] (as many in 0.99-0.999 as in 0.9-0.99), and a share DRAW_ONE exactly 1.
+DRAW_LOW, DRAW_GAP, DRAW_ONE = 0.3, 1e-4, 0.15
+
+
+def draw_albedos(rng: np.random.Generator, n: int) -> np.ndarray:
+    a = 1.0 - np.exp(rng.uniform(np.log(DRAW_GAP), np.log(1.0 - DRAW_LOW), n))
+    return np.where(rng.uniform(size=n) < DRAW_ONE, 1.0, a)
+
+
+def order_samples(arrays, albedo, key=None, floor: float = 0.05) -> Samples:
+    """Samples of one per-order shard at the albedos ``albedo`` [N][K] (K per query; any value
+    in (0, 1]): labels and standard errors relabelled from the bins (clvol/neural/labels.py)."""
+    from ..render.pathtrace import SE_ALBEDOS
+    from .labels import label_at, se_at
+    albedo = np.asarray(albedo, np.float64)
+    n, k = albedo.shape
+    S, M, se_nodes = (np.asarray(arrays[x], np.float64) for x in ("S", "M", "se"))
+    F = np.concatenate([label_at(S, M, albedo[:, j]) for j in range(k)])
+    se = np.concatenate([se_at(se_nodes, SE_ALBEDOS, albedo[:, j]) for j in range(k)])
+    a = albedo.T.ravel()
+    y, var, _ = encode_labels(F, se, a, floor=floor)
+    cfg = np.tile(np.asarray(arrays["config"], np.float32), (k, 1))
+    cfg[:, ALBEDO] = a
+    w = 1.0 / (var + floor ** 2) if math.isfinite(floor) else np.ones_like(y)
+    idx = np.tile(np.arange(n), k)
+    return Samples(features=np.asarray(arrays["features"], np.float32), config=cfg,
+                   y=y.astype(np.float32), weight=(w / w.mean()).astype(np.float32),
+                   var=var.astype(np.float32), levels=np.asarray(arrays["levels"], np.float32),
+                   key=None if key is None else np.tile(np.asarray(key), k),
+                   row=idx.astype(np.int64))
+
+
+def shard_samples(shards, floor: float = 0.05, albedo_draws: int = 0, albedos=None,
+                  seed: int = 0) -> Samples:
+    """Samples of a list of clvol.neural.dataset.Shard, key = the shard's position in the data
+    set (volume * configs + configuration). Shards are read one at a time and their feature
+    rows copied once (``concat_samples`` with ``n_rows``).
+
+    By default one sample per (query, distinct non-zero albedo of the configuration). Shards
+    with per-order labels can instead be labelled at ``albedo_draws`` albedos per query, drawn
+    by ``draw_albedos`` from a stream keyed by (seed, volume, configuration), or at every
+    albedo of the list ``albedos`` (evaluation); other shards keep their own albedo."""
     labels = [s.arrays["Fms"] for s in shards]
 
     def parts():
         for s, F in zip(shards, labels):
             a = s.arrays
             key = np.full(len(F), s.volume * s.meta["spec"]["configs_per_volume"] + s.config_index)
-            yield make_samples(a["features"], a["config"], F, a["Fms_se"], s.albedo,
-                               levels=a["levels"], key=key, floor=floor)
+            if s.meta["spec"].get("per_order_labels") and (albedo_draws or albedos is not None):
+                if albedos is not None:
+                    alb = np.tile(np.asarray(albedos, np.float64), (len(F), 1))
+                else:
+                    rng = np.random.default_rng([seed, s.volume, s.config_index])
+                    alb = draw_albedos(rng, len(F) * albedo_draws).reshape(len(F), albedo_draws)
+                yield order_samples(a, alb, key=key, floor=floor)
+            else:
+                yield make_samples(a["features"], a["config"], F, a["Fms_se"], s.albedo,
+                                   levels=a["levels"], key=key, floor=floor)
     return concat_samples(parts(), n_rows=sum(len(F) for F in labels))
 
 
