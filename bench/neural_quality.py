@@ -79,6 +79,12 @@ SCENES = {
     "jade_chromatic": ROOT / "bench" / "scenes" / "jade_chromatic.toml",
     "cloud_128": ROOT / "bench" / "scenes" / "cloud_128.toml",
     "cloud_backlit": ROOT / "bench" / "scenes" / "cloud_backlit.toml",
+    # issue 21: albedo 1 from three sides, a 128^3 albedo-1 cloud, an albedo-0.99 cloud
+    "cloud_a1_side": ROOT / "bench" / "scenes" / "cloud_a1_side.toml",
+    "cloud_a1_back": ROOT / "bench" / "scenes" / "cloud_a1_back.toml",
+    "cloud_a1_top": ROOT / "bench" / "scenes" / "cloud_a1_top.toml",
+    "cloud_a1_128": ROOT / "bench" / "scenes" / "cloud_a1_128.toml",
+    "cloud_a099": ROOT / "bench" / "scenes" / "cloud_a099.toml",
 }
 METHODS = ("network", "wrenninge", "single", "pt_equal")
 BASELINES = ("wrenninge", "single", "pt_equal")
