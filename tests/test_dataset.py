@@ -330,3 +330,48 @@ def test_data_curve_script_trains_each_fraction_on_fewer_volumes(tmp_path):
     assert len(rows) == 2
     p = subprocess.run(args, cwd=root, capture_output=True, text=True, env=env)
     assert p.returncode == 0 and "start fraction" not in p.stdout
+
+
+def test_per_order_shards_label_any_albedo_and_train(tmp_path):
+    """per_order_labels: the shard stores the bins, its Fms is the relabelled label at the
+    configuration's albedo, draws reach albedo 1, and scripts/train.py trains on drawn
+    albedos with the log1m input and reports the [0.999, 1] bin."""
+    import subprocess
+    import sys
+    from clvol.neural import train as tr
+    from clvol.neural.labels import label_at
+    spec = ds.DatasetSpec(seed=2, **dict(TINY, n_volumes=3, n_heldout_volumes=1,
+                                         albedo=(0.3, 1.0), per_order_labels=True))
+    data = tmp_path / "data"
+    ds.make_dataset(spec, data, progress=False)
+    shards = ds.load_shards(data)
+    s = shards[0]
+    a = s.arrays
+    assert a["S"].shape == (24, 127) and a["M"].shape == (24, 127) and a["se"].shape == (24, 9)
+    alb = s.albedo
+    np.testing.assert_allclose(a["Fms"][:, 0], label_at(a["S"], a["M"], alb[0]), rtol=1e-5)
+    assert s.meta["vertices_mean"] >= 1 and "vertices_max" in s.meta
+    # draws: reproducible, in (0.3 - eps, 1], some exactly 1
+    d1 = tr.draw_albedos(np.random.default_rng(1), 4000)
+    assert np.array_equal(d1, tr.draw_albedos(np.random.default_rng(1), 4000))
+    assert d1.min() >= 0.3 - 1e-9 and d1.max() == 1.0 and 0.1 < np.mean(d1 == 1.0) < 0.2
+    assert np.mean(d1 > 0.99) > 0.4                      # log-uniform in 1 - a: many near 1
+    smp = tr.shard_samples(shards[:2], albedo_draws=3, seed=5)
+    assert len(smp) == 2 * 24 * 3 and len(smp.features) == 2 * 24
+    again = tr.shard_samples(shards[:2], albedo_draws=3, seed=5)
+    assert np.array_equal(smp.y, again.y) and np.array_equal(smp.config, again.config)
+    # a config albedo draw of 1.0 is possible with hi = 1 (ALBEDO_ONE of the draws)
+    draws = [ds._draw_albedo(np.random.default_rng(i), 0.3, 1.0) for i in range(200)]
+    assert 1.0 in draws and min(draws) >= 0.3 and max(d for d in draws if d < 1) <= 1 - 1e-4
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ, PYTHONPATH=root)
+    w = tmp_path / "w.npz"
+    p = subprocess.run([sys.executable, "scripts/train.py", str(data), str(tmp_path / "run"),
+                        "--steps", "3", "--batch", "8", "--eval-every", "3", "--albedo-draws", "2",
+                        "--albedo-input", "log1m", "--export", str(w)],
+                       cwd=root, capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    p = subprocess.run([sys.executable, "scripts/train.py", str(data), str(tmp_path / "ev"),
+                        "--evaluate", str(w)], cwd=root, capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    assert "albedo [0.999, 1]" in p.stdout
