@@ -54,7 +54,8 @@ LAYERS = [
                           "neural.export", "neural.__init__"]),
     ("kernels", ["kernels"]),
     ("render", ["render"]),
-    ("training", ["neural.dataset", "neural.distributed", "neural.model", "neural.train"]),
+    ("training", ["neural.dataset", "neural.distributed", "neural.labels", "neural.model",
+                  "neural.train"]),
     ("applications", ["cli", "__main__", "viewer", "bundle", "goldens"]),
 ]
 
