@@ -21,10 +21,13 @@
  * multiple-scattering sources of clvol/render/sources.py):
  *   PHASE_ISOTROPIC / PHASE_LOBES   phase.h: constant 1/(4 pi) or 1..3 HG lobes
  *   LIT 0|1          0 when albedo * E = 0: no light lookups, no F_1 and no F_ms
- *   MS_SOURCE 0|1|2  0 none; 1 Wrenninge octaves sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i);
- *                    2 trilinear lookup in a precomputed grid of F_ms
+ *   MS_SOURCE 0|1|2|3  0 none; 1 Wrenninge octaves sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i);
+ *                    2 trilinear lookup in a precomputed grid of F_ms; 3 the view-space table
+ *                    (F_ms at VIEW_K depths per block of VIEW_BLOCK^2 pixels, see below)
  *   MS_OCTAVES N     octaves of source 1 (N = 1: none beyond F_1); at most 8
- *   MS_CHANNELS 1|3  planes of the source-2 grid (1 when albedo is grey: F_ms is then grey)
+ *   MS_CHANNELS 1|3  planes of F_ms in the source-2 grid or source-3 table (1 when albedo is
+ *                    grey: F_ms is then grey)
+ *   VIEW_K, VIEW_BLOCK  source 3: knots per block, block side in pixels
  *   SKIP_EMPTY 0|1   jump over majorant blocks whose majorant is 0 (exact: such a block and
  *                    half a voxel around it have density exactly 0; see majorant.h)
  *   LIGHT_TAU 0|1    the light field holds T_light (0, default) or its optical depth (1);
@@ -37,7 +40,13 @@
  *   light      float [ln][ln][ln]     the exact light transmittance field (lambda = 1) over the
  *                                     cube cube_min .. + cube_size: T_light, or with LIGHT_TAU
  *                                     its optical depth (T_light = exp(-tau))
- *   ms_grid    float [C][gz][gy][gx]  F_ms (radiance per unit irradiance) over gmin..gmax
+ *   ms_grid    float [C][gz][gy][gx]  F_ms (radiance per unit irradiance) over gmin..gmax;
+ *              source 3: float [1 + C][by = gz][bx = gy][VIEW_K = gx], plane 0 the blocks'
+ *              query distances along the camera rays (increasing; -1: empty block), planes
+ *              1..C F_ms there (clvol/render/view.py). A pixel's knots are the bilinear blend,
+ *              knot by knot, of the four nearest non-empty blocks' knots (weights
+ *              renormalised); F_ms along its ray is piecewise linear in t between its knots,
+ *              constant beyond the first and last (gmin, gmax unused)
  *   origin, forward, right, up, tan_half, width, height    pinhole camera (grid.h camera_ray)
  *   light_dir  unit, toward the light; irradiance E (RGB); albedo (RGB); lobe_g, lobe_w (phase.h)
  *   background RGB radiance seen where rays leave the box (environment radiance, or 0)
@@ -66,6 +75,12 @@
 #endif
 #ifndef MS_CHANNELS
 #define MS_CHANNELS 3
+#endif
+#ifndef VIEW_K
+#define VIEW_K 4
+#endif
+#ifndef VIEW_BLOCK
+#define VIEW_BLOCK 4
 #endif
 #ifndef SKIP_EMPTY
 #define SKIP_EMPTY 1
@@ -246,6 +261,54 @@ __kernel void raymarch(
 #endif
     }
 
+#if MS_SOURCE == 3
+    /* The lane's knots: depth vd[k], F_ms v0 + sum of ramps dv[k] over [vd[k], vd[k+1]]
+     * (the piecewise-linear interpolant as a sum of clamped ramps: no per-step search). */
+    v16 vd[VIEW_K], vinv[VIEW_K], v0[MS_CHANNELS], dv[MS_CHANNELS][VIEW_K];
+    {
+        const int plane = gx * gy * gz;
+        float kd[VIEW_K][16], kv[MS_CHANNELS][VIEW_K][16];
+        int pxs[16], pys[16];
+        vstore16(px, 0, pxs);
+        vstore16(py, 0, pys);
+        for (int j = 0; j < 16; ++j) {
+            /* Bilinear between block centres (block i's centre is pixel position (i + 1/2) B). */
+            const float u = clamp(((float)pxs[j] + 0.5f) / (float)VIEW_BLOCK - 0.5f, 0.0f, (float)(gy - 1));
+            const float v = clamp(((float)pys[j] + 0.5f) / (float)VIEW_BLOCK - 0.5f, 0.0f, (float)(gz - 1));
+            const int i0 = (int)u, j0 = (int)v;
+            const int i1 = min(i0 + 1, gy - 1), j1 = min(j0 + 1, gz - 1);
+            const float fu = u - (float)i0, fv = v - (float)j0;
+            const int blk[4] = {j0 * gy + i0, j0 * gy + i1, j1 * gy + i0, j1 * gy + i1};
+            float bw[4] = {(1.0f - fu) * (1.0f - fv), fu * (1.0f - fv), (1.0f - fu) * fv, fu * fv};
+            float sum = 0.0f;
+            for (int q = 0; q < 4; ++q) {
+                if (ms_grid[blk[q] * gx] < 0.0f) bw[q] = 0.0f;   /* empty block */
+                sum += bw[q];
+            }
+            /* sum = 0 only where no neighbour saw medium: no knots, F_ms = 0 */
+            const float inv = sum > 0.0f ? 1.0f / sum : 0.0f;
+            for (int k = 0; k < VIEW_K; ++k) {
+                float a = 0.0f;
+                for (int q = 0; q < 4; ++q) a += bw[q] * inv * ms_grid[blk[q] * gx + k];
+                kd[k][j] = a;
+                for (int c = 0; c < MS_CHANNELS; ++c) {
+                    float b = 0.0f;
+                    for (int q = 0; q < 4; ++q)
+                        b += bw[q] * inv * ms_grid[(1 + c) * plane + blk[q] * gx + k];
+                    kv[c][k][j] = b;
+                }
+            }
+        }
+        for (int k = 0; k < VIEW_K; ++k) vd[k] = vload16(0, kd[k]);
+        for (int k = 0; k + 1 < VIEW_K; ++k)
+            vinv[k] = 1.0f / fmax(vd[k + 1] - vd[k], (v16)(1e-30f));
+        for (int c = 0; c < MS_CHANNELS; ++c) {
+            v0[c] = vload16(0, kv[c][0]);
+            for (int k = 0; k + 1 < VIEW_K; ++k)
+                dv[c][k] = vload16(0, kv[c][k + 1]) - vload16(0, kv[c][k]);
+        }
+    }
+#endif
     const float3 cell = (bmax.xyz - bmin.xyz) / (float3)((float)nx, (float)ny, (float)nz);
 #if SKIP_EMPTY
     const float3 bsize = cell * (float)block;
@@ -262,9 +325,9 @@ __kernel void raymarch(
     v16 Mo[MS_OCTAVES - 1];
     for (int i = 0; i < MS_OCTAVES - 1; ++i) Mo[i] = (v16)(0.0f);
 #endif
-#if MS_SOURCE == 1 || (MS_SOURCE == 2 && MS_CHANNELS == 1)
+#if MS_SOURCE == 1 || (MS_SOURCE >= 2 && MS_CHANNELS == 1)
     v16 M = (v16)(0.0f);
-#elif MS_SOURCE == 2
+#elif MS_SOURCE >= 2
     v16 M0 = (v16)(0.0f), M1 = (v16)(0.0f), M2 = (v16)(0.0f);
 #endif
 
@@ -381,6 +444,25 @@ __kernel void raymarch(
             M1 += w * lookup16(ms_grid + plane, gx, gy, gz, ux, uy, uz);
             M2 += w * lookup16(ms_grid + 2 * plane, gx, gy, gz, ux, uy, uz);
 #endif
+#elif MS_SOURCE == 3
+            v16 ramp[VIEW_K];
+            for (int k = 0; k + 1 < VIEW_K; ++k)
+                ramp[k] = clamp((ts - vd[k]) * vinv[k], 0.0f, 1.0f);
+#if MS_CHANNELS == 1
+            v16 f = v0[0];
+            for (int k = 0; k + 1 < VIEW_K; ++k) f += dv[0][k] * ramp[k];
+            M += w * f;
+#else
+            v16 f0_ = v0[0], f1_ = v0[1], f2_ = v0[2];
+            for (int k = 0; k + 1 < VIEW_K; ++k) {
+                f0_ += dv[0][k] * ramp[k];
+                f1_ += dv[1][k] * ramp[k];
+                f2_ += dv[2][k] * ramp[k];
+            }
+            M0 += w * f0_;
+            M1 += w * f1_;
+            M2 += w * f2_;
+#endif
 #endif
         }
 #endif
@@ -401,9 +483,9 @@ __kernel void raymarch(
     v16 m_r = (v16)(0.0f), m_g = (v16)(0.0f), m_b = (v16)(0.0f);
 #if LIT
     s_r = ae.x * (f0 * S); s_g = ae.y * (f0 * S); s_b = ae.z * (f0 * S);
-#if MS_SOURCE == 1 || (MS_SOURCE == 2 && MS_CHANNELS == 1)
+#if MS_SOURCE == 1 || (MS_SOURCE >= 2 && MS_CHANNELS == 1)
     m_r = ae.x * M; m_g = ae.y * M; m_b = ae.z * M;
-#elif MS_SOURCE == 2
+#elif MS_SOURCE >= 2
     m_r = ae.x * M0; m_g = ae.y * M1; m_b = ae.z * M2;
 #endif
 #endif

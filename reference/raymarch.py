@@ -29,6 +29,15 @@ Sources (``source``):
     "wrenninge"  F_ms = sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i)   (Wrenninge octaves;
                  every lobe's g is scaled by c^i)
     "grid"       F_ms = trilinear lookup in a precomputed RGB (or grey) grid of F_ms values
+    "view"       F_ms from the view-space table (1 + C, by, bx, K): per block of view_block^2
+                 pixels, K distances along the camera rays (plane 0; -1 marks an empty block)
+                 and F_ms there (planes 1..C). A pixel's knots blend the four nearest blocks'
+                 knots index by index, bilinearly between block centres ((i + 1/2) view_block
+                 in pixels, clamped at the image edge), over the non-empty blocks only
+                 (weights renormalised; no such block: F_ms = 0). F_ms(t) is the piecewise-
+                 linear interpolant of the pixel's knots, constant before the first and after
+                 the last, written v_0 + sum_k (v_{k+1} - v_k) clamp((t - d_k) / (d_{k+1} - d_k),
+                 0, 1) with the span floored at 1e-30 (equal knots: a step)
 F_1 = f(mu) T_light with mu = dot(-l, omega) = dot(l, d), T_light read trilinearly (clamped) from
 the exact light transmittance field (lambda = 1) on the pyramid's cube. The field holds T_light
 (``light_quantity="transmittance"``, the default) or its optical depth tau_l
@@ -106,7 +115,7 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              light_dir, irradiance, albedo, lobes, background,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
              step=None, threshold=1e-3, skip_empty=True, lit=True,
-             light_quantity="transmittance"):
+             light_quantity="transmittance", view_block=4):
     """Render one image. Returns a dict of float64 arrays: total, single, multiple (H, W, 3),
     alpha, depth (H, W).
 
@@ -145,11 +154,14 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         gmin, gmax = np.asarray(ms_bbox_min, f64), np.asarray(ms_bbox_max, f64)
         gcell = (gmax - gmin) / np.array(ms_grid.shape[1:][::-1], f64)
 
+    if source == "view":
+        vd, vv = view_knots(np.asarray(ms_grid, f64), view_block, width, height)
     t0, t1 = box_intersect(np.broadcast_to(o, d.shape), d, bmin, bmax, tmin=0.0)
     k = np.zeros(n_rays)
     T = np.ones(n_rays)
     S = np.zeros(n_rays)
-    M = np.zeros((n_rays, ms_grid.shape[0] if source == "grid" else 1))
+    M = np.zeros((n_rays, ms_grid.shape[0] if source == "grid" else
+                  ms_grid.shape[0] - 1 if source == "view" else 1))
     A = np.zeros(n_rays)
     D = np.zeros(n_rays)
     hit = t0 <= t1
@@ -195,6 +207,8 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
             elif source == "grid":
                 for ch in range(ms_grid.shape[0]):
                     M[:, ch] += w * _lookup(ms_grid[ch], gmin, gcell, ps)
+            elif source == "view":
+                M += w[:, None] * view_interp(vd, vv, ts)
         A += w
         D += w * ts
         T = T * np.exp(-tau)
@@ -210,3 +224,32 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     return {"total": total.reshape(shape + (3,)), "single": single_rgb.reshape(shape + (3,)),
             "multiple": multiple.reshape(shape + (3,)), "alpha": A.reshape(shape),
             "depth": depth.reshape(shape)}
+
+
+def view_knots(table, block, width, height):
+    """Per pixel (row-major): knot depths (P, K) and F_ms (P, C, K) from the view table
+    (1 + C, by, bx, K) (see "view" above)."""
+    _, by, bx, k = table.shape
+    col, row = np.meshgrid(np.arange(width), np.arange(height))
+    u = np.clip((col.ravel() + 0.5) / block - 0.5, 0, bx - 1)
+    v = np.clip((row.ravel() + 0.5) / block - 0.5, 0, by - 1)
+    i0, j0 = u.astype(np.int64), v.astype(np.int64)
+    i1, j1 = np.minimum(i0 + 1, bx - 1), np.minimum(j0 + 1, by - 1)
+    fu, fv = u - i0, v - j0
+    blocks = [(j0, i0, (1 - fu) * (1 - fv)), (j0, i1, fu * (1 - fv)),
+              (j1, i0, (1 - fu) * fv), (j1, i1, fu * fv)]
+    ws = [np.where(table[0, jj, ii, 0] < 0, 0.0, wq) for jj, ii, wq in blocks]
+    total = sum(ws)
+    inv = np.where(total > 0, 1.0 / np.where(total > 0, total, 1.0), 0.0)
+    knots = sum((wq * inv)[:, None, None] * table[:, jj, ii, :].transpose(1, 0, 2)
+                for (jj, ii, _), wq in zip(blocks, ws))                    # (P, 1 + C, K)
+    return knots[:, 0, :], knots[:, 1:, :]
+
+
+def view_interp(vd, vv, t):
+    """F_ms (P, C) at distance t (P,) from per-pixel knots vd (P, K), vv (P, C, K)."""
+    f = vv[:, :, 0].copy()
+    for k in range(vd.shape[1] - 1):
+        ramp = np.clip((t - vd[:, k]) / np.maximum(vd[:, k + 1] - vd[:, k], 1e-30), 0.0, 1.0)
+        f += (vv[:, :, k + 1] - vv[:, :, k]) * ramp[:, None]
+    return f

@@ -83,6 +83,19 @@ def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), se
         ms_grid = (0.05 + 0.1 * rs.random((1, 4, 3, 5))).astype(np.float32)
     elif source == "grid3":
         ms_grid = (0.05 + 0.1 * rs.random((3, 4, 3, 5))).astype(np.float32)
+    elif source.startswith("view"):
+        # (1 + C, by, bx, K) over blocks of 3 pixels (13 x 11 image: 5 x 4 blocks, the last
+        # partial). Depths in the box's range from the camera (~1.6..2.6), unsorted spans
+        # made increasing, one pair of equal knots (a step), two empty blocks.
+        ch = 3 if source == "view3" else 1
+        k = 4
+        depth = np.sort(1.6 + rs.random((4, 5, k)), axis=2)
+        depth[1, 2, 2] = depth[1, 2, 1]
+        depth[1, 1, :] = -1.0                              # in front of the box
+        depth[3, 4, :] = -1.0
+        vals = 0.05 + 0.2 * rs.random((ch, 4, 5, k))
+        vals[:, 1, 1] = 7.0                                # must never be read
+        ms_grid = np.concatenate([depth[None], vals]).astype(np.float32)
     n_oct, a, b, c = octaves
     return dict(
         density=density, bbox_min=bmin, bbox_max=bmax, density_scale=scale,
@@ -95,8 +108,9 @@ def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), se
         tan_half=math.tan(math.radians(40.0) / 2), width=width, height=height,
         light_dir=np.array([0.6, 0.8, 0.0]), irradiance=(1.0, 0.9, 0.8),
         albedo=(0.9, 0.8, 0.7), lobes=[(0.8, 0.7), (-0.3, 0.3)], background=(0.1, 0.2, 0.3),
-        source="grid" if source.startswith("grid") else source,
-        octaves=n_oct, a=a, b=b, c=c, step=0.05, threshold=0.0)
+        source="grid" if source.startswith("grid") else "view" if source.startswith("view")
+        else source, octaves=n_oct, a=a, b=b, c=c, step=0.05, threshold=0.0,
+        **({"view_block": 3} if source.startswith("view") else {}))
 
 
 def _f32(kw):
@@ -140,7 +154,9 @@ def test_kernel_matches_twin(case):
                                             ("wrenninge", (5, 0.7, 0.4, 0.9)),
                                             ("wrenninge", (1, 0.5, 0.5, 0.5)),
                                             ("grid1", (3, 0.5, 0.5, 0.5)),
-                                            ("grid3", (3, 0.5, 0.5, 0.5))])
+                                            ("grid3", (3, 0.5, 0.5, 0.5)),
+                                            ("view1", (3, 0.5, 0.5, 0.5)),
+                                            ("view3", (3, 0.5, 0.5, 0.5))])
 def test_kernel_matches_twin_sources(source, octaves):
     kw = _f32(_inputs("odd", source, octaves))
     got = kraymarch.raymarch(**kw)

@@ -13,9 +13,10 @@ from ..runtime import DeviceArray, get_runtime
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
 
-SOURCES = {"none": 0, "wrenninge": 1, "grid": 2}
+SOURCES = {"none": 0, "wrenninge": 1, "grid": 2, "view": 3}
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
 MAX_OCTAVES = 8
+MAX_VIEW_K = 16  # knots per block of the view-space table (cl/viewdepth.cl's limit)
 TILE = 4  # pixels per side of the tile one work-item marches (16 float16 lanes)
 LOCAL_SIZE = 16  # tiles per work-group
 LAYERS = (("total", 3), ("single", 3), ("multiple", 3), ("alpha", 1), ("depth", 1))
@@ -27,7 +28,8 @@ def _device(x, rt) -> DeviceArray:
     return rt.upload(x)
 
 
-def ms_defines(source: str, octaves: int = 1, channels: int = 1) -> dict:
+def ms_defines(source: str, octaves: int = 1, channels: int = 1, view_k: int = 1,
+               view_block: int = 4) -> dict:
     """The -D defines of one multiple-scattering source of cl/raymarch.cl (see its header)."""
     if source not in SOURCES:
         raise ClvolError(f"unknown multiple-scattering source {source!r}; one of {sorted(SOURCES)}")
@@ -35,17 +37,22 @@ def ms_defines(source: str, octaves: int = 1, channels: int = 1) -> dict:
         raise ClvolError(f"octaves must be 1..{MAX_OCTAVES}, got {octaves}")
     if channels not in (1, 3):
         raise ClvolError(f"ms grid channels must be 1 or 3, got {channels}")
-    return {"MS_SOURCE": SOURCES[source],
-            "MS_OCTAVES": int(octaves) if source == "wrenninge" else 1,
-            "MS_CHANNELS": int(channels) if source == "grid" else 1}
+    d = {"MS_SOURCE": SOURCES[source],
+         "MS_OCTAVES": int(octaves) if source == "wrenninge" else 1,
+         "MS_CHANNELS": int(channels) if source in ("grid", "view") else 1}
+    if source == "view":
+        if not (1 <= view_k <= MAX_VIEW_K and view_block >= 1):
+            raise ClvolError(f"view table: {view_k} knots (1..{MAX_VIEW_K}), block {view_block}")
+        d.update(VIEW_K=int(view_k), VIEW_BLOCK=int(view_block))
+    return d
 
 
 def raymarch_defines(lobes, lit: bool, source: str, octaves: int, channels: int,
-                     skip_empty: bool) -> dict:
+                     skip_empty: bool, view_k: int = 1, view_block: int = 4) -> dict:
     """The -D defines that specialise cl/raymarch.cl (see its header)."""
     d = dict(phase_defines(lobes))
     d.update(LIT=int(bool(lit)), SKIP_EMPTY=int(bool(skip_empty)))
-    d.update(ms_defines(source, octaves, channels))
+    d.update(ms_defines(source, octaves, channels, view_k, view_block))
     return d
 
 
@@ -67,15 +74,17 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              light_dir, irradiance, albedo, lobes, background,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
              step=None, threshold=1e-3, skip_empty=True, lit=True,
-             light_quantity="transmittance", runtime=None, read_back=True, stats=False):
+             light_quantity="transmittance", runtime=None, read_back=True, stats=False,
+             view_block=4):
     """Launch the ray marcher. Returns {layer: array} (float32; total/single/multiple
     (H, W, 3), alpha/depth (H, W)), or with ``read_back=False`` (event, {layer: buffer}).
 
     With ``stats`` the kernel also counts its work (cl/raymarch.cl, RAYMARCH_STATS) and the
     result gets "stats": uint32 (tiles, 4) (iterations, light lookups, majorant reads,
     active lane-segments per 4 x 4 tile).
-    ``ms_grid`` is (C, gz, gy, gx) with C = 1 or 3 (source "grid"), else ignored (may be
-    None). ``light`` may be None when ``lit`` is False. Argument meanings: see the twin.
+    ``ms_grid`` is (C, gz, gy, gx) with C = 1 or 3 (source "grid"), or the view-space table
+    (1 + C, by, bx, K) of blocks of ``view_block`` pixels (source "view"), else ignored (may
+    be None). ``light`` may be None when ``lit`` is False. Argument meanings: see the twin.
     """
     rt = runtime or get_runtime()
     if source == "grid":
@@ -83,9 +92,17 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         if len(ms.shape) != 4 or ms.shape[0] not in (1, 3):
             raise ClvolError(f"ms_grid must be (C, gz, gy, gx) with C = 1 or 3, got {ms.shape}")
         channels = ms.shape[0]
+        view_k = 1
+    elif source == "view":
+        ms = _device(ms_grid, rt)
+        if len(ms.shape) != 4 or ms.shape[0] not in (2, 4):
+            raise ClvolError(f"view table must be (1 + C, by, bx, K) with C = 1 or 3, got {ms.shape}")
+        channels, view_k = ms.shape[0] - 1, ms.shape[3]
+        ms_bbox_min, ms_bbox_max = (0, 0, 0), (1, 1, 1)
     else:
-        ms, channels = None, 1
-    defines = raymarch_defines(lobes, lit, source, octaves, channels, skip_empty)
+        ms, channels, view_k = None, 1, 1
+    defines = raymarch_defines(lobes, lit, source, octaves, channels, skip_empty, view_k,
+                               view_block)
     return launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
                   light, cube_min, cube_size, ms, ms_bbox_min, ms_bbox_max,
                   origin, forward, right, up, tan_half, width, height,

@@ -1,0 +1,131 @@
+/* Query depths of the view-space F_ms source: per block of VIEW_BLOCK x VIEW_BLOCK pixels,
+ * VIEW_K distances along the camera rays at the quantiles (i + 1/2)/K of the block's
+ * in-scattering weight T_cam sigma_t. Twin: reference/viewdepth.py (the algorithm in full).
+ *
+ * One work-item per block; its VIEW_RAYS^2 sample rays advance together over segments of
+ * length `step` from the smallest box entry. Two marches: the first finds the block's total
+ * weight W = C(end), the second the segments where C(t) = mean_r (1 - e^-tau_r(t)) crosses
+ * each level (i + 1/2)/K W; C is linear inside a segment. Both marches take the same
+ * segments and the same stop (every ray past its exit or below T_cam = stop), so C is the
+ * same function in both.
+ *
+ * Arguments (float4 holds a 3-vector in xyz; world units):
+ *   density  float [nz][ny][nx] over bmin..bmax; sigma_t = density * density_scale
+ *   origin, forward, right, up, tan_half, width, height   pinhole camera (grid.h camera_ray)
+ *   step     segment length; stop: transmittance below which a ray sees nothing more
+ *   depths   float [by][bx][VIEW_K] out: distances along the rays, increasing; -1 for an
+ *            empty block (W < VIEW_EMPTY_WEIGHT)
+ *   weight   float [by][bx] out: W (0 for an empty block)
+ * Global size: bx * by work-items (guarded), bx = ceil(width / VIEW_BLOCK).
+ */
+#include "grid.h"
+
+#ifndef VIEW_K
+#define VIEW_K 4
+#endif
+#ifndef VIEW_BLOCK
+#define VIEW_BLOCK 4
+#endif
+#ifndef VIEW_RAYS
+#define VIEW_RAYS 2
+#endif
+#define VIEW_R2 (VIEW_RAYS * VIEW_RAYS)
+#define VIEW_EMPTY_WEIGHT 1e-5f
+
+#if VIEW_K < 1 || VIEW_K > 16 || VIEW_RAYS < 1 || VIEW_RAYS > 4
+#error "VIEW_K must be 1..16 and VIEW_RAYS 1..4"
+#endif
+
+/* Advance every sample ray over segment [ta, ta + step]; returns C at its end and whether
+ * some ray still sees medium beyond it. */
+__attribute__((always_inline))
+float advance(__global const float *density, int nx, int ny, int nz, float3 bmin, float3 cell,
+              float density_scale, float3 o, const float3 *d, const float *t0, const float *t1,
+              float *tau, float ta, float step, float stop, int *more) {
+    const float tb = ta + step;
+    float c = 0.0f;
+    int go = 0;
+    for (int r = 0; r < VIEW_R2; ++r) {
+        const float lo = fmax(ta, t0[r]), hi = fmin(tb, t1[r]);
+        if (hi > lo) {
+            const float3 p = o + (0.5f * (lo + hi)) * d[r];
+            tau[r] += density_scale * grid_lookup(density, nx, ny, nz, (p - bmin) / cell - 0.5f)
+                      * (hi - lo);
+        }
+        const float T = exp(-tau[r]);
+        /* 1 - e^-tau without cancellation for thin media */
+        c += tau[r] < 0.1f ? -expm1(-tau[r]) : 1.0f - T;
+        go |= (t0[r] <= t1[r]) && (tb < t1[r]) && (T >= stop);
+    }
+    *more = go;
+    return c / (float)VIEW_R2;
+}
+
+__kernel void view_depths(__global const float *density, const int nx, const int ny,
+                          const int nz, const float4 bmin, const float4 bmax,
+                          const float density_scale,
+                          const float4 origin, const float4 forward, const float4 right,
+                          const float4 up, const float tan_half, const int width,
+                          const int height, const float step, const float stop,
+                          __global float *depths, __global float *weight)
+{
+    const int bx = (width + VIEW_BLOCK - 1) / VIEW_BLOCK, by = (height + VIEW_BLOCK - 1) / VIEW_BLOCK;
+    const int b = get_global_id(0);
+    if (b >= bx * by) return;
+    const int j = b / bx, i = b - j * bx;
+    const float3 o = origin.xyz;
+    const float3 cell = (bmax.xyz - bmin.xyz) / (float3)((float)nx, (float)ny, (float)nz);
+    float3 d[VIEW_R2];
+    float t0[VIEW_R2], t1[VIEW_R2], tau[VIEW_R2];
+    float t_lo = INFINITY, t_hi = -INFINITY;
+    for (int r = 0; r < VIEW_R2; ++r) {
+        const int a = r % VIEW_RAYS, c = r / VIEW_RAYS;
+        const float x = (float)(i * VIEW_BLOCK) + ((float)a + 0.5f) * (float)VIEW_BLOCK / (float)VIEW_RAYS;
+        const float y = (float)(j * VIEW_BLOCK) + ((float)c + 0.5f) * (float)VIEW_BLOCK / (float)VIEW_RAYS;
+        d[r] = camera_ray(forward.xyz, right.xyz, up.xyz, tan_half, width, height, x, y);
+        float lo, hi;
+        if (box_intersect(o, d[r], bmin.xyz, bmax.xyz, 0.0f, &lo, &hi)) {
+            t0[r] = lo;
+            t1[r] = hi;
+            t_lo = fmin(t_lo, lo);
+            t_hi = fmax(t_hi, hi);
+        } else {
+            t0[r] = INFINITY;
+            t1[r] = -INFINITY;
+        }
+    }
+    __global float *out = depths + (size_t)b * VIEW_K;
+    float w = 0.0f;
+    int n_steps = 0;
+    if (t_lo <= t_hi) {
+        n_steps = (int)ceil((t_hi - t_lo) / step);
+        for (int r = 0; r < VIEW_R2; ++r) tau[r] = 0.0f;
+        int more = 1;
+        for (int s = 0; s < n_steps && more; ++s)
+            w = advance(density, nx, ny, nz, bmin.xyz, cell, density_scale, o, d, t0, t1, tau,
+                        t_lo + (float)s * step, step, stop, &more);
+    }
+    if (!(w >= VIEW_EMPTY_WEIGHT)) {
+        for (int k = 0; k < VIEW_K; ++k) out[k] = -1.0f;
+        weight[b] = 0.0f;
+        return;
+    }
+    weight[b] = w;
+    for (int r = 0; r < VIEW_R2; ++r) tau[r] = 0.0f;
+    float c_prev = 0.0f;
+    int k = 0, more = 1;
+    for (int s = 0; s < n_steps && more && k < VIEW_K; ++s) {
+        const float ta = t_lo + (float)s * step;
+        const float c = advance(density, nx, ny, nz, bmin.xyz, cell, density_scale, o, d, t0, t1,
+                                tau, ta, step, stop, &more);
+        /* every level this segment reaches; c > c_prev whenever a level lies in (c_prev, c] */
+        for (; k < VIEW_K; ++k) {
+            const float u = ((float)k + 0.5f) / (float)VIEW_K * w;
+            if (c < u) break;
+            out[k] = ta + step * (u - c_prev) / (c - c_prev);
+        }
+        c_prev = c;
+    }
+    /* Rounding may leave the top level just above the last C: put it at the last segment. */
+    for (; k < VIEW_K; ++k) out[k] = t_lo + (float)n_steps * step;
+}

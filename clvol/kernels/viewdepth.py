@@ -1,0 +1,58 @@
+"""Host wrapper for cl/viewdepth.cl: the view-space source's query depths per pixel block
+(twin: reference/viewdepth.py; same argument names)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ClvolError
+from ..runtime import DeviceArray, get_runtime
+from .grid import f4
+
+MAX_VIEW_K = 16
+MAX_VIEW_RAYS = 4
+
+
+def block_grid(width: int, height: int, block: int) -> tuple[int, int]:
+    """(bx, by): pixel blocks across and down (the last ones may be partial)."""
+    return -(-int(width) // int(block)), -(-int(height) // int(block))
+
+
+def centre_rays(forward, right, up, tan_half, width, height, block) -> np.ndarray:
+    """(by, bx, 3) unit directions through each block's centre (x = i*block + block/2, in
+    pixels): the rays the block's queries lie on (float64, as grid.h's camera_ray)."""
+    bx, by = block_grid(width, height, block)
+    x, y = np.meshgrid(np.arange(bx) * block + 0.5 * block, np.arange(by) * block + 0.5 * block)
+    sx = (2 * x / width - 1) * tan_half * (width / height)
+    sy = (1 - 2 * y / height) * tan_half
+    d = (np.asarray(forward, np.float64) + sx[..., None] * np.asarray(right, np.float64)
+         + sy[..., None] * np.asarray(up, np.float64))
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, right, up,
+                tan_half, width, height, block, rays, k, step, stop=1e-3, runtime=None):
+    """(depths float32 (by, bx, k), weight float32 (by, bx)): see the twin. ``density`` is
+    a NumPy array or a DeviceArray already on the device."""
+    rt = runtime or get_runtime()
+    if not (1 <= k <= MAX_VIEW_K and 1 <= rays <= MAX_VIEW_RAYS and block >= 1):
+        raise ClvolError(f"view depths: k = {k} must be 1..{MAX_VIEW_K}, rays = {rays} "
+                         f"1..{MAX_VIEW_RAYS}, block = {block} >= 1")
+    if not step > 0:
+        raise ClvolError(f"view depths: step must be > 0, got {step}")
+    dens = density if isinstance(density, DeviceArray) else rt.upload(
+        np.ascontiguousarray(density, np.float32))
+    nz, ny, nx = dens.shape
+    bx, by = block_grid(width, height, block)
+    prog = rt.program("viewdepth", {"VIEW_K": int(k), "VIEW_BLOCK": int(block),
+                                    "VIEW_RAYS": int(rays)})
+    kern = prog.kernel("view_depths", [None, np.int32, np.int32, np.int32, None, None, np.float32,
+                                       None, None, None, None, np.float32, np.int32, np.int32,
+                                       np.float32, np.float32, None, None])
+    depths, weight = rt.empty((by * bx * k,)), rt.empty((by * bx,))
+    evt = rt.launch(kern, bx * by, (dens.buffer, np.int32(nx), np.int32(ny), np.int32(nz),
+                                    f4(bbox_min), f4(bbox_max), np.float32(density_scale),
+                                    f4(origin), f4(forward), f4(right), f4(up),
+                                    np.float32(tan_half), np.int32(width), np.int32(height),
+                                    np.float32(step), np.float32(stop), depths, weight))
+    return (rt.from_device(depths, (by, bx, k), wait_for=[evt]),
+            rt.from_device(weight, (by, bx), wait_for=[evt]))
