@@ -15,6 +15,11 @@ Methods, each a whole ``render_raymarch`` / ``render_pathtrace`` call on the loa
   pt_equal    the path tracer given the network's wall time (``time_budget``): the network's
               time is the median of 3 warm renders (kernels built, phase tables made, volume
               loaded; the network's pyramid, gather and lattice fill are inside the time)
+  view        ``--ms view`` at default settings: the same network queried at the camera's view
+              (blocks of pixels, depths at the quantiles of the in-scattering weight) instead
+              of on a world lattice; timed like the network
+  pt_view     only with --pt-view N: the view-space table filled by path-traced point queries
+              (N paths per point): what the view-space representation itself leaves
   pt_lattice  only with --pt-lattice N: the network's F_ms lattice filled by the path tracer's
               point queries (N paths per point) instead, then the same march. Not a baseline
               and not timed: it shows what the lattice itself leaves at this resolution
@@ -86,7 +91,7 @@ SCENES = {
     "cloud_a1_128": ROOT / "bench" / "scenes" / "cloud_a1_128.toml",
     "cloud_a099": ROOT / "bench" / "scenes" / "cloud_a099.toml",
 }
-METHODS = ("network", "wrenninge", "single", "pt_equal")
+METHODS = ("network", "view", "wrenninge", "single", "pt_equal")
 BASELINES = ("wrenninge", "single", "pt_equal")
 COLUMNS = ("scene", "method", "rmse100", "relmse", "flip", "mean", "seconds", "spp",
            "ref_floor_rmse100", "ref_halves_flip")
@@ -257,11 +262,20 @@ def median_time(fn, n: int = 3):
 
 
 def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
-                   pt_lattice: int = 0) -> dict:
+                   pt_lattice: int = 0, pt_view: int = 0) -> dict:
     """{method: (image, seconds, spp or None)} for METHODS, each warmed up once untimed.
     ``ms_resolution``: the network's F_ms lattice (None: the renderer's default);
-    ``pt_lattice`` > 0: also "pt_lattice", that lattice filled by point queries."""
+    ``pt_lattice`` > 0: also "pt_lattice", that lattice filled by point queries;
+    ``pt_view`` > 0: also "pt_view", the view-space table filled by point queries."""
     out = {}
+    if pt_view:
+        from clvol.render.pathtrace import point_query
+        from clvol.render.renderer import Renderer
+        r = Renderer(scene, "raymarch", grid=grid, ms="view")
+        src, _ = r.active_source()
+        if src is r.source:       # the view source runs here (not a domain or thin fallback)
+            src.query = lambda p, w: point_query(scene, p, w, pt_view, seed=11, grid=grid)["Fms"]
+        out["pt_view"] = (r.render().layers["total"], float("nan"), pt_view)
     if pt_lattice:
         from clvol.render.network import DEFAULT_NETWORK_RESOLUTION
         from clvol.render.pathtrace import point_query
@@ -271,8 +285,10 @@ def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
                                                                 grid=grid)["Fms"])
         out["pt_lattice"] = (render_raymarch(scene, ms="grid", ms_grid=ms, grid=grid)
                              .layers["total"], float("nan"), pt_lattice)
-    for method, ms in (("network", "network"), ("wrenninge", "wrenninge"), ("single", "none")):
-        kw = {"weights": weights, "ms_resolution": ms_resolution} if ms == "network" else {}
+    for method, ms in (("network", "network"), ("view", "view"), ("wrenninge", "wrenninge"),
+                       ("single", "none")):
+        kw = ({"weights": weights, "ms_resolution": ms_resolution} if ms == "network" else
+              {"weights": weights} if ms == "view" else {})
         render_raymarch(scene, ms=ms, grid=grid, **kw)              # build kernels, tables
         res, s = median_time(lambda: render_raymarch(scene, ms=ms, grid=grid, **kw), repeats)
         out[method] = (res.layers["total"], s, None)
@@ -373,6 +389,9 @@ def main(argv=None) -> int:
     ap.add_argument("--pt-lattice", type=int, default=0, metavar="PATHS",
                     help="also a row with the F_ms lattice filled by path-traced point queries "
                          "(PATHS per point): what the lattice leaves, whatever the network")
+    ap.add_argument("--pt-view", type=int, default=0, metavar="PATHS",
+                    help="also a row with the view-space table filled by path-traced point "
+                         "queries (PATHS per point): what the view-space representation leaves")
     ap.add_argument("--ms-resolution", type=int, default=None,
                     help="the network's F_ms lattice (default: the renderer's); the target is "
                          "judged at the default, other values show what the lattice costs")
@@ -394,6 +413,8 @@ def run(args) -> int:
         raise ClvolError(f"--ref-spp {args.ref_spp}: must be an even number >= 2 (two halves)")
     if args.pt_lattice < 0:
         raise ClvolError(f"--pt-lattice {args.pt_lattice}: must be >= 0 paths per point (0: no row)")
+    if args.pt_view < 0:
+        raise ClvolError(f"--pt-view {args.pt_view}: must be >= 0 paths per point (0: no row)")
     if args.repeats < 1:
         raise ClvolError(f"--repeats {args.repeats}: must be >= 1")
     out_path = Path(args.out) if args.out else None
@@ -424,9 +445,10 @@ def run(args) -> int:
         if args.refs_only:
             continue
         renders = render_methods(scene, grid, weights, args.repeats, args.ms_resolution,
-                                 args.pt_lattice)
+                                 args.pt_lattice, args.pt_view)
         floor_flip = flip(h1, h2)
-        methods = METHODS + (("pt_lattice",) if args.pt_lattice else ())
+        methods = (METHODS + (("pt_lattice",) if args.pt_lattice else ())
+                   + (("pt_view",) if args.pt_view else ()))
         for method in methods:
             img, secs, spp = renders[method]
             s = scores(img, h1, h2)

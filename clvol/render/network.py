@@ -213,9 +213,6 @@ class NetworkSource:
         per lattice point) and "points" (lattice points evaluated). ``active``: a boolean
         mask over the lattice points ([z][y][x] order); the others get F_ms = 0. ``omegas``:
         one unit direction (3,) for every point instead of toward the camera."""
-        from ..kernels.gather import gather
-        from ..kernels.transmittance import check_light_dir
-        rt = self.rt
         medium = self.medium if medium is None else medium
         if bbox_min is None or bbox_max is None:
             bbox_min, bbox_max = self.grid.bbox_min, self.grid.bbox_max
@@ -226,7 +223,25 @@ class NetworkSource:
         if active is None:
             active = np.ones(len(pts_all), bool)
         active = np.asarray(active, bool).ravel()
-        pts, om = pts_all[active], om_all[active]
+        out, info = self.evaluate(pts_all[active], om_all[active], light_dir, medium,
+                                  grey_shortcut)
+        grey = out.ndim == 1
+        full = np.zeros((len(pts_all),) + out.shape[1:], np.float32)
+        full[active] = out
+        vals = full.reshape((res[2], res[1], res[0]) + (() if grey else (3,)))
+        return check_ms_grid(MsGrid(vals, tuple(lo), tuple(hi))), info
+
+    def evaluate(self, pts, om, light_dir, medium=None, grey_shortcut: bool = True):
+        """(F_ms, info) at world points ``pts`` (N, 3) toward unit directions ``om`` (N, 3)
+        for a light toward ``light_dir``: float32 (N,) for a grey albedo with the shortcut,
+        else (N, 3); >= 0 (the network's rare negative outputs are clipped). info: seconds
+        "light", "gather", "network", "evaluations" (per point) and "points"."""
+        from ..kernels.gather import gather
+        from ..kernels.transmittance import check_light_dir
+        rt = self.rt
+        medium = self.medium if medium is None else medium
+        pts = np.asarray(pts, np.float64).reshape(-1, 3)
+        om = np.asarray(om, np.float64).reshape(-1, 3)
         alb = np.asarray(medium.albedo, np.float64)
         grey = grey_shortcut and medium.is_grey
         l = check_light_dir(light_dir)
@@ -255,12 +270,9 @@ class NetworkSource:
             info["network"] += sw.seconds
         info["evaluations"] = 1 if grey else len(set(float(a) for a in alb if a > 0))
         info["points"] = int(len(pts))
-        full = np.zeros((len(pts_all),) + out.shape[1:], np.float32)
-        full[active] = out
-        vals = full.reshape((res[2], res[1], res[0]) + (() if grey else (3,)))
-        if not np.all(np.isfinite(vals)):
+        if not np.all(np.isfinite(out)):
             raise ClvolError(f"{self.weights.path}: the network produced non-finite F_ms")
-        return check_ms_grid(MsGrid(np.maximum(vals, 0.0), tuple(lo), tuple(hi))), info
+        return np.maximum(out, 0.0), info
 
 
 @register

@@ -244,7 +244,7 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
                     light_resolution: int | None = None, light_interp: str = "transmittance",
                     supersample: int = 1, shortcuts: bool = True, grid=None,
                     runtime=None, weights=None, ms_resolution=None,
-                    domain_fallback: bool = False):
+                    domain_fallback: bool = False, view_block=None, view_knots=None):
     """Render ``scene`` with the ray marcher in one call (a ``Renderer`` kept for one frame).
     Returns a RenderResult with layers total, single, multiple (H, W, 3), alpha and depth
     (H, W), and the header.
@@ -256,6 +256,8 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
     ms="network": ``weights`` (a weight file; default the shipped model) fills an F_ms
     lattice of ``ms_resolution`` points per side for this camera and light, used even outside
     the weights' training domain unless ``domain_fallback`` (the Renderer's default).
+    ms="view": the same network queried at ``view_knots`` depths per ``view_block`` x
+    ``view_block`` pixels of the camera's view (clvol/render/view.py).
     """
     from .renderer import Renderer
     from .sources import source_classes
@@ -263,7 +265,8 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
                 majorant_block=block, light_resolution=light_resolution,
                 light_interp=light_interp, supersample=supersample, no_shortcuts=not shortcuts)
     per_source = dict(octaves=octaves, ms_a=a, ms_b=b, ms_c=c, ms_grid=ms_grid, weights=weights,
-                      ms_resolution=ms_resolution, no_domain_fallback=not domain_fallback)
+                      ms_resolution=ms_resolution, no_domain_fallback=not domain_fallback,
+                      view_block=view_block, view_knots=view_knots)
     read = getattr(source_classes().get(ms), "options", ())     # those of the source asked for
     opts.update({k: v for k, v in per_source.items() if k in read})
     opts = {k: v for k, v in opts.items() if v is not None}
@@ -275,9 +278,11 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
 def add_arguments(group) -> None:
     from .network import DEFAULT_NETWORK_RESOLUTION
     from .sources import source_classes
+    from .view import DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS
     group.add_argument("--ms", choices=sorted(source_classes()), default="network",
-                       help="multiple-scattering source: network (the trained network, "
-                            "default), wrenninge (analytic octaves), grid (precomputed F_ms, "
+                       help="multiple-scattering source: network (the trained network on "
+                            "a world lattice, default), view (the trained network at the "
+                            "camera's view), wrenninge (analytic octaves), grid (precomputed F_ms, "
                             "--ms-grid), none (single scattering only)")
     group.add_argument("--weights", metavar="FILE.npz",
                        help="network weight file for --ms network (default: the shipped "
@@ -285,6 +290,12 @@ def add_arguments(group) -> None:
     group.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
                        help=f"F_ms lattice points per side filled by the network (default "
                             f"{DEFAULT_NETWORK_RESOLUTION})")
+    group.add_argument("--view-block", type=int, default=DEFAULT_VIEW_BLOCK, metavar="B",
+                       help=f"--ms view: pixels per block side; each block's queries serve "
+                            f"its pixels (default {DEFAULT_VIEW_BLOCK})")
+    group.add_argument("--view-knots", type=int, default=DEFAULT_VIEW_KNOTS, metavar="K",
+                       help=f"--ms view: network queries per block, at the quantiles of the "
+                            f"camera's in-scattering weight (default {DEFAULT_VIEW_KNOTS})")
     group.add_argument("--ms-grid", metavar="FILE.npz",
                        help="precomputed F_ms grid (arrays values, bbox_min, bbox_max) for --ms grid")
     group.add_argument("--ms-directions", type=int, default=0, metavar="K",

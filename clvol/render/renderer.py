@@ -191,7 +191,9 @@ class Renderer:
                 from .network import lattice_reach
                 reach = lattice_reach(grid, o["step"])
                 source.prepare(Frame(grid, cam, light, medium, self.rt, shortcuts, self._count,
-                                     reach, rm.dm.cache))
+                                     reach, rm.dm.cache, rm.density,
+                                     o["step"] * float(np.min(grid.cell_size)),
+                                     o["threshold"]))
             with Stopwatch() as sw_light:
                 if is_lit(medium, light) or not shortcuts:
                     if rm.ensure_light(light.direction):

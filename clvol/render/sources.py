@@ -11,8 +11,9 @@ tests a source's name:
 - ``header()``: its own header entries (options, weights, time split).
 
 Sources: ``NoMs`` ("none", single scattering only), ``OctavesMs`` ("wrenninge", the games'
-analytic octaves), ``GridMs`` ("grid", a precomputed ``MsGrid``) and ``NetworkMs``
-("network", clvol/render/network.py). ``SOURCES`` maps ``--ms`` names to classes.
+analytic octaves), ``GridMs`` ("grid", a precomputed ``MsGrid``), ``NetworkMs``
+("network", clvol/render/network.py) and ``ViewMs`` ("view", the network at the camera's
+view, clvol/render/view.py). ``SOURCES`` maps ``--ms`` names to classes.
 """
 from __future__ import annotations
 
@@ -169,8 +170,8 @@ class MsPlan:
 
     @property
     def channels(self) -> int | None:
-        """Colour planes marched for F_ms, or None when the source has no lattice."""
-        return None if self.planes is None else self.planes.shape[0]
+        """Colour planes marched for F_ms, or None when the source has no lattice or table."""
+        return None if self.planes is None else int(self.defines["MS_CHANNELS"])
 
 
 @dataclass
@@ -186,6 +187,9 @@ class Frame:
     count: object = None
     reach: float = 0.0        # world distance from a density sample to the F_ms read, + 1 voxel
     cache: dict | None = None  # the DeviceMedium's cache (data that lives as long as the volume)
+    density: object = None    # the density already on the device (DeviceArray), if any
+    step: float = 0.0         # the march's segment length (world units) ...
+    threshold: float = 1e-3   # ... and its early-termination transmittance
 
 
 class MsSource:
@@ -314,7 +318,7 @@ def source_classes() -> dict[str, type]:
     """Every ``--ms`` source by name. Read the registry through this: the network source
     registers when clvol/render/network.py is imported (it imports this module, so this module
     cannot import it at the top), and a reader that came first would miss it."""
-    from . import network  # noqa: F401
+    from . import network, view  # noqa: F401
     return SOURCES
 
 
