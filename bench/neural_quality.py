@@ -19,7 +19,10 @@ Methods, each a whole ``render_raymarch`` / ``render_pathtrace`` call on the loa
               (blocks of pixels, depths at the quantiles of the in-scattering weight) instead
               of on a world lattice; timed like the network
   pt_view     only with --pt-view N: the view-space table filled by path-traced point queries
-              (N paths per point): what the view-space representation itself leaves
+              (N paths per point): what the view-space representation itself leaves. Filled
+              twice (seeds 11, 12); the row scores their mean with the noise of both fills
+              removed like the reference's (``scores(test_halves=...)``), so it is the
+              representation's bias, not the queries' noise
   pt_lattice  only with --pt-lattice N: the network's F_ms lattice filled by the path tracer's
               point queries (N paths per point) instead, then the same march. Not a baseline
               and not timed: it shows what the lattice itself leaves at this resolution
@@ -98,6 +101,7 @@ COLUMNS = ("scene", "method", "rmse100", "relmse", "flip", "mean", "seconds", "s
 TARGET = {"rmse100": 1.0, "relmse": 0.01, "flip": 0.05}
 REF_SEEDS = (7_000_001, 7_000_002)   # the two halves; test renders use other seeds
 PT_EQUAL_SEED = 11
+PT_VIEW_SEEDS = (11, 12)             # the two independent fills of the pt_view row
 # Bump when the cache file's layout changes (the key already covers the path tracer's code).
 CACHE_FORMAT = 1
 PATHTRACER_SOURCES = ("cl/pathtrace.cl", "cl/include/rng.h", "cl/include/grid.h",
@@ -107,7 +111,7 @@ PATHTRACER_SOURCES = ("cl/pathtrace.cl", "cl/include/rng.h", "cl/include/grid.h"
 
 # --------------------------------------------------------------------------- metrics
 
-def scores(test, h1, h2, with_flip: bool = True) -> dict:
+def scores(test, h1, h2, with_flip: bool = True, test_halves=None) -> dict:
     """Noise-corrected errors of ``test`` against the reference ``R = (h1 + h2) / 2``.
 
     Why E|h1 - h2|^2 / 4 is the reference's noise: write the halves as h_i = mu + e_i with e_1,
@@ -129,15 +133,25 @@ def scores(test, h1, h2, with_flip: bool = True) -> dict:
     (noise-corrected, both images times the exposure k), flip, mean (ratio of image means),
     ref_floor_rmse100 (the reference's own noise on the rmse100 scale) and the uncorrected
     rmse100_raw.
+
+    ``test_halves`` = (t1, t2): a noisy test made twice with independent noise (other seeds),
+    ``test`` being their mean. Its own noise is removed the same way (Var t = E|t1 - t2|^2 /
+    4, independent of the reference's), so what is left estimates |E t - mu|: the test
+    method's bias alone.
     """
     t, a, b = (np.asarray(x, np.float64) for x in (test, h1, h2))
     r = 0.5 * (a + b)
     k = mrpnn_exposure(r)
     yt, yr, y1, y2 = (tonemap_srgb(x, k) @ LUMA for x in (t, r, a, b))
     floor_mse = float(np.mean((y1 - y2) ** 2)) / 4.0
-    mse = float(np.mean((yt - yr) ** 2))
+    test_mse, test_rel = 0.0, 0.0
+    if test_halves is not None:
+        u, v = (np.asarray(x, np.float64) for x in test_halves)
+        test_mse = float(np.mean((tonemap_srgb(u, k) @ LUMA - tonemap_srgb(v, k) @ LUMA) ** 2)) / 4.0
+        test_rel = (u - v) ** 2 / 4.0
+    mse = float(np.mean((yt - yr) ** 2)) - test_mse
     den = (k * r) ** 2 + 0.01
-    rel = float(np.mean((k * k) * ((t - r) ** 2 - (a - b) ** 2 / 4.0) / den))
+    rel = float(np.mean((k * k) * ((t - r) ** 2 - (a - b) ** 2 / 4.0 - test_rel) / den))
     ref_mean = float(np.mean(r))
     return {
         "rmse100": 100.0 * math.sqrt(max(mse - floor_mse, 0.0)),
@@ -262,20 +276,26 @@ def median_time(fn, n: int = 3):
 
 
 def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
-                   pt_lattice: int = 0, pt_view: int = 0) -> dict:
+                   pt_lattice: int = 0, pt_view: int = 0, view_block=None) -> dict:
     """{method: (image, seconds, spp or None)} for METHODS, each warmed up once untimed.
     ``ms_resolution``: the network's F_ms lattice (None: the renderer's default);
     ``pt_lattice`` > 0: also "pt_lattice", that lattice filled by point queries;
-    ``pt_view`` > 0: also "pt_view", the view-space table filled by point queries."""
+    ``pt_view`` > 0: also "pt_view", the view-space table filled by point queries;
+    ``view_block``: the view-space source's block (None: the renderer's default)."""
+    vkw = {} if view_block is None else {"view_block": view_block}
     out = {}
     if pt_view:
         from clvol.render.pathtrace import point_query
         from clvol.render.renderer import Renderer
-        r = Renderer(scene, "raymarch", grid=grid, ms="view")
-        src, _ = r.active_source()
-        if src is r.source:       # the view source runs here (not a domain or thin fallback)
-            src.query = lambda p, w: point_query(scene, p, w, pt_view, seed=11, grid=grid)["Fms"]
-        out["pt_view"] = (r.render().layers["total"], float("nan"), pt_view)
+        halves = []
+        for seed in PT_VIEW_SEEDS:        # twice, so that scores() can remove their noise
+            r = Renderer(scene, "raymarch", grid=grid, ms="view", **vkw)
+            src, _ = r.active_source()
+            if src is r.source:   # the view source runs here (not a domain or thin fallback)
+                src.query = (lambda sd: lambda p, w: point_query(scene, p, w, pt_view, seed=sd,
+                                                                 grid=grid)["Fms"])(seed)
+            halves.append(r.render().layers["total"])
+        out["pt_view"] = (0.5 * (halves[0] + halves[1]), float("nan"), pt_view, halves)
     if pt_lattice:
         from clvol.render.network import DEFAULT_NETWORK_RESOLUTION
         from clvol.render.pathtrace import point_query
@@ -288,7 +308,7 @@ def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
     for method, ms in (("network", "network"), ("view", "view"), ("wrenninge", "wrenninge"),
                        ("single", "none")):
         kw = ({"weights": weights, "ms_resolution": ms_resolution} if ms == "network" else
-              {"weights": weights} if ms == "view" else {})
+              {"weights": weights, **vkw} if ms == "view" else {})
         render_raymarch(scene, ms=ms, grid=grid, **kw)              # build kernels, tables
         res, s = median_time(lambda: render_raymarch(scene, ms=ms, grid=grid, **kw), repeats)
         out[method] = (res.layers["total"], s, None)
@@ -392,6 +412,9 @@ def main(argv=None) -> int:
     ap.add_argument("--pt-view", type=int, default=0, metavar="PATHS",
                     help="also a row with the view-space table filled by path-traced point "
                          "queries (PATHS per point): what the view-space representation leaves")
+    ap.add_argument("--view-block", type=int, default=None,
+                    help="the view-space source's block side in pixels (rows view and pt_view; "
+                         "default: the renderer's)")
     ap.add_argument("--ms-resolution", type=int, default=None,
                     help="the network's F_ms lattice (default: the renderer's); the target is "
                          "judged at the default, other values show what the lattice costs")
@@ -445,13 +468,14 @@ def run(args) -> int:
         if args.refs_only:
             continue
         renders = render_methods(scene, grid, weights, args.repeats, args.ms_resolution,
-                                 args.pt_lattice, args.pt_view)
+                                 args.pt_lattice, args.pt_view, args.view_block)
         floor_flip = flip(h1, h2)
         methods = (METHODS + (("pt_lattice",) if args.pt_lattice else ())
                    + (("pt_view",) if args.pt_view else ()))
         for method in methods:
-            img, secs, spp = renders[method]
-            s = scores(img, h1, h2)
+            img, secs, spp = renders[method][:3]
+            s = scores(img, h1, h2, test_halves=(renders[method][3] if len(renders[method]) > 3
+                                                 else None))
             rows.append({"scene": name, "method": method, **s, "seconds": secs, "spp": spp,
                          "ref_halves_flip": floor_flip})
         print(f"\n{name} ({path.name}; reference noise: rmse100 {s['ref_floor_rmse100']:.2f}, "

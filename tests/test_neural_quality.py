@@ -70,6 +70,23 @@ def test_noise_is_removed_from_the_rmse(nq):
     assert s["mean"] == pytest.approx(1.03 * mu.mean() / (0.5 * (h1 + h2)).mean(), rel=1e-12)
 
 
+def test_test_image_noise_is_removed_when_made_twice(nq):
+    # pt_view: a noisy test made twice with independent noise. Both noises are about as large
+    # as the test's bias; the corrected RMSE of the mean recovers the bias alone.
+    mu, h1, h2, test = synthetic(3, sigma=0.015)
+    rng = np.random.default_rng(4)
+    t1 = test + 0.02 * rng.standard_normal(mu.shape)
+    t2 = test + 0.02 * rng.standard_normal(mu.shape)
+    k = mrpnn_exposure(0.5 * (h1 + h2))
+    true = 100 * math.sqrt(np.mean((tonemap_srgb(test, k) @ LUMA - tonemap_srgb(mu, k) @ LUMA) ** 2))
+    plain = nq.scores(0.5 * (t1 + t2), h1, h2, with_flip=False)
+    s = nq.scores(0.5 * (t1 + t2), h1, h2, with_flip=False, test_halves=(t1, t2))
+    assert plain["rmse100"] > 1.15 * true            # the test's noise matters here
+    # As above, with the test's noise variance added to the reference's (v / d^2 ~ 1.3):
+    # ~2% relative standard deviation in the RMSE; 10% is 5 of them.
+    assert s["rmse100"] == pytest.approx(true, rel=0.10)
+
+
 def test_noise_is_removed_from_the_relmse(nq):
     # relMSE's numerator is linear in the images, so the correction is exact for it; the
     # noisy reference in the denominator leaves a second-order bias of relative size
