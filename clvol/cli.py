@@ -108,6 +108,31 @@ def _cmd_compare(args) -> int:
     return 0
 
 
+def check_render_outputs(output: str, png: str | None, exposure: float | None):
+    """Refuse, before any rendering, outputs that would be lost or mislabelled: the EXR must
+    be named .exr, the preview .png and not the EXR's own path; both folders must exist and
+    the exposure be finite. Returns the preview's path (None: no preview)."""
+    out = Path(output)
+    if out.suffix.lower() != ".exr":
+        raise ClvolError(f"-o {output}: the output is an OpenEXR image; name it .exr (the "
+                         f"tonemapped preview is --png [FILE.png])")
+    if png is not None:
+        png = png or str(out.with_suffix(".png"))
+        if Path(png).suffix.lower() != ".png":
+            raise ClvolError(f"--png {png}: the preview is a PNG; name it .png")
+        if Path(png).resolve() == out.resolve():
+            raise ClvolError(f"--png {png}: the same file as -o; the preview would overwrite the EXR")
+    if exposure is not None and not math.isfinite(exposure):
+        raise ClvolError(f"--exposure {exposure!r}: must be a finite number of stops")
+    for p in (out, Path(png) if png is not None else None):
+        folder = p.resolve().parent if p is not None else None
+        if folder is not None and not folder.is_dir():
+            raise ClvolError(f"{p}: cannot write, folder {folder} does not exist")
+        if folder is not None and not os.access(folder, os.W_OK):
+            raise ClvolError(f"{p}: cannot write, folder {folder} is not writable")
+    return png
+
+
 def _cmd_render(args) -> int:
     from .image import write_exr, write_png_preview
     from .render import METHODS
@@ -119,6 +144,7 @@ def _cmd_render(args) -> int:
         for name in ("exposure", "tone"):
             if getattr(args, name) is not None:
                 raise ClvolError(f"--{name} sets the PNG preview: give --png too")
+    png = check_render_outputs(args.output, args.png, args.exposure)
     tone = args.tone or "filmic"
     configure(device=args.device, profiling=args.profile)
     scene = load_scene(args.scene)
@@ -129,8 +155,7 @@ def _cmd_render(args) -> int:
     header = {"scene": str(args.scene), **result.header}
     write_exr(args.output, result.layers, header)
     print(f"wrote {args.output}", file=sys.stderr)
-    if args.png is not None:
-        png = args.png or str(Path(args.output).with_suffix(".png"))
+    if png is not None:
         used = write_png_preview(png, result.layers["total"], exposure=args.exposure,
                                  curve=tone)
         how = "chosen from the image" if args.exposure is None else "given"
