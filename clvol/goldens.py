@@ -26,6 +26,12 @@ from .errors import ClvolError
 
 
 def _reference():
+    # A source checkout keeps reference/ beside the clvol package: make it importable when
+    # clvol runs as an installed command (sys.path[0] is then the script's folder).
+    import sys
+    root = Path(__file__).resolve().parents[1]
+    if (root / "reference" / "__init__.py").is_file() and str(root) not in sys.path:
+        sys.path.insert(0, str(root))
     try:
         import reference.gather as rgather
         import reference.majorant as rmajorant
@@ -33,8 +39,9 @@ def _reference():
         import reference.pyramid as rpyramid
         import reference.transmittance as rtrans
     except ImportError:
-        raise ClvolError("clvol goldens needs the NumPy reference (reference/ of a source "
-                         "checkout): run it from the repository root") from None
+        raise ClvolError(f"clvol goldens needs the NumPy reference (reference/ of a source "
+                         f"checkout, looked for in {root}): install clvol from a checkout "
+                         f"(pip install -e .)") from None
     return rgather, rmajorant, rmlp, rpyramid, rtrans
 
 

@@ -241,6 +241,22 @@ def test_goldens_checked_by_the_c_host(host, goldens, tmp_path):
     assert any(l.startswith("golden mlp_y") and "FAIL" in l for l in r.stdout.splitlines())
 
 
+def test_goldens_command_runs_from_the_repository_root(tmp_path):
+    """As docs/embedding.md says: the installed `clvol` command from the checkout's root. Its
+    sys.path starts at the script's folder, not the root, so reference/ is found beside the
+    clvol package, not through the current folder."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    exe = Path(sys.executable).parent / "clvol"
+    if not exe.is_file():
+        pytest.skip("no installed clvol command beside this Python")
+    r = subprocess.run([str(exe), "goldens", str(tmp_path / "g")], cwd=ROOT, capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "g" / "mlp" / "y.npy").is_file()
+
+
 def test_goldens_match_the_python_kernels(goldens):
     """The mip and majorant goldens (reference outputs) against the OpenCL kernels the
     Python host runs: the goldens describe the kernels' arguments correctly."""

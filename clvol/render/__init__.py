@@ -40,11 +40,20 @@ class RenderResult:
     layers: dict[str, np.ndarray]
     header: dict[str, str | int | float] = field(default_factory=dict)
 
-    total = property(lambda self: self.layers["total"])
-    single = property(lambda self: self.layers["single"])
-    multiple = property(lambda self: self.layers["multiple"])
-    alpha = property(lambda self: self.layers["alpha"])
-    depth = property(lambda self: self.layers["depth"])
+    def layer(self, name: str) -> np.ndarray:
+        """One layer, or a ClvolError naming the layers this method made (the path tracer,
+        for one, makes no alpha or depth)."""
+        if name not in self.layers:
+            method = self.header.get("method", "this method")
+            raise ClvolError(f"RenderResult: {method} made no {name!r} layer; it has "
+                             f"{', '.join(sorted(self.layers))}")
+        return self.layers[name]
+
+    total = property(lambda self: self.layer("total"))
+    single = property(lambda self: self.layer("single"))
+    multiple = property(lambda self: self.layer("multiple"))
+    alpha = property(lambda self: self.layer("alpha"))
+    depth = property(lambda self: self.layer("depth"))
 
 
 def method_module(name: str):

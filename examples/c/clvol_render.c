@@ -1324,15 +1324,21 @@ static void *npy(const char *dir, const char *name, long *count) {
 static int compare(const char *what, const float *got, const float *want, long n, long stride,
                    long first, long len, double atol, double rtol) {
     int bad = 0;
-    double worst = 0.0;
+    double worst = 0.0, share = 0.0, biggest = 0.0;
     for (long i = 0; i < n; ++i)
         for (long j = first; j < first + len; ++j) {
             double g = got[i * stride + j], w = want[i * stride + j], e = fabs(g - w);
-            if (!(e <= atol + rtol * fabs(w))) ++bad;
+            double tol = atol + rtol * fabs(w);
+            if (!(e <= tol)) ++bad;
             if (!(e <= worst)) worst = e;
+            if (!(fabs(w) <= biggest)) biggest = fabs(w);
+            /* the error as a share of its own tolerance: <= 1 passes, whatever the scale */
+            double s = tol > 0.0 ? e / tol : (e > 0.0 ? INFINITY : 0.0);
+            if (!(s <= share)) share = s;
         }
-    printf("golden %-28s %s  max |error| %.3g (atol %.3g, rtol %.3g)\n", what, bad ? "FAIL" : "ok",
-           worst, atol, rtol);
+    printf("golden %-28s %s  worst error %.3g of its tolerance (max |error| %.3g, values up to "
+           "%.3g; atol %.3g, rtol %.3g)\n", what, bad ? "FAIL" : "ok", share, worst, biggest,
+           atol, rtol);
     return bad;
 }
 
