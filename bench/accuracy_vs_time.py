@@ -12,7 +12,7 @@ untimed run at the smallest setting):
   raymarch/grid        + F_ms from a lattice of path-traced point queries (8^3 and 16^3 points,
                        64 paths each); the time includes filling the lattice
   raymarch/network     + F_ms from the trained network (--weights, default
-                       clvol/data/weights/core_domain.npz) on a 16^3 and 32^3 lattice: frame = the
+                       clvol/data/weights/full_albedo.npz) on a 16^3 and 32^3 lattice: frame = the
                        march; light update = graded transmittance + gather + network fill + the
                        light field (the lattice depends on the camera too: a camera move costs
                        the gather + network part again)
@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ref-spp", type=int, default=1024)
     ap.add_argument("--quick", action="store_true", help="64x64, 256-spp reference, fewer points")
     ap.add_argument("--out", default=str(ROOT / "out" / "bench"))
-    ap.add_argument("--weights", default=str(ROOT / "clvol" / "data" / "weights" / "core_domain.npz"),
+    ap.add_argument("--weights", default=str(ROOT / "clvol" / "data" / "weights" / "full_albedo.npz"),
                     help="network weight file for the raymarch/network points ('' to skip them)")
     args = ap.parse_args(argv)
     if args.quick:

@@ -2,7 +2,7 @@
 """Train the network on a clvol data set and export a weight file (clvol/neural/train.py, clvol/neural/dataset.py).
 
     python scripts/train.py runs/data runs/train [--steps 6000] [--batch 256] [--lr 2e-3]
-        [--seed 0] [--threads 1] [--export clvol/data/weights/core_domain.npz]
+        [--seed 0] [--threads 1] [--export clvol/data/weights/full_albedo.npz]
         [--module-width 32] [--head-widths 64,32] [--se-hidden 8]
 
 Resumable: OUT/checkpoint.pt is written atomically every --checkpoint-every steps; rerunning the

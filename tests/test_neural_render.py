@@ -160,7 +160,7 @@ def test_cli_network_source(weights_file, tmp_path):
     img = read_exr(out)
     assert np.all(np.isfinite(img.layers["total"]))
     assert float(img.header["seconds.network"]) >= 0 and "network" in img.header["simulated"]
-    # No --weights: the shipped model (clvol/data/weights/core_domain.npz) is used.
+    # No --weights: the shipped model (clvol/data/weights/full_albedo.npz) is used.
     assert main(["render", str(scene_path), "--method", "raymarch", "--ms", "network",
                  "--ms-resolution", "6", "-o", str(out)]) == 0
     assert "network" in read_exr(out).header["simulated"]
@@ -169,7 +169,8 @@ def test_cli_network_source(weights_file, tmp_path):
                  "--weights", str(tmp_path / "missing.npz"), "-o", str(out)]) == 2
 
 
-@pytest.mark.parametrize("name,steps", [("cloud_small", 16000), ("core_domain", 30000)])
+@pytest.mark.parametrize("name,steps", [("cloud_small", 16000), ("core_domain", 30000),
+                                        ("full_albedo", 16000)])
 def test_shipped_weights_match_this_gather(name, steps):
     """Every shipped weight file must load against the packaged templates and layout (a
     template or layout change without retraining fails here, not at render time)."""
@@ -181,15 +182,18 @@ def test_shipped_weights_match_this_gather(name, steps):
     assert np.all(np.isfinite(w.level_weights)) and w.meta["training"]["step"] == steps
 
 
-def test_default_model_is_core_domain_with_the_whole_domain():
-    """The default model covers what the quality benchmark tests: back-scattering (g -0.9) and
-    albedo 0.4 are inside its recorded domain, so the renderer uses it there without a warning."""
+def test_default_model_is_full_albedo_with_the_whole_domain():
+    """The default model covers what the quality benchmark tests: back-scattering (g -0.9),
+    albedo 0.4 and albedo 1 are inside its recorded domain, so the renderer uses it there
+    without a warning; it reads the albedo as -log(1 - a + 1e-4) (docs/network.md)."""
     from clvol.neural.export import weights_domain
     from clvol.render.network import load_network_weights, shipped_weights
-    assert shipped_weights().name == "core_domain.npz"
-    d = weights_domain(load_network_weights(shipped_weights()).meta)
-    assert d["g"] == [-0.9, 0.99] and d["albedo"] == [0.3, 0.999] and d["max_lobes"] == 3
+    assert shipped_weights().name == "full_albedo.npz"
+    w = load_network_weights(shipped_weights())
+    d = weights_domain(w.meta)
+    assert d["g"] == [-0.9, 0.99] and d["albedo"] == [0.3, 1.0] and d["max_lobes"] == 3
     assert d["optical_thickness"] == [1.0, 1000.0]
+    assert w.arch.albedo_input == "log1m"
 
 
 def test_shipped_domain_model_matches_this_gather_and_records_its_domain():

@@ -94,8 +94,8 @@ def test_default_is_raymarch_with_the_shipped_network(scene_file):
     res = r.render()
     h = res.header
     assert r.method == "raymarch" and h["raymarch.ms"] == "network"
-    assert h["raymarch.weights"].endswith("core_domain.npz")
-    assert "core_domain.npz" in h["method.description"]
+    assert h["raymarch.weights"].endswith("full_albedo.npz")
+    assert "full_albedo.npz" in h["method.description"]
     assert "network-filled F_ms lattice 8x8x8" in h["simulated"]
     assert res.total.shape == (10, 12, 3) and res.alpha.shape == (10, 12)
     assert res.multiple.max() > 0
@@ -108,10 +108,10 @@ def test_cli_default_names_method_and_weights(scene_file, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "  method: raymarch\n" in err
     assert "method.description: ray marching: exact single scattering + network multiple " \
-           "scattering (weights core_domain.npz)" in err
+           "scattering (weights full_albedo.npz)" in err
     h = read_exr(out).header
     assert h["method"] == "raymarch" and h["raymarch.ms"] == "network"
-    assert str(h["raymarch.weights"]).endswith("core_domain.npz")
+    assert str(h["raymarch.weights"]).endswith("full_albedo.npz")
     # The explicit spelling of the default gives the same image.
     out2 = tmp_path / "e.exr"
     assert main(["render", str(scene_file), "-o", str(out2), "--method", "raymarch", "--ms",
@@ -210,13 +210,13 @@ def test_renderer_recomputes_only_what_a_change_invalidates():
 
 
 def test_outside_the_domain_warns_and_uses_the_measured_alternative(capsys):
-    # albedo 0.2: below the shipped weights' albedo range (0.3-0.999), where no measurement
+    # albedo 0.2: below the shipped weights' albedo range (0.3-1), where no measurement
     # found an analytic source better: the network is kept, with the warning
     sc = small_scene(albedo=0.2)
     res = clvol.Renderer(sc, ms_resolution=8).render()
     err = capsys.readouterr().err
     assert err.count("clvol: warning: scene outside the network's training domain") == 1
-    assert "albedo 0.2 outside [0.3, 0.999]" in err and "network is used all the same" in err
+    assert "albedo 0.2 outside [0.3, 1]" in err and "network is used all the same" in err
     assert "albedo 0.2" in res.header["warning"] and res.header["raymarch.ms"] == "network"
     # g = -0.5 and -0.9 are inside the default model's domain now: no warning, the network
     for g in (-0.5, -0.9):
@@ -329,3 +329,11 @@ def test_per_frame_seed_is_path_tracer_only_and_reproducible():
         pt.render(seed=-1)
     # Every frame read the one volume uploaded at the first.
     assert pt.counts["device_medium"] == 1 and pt.counts["pathtrace"] == 3
+
+
+def test_missing_layer_names_the_method_and_the_layers_it_has():
+    from clvol.render import RenderResult
+    res = RenderResult({"total": np.zeros((2, 2, 3))}, {"method": "pathtrace"})
+    assert res.total.shape == (2, 2, 3)
+    with pytest.raises(ClvolError, match=r"pathtrace made no 'alpha' layer; it has total"):
+        res.alpha

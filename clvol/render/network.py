@@ -48,11 +48,11 @@ def fallback_for(medium) -> str | None:
 
 def shipped_weights():
     """The model that ships with clvol, trained on procedural clouds and solids (albedo
-    0.3-0.999, HG g -0.9-0.99; how it was made and how well it does:
-    clvol/data/weights/core_domain.md)."""
+    0.3-1, HG g -0.9-0.99; how it was made and how well it does:
+    clvol/data/weights/full_albedo.md)."""
     import importlib.resources
     from pathlib import Path
-    return Path(str(importlib.resources.files("clvol") / "data" / "weights" / "core_domain.npz"))
+    return Path(str(importlib.resources.files("clvol") / "data" / "weights" / "full_albedo.npz"))
 
 
 def load_network_weights(path):

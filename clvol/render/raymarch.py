@@ -286,7 +286,7 @@ def add_arguments(group) -> None:
                             "--ms-grid), none (single scattering only)")
     group.add_argument("--weights", metavar="FILE.npz",
                        help="network weight file for --ms network (default: the shipped "
-                            "model, clvol/data/weights/core_domain.npz)")
+                            "model, clvol/data/weights/full_albedo.npz)")
     group.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
                        help=f"F_ms lattice points per side filled by the network (default "
                             f"{DEFAULT_NETWORK_RESOLUTION})")
