@@ -239,6 +239,49 @@ def test_ctrl_c_stops_cleanly(scene_path, tmp_path):
     assert url.startswith("http://127.0.0.2:") and "no authentication" not in err
 
 
+def test_missing_save_dir_exits_2_at_start(scene_path, tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "clvol", "view", str(scene_path), "--port", "0",
+                           "--no-browser", "--save-dir", str(tmp_path / "missing")], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "--save-dir" in proc.stderr and "does not exist" in proc.stderr
+
+
+def test_failed_save_is_a_message_and_the_page_stays_connected(scene_path, tmp_path):
+    """The save folder vanishes while serving: "save" answers an error message, and the
+    same socket still renders the next change (it used to close the socket)."""
+    pytest.importorskip("aiohttp")
+    import aiohttp
+    save = tmp_path / "saves"
+    save.mkdir()
+    proc, url = _start_server(scene_path, save)
+
+    async def run():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(url + "ws") as ws:
+                await ws.receive_json()                               # hello
+                meta, _ = await _next_frame(ws)
+                save.rmdir()
+                await ws.send_str(json.dumps({"type": "save"}))
+                while True:
+                    msg = await asyncio.wait_for(ws.receive(), 60)
+                    assert msg.type in (aiohttp.WSMsgType.TEXT, aiohttp.WSMsgType.BINARY), msg
+                    if msg.type == aiohttp.WSMsgType.TEXT:
+                        reply = json.loads(msg.data)
+                        break
+                assert reply["type"] == "error" and "does not exist" in reply["message"]
+                await ws.send_str(json.dumps({"type": "state", "state": {"azimuth": 20.0}}))
+                meta2, _ = await _next_frame(ws)
+                assert meta2["state"]["azimuth"] == 20.0 and meta2["id"] > meta["id"]
+    try:
+        asyncio.run(run())
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
 def test_bad_port_exits_2(scene_path):
     proc = subprocess.run([sys.executable, "-m", "clvol", "view", str(scene_path), "--port",
                            "70000", "--no-browser"], cwd=ROOT, capture_output=True, text=True)
@@ -339,6 +382,22 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
                      "s.dispatchEvent(new Event('input'));")
     _wait(d, lambda: _frames(d) > n and _meta(d)["state"]["albedo"][0] == 0.3, "albedo frame")
     _wait(d, lambda: d.execute_script(PIXEL_DIGEST_JS)[2] != digest1, "a darker image")
+
+    # A preset moves the albedo and g sliders to its values, so that touching one albedo
+    # slider afterwards sends the preset's other channels, not the stale ones.
+    d.execute_script("const p = document.getElementById('preset'); p.value = 'jade';"
+                     "p.dispatchEvent(new Event('change'));")
+    _wait(d, lambda: _meta(d)["state"]["preset"] == "jade", "a jade frame")
+    jade = _meta(d)["state"]
+    _wait(d, lambda: d.execute_script("return [0, 1, 2].map(i => Number(document."
+                                      "getElementById('albedo' + i).value))") == jade["albedo"],
+          "the albedo sliders at the preset's values")
+    assert abs(float(d.execute_script("return document.getElementById('g').value")) - jade["g"]) < 1e-6
+    n = _frames(d)
+    d.execute_script("const s = document.getElementById('albedo1'); s.value = 0.5;"
+                     "s.dispatchEvent(new Event('input'));")
+    _wait(d, lambda: _frames(d) > n and _meta(d)["state"]["albedo"][1] == 0.5, "albedo 1 frame")
+    assert _meta(d)["state"]["albedo"] == [jade["albedo"][0], 0.5, jade["albedo"][2]]
 
     # A malformed message gets an error reply, and frames still arrive afterwards.
     d.execute_script("window.clvol.socket.send('{oops');")

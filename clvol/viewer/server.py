@@ -19,6 +19,7 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import json
+import os
 import struct
 import sys
 import threading
@@ -172,6 +173,8 @@ class Connection:
                 raise ViewerMessageError(f"type: {kind!r} is not one of state, save")
         except ViewerMessageError as e:
             await self.send_json({"type": "error", "message": str(e)})
+        except ClvolError as e:        # e.g. the save folder vanished: say so, stay connected
+            await self.send_json({"type": "error", "message": str(e).splitlines()[0]})
 
     async def save(self):
         from ..image import write_exr      # writes atomically
@@ -228,6 +231,10 @@ def make_app(scene, save_dir: Path | None = None):
     app["maker"] = maker
     app["connections"] = set()
     save_dir = Path(save_dir or Path.cwd())
+    if not save_dir.is_dir():
+        raise ClvolError(f"--save-dir {save_dir}: folder does not exist")
+    if not os.access(save_dir, os.W_OK):
+        raise ClvolError(f"--save-dir {save_dir}: folder is not writable")
 
     async def index(request):
         return web.FileResponse(STATIC_DIR / "index.html")

@@ -33,9 +33,22 @@ function showState(s) {
   if (s.exposure !== null) $("exposure").value = s.exposure;
 }
 
+// The medium controls follow the server when it changed the medium on its own (a preset sets
+// albedo and g): otherwise the next albedo slider would send the other channels' stale values.
+let syncedPreset;
+function syncMedium(s) {
+  if (!s || s.preset === syncedPreset) return;
+  syncedPreset = s.preset;
+  Object.assign(state, { albedo: s.albedo, g: s.g, preset: s.preset });
+  s.albedo.forEach((a, i) => { $("albedo" + i).value = a; });
+  $("g").value = s.g;
+  $("preset").value = s.preset || "";
+}
+
 function onFrame(buffer) {
   const n = new DataView(buffer).getUint32(0, true);
   const meta = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 4, n)));
+  syncMedium(meta.state);
   const png = new Blob([new Uint8Array(buffer, 4 + n)], { type: "image/png" });
   const img = $("frame");
   const old = img.src;
@@ -68,11 +81,16 @@ function connect() {
   ws.onmessage = (ev) => {
     if (typeof ev.data !== "string") { onFrame(ev.data); return; }
     const msg = JSON.parse(ev.data);
-    if (msg.type === "hello") showState(msg.state);
+    if (msg.type === "hello") { showState(msg.state); syncedPreset = msg.state.preset; }
     else if (msg.type === "error") log("error: " + msg.message);
     else if (msg.type === "saved") log("saved " + msg.path);
   };
-  ws.onclose = () => log("connection closed");
+  ws.onclose = () => {
+    // Reconnect (the server starts the new connection from the scene's state); a page whose
+    // socket closed would otherwise keep dead controls until a reload.
+    log("connection closed; reconnecting");
+    setTimeout(connect, 1000);
+  };
 }
 
 // ------------------------------------------------------------------ controls
