@@ -24,3 +24,8 @@ def __getattr__(name):
         from .render import RenderResult
         return RenderResult
     raise AttributeError(f"module 'clvol' has no attribute {name!r}")
+
+
+def __dir__():
+    # The lazy names are what a user looks for with dir(clvol) or tab completion.
+    return sorted(set(globals()) | set(__all__))

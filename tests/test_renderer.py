@@ -337,3 +337,9 @@ def test_missing_layer_names_the_method_and_the_layers_it_has():
     assert res.total.shape == (2, 2, 3)
     with pytest.raises(ClvolError, match=r"pathtrace made no 'alpha' layer; it has total"):
         res.alpha
+
+
+def test_public_names_are_listed_and_misspelled_options_get_a_suggestion():
+    assert {"Renderer", "RenderResult", "load_scene"} <= set(dir(clvol))
+    with pytest.raises(ClvolError, match=r"unknown render option 'stpe': did you mean 'step'\?"):
+        clvol.Renderer(clvol.load_scene(DATA.parents[1] / "examples" / "cloud.toml"), stpe=2)

@@ -69,7 +69,10 @@ def bind(method: str, given: dict) -> dict:
             if users:
                 raise ClvolError(f"option {flag(name)} is not used by method {method!r} "
                                  f"(it is an option of {', '.join(users)})")
-            raise ClvolError(f"unknown render option {name!r} (method {method!r} takes "
+            import difflib
+            close = difflib.get_close_matches(name, list(known), n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise ClvolError(f"unknown render option {name!r}: {hint}(method {method!r} takes "
                              f"{', '.join(sorted(known))})")
     out = dict(known)
     out.update(given)
