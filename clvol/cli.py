@@ -148,6 +148,10 @@ def _cmd_render(args) -> int:
     tone = args.tone or "filmic"
     configure(device=args.device, profiling=args.profile)
     scene = load_scene(args.scene)
+    over = {k: v for k, v in (("camera.width", args.width), ("camera.height", args.height))
+            if v is not None}
+    if over:             # checked like the scene file's own fields (range, type)
+        scene = scene.with_overrides(over, source=str(args.scene))
     renderer = Renderer(scene, args.method, **given_options(args, list(METHODS)))
     result = renderer.render()
     if args.profile:
@@ -161,8 +165,9 @@ def _cmd_render(args) -> int:
         how = "chosen from the image" if args.exposure is None else "given"
         print(f"wrote {png} (exposure {used:+.2f} stops, {how}; {tone} tone curve)",
               file=sys.stderr)
-    for key, value in result.header.items():
-        print(f"  {key}: {value}", file=sys.stderr)
+    if not args.quiet:
+        for key, value in result.header.items():
+            print(f"  {key}: {value}", file=sys.stderr)
     return 0
 
 
@@ -307,6 +312,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "(clamp to [0, 1], then sRGB)")
     p.add_argument("--device", help="OpenCL device: P:D, gpu, cpu or a name substring")
     p.add_argument("--profile", action="store_true", help="print per-kernel device times")
+    p.add_argument("--width", type=int, default=None, help="override the camera's width")
+    p.add_argument("--height", type=int, default=None, help="override the camera's height")
+    p.add_argument("--quiet", action="store_true",
+                   help="print only the files written, not the render summary")
     # Each method's options, bound to it: one the chosen method does not use is refused.
     add_cli_arguments(p, list(available_methods()))
     p.set_defaults(func=_cmd_render)

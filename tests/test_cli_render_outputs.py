@@ -41,3 +41,13 @@ def test_exr_and_preview_are_both_written_once(tmp_path):
     assert (tmp_path / "x.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     wrote = [l for l in err.splitlines() if l.startswith("wrote ")]
     assert [w.split()[1] for w in wrote] == ["x.exr", "x.png"]
+
+
+def test_width_height_and_quiet(tmp_path):
+    rc, err = _render(tmp_path, "-o", "x.exr", "--width", "7", "--height", "5", "--quiet")
+    assert rc == 0, err
+    from clvol.image import read_exr
+    assert read_exr(tmp_path / "x.exr").rgb.shape == (5, 7, 3)
+    assert err.strip().splitlines() == ["wrote x.exr"]                      # no summary
+    rc, err = _render(tmp_path, "-o", "y.exr", "--width", "0")
+    assert rc == 2 and "width" in err and len(err.strip().splitlines()) == 1
