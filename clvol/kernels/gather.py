@@ -101,6 +101,7 @@ class BakedGrid:
     c_out: float
 
 
+GATHER_LOCAL = 64         # work-items per group of the gather on CPU devices (see its launch)
 MIN_ROW_LEVEL = 16        # levels at least this wide are baked by rows of 16 (bake_rows)
 BAKE_SPAN = 64            # voxels of a row per bake_rows work-item (cl/gather.cl BAKE_SPAN)
 MAX_RENDER_FLOATS = 2**31 - 1   # the render kernel indexes the (tau, C) pairs with int
@@ -354,14 +355,18 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
         feats = _reused(pyramid, "gather_features", n * 3 * NP)
         tenter = _reused(pyramid, "gather_t_enter", n)
     if n:
-        rt.launch(k, n, (pyramid.buffer, graded.buffer, baked_buf, st["loff"], np.int32(L),
-                         np.int32(pyramid.base_resolution), f4(pyramid.cube_min),
-                         np.float32(pyramid.cube_size), taufac, st["tpl"], st["pinfo"], st["hl"],
-                         rt.to_device(ptab), np.int32(ptab.shape[0]), rt.to_device(pts),
-                         rt.to_device(om), f4(l), lg, lw, np.float32(c_out),
-                         rt.to_device(query_order(pyramid, pts) if sort else
-                                      np.arange(n, dtype=np.int32)), np.int32(n), feats,
-                         levels, tenter))
+        # A fixed local size: with a NULL one PoCL picks a group size from the global size
+        # and compiles the kernel anew for each size it picks (~0.4 s each on the 2-core CPU),
+        # which a query count that changes every frame (the view-space source) hit each frame.
+        args = (pyramid.buffer, graded.buffer, baked_buf, st["loff"], np.int32(L),
+                np.int32(pyramid.base_resolution), f4(pyramid.cube_min),
+                np.float32(pyramid.cube_size), taufac, st["tpl"], st["pinfo"], st["hl"],
+                rt.to_device(ptab), np.int32(ptab.shape[0]), rt.to_device(pts),
+                rt.to_device(om), f4(l), lg, lw, np.float32(c_out),
+                rt.to_device(query_order(pyramid, pts) if sort else
+                             np.arange(n, dtype=np.int32)), np.int32(n), feats, levels, tenter)
+        rt.launch(k, n, args, local_size=(GATHER_LOCAL,) if rt.entry.kind == "cpu" else None,
+                  pad=GATHER_LOCAL)
     if as_buffers:
         return {"features": feats, "config": rt.to_device(cfg), "t_enter": tenter, "n": n}
     out = {"features": rt.from_device(feats, (n, 3, NP)), "config": cfg}
