@@ -403,6 +403,13 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
     d.execute_script("window.clvol.socket.send('{oops');")
     _wait(d, lambda: any("error" in e for e in d.execute_script("return window.clvol.errors")),
           "the error reply")
+    # The message box wraps a long unbroken message (the reply echoes the unknown type)
+    # instead of scrolling sideways.
+    d.execute_script("window.clvol.socket.send(JSON.stringify({type: 'x'.repeat(300)}));")
+    _wait(d, lambda: any("xxxxxxxxxx" in e for e in d.execute_script("return window.clvol.errors")),
+          "the long error reply")
+    assert d.execute_script("const m = document.getElementById('messages');"
+                            "return m.scrollWidth <= m.clientWidth + 1")
     n = _frames(d)
     d.execute_script("const s = document.getElementById('g'); s.value = 0.2;"
                      "s.dispatchEvent(new Event('input'));")
