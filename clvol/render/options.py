@@ -24,6 +24,12 @@ def flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
+def option_label(name: str) -> str:
+    """How a message names an option for both of its spellings: ``spp (--spp)`` (the
+    Renderer keyword, then the CLI flag)."""
+    return f"{name} ({flag(name)})"
+
+
 class _Recorder:
     """Stands in for an argparse group: records each option's flags and keywords."""
 
@@ -67,7 +73,7 @@ def bind(method: str, given: dict) -> dict:
         if name not in known:
             users = [m for m in METHODS if name in method_options(m)]
             if users:
-                raise ClvolError(f"option {flag(name)} is not used by method {method!r} "
+                raise ClvolError(f"option {option_label(name)} is not used by method {method!r} "
                                  f"(it is an option of {', '.join(users)})")
             import difflib
             close = difflib.get_close_matches(name, list(known), n=1)

@@ -33,7 +33,7 @@ import numpy as np
 from ..errors import ClvolError
 from ..runtime import Stopwatch, get_runtime
 from . import RenderResult, method_module
-from .options import DEFAULT_METHOD, bind, flag
+from .options import DEFAULT_METHOD, bind, option_label
 
 
 def _check_arg(value, cls, name):
@@ -118,7 +118,8 @@ class Renderer:
         for name in given:
             owners = [n for n, cls in source_classes().items() if name in cls.options]
             if owners and ms not in owners:
-                raise ClvolError(f"option {flag(name)} is used only with --ms {owners[0]} "
+                raise ClvolError(f"option {option_label(name)} is used only with --ms "
+                                 f"{' or '.join(owners)} "
                                  f"(method 'raymarch' with --ms {ms} does not read it)")
         check_march_options(o["step"], o["threshold"], o["light_resolution"], o["supersample"],
                             o["light_interp"])
