@@ -150,6 +150,31 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
     assert {(s, tuple(sorted(o))) for s, o in built} == recorded
 
 
+def test_c_render_matches_python_on_a_non_cubic_volume_and_image(host, tmp_path):
+    """nx, ny, nz all different (and a box to match) and a wide image: a swap of nx and ny,
+    or of width and height, in the C host's arguments shows here (every example is cubic and
+    square)."""
+    from clvol.volume.generators import generate
+    g = generate("cloud", seed=5, resolution=24)
+    dens = np.ascontiguousarray(g.density[2:22, 5:19, :])          # (nz, ny, nx) = (20, 14, 24)
+    np.savez(tmp_path / "v.npz", density=dens, bbox_min=np.array([-0.6, -0.35, -0.5]),
+             bbox_max=np.array([0.6, 0.35, 0.5]))
+    (tmp_path / "s.toml").write_text(
+        '[volume]\nfile = "v.npz"\n[medium]\npreset = "cloud"\ndensity_scale = 40.0\n'
+        '[light]\ndirection = [0.5, 0.8, 0.3]\n'
+        '[camera]\norigin = [0.4, 0.3, 2.0]\ntarget = [0.0, 0.0, 0.0]\nfov_y = 40.0\n'
+        'width = 40\nheight = 24\n')
+    scene = load_scene(tmp_path / "s.toml")
+    bundle = write_bundle(scene, tmp_path / "b", ms_resolution=MS_RES)
+    r = run([host / "clvol-render", bundle, tmp_path / "c.pfm"])
+    assert r.returncode == 0, r.stderr
+    got = read_pfm(tmp_path / "c.pfm")
+    want = Renderer(scene, "raymarch", ms_resolution=MS_RES).render().layers["total"]
+    assert got.shape == want.shape == (24, 40, 3) and want.max() > 0
+    rel = np.sqrt(np.mean((got - want) ** 2)) / np.sqrt(np.mean(want ** 2))
+    assert rel <= 1e-3, f"relative RMS difference C vs Python {rel:.3g}"
+
+
 def tiny_bundle(tmp_path) -> Path:
     scene = load_scene(ROOT / "examples" / "jade.toml").with_overrides(
         {"volume.resolution": 12, "camera.width": 8, "camera.height": 8})
