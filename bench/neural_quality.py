@@ -276,13 +276,18 @@ def median_time(fn, n: int = 3):
 
 
 def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
-                   pt_lattice: int = 0, pt_view: int = 0, view_block=None) -> dict:
+                   pt_lattice: int = 0, pt_view: int = 0, view_block=None,
+                   view_supersample=None) -> dict:
     """{method: (image, seconds, spp or None)} for METHODS, each warmed up once untimed.
     ``ms_resolution``: the network's F_ms lattice (None: the renderer's default);
     ``pt_lattice`` > 0: also "pt_lattice", that lattice filled by point queries;
     ``pt_view`` > 0: also "pt_view", the view-space table filled by point queries;
-    ``view_block``: the view-space source's block (None: the renderer's default)."""
+    ``view_block``: the view-space source's block (None: the renderer's default);
+    ``view_supersample``: rays per pixel side of the view and pt_view rows (blocks are then in
+    sub-pixels)."""
     vkw = {} if view_block is None else {"view_block": view_block}
+    if view_supersample is not None:
+        vkw["supersample"] = view_supersample
     out = {}
     if pt_view:
         from clvol.render.pathtrace import point_query
@@ -415,6 +420,10 @@ def main(argv=None) -> int:
     ap.add_argument("--view-block", type=int, default=None,
                     help="the view-space source's block side in pixels (rows view and pt_view; "
                          "default: the renderer's)")
+    ap.add_argument("--view-supersample", type=int, default=None, metavar="S",
+                    help="S x S rays per pixel for the rows view and pt_view (--view-block then "
+                         "counts sub-pixels): separates the representation from pixel-centre "
+                         "sampling, since the references average each pixel's area")
     ap.add_argument("--ms-resolution", type=int, default=None,
                     help="the network's F_ms lattice (default: the renderer's); the target is "
                          "judged at the default, other values show what the lattice costs")
@@ -468,7 +477,8 @@ def run(args) -> int:
         if args.refs_only:
             continue
         renders = render_methods(scene, grid, weights, args.repeats, args.ms_resolution,
-                                 args.pt_lattice, args.pt_view, args.view_block)
+                                 args.pt_lattice, args.pt_view, args.view_block,
+                                 args.view_supersample)
         floor_flip = flip(h1, h2)
         methods = (METHODS + (("pt_lattice",) if args.pt_lattice else ())
                    + (("pt_view",) if args.pt_view else ()))
