@@ -25,7 +25,8 @@ from .sources import MsPlan, register
 
 DEFAULT_VIEW_BLOCK = 4     # pixels per block side
 DEFAULT_VIEW_KNOTS = 4     # query depths per block
-VIEW_RAYS = 2              # sample rays per block side for the depth quantiles
+VIEW_RAYS = 2              # sample rays per block side for the depth quantiles (at most
+                           # one per pixel: a 1-pixel block gets one ray)
 # The depth pass marches at this many march steps per segment: its cost is linear in it
 # (25 ms at 1, 13 ms at 2 for 256^2 and the 96^3 cloud on the 2-core CPU), and a quantile
 # needs less resolution than the image's integral.
@@ -110,7 +111,8 @@ class ViewMs(NetworkMs):
             depths, _ = view_depths(density, frame.grid.bbox_min, frame.grid.bbox_max,
                                     m.density_scale, cam.origin, fwd, right, up,
                                     cam.tan_half_fov, cam.width, cam.height, self.block,
-                                    VIEW_RAYS, self.knots, VIEW_STEP_FACTOR * frame.step,
+                                    min(VIEW_RAYS, self.block), self.knots,
+                                    VIEW_STEP_FACTOR * frame.step,
                                     frame.threshold,
                                     runtime=rt)
         t_depths = sw.seconds
