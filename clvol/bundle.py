@@ -75,7 +75,7 @@ def program_options(stem: str, defines: dict) -> str:
 def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
                  threshold=None, block=None, light_resolution=None,
                  light_interp: str = "transmittance", skip_empty: bool = True,
-                 runtime=None) -> Path:
+                 runtime=None, octaves=None) -> Path:
     """Write the bundle of ``scene`` (a clvol Scene) as ``clvol render`` renders it by default
     (--method raymarch --ms network, with its domain fallback and shortcuts) with these
     options (None: the renderer's defaults). Returns DIR.
@@ -83,7 +83,9 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     The options, the source actually used (the network, or the analytic source the renderer
     falls back to: none or wrenninge), the kernel defines and the lattice points the network
     evaluates are all taken from a ``clvol.Renderer`` built for the scene; nothing is
-    rendered. ``runtime``: the OpenCL runtime it is built on (default: clvol's)."""
+    rendered. ``runtime``: the OpenCL runtime it is built on (default: clvol's).
+    ``octaves``: an ``Octaves`` for the Wrenninge fallback (default the renderer's: 3 octaves,
+    a = b = c = 0.5); used only where the renderer falls back to it."""
     from .kernels import gather as kg
     from .kernels import mlp as km
     from .kernels import pyramid as kp
@@ -127,6 +129,9 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     # runs the network, none and wrenninge; another source is refused by name.
     lit = is_lit(medium, light)
     source, _ = r.active_source(medium)
+    if octaves is not None and source.name == "wrenninge":
+        from .render.sources import OctavesMs
+        source = OctavesMs(octaves)
     network = isinstance(source, NetworkMs)
     if lit and not network and source.name not in ("none", "wrenninge"):
         raise ClvolError(f"{scene.path or 'scene'}: the renderer would use --ms {source.name} "
