@@ -1,7 +1,7 @@
 """NumPy twin of cl/gather.cl: the template gather (clvol/neural/layout.py is the contract).
 
 Written independently of the kernel's loop structure, in float64:
-- frame from clvol.neural.templates.template_frame;
+- frame, coarse level and highlight levels from this module's own definitions (from the docs);
 - t_enter by slab-testing the ray p + t l against every non-empty cell of the coarse level and
   taking the largest exit parameter (no DDA);
 - density and graded levels by explicit trilinear weights over the level's voxel centres
@@ -15,10 +15,52 @@ base_resolution, n_levels, cube_min, cube_size, level_offsets, data works, e.g. 
 """
 import numpy as np
 
-from clvol.kernels.gather import coarse_level
 from clvol.neural import phasetable
-from clvol.neural.templates import level_for_spacing, load_templates, template_frame
+from clvol.neural.templates import load_templates
 from reference.grid import grid_lookup
+
+# Written here from docs/templates.md and docs/conventions.md, not imported from the code the
+# twin checks (a shared helper's mistake would pass both).
+COARSE_CELLS = 32          # t_enter's level: the finest with at most 32^3 cells
+FRAME_EPS = 1e-4           # |omega x l| below this: the frame's fallback axis
+
+
+def coarse_level(base_resolution):
+    """The pyramid level with at most COARSE_CELLS cells a side: base / 2^level <= 32."""
+    level = 0
+    while (base_resolution >> level) > COARSE_CELLS:
+        level += 1
+    return level
+
+
+def level_for_spacing(spacing_voxels, base_resolution):
+    """The level whose voxel is nearest the spacing in log2: round(log2(s)) (halves up),
+    clamped to the pyramid's levels 0 .. log2(base); spacing 0 reads level 0."""
+    top = int(round(np.log2(base_resolution)))
+    s = np.asarray(spacing_voxels, np.float64)
+    out = np.zeros(s.shape, np.int64)
+    pos = s > 0
+    out[pos] = np.floor(np.log2(s[pos]) + 0.5)
+    return np.clip(out, 0, top)
+
+
+def template_frame(light_dir, omega):
+    """z = l; x = omega's part perpendicular to l, normalised; y = z cross x. Where omega is
+    (nearly) parallel to l, x comes from the world axis least aligned with l (lowest index on
+    ties) instead (docs/conventions.md, "Template frame")."""
+    l = np.broadcast_to(np.asarray(light_dir, np.float64), np.shape(omega))
+    w = np.asarray(omega, np.float64)
+    x = np.empty_like(w)
+    for i in np.ndindex(w.shape[:-1]):
+        li, wi = l[i], w[i]
+        if np.linalg.norm(np.cross(wi, li)) < FRAME_EPS:
+            e = np.zeros(3)
+            e[int(np.argmin(np.abs(li)))] = 1.0
+            v = e - np.dot(e, li) * li
+        else:
+            v = wi - np.dot(wi, li) * li
+        x[i] = v / np.linalg.norm(v)
+    return x, np.cross(l, x), l
 
 
 def level_array(pyr, data, level):
