@@ -125,7 +125,7 @@ class ViewState:
         names = {f.name for f in dataclasses.fields(self)}
         for key, value in changes.items():
             if key not in names:
-                raise ViewerMessageError(f"{key}: unknown field; allowed: {', '.join(sorted(names))}")
+                raise ViewerMessageError(f"{key!r}: unknown field; allowed: {', '.join(sorted(names))}")
             setattr(new, key, _check_field(key, value))
         if "preset" in changes and new.preset is not None and not (
                 {"albedo", "g"} & changes.keys()):
@@ -184,7 +184,7 @@ def _check_field(key: str, value):
     if key in LIMITS:
         return _number(key, value)
     if key == "method":
-        if value not in METHODS:
+        if not isinstance(value, str) or value not in METHODS:
             raise ViewerMessageError(f"method: {value!r} is not one of {', '.join(METHODS)}")
         return value
     if key == "resolution":
@@ -192,7 +192,8 @@ def _check_field(key: str, value):
             raise ViewerMessageError(f"resolution: {value!r} is not one of {RESOLUTIONS}")
         return int(value)
     if key == "preset":
-        if value is not None and value not in PRESETS:
+        # a str first: a list or dict would raise TypeError in the dict lookup (fuzzing)
+        if value is not None and (not isinstance(value, str) or value not in PRESETS):
             raise ViewerMessageError(f"preset: {value!r} is not one of {', '.join(PRESETS)}")
         return value
     raise ViewerMessageError(f"{key}: unknown field")

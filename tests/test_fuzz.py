@@ -1,0 +1,190 @@
+"""Fuzzing with hypothesis: the scene parser, the volume readers and the viewer's messages
+get structured and mutated input. Every input must end either in a valid result or in a
+ClvolError whose message is one line (what `clvol` prints with exit 2); any other exception,
+a NaN in an accepted volume or a multi-line message is a bug.
+
+The budget is seeded (``derandomize``: the same examples every run, so a failure reproduces)
+and small enough for CI: 600 examples per test, ~20 s for the file on the 2-core machine. A long run:
+``CLVOL_FUZZ_EXAMPLES=20000 python -m pytest tests/test_fuzz.py`` (docs/testing.md).
+"""
+from __future__ import annotations
+
+import os
+import struct
+
+import numpy as np
+import pytest
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from clvol.errors import ClvolError  # noqa: E402
+
+EXAMPLES = int(os.environ.get("CLVOL_FUZZ_EXAMPLES", "600"))
+FUZZ = settings(max_examples=EXAMPLES, derandomize=True, deadline=None,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+
+
+def _one_line(exc: ClvolError) -> None:
+    msg = str(exc)
+    assert msg and "\n" not in msg.strip(), f"multi-line error: {msg!r}"
+
+
+# ----------------------------------------------------------------- scene parser
+
+SCALARS = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12),
+                    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=12))
+VALUES = st.recursive(SCALARS, lambda inner: st.one_of(st.lists(inner, max_size=4),
+                                                       st.dictionaries(st.text(max_size=8), inner,
+                                                                       max_size=3)),
+                      max_leaves=8)
+VALID = {
+    "volume": {"generator": st.sampled_from(["cloud", "sphere", "smoke", "nope", ""]),
+               "resolution": st.one_of(st.integers(-4, 24), VALUES), "seed": VALUES,
+               "params": VALUES},
+    "medium": {"preset": st.sampled_from(["cloud", "jade", "milk", "x"]),
+               "density_scale": st.one_of(st.floats(-10, 100), VALUES),
+               "albedo": st.one_of(st.lists(st.floats(-1, 2), min_size=0, max_size=4), VALUES),
+               "phase": st.one_of(st.fixed_dictionaries({"type": st.just("hg"),
+                                                         "g": st.floats(-2, 2)}), VALUES)},
+    "light": {"direction": st.one_of(st.lists(st.floats(-2, 2), max_size=4), VALUES),
+              "irradiance": VALUES, "environment": VALUES},
+    "camera": {"origin": st.lists(st.floats(-5, 5), max_size=4), "target": VALUES,
+               "fov_y": st.one_of(st.floats(-10, 200), VALUES),
+               "width": st.one_of(st.integers(-2, 16), VALUES), "height": VALUES, "up": VALUES},
+}
+
+
+@st.composite
+def scene_dicts(draw):
+    out = {}
+    for table, fields in VALID.items():
+        if draw(st.booleans()) or table == "volume":
+            keys = draw(st.lists(st.sampled_from(sorted(fields)), unique=True, max_size=len(fields)))
+            out[table] = {k: draw(fields[k]) for k in keys}
+            if draw(st.integers(0, 9)) == 0:
+                out[table][draw(st.text(max_size=6))] = draw(VALUES)   # an unknown key
+    if draw(st.integers(0, 9)) == 0:
+        out[draw(st.text(max_size=6))] = draw(VALUES)                 # an unknown table
+    return out
+
+
+@FUZZ
+@given(scene_dicts())
+def test_scene_dicts_parse_or_fail_in_one_line(data):
+    from clvol.scene import scene_from_dict
+    try:
+        scene_from_dict(data, "<fuzz>")
+    except ClvolError as exc:
+        _one_line(exc)
+
+
+@FUZZ
+@given(st.text(max_size=300))
+def test_scene_text_parses_or_fails_in_one_line(tmp_path_factory, text):
+    from clvol.scene import load_scene
+    path = tmp_path_factory.mktemp("toml") / "s.toml"
+    path.write_text(text, encoding="utf-8")
+    try:
+        load_scene(path)
+    except ClvolError as exc:
+        _one_line(exc)
+
+
+# ----------------------------------------------------------------- volume readers
+
+def _real_files(folder):
+    from clvol.volume.grid import Grid
+    from clvol.volume.io import write_volume
+    rng = np.random.default_rng(0)
+    d = (rng.random((5, 4, 6)) * (rng.random((5, 4, 6)) > 0.3)).astype(np.float32)
+    g = Grid(d, np.array([-0.6, -0.4, -0.5]), np.array([0.6, 0.4, 0.5]))    # cubic voxels (.vdb)
+    out = {}
+    for ext in (".vol", ".npz", ".npy"):
+        p = folder / f"v{ext}"
+        # .npy stores no box: write it with the default one
+        write_volume(p, g if ext != ".npy" else Grid(d, np.full(3, -0.5), np.full(3, 0.5)))
+        out[ext] = p.read_bytes()
+    from clvol.volume.vdb import write_vdb
+    write_vdb(folder / "v.vdb", g)
+    out[".vdb"] = (folder / "v.vdb").read_bytes()
+    return out
+
+
+_REAL = {}
+
+
+def real_volume_bytes(tmp_path_factory):
+    """The real files' bytes, made once (kept out of hypothesis' arguments, so that a
+    falsifying example prints the mutation, not the file)."""
+    if not _REAL:
+        _REAL.update(_real_files(tmp_path_factory.mktemp("vols")))
+    return _REAL
+
+
+MUTATIONS = st.lists(st.tuples(st.sampled_from(["flip", "cut", "insert", "word"]),
+                               st.floats(0, 1), st.integers(0, 2**32 - 1)), min_size=1, max_size=4)
+
+
+def _mutate(data: bytes, ops) -> bytes:
+    b = bytearray(data)
+    for op, where, value in ops:
+        i = min(int(where * len(b)), max(len(b) - 1, 0))
+        if op == "flip" and b:
+            b[i] ^= 1 << (value % 8)
+        elif op == "cut":
+            del b[i:]
+        elif op == "insert":
+            b[i:i] = bytes([value % 256]) * (1 + value % 7)
+        elif op == "word" and len(b) >= i + 4:
+            b[i:i + 4] = struct.pack("<I", value)          # sizes, counts, offsets
+    return bytes(b)
+
+
+@pytest.mark.parametrize("ext", [".vol", ".npz", ".npy", ".vdb"])
+@FUZZ
+@given(ops=MUTATIONS)
+def test_mutated_volume_files_read_or_fail_in_one_line(tmp_path_factory, ext, ops):
+    from clvol.volume.io import read_volume
+    real = real_volume_bytes(tmp_path_factory)
+    assert ext in real
+    path = tmp_path_factory.mktemp("mut") / f"m{ext}"
+    path.write_bytes(_mutate(real[ext], ops))
+    try:
+        g = read_volume(path, max_bytes=1 << 26) if ext == ".vdb" else read_volume(path)
+    except ClvolError as exc:
+        _one_line(exc)
+        return
+    d = np.asarray(g.density)
+    assert d.ndim == 3 and np.isfinite(d).all() and (d >= 0).all()
+
+
+# ----------------------------------------------------------------- viewer messages
+
+@pytest.fixture(scope="module")
+def view_state():
+    from clvol.scene import load_scene
+    from clvol.viewer.state import ViewState
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    return ViewState.from_scene(load_scene(root / "tests" / "data" / "scenes" / "cloud.toml"))
+
+
+FIELDS = ["azimuth", "elevation", "distance", "sun_azimuth", "sun_elevation", "albedo", "g",
+          "density_scale", "resolution", "preset", "method", "exposure", "nope"]
+
+
+@FUZZ
+@given(st.one_of(VALUES, st.dictionaries(st.sampled_from(FIELDS), VALUES, max_size=5)))
+def test_viewer_state_messages_apply_or_fail_in_one_line(view_state, changes):
+    from clvol.viewer.state import ViewerMessageError
+    try:
+        new = view_state.update(changes)
+    except ViewerMessageError as exc:
+        _one_line(exc)
+        return
+    for v in new.to_json().values():       # an accepted state holds finite numbers only
+        for x in (v if isinstance(v, (list, tuple)) else [v]):
+            if isinstance(x, float):
+                assert np.isfinite(x)
