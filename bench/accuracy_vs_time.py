@@ -16,6 +16,9 @@ untimed run at the smallest setting):
                        march; light update = graded transmittance + gather + network fill + the
                        light field (the lattice depends on the camera too: a camera move costs
                        the gather + network part again)
+  raymarch/view        + the same network at the camera's view (--ms view), blocks of 4, 2 and
+                       1 pixels: frame = the march; light update = light field + query depths +
+                       gather + network (a camera move costs the same)
 Times: "frame" is what one more image costs (the march for the ray marcher; the whole render
 for the path tracer), "light update" what a light change costs once (the light field, and the
 lattice fill for the grid source). Errors: the MRPNN metric (RMSE x 100 of tonemapped 8-bit luminance), relMSE and RMSE against the
@@ -167,6 +170,26 @@ def main(argv=None) -> int:
             record("raymarch/network", f"{lattice}^3 lattice", layers, s, light_s + fill_s)
             print(f"{'':21}(light update: light field {light_s:.3f} s, graded T {info['light']:.3f} s, "
                   f"gather {info['gather']:.3f} s, network {info['network']:.3f} s)")
+        # The same network queried where the camera sees (clvol/render/view.py): per block of
+        # pixels. An unchanged view costs the march; a light (or camera) change costs the light
+        # field, the query depths, the gather and the network (from the render's header).
+        import dataclasses
+        from clvol.render.renderer import Renderer
+        for block in ((4,) if args.quick else (4, 2, 1)):
+            r = Renderer(scene, "raymarch", grid=grid, ms="view", view_block=block,
+                         weights=args.weights)
+            moved = dataclasses.replace(scene.light, direction=tuple(unit_other))
+            r.render(light=moved)                       # compile, untimed
+            updates = []
+            for _ in range(3):                          # a light change each way, best of 3
+                r.render(light=moved)
+                h = r.render().header
+                updates.append(sum(float(h.get(k, 0.0)) for k in (
+                    "seconds.light_field", "seconds.graded_transmittance", "seconds.view_depths",
+                    "seconds.gather", "seconds.network")))
+            res, _ = best_of(3, r.render)               # unchanged: the march
+            record("raymarch/view", f"block {block}", res.layers,
+                   float(res.header["seconds.march"]), min(updates))
     elif args.weights:
         print(f"raymarch/network skipped: no weight file {args.weights}")
 
@@ -199,7 +222,7 @@ def svg_plot(rows, title: str, w: int = 640, h: int = 420) -> str:
 
     colours = {"pathtrace": "#1f77b4", "raymarch/none": "#7f7f7f",
                "raymarch/wrenninge": "#ff7f0e", "raymarch/grid": "#2ca02c",
-               "raymarch/network": "#d62728"}
+               "raymarch/network": "#d62728", "raymarch/view": "#9467bd"}
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" '
            f'font-family="sans-serif" font-size="11">',
            f'<rect width="{w}" height="{h}" fill="white"/>',

@@ -240,6 +240,30 @@ def test_bad_bundle_exits_nonzero_with_a_message(host, tmp_path):
     assert r.returncode == 1 and "density.f32: 12 bytes, expected 6912" in r.stderr
 
 
+@pytest.mark.parametrize("mutation, message", [
+    (("manifest", "host.pad = ", "0"), "host.pad = 0: must be in [1, 1024]"),
+    (("manifest", "host.pad = ", "-1"), "host.pad = -1: must be in [1, 1024]"),
+    (("flip", "pinfo.i32", 0.21875), "gather.pinfo["),
+])
+def test_fuzz_found_bundles_are_refused(host, tmp_path, mutation, message):
+    """Regression cases the bundle fuzzing below found: a zero work-size padding (division by
+    zero in the host) and a bit-flipped template level (the gather kernel read outside its
+    buffers and crashed)."""
+    b = tiny_bundle(tmp_path)
+    if mutation[0] == "manifest":
+        mf = b / "manifest.txt"
+        mf.write_text("".join(mutation[1] + mutation[2] + "\n" if l.startswith(mutation[1]) else l
+                              for l in mf.read_text().splitlines(True)))
+    else:
+        f = b / mutation[1]
+        data = bytearray(f.read_bytes())
+        data[int(mutation[2] * len(data))] ^= 0xFF
+        f.write_bytes(bytes(data))
+    env = dict(os.environ, ASAN_OPTIONS="detect_leaks=0:exitcode=23")
+    r = run([host / "clvol-render-asan", b, tmp_path / "t.pfm"], env=env, timeout=120)
+    assert r.returncode == 1 and message in r.stderr, r.stdout + r.stderr
+
+
 def test_mutated_bundles_fail_cleanly_under_asan(host, tmp_path_factory):
     """Fuzzing (hypothesis, seeded): a bundle with one manifest value replaced (junk, huge,
     negative, NaN, empty) or a line dropped, or an array file cut short or bit-flipped, must

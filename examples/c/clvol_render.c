@@ -775,21 +775,30 @@ static void sweep_level(clvol_host *h, cl_mem layout, long s_off, int n, double 
 
 /* ----------------------------------------------------------------------------- setup */
 
+/* mf_int within [lo, hi]: the host constants size buffers and divide work sizes, so a
+ * corrupt one must stop here, not as a division by zero or a kernel reading out of bounds
+ * (both found by fuzzing mutated bundles). */
+static int mf_int_in(const manifest *m, const char *key, int lo, int hi) {
+    int v = mf_int(m, key);
+    if (v < lo || v > hi) fail("%s: %s = %d: must be in [%d, %d]", m->where, key, v, lo, hi);
+    return v;
+}
+
 static void read_host_constants(clvol_host *h) {
     const manifest *m = &h->mf;
-    h->pad = mf_int(m, "host.pad");
-    h->sweep_pad = mf_int(m, "host.sweep_pad");
-    h->sweep_block = mf_int(m, "host.sweep_block");
-    h->sweep_slack = mf_int(m, "host.sweep_slack");
-    h->sweep_group = mf_int(m, "host.sweep_group");
-    h->sweep_vmin = mf_int(m, "host.sweep_vector_min_n");
-    h->bake_min = mf_int(m, "host.bake_min_row_level");
-    h->bake_span = mf_int(m, "host.bake_span");
-    h->bake_pad = mf_int(m, "host.bake_pad");
-    h->sort_bits = mf_int(m, "host.sort_bits");
-    h->mlp_qpi = mf_int(m, "host.mlp_queries_per_item");
-    h->tile = mf_int(m, "host.raymarch_tile");
-    h->rm_local = mf_int(m, "host.raymarch_local_size");
+    h->pad = mf_int_in(m, "host.pad", 1, 1024);
+    h->sweep_pad = mf_int_in(m, "host.sweep_pad", 1, 1024);
+    h->sweep_block = mf_int_in(m, "host.sweep_block", 1, 1024);
+    h->sweep_slack = mf_int_in(m, "host.sweep_slack", 0, 4096);
+    h->sweep_group = mf_int_in(m, "host.sweep_group", 1, 1024);
+    h->sweep_vmin = mf_int_in(m, "host.sweep_vector_min_n", 1, 4096);
+    h->bake_min = mf_int_in(m, "host.bake_min_row_level", 1, 4096);
+    h->bake_span = mf_int_in(m, "host.bake_span", 1, 4096);
+    h->bake_pad = mf_int_in(m, "host.bake_pad", 0, 4096);
+    h->sort_bits = mf_int_in(m, "host.sort_bits", 1, 10);
+    h->mlp_qpi = mf_int_in(m, "host.mlp_queries_per_item", 1, 64);
+    h->tile = mf_int_in(m, "host.raymarch_tile", 1, 16);
+    h->rm_local = mf_int_in(m, "host.raymarch_local_size", 1, 1024);
 }
 
 /* Build the programs and upload everything that depends on the volume only. */
@@ -924,8 +933,25 @@ static void setup_volume(clvol_host *h) {
         float *tpl = read_raw4(h->dir, mf_str(m, "gather.templates"), 3 * (size_t)h->npad);
         int *pinfo = read_raw4(h->dir, mf_str(m, "gather.pinfo"), (size_t)h->npad);
         float *ptab = read_raw4(h->dir, mf_str(m, "gather.phase_table"), (size_t)h->n_alpha * h->npad);
+        /* The gather indexes levels and voxels with these: a level outside the pyramid or a
+         * non-finite position would read outside its buffers (a fuzzed bundle crashed the
+         * kernel that way), so they are checked here. */
+        for (int j = 0; j < h->npad; ++j) {
+            if (pinfo[j] >= h->L || pinfo[j] < -4)
+                fail("%s: gather.pinfo[%d] = %d: must be a level 0..%d or a highlight layer "
+                     "-1..-4", m->where, j, pinfo[j], h->L - 1);
+            for (int a = 0; a < 3; ++a)
+                if (!isfinite(tpl[(size_t)a * h->npad + j]))
+                    fail("%s: gather.templates: point %d is not finite", m->where, j);
+        }
+        for (size_t j = 0; j < (size_t)h->n_alpha * h->npad; ++j)
+            if (!isfinite(ptab[j]))
+                fail("%s: gather.phase_table: entry %zu is not finite", m->where, j);
         double hl[4];
         mf_doubles(m, "gather.hl_spacing", hl, 4);
+        for (int k = 0; k < 4; ++k)
+            if (!(isfinite(hl[k]) && hl[k] >= 0.0))
+                fail("%s: gather.hl_spacing[%d] = %g: must be finite and >= 0", m->where, k, hl[k]);
         float hlf[4] = {(float)hl[0], (float)hl[1], (float)hl[2], (float)hl[3]};
         h->d_tpl = buffer(h, 4 * 3 * (size_t)h->npad, tpl);
         h->d_pinfo = buffer(h, 4 * (size_t)h->npad, pinfo);
