@@ -365,6 +365,9 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
     shot = tmp_path / "page.png"
     d.save_screenshot(str(shot))
     assert shot.stat().st_size > 1000
+    # The frame's figures are above the fold (they sat below it at 1100x750).
+    assert d.execute_script("return document.getElementById('stages')"
+                            ".getBoundingClientRect().top < window.innerHeight / 2")
     lo, hi, digest0, width = d.execute_script(PIXEL_DIGEST_JS)
     assert width == 64 and hi - lo > 20, "the frame is not blank"
 
