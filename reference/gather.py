@@ -6,7 +6,9 @@ Written independently of the kernel's loop structure, in float64:
   taking the largest exit parameter (no DDA);
 - density and graded levels by explicit trilinear weights over the level's voxel centres
   (reference.grid.grid_lookup for the T_m values at those centres);
-- phase at the exact alpha of each query (clvol.neural.phasetable.phase_features), not the alpha table;
+- phase at the exact alpha of each query from the volume phase's Legendre series (``cap_average``),
+  not the kernel's alpha table nor clvol.neural.phasetable's lobe tables;
+- the template table read from its .npz with NumPy (``Templates``), not through clvol's loader;
 - render transmittance as sum_m w_m levels[m] + b (no baked grid);
 - ``baked_grid``: the twin of the bake kernels (gather_bake's definition), by direct trilinear
   lookups of every level at every level's voxel centres (the kernels split them into passes).
@@ -15,9 +17,12 @@ base_resolution, n_levels, cube_min, cube_size, level_offsets, data works, e.g. 
 """
 import numpy as np
 
-from clvol.neural import phasetable
-from clvol.neural.templates import load_templates
+from pathlib import Path
+
 from reference.grid import grid_lookup
+from reference.phase import phase_eval
+
+TEMPLATE_FILE = Path(__file__).resolve().parents[1] / "clvol" / "data" / "templates.npz"
 
 # Written here from docs/templates.md and docs/conventions.md, not imported from the code the
 # twin checks (a shared helper's mistake would pass both).
@@ -63,6 +68,75 @@ def template_frame(light_dir, omega):
     return x, np.cross(l, x), l
 
 
+class Templates:
+    """The packaged template table read with NumPy alone (the data file is the contract;
+    clvol.neural.templates' loader is not used): points (frame units), layer per point,
+    spacing per layer (cube units), cone half-angle per point."""
+
+    def __init__(self, path=TEMPLATE_FILE):
+        with np.load(path, allow_pickle=False) as z:
+            self.points = np.asarray(z["points"], np.float64)
+            self.layer = np.asarray(z["layer"], np.int64)
+            self.spacing = np.asarray(z["spacing"], np.float64)
+            self.half_angle = np.asarray(z["half_angle"], np.float64)
+            self.n_diffuse_layers = int(z["n_diffuse_layers"])
+        self.n_points = len(self.points)
+        self.is_highlight = self.layer >= self.n_diffuse_layers
+
+    def diffuse_levels(self, base_resolution):
+        """Each diffuse layer reads the level whose voxel is nearest its spacing."""
+        return level_for_spacing(self.spacing[:self.n_diffuse_layers] * base_resolution,
+                                 base_resolution)
+
+
+def cap_average(mu, beta, lobes, tol=1e-13):
+    """The volume phase fbar(mu, beta): the phase function averaged over the cap of
+    half-angle beta whose axis makes cosine mu with its argument (docs/templates.md).
+    Evaluated from its Legendre series, independent of the lobe tables: by Funk-Hecke,
+        fbar = sum_l (2l + 1) / (4 pi) g^l c_l(beta) P_l(mu),
+        c_l = (P_{l-1}(cos beta) - P_{l+1}(cos beta)) / ((2l + 1)(1 - cos beta)), c_0 = 1,
+    the cap average of P_l (c_l = 1 at beta = 0), summed until |g|^l < tol, per HG lobe."""
+    mu = np.clip(np.asarray(mu, np.float64), -1.0, 1.0)
+    beta = np.broadcast_to(np.asarray(beta, np.float64), mu.shape)
+    if not lobes:
+        return np.full(mu.shape, 1.0 / (4.0 * np.pi))
+    x0 = np.cos(beta)
+    one_minus = 2.0 * np.sin(beta / 2.0) ** 2          # 1 - cos beta without cancellation
+    cap = one_minus > 0
+    safe = np.where(cap, one_minus, 1.0)
+    out = np.zeros(mu.shape)
+    for g, w in lobes:
+        n_terms = 1 if g == 0 else int(np.ceil(np.log(tol) / np.log(abs(g)))) + 1
+        p_prev, p = np.ones(mu.shape), mu.copy()            # P_0, P_1 at mu
+        q_prev, q = np.ones(mu.shape), x0.copy()            # P_0, P_1 at cos beta
+        q_next = (3 * x0 * q - q_prev) / 2                  # P_2 at cos beta
+        total = np.ones(mu.shape)                           # l = 0: c_0 P_0 = 1
+        for l in range(1, n_terms + 1):
+            c = np.where(cap, (q_prev - q_next) / ((2 * l + 1) * safe), 1.0)
+            total += (2 * l + 1) * g ** l * c * p
+            p_prev, p = p, ((2 * l + 1) * mu * p - l * p_prev) / (l + 1)
+            q_prev, q = q, q_next
+            q_next = ((2 * l + 3) * x0 * q - (l + 1) * q_prev) / (l + 2)
+        out += w * total / (4.0 * np.pi)
+    return out
+
+
+def phase_features(lobes, points, half_angle, alpha):
+    """log1p phase feature per query alpha and template point (seed eq. 5, docs/conventions.md):
+    in the frame omega = (sin alpha, 0, -cos alpha) and light reaches p along d = -u, so
+    fbar(u_z) * fbar(u_z cos alpha - u_x sin alpha); the centre point holds f(cos alpha)."""
+    alpha = np.atleast_1d(np.asarray(alpha, np.float64))[:, None]
+    r = np.linalg.norm(points, axis=1)
+    u = points / np.where(r > 0, r, 1.0)[:, None]
+    mu_in = np.broadcast_to(u[None, :, 2], (alpha.shape[0], len(u)))
+    mu_out = u[None, :, 2] * np.cos(alpha) - u[None, :, 0] * np.sin(alpha)
+    feat = cap_average(mu_in, half_angle[None, :], lobes) * cap_average(mu_out, half_angle[None, :],
+                                                                        lobes)
+    centre = r == 0
+    feat[:, centre] = phase_eval(np.cos(alpha), list(lobes))
+    return np.log1p(feat)
+
+
 def level_array(pyr, data, level):
     n = pyr.base_resolution >> level
     off = int(pyr.level_offsets[level])
@@ -104,7 +178,7 @@ def _corners(g, n):
 def gather(pyr, graded_data, points, omegas, light_dir, lobes, density_scale, mode="train",
            level_weights=None, bias=0.0):
     """Returns dict(features [N][3][NP], levels [N][L][NP] (train), t_enter [N], level [N][NP])."""
-    tpl = load_templates()
+    tpl = Templates()
     pts = np.asarray(points, np.float64)
     om = np.asarray(omegas, np.float64)
     l = np.asarray(light_dir, np.float64)
@@ -152,8 +226,7 @@ def gather(pyr, graded_data, points, omegas, light_dir, lobes, density_scale, mo
     if level_weights is not None:
         feats[:, 1] = np.einsum("l,nlj->nj", np.asarray(level_weights, np.float64), levels) + bias
     alpha = np.arccos(np.clip(-(om @ l), -1.0, 1.0))
-    vp = phasetable.volume_phase(lobes)
-    feats[:, 2] = phasetable.phase_features(vp, tpl.points, tpl.half_angle, alpha)
+    feats[:, 2] = phase_features(tuple(lobes or ()), tpl.points, tpl.half_angle, alpha)
     out = {"features": feats, "t_enter": t_enter, "level": lvl, "alpha": alpha}
     if mode == "train":
         out["levels"] = levels

@@ -19,9 +19,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from clvol.neural import layout
-from clvol.neural.export import GAMMA, TEMPLATES, TYPES, Architecture
+from clvol.neural import layout      # the feature contract: constants only
 
+# Written here from the seed and docs/network.md, not imported from clvol/neural/export.py (the
+# code the twin checks): the output encoding's gamma (seed eq. 20), the template order of the
+# modules, the albedo input's offset. ``arch`` is read as data only (its fields: layer_counts,
+# n_diffuse_layers, head_widths, albedo_input); the slicing is derived here.
+GAMMA = 4.0
+TEMPLATES = ("diffuse", "highlight")
+TYPES = layout.FEATURE_TYPES
+ALBEDO_EPS = 1e-4
 G_MEAN = layout.CONFIG_FIELDS.index("g_mean")
 ALBEDO = layout.CONFIG_FIELDS.index("albedo")
 ALPHA = layout.CONFIG_FIELDS.index("alpha")
@@ -58,18 +65,29 @@ def combine_levels(params, levels, dtype=np.float64):
     return np.einsum("nlp,l->np", np.asarray(levels, dtype), w) + b
 
 
+def layer_slices(arch) -> list:
+    """Point ranges of the template layers, in order (diffuse layers first)."""
+    ends = np.cumsum([0] + [int(n) for n in arch.layer_counts])
+    return [slice(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:])]
+
+
+def template_layer_slices(arch, template) -> list:
+    sl, nd = layer_slices(arch), int(arch.n_diffuse_layers)
+    return sl[:nd] if template == "diffuse" else sl[nd:]
+
+
 def squeeze(x, c, arch):
     """The seed's v_k per template layer: [N][n_layers][8] = (mean_d, mean_T, mean_p, max_d,
     max_T, max_p, g_mean, alpha) of the normalised inputs."""
     v = []
-    for sl in arch.layer_slices():
+    for sl in layer_slices(arch):
         part = x[:, :, sl]
         v.append(np.concatenate([part.mean(axis=2), part.max(axis=2),
                                  c[:, [G_MEAN]], c[:, [ALPHA]]], axis=1))
     return np.stack(v, axis=1)
 
 
-def forward(params: dict, arch: Architecture, features, config, levels=None,
+def forward(params: dict, arch, features, config, levels=None,
             dtype=np.float64, trace: dict | None = None) -> np.ndarray:
     """y [N] for features [N][3][P], config [N][9] (and optionally levels [N][L][P]).
     ``trace``, if a dict, receives the fraction of positive outputs of every ReLU layer."""
@@ -80,7 +98,7 @@ def forward(params: dict, arch: Architecture, features, config, levels=None,
         x[:, TYPES.index("transmittance"), :] = combine_levels(params, levels, dtype)
     c = np.array(config, dtype)
     if arch.albedo_input == "log1m":      # -log(1 - a + 1e-4): docs/network.md
-        c[:, ALBEDO] = -np.log1p(1e-4 - c[:, ALBEDO])
+        c[:, ALBEDO] = -np.log1p(ALBEDO_EPS - c[:, ALBEDO])
     x = (x - p["feature_shift"][None, :, None]) * p["feature_scale"][None, :, None]
     c = (c - p["config_shift"]) * p["config_scale"]
     v = squeeze(x, c, arch)
@@ -89,7 +107,7 @@ def forward(params: dict, arch: Architecture, features, config, levels=None,
         outs = []
         for s in TEMPLATES:
             pre = f"branches.{t}.{s}"
-            slices = arch.template_layer_slices(s)
+            slices = template_layer_slices(arch, s)
             first = 0 if s == "diffuse" else arch.n_diffuse_layers
             h = x[:, ti, slices[0]]
             for k, sl in enumerate(slices):
@@ -160,13 +178,14 @@ def config_rows(lobes, albedo, alpha) -> np.ndarray:
     return c
 
 
-def random_inputs(n: int, rng: np.random.Generator, arch: Architecture | None = None,
+def random_inputs(n: int, rng: np.random.Generator, arch=None,
                   lobes=((0.857, 1.0),), albedo=None, levels: bool = False):
     """Random inputs in the ranges real features take: density log1p(tau) in [0, 3], T in
     [0, 1], phase log1p(f f*) in [0, 4]; alpha uniform in [0, pi]; albedo uniform in [0.3, 1]
-    unless given. Returns (features, config) or (features, config, levels)."""
-    arch = arch or Architecture()
-    P = arch.n_points
+    unless given. Returns (features, config) or (features, config, levels). Without ``arch``,
+    the layout's point and level counts."""
+    P = layout.N_POINTS if arch is None else sum(int(k) for k in arch.layer_counts)
+    n_levels = layout.N_LEVELS if arch is None else int(arch.n_levels)
     f = np.empty((n, 3, P), np.float32)
     # spatially smooth-ish: a per-query level plus per-point variation, so layers differ
     f[:, 0] = np.clip(rng.uniform(0, 2, (n, 1)) + rng.normal(0, 0.5, (n, P)), 0, 3)
@@ -176,5 +195,5 @@ def random_inputs(n: int, rng: np.random.Generator, arch: Architecture | None = 
     c = config_rows(lobes, a, rng.uniform(0, np.pi, n))
     if not levels:
         return f, c
-    lv = np.clip(f[:, 1][:, None, :] * rng.uniform(0.7, 1.3, (n, arch.n_levels, P)), 0, 1).astype(np.float32)
+    lv = np.clip(f[:, 1][:, None, :] * rng.uniform(0.7, 1.3, (n, n_levels, P)), 0, 1).astype(np.float32)
     return f, c, lv

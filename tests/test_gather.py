@@ -372,3 +372,22 @@ def test_tiny_render():
     pyr, gt = setup(generate("sphere", seed=0, resolution=4).density, 4, (0.2, 0.3, 0.9))
     pts, om = queries(3, seed=1, spread=0.4)
     _render_vs_train(pyr, gt, pts, om, np.linspace(-0.2, 0.6, pyr.n_levels), 0.1)
+
+
+def test_twin_template_table_and_volume_phase_agree_with_clvols():
+    """reference/gather.py reads the template .npz and evaluates the volume phase itself
+    (Legendre series). Same table as clvol's loader; the lobe tables within their stated
+    error bound (clvol.neural.phasetable.ERROR_BOUND, 1% relative; measured 0.17% at g 0.857)."""
+    from clvol.neural import phasetable
+    from clvol.neural.templates import load_templates
+    t, mine = load_templates(), rgather.Templates()
+    np.testing.assert_array_equal(mine.points, t.points)
+    np.testing.assert_array_equal(mine.is_highlight, t.is_highlight)
+    for base in (32, 64, 256):
+        np.testing.assert_array_equal(mine.diffuse_levels(base), t.diffuse_levels(base))
+    rng = np.random.default_rng(3)
+    mu, beta = rng.uniform(-1, 1, 2000), rng.uniform(0, 0.6, 2000)
+    for lobes in (((0.857, 1.0),), ((0.857, 0.7), (-0.3, 0.3)), ((0.99, 1.0),)):
+        exact = rgather.cap_average(mu, beta, lobes)
+        table = phasetable.volume_phase(lobes).eval(mu, beta)
+        assert np.abs(table / exact - 1).max() <= phasetable.ERROR_BOUND

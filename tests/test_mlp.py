@@ -263,3 +263,17 @@ def test_log1m_albedo_input_matches_reference(albedo):
     _assert_y(got, want)
     lin = ref.forward(w.params, ARCH, f, c)       # the same weights read linearly differ
     assert not np.allclose(lin, ref.forward(w.params, arch, f, c))
+
+
+def test_twin_constants_and_slicing_agree_with_the_export_module():
+    """reference/mlp.py writes the encoding's gamma, the template order, the albedo input's
+    offset and the layer slicing itself (a twin shares no code with what it checks); here
+    the two statements are held equal."""
+    from clvol.neural import export
+    assert (ref.GAMMA, ref.TEMPLATES, ref.TYPES, ref.ALBEDO_EPS) == \
+        (export.GAMMA, export.TEMPLATES, export.TYPES, export.ALBEDO_EPS)
+    for arch in (export.Architecture(), export.Architecture(layer_counts=(3, 5, 2, 4),
+                                                            n_diffuse_layers=3)):
+        assert ref.layer_slices(arch) == arch.layer_slices()
+        for t in ref.TEMPLATES:
+            assert ref.template_layer_slices(arch, t) == arch.template_layer_slices(t)
