@@ -276,18 +276,15 @@ def median_time(fn, n: int = 3):
 
 
 def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
-                   pt_lattice: int = 0, pt_view: int = 0, view_block=None,
-                   view_supersample=None) -> dict:
-    """{method: (image, seconds, spp or None)} for METHODS, each warmed up once untimed.
+                   pt_lattice: int = 0, pt_view: int = 0, view_options=None) -> dict:
+    """{method: (image, seconds, spp or None, halves or None)} for METHODS, each warmed up
+    once untimed; ``halves``: the two independent renders a noisy row is the mean of.
     ``ms_resolution``: the network's F_ms lattice (None: the renderer's default);
     ``pt_lattice`` > 0: also "pt_lattice", that lattice filled by point queries;
     ``pt_view`` > 0: also "pt_view", the view-space table filled by point queries;
-    ``view_block``: the view-space source's block (None: the renderer's default);
-    ``view_supersample``: rays per pixel side of the view and pt_view rows (blocks are then in
-    sub-pixels)."""
-    vkw = {} if view_block is None else {"view_block": view_block}
-    if view_supersample is not None:
-        vkw["supersample"] = view_supersample
+    ``view_options``: Renderer options of the view and pt_view rows (view_block, view_knots,
+    supersample; the renderer's defaults for those not given)."""
+    vkw = dict(view_options or {})
     out = {}
     if pt_view:
         from clvol.render.pathtrace import point_query
@@ -309,19 +306,20 @@ def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
         ms = fill_ms_grid(scene, res, lambda p, w: point_query(scene, p, w, pt_lattice, seed=11,
                                                                 grid=grid)["Fms"])
         out["pt_lattice"] = (render_raymarch(scene, ms="grid", ms_grid=ms, grid=grid)
-                             .layers["total"], float("nan"), pt_lattice)
+                             .layers["total"], float("nan"), pt_lattice, None)
     for method, ms in (("network", "network"), ("view", "view"), ("wrenninge", "wrenninge"),
                        ("single", "none")):
         kw = ({"weights": weights, "ms_resolution": ms_resolution} if ms == "network" else
               {"weights": weights, **vkw} if ms == "view" else {})
         render_raymarch(scene, ms=ms, grid=grid, **kw)              # build kernels, tables
         res, s = median_time(lambda: render_raymarch(scene, ms=ms, grid=grid, **kw), repeats)
-        out[method] = (res.layers["total"], s, None)
+        out[method] = (res.layers["total"], s, None, None)
     budget = out["network"][1]
     render_pathtrace(scene, spp=1, grid=grid, progress=False)        # build the kernel
     res = render_pathtrace(scene, spp=None, time_budget=budget, seed=PT_EQUAL_SEED, grid=grid,
                            progress=False)
-    out["pt_equal"] = (res.layers["total"], float(res.header["seconds"]), int(res.header["spp"]))
+    out["pt_equal"] = (res.layers["total"], float(res.header["seconds"]), int(res.header["spp"]),
+                       None)
     return out
 
 
@@ -420,6 +418,9 @@ def main(argv=None) -> int:
     ap.add_argument("--view-block", type=int, default=None,
                     help="the view-space source's block side in pixels (rows view and pt_view; "
                          "default: the renderer's)")
+    ap.add_argument("--view-knots", type=int, default=None, metavar="K",
+                    help="the view-space source's queries per block (rows view and pt_view; "
+                         "default: the renderer's)")
     ap.add_argument("--view-supersample", type=int, default=None, metavar="S",
                     help="S x S rays per pixel for the rows view and pt_view (--view-block then "
                          "counts sub-pixels): separates the representation from pixel-centre "
@@ -477,15 +478,17 @@ def run(args) -> int:
         if args.refs_only:
             continue
         renders = render_methods(scene, grid, weights, args.repeats, args.ms_resolution,
-                                 args.pt_lattice, args.pt_view, args.view_block,
-                                 args.view_supersample)
+                                 args.pt_lattice, args.pt_view,
+                                 {k: v for k, v in (("view_block", args.view_block),
+                                                    ("view_knots", args.view_knots),
+                                                    ("supersample", args.view_supersample))
+                                  if v is not None})
         floor_flip = flip(h1, h2)
         methods = (METHODS + (("pt_lattice",) if args.pt_lattice else ())
                    + (("pt_view",) if args.pt_view else ()))
         for method in methods:
-            img, secs, spp = renders[method][:3]
-            s = scores(img, h1, h2, test_halves=(renders[method][3] if len(renders[method]) > 3
-                                                 else None))
+            img, secs, spp, halves = renders[method]
+            s = scores(img, h1, h2, test_halves=halves)
             rows.append({"scene": name, "method": method, **s, "seconds": secs, "spp": spp,
                          "ref_halves_flip": floor_flip})
         print(f"\n{name} ({path.name}; reference noise: rmse100 {s['ref_floor_rmse100']:.2f}, "

@@ -76,11 +76,8 @@
 #ifndef MS_CHANNELS
 #define MS_CHANNELS 3
 #endif
-#ifndef VIEW_K
-#define VIEW_K 4
-#endif
-#ifndef VIEW_BLOCK
-#define VIEW_BLOCK 4
+#if MS_SOURCE == 3 && (!defined(VIEW_K) || !defined(VIEW_BLOCK))
+#error "MS_SOURCE 3 needs VIEW_K and VIEW_BLOCK (the view table's knots and block side)"
 #endif
 #ifndef SKIP_EMPTY
 #define SKIP_EMPTY 1

@@ -200,9 +200,15 @@ class Camera:
                 raise ClvolError("jitter must be in [-0.5, 0.5] pixels")
             col = col + j[..., 0]
             row = row + j[..., 1]
+        return self.directions_at(col, row)
+
+    def directions_at(self, col, row) -> np.ndarray:
+        """Unit directions (..., 3) float64 through continuous image positions in pixels
+        (pixel k's centre is at k + 0.5; ``col`` to the right, ``row`` down), broadcast."""
+        h, w = self.height, self.width
         tan_half = self.tan_half_fov
-        sx = (2.0 * col / w - 1.0) * tan_half * (w / h)
-        sy = (1.0 - 2.0 * row / h) * tan_half
+        sx = (2.0 * np.asarray(col, np.float64) / w - 1.0) * tan_half * (w / h)
+        sy = (1.0 - 2.0 * np.asarray(row, np.float64) / h) * tan_half
         sx, sy = np.broadcast_arrays(sx, sy)
         fwd, right, up = self.basis()
         d = fwd + sx[..., None] * right + sy[..., None] * up

@@ -60,15 +60,6 @@ def _rays_at(forward, right, up, tan_half, width, height, x, y):
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def centre_rays(forward, right, up, tan_half, width, height, block):
-    """(by, bx, 3) unit directions through each block's centre (x = i*block + block/2): the
-    ray its queries lie on."""
-    bx, by = block_grid(width, height, block)
-    x, y = np.meshgrid(np.arange(bx) * block + 0.5 * block, np.arange(by) * block + 0.5 * block)
-    return _rays_at(forward, right, up, tan_half, width, height, x.astype(np.float64),
-                    y.astype(np.float64))
-
-
 def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, right, up,
                 tan_half, width, height, block, rays, k, step, stop=1e-3):
     density = np.asarray(density, np.float64)

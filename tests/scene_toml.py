@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 # The camera most tests look from (width and height are each test's own).
 CAMERA = {"origin": [0.0, 0.0, 2.5], "target": [0.0, 0.0, 0.0], "fov_y": 35.0}
 # A small procedural cloud that renders in well under a second.
@@ -43,3 +45,14 @@ def write_scene(path, **tables) -> Path:
     path = Path(path)
     path.write_text(scene_toml(**tables))
     return path
+
+
+def look_at(origin, target, up=(0.0, 1.0, 0.0)):
+    """(forward, right, up) unit vectors of a pinhole at ``origin`` looking at ``target``, as
+    grid.h's camera_ray reads them (right = forward x up), for kernel tests that pass a camera
+    by its basis."""
+    f = np.subtract(target, origin, dtype=np.float64)
+    f /= np.linalg.norm(f)
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    return f, r, np.cross(r, f)

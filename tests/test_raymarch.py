@@ -27,18 +27,12 @@ from clvol.scene import scene_from_dict
 from clvol.volume.grid import Grid
 from reference import raymarch as rraymarch
 from reference.phase import phase_eval
-from scene_toml import CAMERA, write_scene
+from scene_toml import CAMERA, look_at, write_scene
 
 LAYER_NAMES = ("total", "single", "multiple", "alpha", "depth")
 REL_TOL = 2e-5
 
 
-def _basis(origin, target, up=(0.0, 1.0, 0.0)):
-    f = np.subtract(target, origin, dtype=np.float64)
-    f /= np.linalg.norm(f)
-    r = np.cross(f, up)
-    r /= np.linalg.norm(r)
-    return f, r, np.cross(r, f)
 
 
 def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), seed=0):
@@ -69,7 +63,7 @@ def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), se
         origin = np.array([0.0, bmax[1], 2.0])
         target = np.array([0.0, bmax[1], 0.0])
         width, height = 7, 5
-    f, r, u = _basis(origin, target, up)
+    f, r, u = look_at(origin, target, up)
     block = 2
     # A smooth, varied light field over a cube holding the box (any field will do for
     # kernel vs twin; the physical one is tested below), held as T_light.

@@ -15,14 +15,9 @@ import pytest
 
 from clvol.kernels.viewdepth import view_depths as kernel_depths
 from reference.viewdepth import view_depths as twin_depths
+from scene_toml import look_at
 
 
-def _basis(origin, target, up=(0.0, 1.0, 0.0)):
-    f = np.subtract(target, origin, dtype=np.float64)
-    f /= np.linalg.norm(f)
-    r = np.cross(f, up)
-    r /= np.linalg.norm(r)
-    return f, r, np.cross(r, f)
 
 
 def _f32(v):
@@ -42,7 +37,7 @@ def _case(name):
         scale = 400.0
     elif name == "one_knot":
         block, rays, k = 5, 1, 1
-    f, r, u = _basis(origin, target)
+    f, r, u = look_at(origin, target)
     return dict(density=dens.astype(np.float32), bbox_min=_f32([-1.0, -0.8, -1.2]),
                 bbox_max=_f32([1.4, 0.9, 1.0]), density_scale=float(np.float32(scale)),
                 origin=_f32(origin), forward=_f32(f), right=_f32(r), up=_f32(u),
@@ -74,7 +69,7 @@ def test_homogeneous_slab_closed_form():
     dens = np.ones((4, 4, 4), np.float32)
     sigma, length, k = 2.0, 2.0, 6
     origin = np.array([0.0, 0.0, 5.0])
-    f, r, u = _basis(origin, np.zeros(3))
+    f, r, u = look_at(origin, np.zeros(3))
     kw = dict(density=dens, bbox_min=np.array([-1.0, -1.0, -1.0]),
               bbox_max=np.array([1.0, 1.0, 1.0]), density_scale=sigma, origin=origin, forward=f,
               right=r, up=u, tan_half=math.tan(math.radians(2.0)), width=2, height=2, block=2,

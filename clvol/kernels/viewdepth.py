@@ -17,18 +17,6 @@ def block_grid(width: int, height: int, block: int) -> tuple[int, int]:
     return -(-int(width) // int(block)), -(-int(height) // int(block))
 
 
-def centre_rays(forward, right, up, tan_half, width, height, block) -> np.ndarray:
-    """(by, bx, 3) unit directions through each block's centre (x = i*block + block/2, in
-    pixels): the rays the block's queries lie on (float64, as grid.h's camera_ray)."""
-    bx, by = block_grid(width, height, block)
-    x, y = np.meshgrid(np.arange(bx) * block + 0.5 * block, np.arange(by) * block + 0.5 * block)
-    sx = (2 * x / width - 1) * tan_half * (width / height)
-    sy = (1 - 2 * y / height) * tan_half
-    d = (np.asarray(forward, np.float64) + sx[..., None] * np.asarray(right, np.float64)
-         + sy[..., None] * np.asarray(up, np.float64))
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
-
 def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, right, up,
                 tan_half, width, height, block, rays, k, step, stop=1e-3, runtime=None):
     """(depths float32 (by, bx, k), weight float32 (by, bx)): see the twin. ``density`` is

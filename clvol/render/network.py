@@ -304,12 +304,29 @@ class NetworkMs(GridMs):
             raise ClvolError(f"raymarch option ms_refresh = {refresh!r}: an integer from 1 (the "
                              f"whole lattice every camera position) to 64")
         self.refresh, self._phase, self._todo = int(refresh), 0, 0
-        self.weights_path = shipped_weights() if weights is None else weights
         self.resolution = check_ms_resolution(ms_resolution)
+        self._init_network(weights)
+
+    def _init_network(self, weights) -> None:
+        """The state every network-backed source keeps (this one and view.py's)."""
+        self.weights_path = shipped_weights() if weights is None else weights
         self.net: NetworkSource | None = None
         self.info = None
         self.setup_seconds = 0.0
         self._key = None
+
+    def _ensure_network(self, frame) -> None:
+        """Weights and pyramid on the device for the frame's volume (once per volume); the
+        header's setup seconds are this frame's (0 when an earlier frame did it)."""
+        self.setup_seconds = 0.0
+        if self.net is None or self.net.grid is not frame.grid:
+            with Stopwatch() as sw:
+                self.net = NetworkSource(self.weights_path, frame.grid, frame.medium,
+                                         frame.runtime)
+                frame.runtime.finish()
+            self.setup_seconds = sw.seconds
+            frame.count("network_setup")
+            self._key = None
 
     @classmethod
     def from_options(cls, o: dict, runtime=None) -> "NetworkMs":
@@ -326,18 +343,10 @@ class NetworkMs(GridMs):
     def prepare(self, frame) -> None:
         self.count = frame.count
         # The header's seconds.* are this frame's costs: 0 for work an earlier frame did.
-        self.setup_seconds = 0.0
         if self.info:
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0,
                              **({"interpolate": 0.0} if "interpolate" in self.info else {}))
-        if self.net is None or self.net.grid is not frame.grid:
-            with Stopwatch() as sw:
-                self.net = NetworkSource(self.weights_path, frame.grid, frame.medium,
-                                         frame.runtime)
-                frame.runtime.finish()
-            self.setup_seconds = sw.seconds
-            frame.count("network_setup")
-            self._key = None
+        self._ensure_network(frame)
         m = frame.medium
         key = (tuple(frame.camera.origin), tuple(frame.light.direction), m.density_scale,
                tuple(m.albedo), m.phase, bool(frame.shortcuts))
@@ -437,10 +446,13 @@ class NetworkMs(GridMs):
         return p
 
     def header(self) -> dict:
+        return {"raymarch.ms_resolution": str(self.resolution), **self._network_header()}
+
+    def _network_header(self) -> dict:
+        """The entries every network-backed source writes: weights, evaluations, time split."""
         info = self.info
         return {
             "raymarch.weights": str(self.net.weights.path) if self.net else str(self.weights_path),
-            "raymarch.ms_resolution": str(self.resolution),
             "raymarch.network_base_resolution": self.net.base if self.net else 0,
             "raymarch.network_evaluations_per_point": info["evaluations"] if info else 0,
             "raymarch.network_points": info["points"] if info else 0,

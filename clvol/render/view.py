@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import ClvolError
 from ..kernels.raymarch import ms_defines
 from ..runtime import Stopwatch
-from .network import NetworkMs, NetworkSource
+from .network import NetworkMs
 from .sources import MsPlan, register
 
 DEFAULT_VIEW_BLOCK = 4     # pixels per block side
@@ -56,16 +56,10 @@ class ViewMs(NetworkMs):
 
     def __init__(self, weights=None, block: int = DEFAULT_VIEW_BLOCK,
                  knots: int = DEFAULT_VIEW_KNOTS, runtime=None):
-        from .network import shipped_weights
         check_view_options(block, knots)
         self.block, self.knots = int(block), int(knots)
-        self.resolution = None      # no world lattice (NetworkMs.header reads it)
         self.runtime = runtime
-        self.weights_path = shipped_weights() if weights is None else weights
-        self.net: NetworkSource | None = None
-        self.info = None
-        self.setup_seconds = 0.0
-        self._key = None
+        self._init_network(weights)
         self.table = None           # DeviceArray (1 + C, by, bx, K)
         self.count = None
         # Optional stand-in for the network: query(points (N, 3), omegas (N, 3)) -> F_ms
@@ -85,18 +79,10 @@ class ViewMs(NetworkMs):
                 f"{self.block}x{self.block} pixels; weights {Path(str(self.weights_path)).name})")
 
     def prepare(self, frame) -> None:
-        from ..kernels.viewdepth import centre_rays, view_depths
-        self.setup_seconds = 0.0
+        from ..kernels.viewdepth import block_grid, view_depths
         if self.info:
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0)
-        if self.net is None or self.net.grid is not frame.grid:
-            with Stopwatch() as sw:
-                self.net = NetworkSource(self.weights_path, frame.grid, frame.medium,
-                                         frame.runtime)
-                frame.runtime.finish()
-            self.setup_seconds = sw.seconds
-            frame.count("network_setup")
-            self._key = None
+        self._ensure_network(frame)
         cam, m = frame.camera, frame.medium
         key = (tuple(cam.origin), tuple(np.concatenate(cam.basis())), cam.tan_half_fov,
                cam.width, cam.height, tuple(frame.light.direction), m.density_scale,
@@ -116,7 +102,10 @@ class ViewMs(NetworkMs):
                                     frame.threshold,
                                     runtime=rt)
         t_depths = sw.seconds
-        dirs = centre_rays(fwd, right, up, cam.tan_half_fov, cam.width, cam.height, self.block)
+        # the queries lie on each block's centre ray (x = i block + block / 2, in pixels)
+        bx, by = block_grid(cam.width, cam.height, self.block)
+        dirs = cam.directions_at((np.arange(bx) + 0.5) * self.block,
+                                 ((np.arange(by) + 0.5) * self.block)[:, None])   # (by, bx, 3)
         full = depths[..., 0] >= 0                                   # (by, bx)
         d = np.repeat(dirs[full], self.knots, axis=0)                # (n * K, 3)
         pts = np.asarray(cam.origin, np.float64) + depths[full].reshape(-1, 1) * d
@@ -167,8 +156,7 @@ class ViewMs(NetworkMs):
 
     def header(self) -> dict:
         info = self.info or {}
-        h = super().header()
-        h.pop("raymarch.ms_resolution", None)
+        h = self._network_header()
         h.update({"raymarch.view_block": self.block, "raymarch.view_knots": self.knots,
                   "raymarch.view_blocks_queried": info.get("blocks", 0),
                   "seconds.view_depths": round(info.get("depths", 0.0), 4)})
