@@ -27,9 +27,9 @@ DEFAULT_VIEW_BLOCK = 4     # pixels per block side
 DEFAULT_VIEW_KNOTS = 4     # query depths per block
 VIEW_RAYS = 2              # sample rays per block side for the depth quantiles (at most
                            # one per pixel: a 1-pixel block gets one ray)
-# The depth pass marches at this many march steps per segment: its cost is linear in it
-# (25 ms at 1, 13 ms at 2 for 256^2 and the 96^3 cloud on the 2-core CPU), and a quantile
-# needs less resolution than the image's integral.
+# The depth pass marches at this many march steps per segment: its cost (the view_depths
+# stage of bench/bench_orbit.py --ms view) falls in proportion, and a quantile needs less
+# resolution along the ray than the image's integral.
 VIEW_STEP_FACTOR = 2.0
 MAX_VIEW_BLOCK = 64
 
