@@ -35,6 +35,13 @@ ALBEDO = layout.CONFIG_FIELDS.index("albedo")
 T_INDEX = TYPES.index("transmittance")
 
 
+def _loss_weights(var, floor: float) -> np.ndarray:
+    """Inverse-variance weights 1 / (var + floor^2) normalised to mean 1; uniform for an
+    infinite floor (docs/network.md)."""
+    w = 1.0 / (var + floor ** 2) if math.isfinite(floor) else np.ones_like(var)
+    return (w / w.mean()).astype(np.float32)
+
+
 def encode_labels(F, se, albedo, gamma: float = GAMMA, floor: float = 0.05):
     """(target y, var_y, weight) for labels F >= 0 with standard errors se (or None) at
     albedo > 0. See the module docstring."""
@@ -47,8 +54,7 @@ def encode_labels(F, se, albedo, gamma: float = GAMMA, floor: float = 0.05):
         var = np.zeros_like(y)
     else:
         var = (np.asarray(se, np.float64) / (np.maximum(F, 0.0) + a4)) ** 2
-    w = 1.0 / (var + floor ** 2) if math.isfinite(floor) else np.ones_like(y)
-    return y + 0.5 * var, var, w / w.mean()
+    return y + 0.5 * var, var, _loss_weights(var, floor)
 
 
 @dataclass
@@ -111,10 +117,9 @@ def make_samples(features, config, F, F_se, albedo_rgb, levels=None, key=None,
     idx = np.tile(np.arange(n), len(parts))
     y = np.concatenate([p[0] for p in parts])
     var = np.concatenate([p[1] for p in parts])
-    w = 1.0 / (var + floor ** 2) if math.isfinite(floor) else np.ones_like(y)
     return Samples(features=np.asarray(features, np.float32),
                    config=np.concatenate([p[2] for p in parts]),
-                   y=y.astype(np.float32), weight=(w / w.mean()).astype(np.float32),
+                   y=y.astype(np.float32), weight=_loss_weights(var, floor),
                    var=var.astype(np.float32),
                    levels=None if levels is None else np.asarray(levels, np.float32),
                    key=None if key is None else np.asarray(key)[idx], row=idx.astype(np.int64))
@@ -316,14 +321,17 @@ def split_shards(shards, cfg: RunConfig):
     return train, held
 
 
-# Albedos drawn for per-order labels (``albedo_draws``): log-uniform in 1 - a over
-# [DRAW_GAP, 1 - DRAW_LOW] (as many in 0.99-0.999 as in 0.9-0.99), and a share DRAW_ONE exactly 1.
-DRAW_LOW, DRAW_GAP, DRAW_ONE = 0.3, 1e-4, 0.15
+# Albedos drawn for per-order labels (``albedo_draws``): the data sets' law for a range that
+# reaches 1 (clvol/neural/dataset.py: log-uniform in 1 - a up to 1 - ALBEDO_GAP, a share
+# ALBEDO_ONE exactly 1), vectorised, from DRAW_LOW.
+DRAW_LOW = 0.3
 
 
 def draw_albedos(rng: np.random.Generator, n: int) -> np.ndarray:
-    a = 1.0 - np.exp(rng.uniform(np.log(DRAW_GAP), np.log(1.0 - DRAW_LOW), n))
-    return np.where(rng.uniform(size=n) < DRAW_ONE, 1.0, a)
+    from .dataset import ALBEDO_GAP, ALBEDO_ONE
+    a = 1.0 - np.exp(rng.uniform(np.log(ALBEDO_GAP), np.log(1.0 - DRAW_LOW), n))
+    return np.where(rng.uniform(size=n) < ALBEDO_ONE, 1.0, a)
+
 
 
 def order_samples(arrays, albedo, key=None, floor: float = 0.05) -> Samples:
@@ -340,10 +348,9 @@ def order_samples(arrays, albedo, key=None, floor: float = 0.05) -> Samples:
     y, var, _ = encode_labels(F, se, a, floor=floor)
     cfg = np.tile(np.asarray(arrays["config"], np.float32), (k, 1))
     cfg[:, ALBEDO] = a
-    w = 1.0 / (var + floor ** 2) if math.isfinite(floor) else np.ones_like(y)
     idx = np.tile(np.arange(n), k)
     return Samples(features=np.asarray(arrays["features"], np.float32), config=cfg,
-                   y=y.astype(np.float32), weight=(w / w.mean()).astype(np.float32),
+                   y=y.astype(np.float32), weight=_loss_weights(var, floor),
                    var=var.astype(np.float32), levels=np.asarray(arrays["levels"], np.float32),
                    key=None if key is None else np.tile(np.asarray(key), k),
                    row=idx.astype(np.int64))
