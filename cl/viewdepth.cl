@@ -1,5 +1,6 @@
 /* Query depths of the view-space F_ms source: per block of VIEW_BLOCK x VIEW_BLOCK pixels,
- * VIEW_K distances along the camera rays at the quantiles (i + 1/2)/K of the block's
+ * VIEW_K distances along the camera rays at the quantiles (i + 1/2)/K (or (i + z)/K, see
+ * jitter) of the block's
  * in-scattering weight T_cam sigma_t. Twin: reference/viewdepth.py (the algorithm in full).
  *
  * One work-item per block; its VIEW_RAYS^2 sample rays advance together over segments of
@@ -16,6 +17,11 @@
  *   depths   float [by][bx][VIEW_K] out: distances along the rays, increasing; -1 for an
  *            empty block (W < VIEW_EMPTY_WEIGHT)
  *   weight   float [by][bx] out: W (0 for an empty block)
+ *   jitter   (with VIEW_JITTER only) float4 [by][bx]: x, y in [0, 1) place sample ray (a, b)
+ *            at (a + x, b + y) block/VIEW_RAYS within its block, z in [0, 1) moves the levels
+ *            to (i + z)/K. Without VIEW_JITTER all three are 1/2 (the deterministic source);
+ *            with uniform random values and VIEW_K = 1 the depth is a free-flight sample of
+ *            the block's in-scattering weight (the stochastic source, docs/raymarch.md).
  * Global size: bx * by work-items (guarded), bx = ceil(width / VIEW_BLOCK).
  */
 #include "grid.h"
@@ -31,6 +37,7 @@
 #endif
 #define VIEW_R2 (VIEW_RAYS * VIEW_RAYS)
 #define VIEW_EMPTY_WEIGHT 1e-5f
+#define VIEW_MIN_LEVEL 1e-6f
 
 #if VIEW_K < 1 || VIEW_K > 16 || VIEW_RAYS < 1 || VIEW_RAYS > 4
 #error "VIEW_K must be 1..16 and VIEW_RAYS 1..4"
@@ -67,21 +74,31 @@ __kernel void view_depths(__global const float *density, const int nx, const int
                           const float4 origin, const float4 forward, const float4 right,
                           const float4 up, const float tan_half, const int width,
                           const int height, const float step, const float stop,
-                          __global float *depths, __global float *weight)
+                          __global float *depths, __global float *weight
+#ifdef VIEW_JITTER
+                          , __global const float4 *jitter
+#endif
+                          )
 {
     const int bx = (width + VIEW_BLOCK - 1) / VIEW_BLOCK, by = (height + VIEW_BLOCK - 1) / VIEW_BLOCK;
     const int b = get_global_id(0);
     if (b >= bx * by) return;
     const int j = b / bx, i = b - j * bx;
     const float3 o = origin.xyz;
+#ifdef VIEW_JITTER
+    /* z > 0 keeps every level above C = 0, so the crossing segment has c > c_prev */
+    const float4 jit = (float4)(jitter[b].xy, clamp(jitter[b].z, VIEW_MIN_LEVEL, 1.0f), 0.0f);
+#else
+    const float4 jit = (float4)(0.5f);
+#endif
     const float3 cell = (bmax.xyz - bmin.xyz) / (float3)((float)nx, (float)ny, (float)nz);
     float3 d[VIEW_R2];
     float t0[VIEW_R2], t1[VIEW_R2], tau[VIEW_R2];
     float t_lo = INFINITY, t_hi = -INFINITY;
     for (int r = 0; r < VIEW_R2; ++r) {
         const int a = r % VIEW_RAYS, c = r / VIEW_RAYS;
-        const float x = (float)(i * VIEW_BLOCK) + ((float)a + 0.5f) * (float)VIEW_BLOCK / (float)VIEW_RAYS;
-        const float y = (float)(j * VIEW_BLOCK) + ((float)c + 0.5f) * (float)VIEW_BLOCK / (float)VIEW_RAYS;
+        const float x = (float)(i * VIEW_BLOCK) + ((float)a + jit.x) * (float)VIEW_BLOCK / (float)VIEW_RAYS;
+        const float y = (float)(j * VIEW_BLOCK) + ((float)c + jit.y) * (float)VIEW_BLOCK / (float)VIEW_RAYS;
         d[r] = camera_ray(forward.xyz, right.xyz, up.xyz, tan_half, width, height, x, y);
         float lo, hi;
         if (box_intersect(o, d[r], bmin.xyz, bmax.xyz, 0.0f, &lo, &hi)) {
@@ -120,7 +137,7 @@ __kernel void view_depths(__global const float *density, const int nx, const int
                                 tau, ta, step, stop, &more);
         /* every level this segment reaches; c > c_prev whenever a level lies in (c_prev, c] */
         for (; k < VIEW_K; ++k) {
-            const float u = ((float)k + 0.5f) / (float)VIEW_K * w;
+            const float u = ((float)k + jit.z) / (float)VIEW_K * w;
             if (c < u) break;
             out[k] = ta + step * (u - c_prev) / (c - c_prev);
         }

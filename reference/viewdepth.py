@@ -26,6 +26,13 @@ ray is past its exit or has T_cam < ``stop`` (the marcher's threshold: nothing b
 the image). A block with W < EMPTY_WEIGHT (no sample ray meets the medium) is empty: its
 depths are -1 and it costs no query.
 
+``jitter`` (by, bx, 3), values in [0, 1), moves block (i, j)'s sample rays to
+x = i*block + (a + jitter[..., 0]) block/rays (y likewise with jitter[..., 1]) and the levels
+to (i + z)/K with z = jitter[..., 2] clamped to [MIN_LEVEL, 1] (a level of 0 would have no
+crossing segment); None is 1/2 for all three, the deterministic placement above. Uniform
+random jitter with K = 1 draws the depth from the block's in-scattering weight: a free-flight
+sample conditioned on meeting the medium (the stochastic source).
+
 Returns (depths float (by, bx, K), weight W (by, bx)), float64 here; the kernel is float32.
 """
 import numpy as np
@@ -33,6 +40,7 @@ import numpy as np
 from reference.grid import box_intersect, grid_lookup
 
 EMPTY_WEIGHT = 1e-5
+MIN_LEVEL = 1e-6
 
 
 def block_grid(width, height, block):
@@ -40,16 +48,19 @@ def block_grid(width, height, block):
     return -(-width // block), -(-height // block)
 
 
-def sample_rays(forward, right, up, tan_half, width, height, block, rays):
+def sample_rays(forward, right, up, tan_half, width, height, block, rays, jitter=None):
     """(by, bx, rays*rays, 3) unit directions of every block's sample rays."""
     bx, by = block_grid(width, height, block)
-    sub = (np.arange(rays) + 0.5) * block / rays
-    col = (np.arange(bx)[:, None] * block + sub[None, :]).ravel()          # (bx*rays)
-    row = (np.arange(by)[:, None] * block + sub[None, :]).ravel()
-    cc, rr = np.meshgrid(col, row)                                         # (by*rays, bx*rays)
-    d = _rays_at(forward, right, up, tan_half, width, height, cc, rr)
-    d = d.reshape(by, rays, bx, rays, 3).transpose(0, 2, 1, 3, 4).reshape(by, bx, rays * rays, 3)
-    return d
+    jit = np.full((by, bx, 3), 0.5) if jitter is None else np.asarray(jitter, np.float64)
+    a = np.arange(rays)
+    # x[j, i, b, a] = i*block + (a + jx[j, i]) block/rays; y likewise with the row index b
+    x = (np.arange(bx)[None, :, None, None] * block
+         + (a[None, None, None, :] + jit[:, :, 0, None, None]) * block / rays)
+    y = (np.arange(by)[:, None, None, None] * block
+         + (a[None, None, :, None] + jit[:, :, 1, None, None]) * block / rays)
+    x, y = np.broadcast_arrays(x, y)                                       # (by, bx, rays, rays)
+    d = _rays_at(forward, right, up, tan_half, width, height, x, y)
+    return d.reshape(by, bx, rays * rays, 3)
 
 
 def _rays_at(forward, right, up, tan_half, width, height, x, y):
@@ -61,14 +72,16 @@ def _rays_at(forward, right, up, tan_half, width, height, x, y):
 
 
 def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, right, up,
-                tan_half, width, height, block, rays, k, step, stop=1e-3):
+                tan_half, width, height, block, rays, k, step, stop=1e-3, jitter=None):
     density = np.asarray(density, np.float64)
     nz, ny, nx = density.shape
     bmin, bmax = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
     cell = (bmax - bmin) / np.array([nx, ny, nz], np.float64)
     o = np.asarray(origin, np.float64)
-    d = sample_rays(forward, right, up, tan_half, width, height, block, rays)
+    d = sample_rays(forward, right, up, tan_half, width, height, block, rays, jitter)
     by, bx, r, _ = d.shape
+    z = (np.full(by * bx, 0.5) if jitter is None else
+         np.clip(np.asarray(jitter, np.float64)[..., 2].ravel(), MIN_LEVEL, 1.0))
     d = d.reshape(-1, r, 3)
     nb = len(d)
     t0, t1 = box_intersect(np.broadcast_to(o, (nb * r, 3)), d.reshape(-1, 3), bmin, bmax)
@@ -107,7 +120,7 @@ def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, rig
     for b in np.flatnonzero(w >= EMPTY_WEIGHT):
         c = curve[b]
         for i in range(k):
-            u = (i + 0.5) / k * w[b]
+            u = (i + z[b]) / k * w[b]
             s = int(np.argmax(c[1:] >= u))          # first segment whose end reaches u
             depths[b, i] = t_lo[b] + step * (s + (u - c[s]) / (c[s + 1] - c[s]))
     return depths.reshape(by, bx, k), np.where(w >= EMPTY_WEIGHT, w, 0.0).reshape(by, bx)

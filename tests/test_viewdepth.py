@@ -37,15 +37,29 @@ def _case(name):
         scale = 400.0
     elif name == "one_knot":
         block, rays, k = 5, 1, 1
+    jitter = None
+    if name.startswith("jitter"):                           # the stochastic source's draws
+        if name == "jitter_one_knot":
+            block, rays, k = 3, 1, 1
+        bx, by = -(-width // block), -(-height // block)
+        rng = np.random.default_rng(11)
+        # x, y and z of a block all differ, so a swap of two of them shows; z reaches both
+        # ends (0 is clamped to the smallest level, values near 1 take the last level)
+        jitter = rng.random((by, bx, 3)).astype(np.float32)
+        jitter[0, 0] = (0.9, 0.15, 0.0)
+        jitter[-1, -1] = (0.05, 0.7, np.float32(1 - 2 ** -20))
     f, r, u = look_at(origin, target)
-    return dict(density=dens.astype(np.float32), bbox_min=_f32([-1.0, -0.8, -1.2]),
+    return dict(jitter=jitter, density=dens.astype(np.float32), bbox_min=_f32([-1.0, -0.8, -1.2]),
                 bbox_max=_f32([1.4, 0.9, 1.0]), density_scale=float(np.float32(scale)),
                 origin=_f32(origin), forward=_f32(f), right=_f32(r), up=_f32(u),
                 tan_half=float(np.float32(0.35)), width=width, height=height, block=block,
                 rays=rays, k=k, step=float(np.float32(0.05)))
 
 
-@pytest.mark.parametrize("name", ["odd", "inside", "opaque", "one_knot"])
+@pytest.mark.parametrize("name", [pytest.param("odd", marks=pytest.mark.oclgrind), "inside",
+                                  "opaque", "one_knot",
+                                  pytest.param("jitter", marks=pytest.mark.oclgrind),
+                                  "jitter_one_knot"])
 def test_kernel_matches_twin(name):
     kw = _case(name)
     got_d, got_w = kernel_depths(**kw)
@@ -59,6 +73,28 @@ def test_kernel_matches_twin(name):
     assert np.abs(got_w - want_w).max() <= 2e-6
     # Depths increase along each block's knots.
     assert np.all(np.diff(want_d[full.all(axis=2)], axis=-1) >= 0)
+
+
+def test_midpoint_jitter_is_the_deterministic_placement():
+    """Jitter (1/2, 1/2, 1/2) everywhere puts the rays and levels where the deterministic
+    source does, bit for bit (the same float32 arithmetic on the same values)."""
+    kw = _case("odd")
+    bx, by = -(-kw["width"] // kw["block"]), -(-kw["height"] // kw["block"])
+    plain_d, plain_w = kernel_depths(**kw)
+    mid_d, mid_w = kernel_depths(**dict(kw, jitter=np.full((by, bx, 3), 0.5, np.float32)))
+    np.testing.assert_array_equal(mid_d, plain_d)
+    np.testing.assert_array_equal(mid_w, plain_w)
+    moved_d, _ = kernel_depths(**dict(kw, jitter=np.full((by, bx, 3), 0.2, np.float32)))
+    assert np.abs(moved_d - plain_d)[plain_d >= 0].max() > 1e-2
+
+
+def test_bad_jitter_is_refused():
+    from clvol.errors import ClvolError
+    kw = _case("odd")
+    bx, by = -(-kw["width"] // kw["block"]), -(-kw["height"] // kw["block"])
+    for bad in (np.full((by, bx, 3), 1.0, np.float32), np.zeros((bx, by, 3), np.float32)):
+        with pytest.raises(ClvolError, match="jitter"):
+            kernel_depths(**dict(kw, jitter=bad))
 
 
 def test_homogeneous_slab_closed_form():
@@ -75,9 +111,12 @@ def test_homogeneous_slab_closed_form():
               right=r, up=u, tan_half=math.tan(math.radians(2.0)), width=2, height=2, block=2,
               rays=1, k=k, step=0.05)
     w = 1.0 - math.exp(-sigma * length)
-    levels = (np.arange(k) + 0.5) / k * w
-    want = 4.0 - np.log1p(-levels) / sigma                  # t_in = 4 on the axis
-    for depths_of in (twin_depths, kernel_depths):
-        d, wt = depths_of(**kw)
-        np.testing.assert_allclose(d[0, 0], want, atol=3e-3)
-        assert abs(float(wt[0, 0]) - w) < 1e-5
+    # z = 1/2 is the deterministic placement; the others are stochastic draws of the level
+    for z in (0.5, 0.03, 0.97):
+        levels = (np.arange(k) + z) / k * w
+        want = 4.0 - np.log1p(-levels) / sigma              # t_in = 4 on the axis
+        jitter = np.array([[[0.5, 0.5, z]]], np.float32)
+        for depths_of in (twin_depths, kernel_depths):
+            d, wt = depths_of(**dict(kw, jitter=None if z == 0.5 else jitter))
+            np.testing.assert_allclose(d[0, 0], want, atol=3e-3)
+            assert abs(float(wt[0, 0]) - w) < 1e-5

@@ -18,9 +18,11 @@ def block_grid(width: int, height: int, block: int) -> tuple[int, int]:
 
 
 def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, right, up,
-                tan_half, width, height, block, rays, k, step, stop=1e-3, runtime=None):
+                tan_half, width, height, block, rays, k, step, stop=1e-3, jitter=None,
+                runtime=None):
     """(depths float32 (by, bx, k), weight float32 (by, bx)): see the twin. ``density`` is
-    a NumPy array or a DeviceArray already on the device."""
+    a NumPy array or a DeviceArray already on the device; ``jitter`` None (the
+    deterministic placement) or (by, bx, 3) values in [0, 1) (the stochastic source)."""
     rt = runtime or get_runtime()
     if not (1 <= k <= MAX_VIEW_K and 1 <= rays <= MAX_VIEW_RAYS and block >= 1):
         raise ClvolError(f"view depths: k = {k} must be 1..{MAX_VIEW_K}, rays = {rays} "
@@ -31,16 +33,26 @@ def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, rig
         np.ascontiguousarray(density, np.float32))
     nz, ny, nx = dens.shape
     bx, by = block_grid(width, height, block)
-    prog = rt.program("viewdepth", {"VIEW_K": int(k), "VIEW_BLOCK": int(block),
-                                    "VIEW_RAYS": int(rays)})
+    defines = {"VIEW_K": int(k), "VIEW_BLOCK": int(block), "VIEW_RAYS": int(rays)}
+    extra = ()
+    if jitter is not None:
+        jit = np.asarray(jitter, np.float32)
+        if jit.shape != (by, bx, 3) or not np.all((jit >= 0) & (jit < 1)):
+            raise ClvolError(f"view depths: jitter must be (by, bx, 3) = ({by}, {bx}, 3) values "
+                             f"in [0, 1), got shape {jit.shape}")
+        j4 = np.zeros((by, bx, 4), np.float32)
+        j4[..., :3] = jit
+        defines["VIEW_JITTER"] = 1
+        extra = (rt.upload(j4.reshape(-1)).buffer,)
+    prog = rt.program("viewdepth", defines)
     kern = prog.kernel("view_depths", [None, np.int32, np.int32, np.int32, None, None, np.float32,
                                        None, None, None, None, np.float32, np.int32, np.int32,
-                                       np.float32, np.float32, None, None])
+                                       np.float32, np.float32, None, None] + [None] * len(extra))
     depths, weight = rt.empty((by * bx * k,)), rt.empty((by * bx,))
     evt = rt.launch(kern, bx * by, (dens.buffer, np.int32(nx), np.int32(ny), np.int32(nz),
                                     f4(bbox_min), f4(bbox_max), np.float32(density_scale),
                                     f4(origin), f4(forward), f4(right), f4(up),
                                     np.float32(tan_half), np.int32(width), np.int32(height),
-                                    np.float32(step), np.float32(stop), depths, weight))
+                                    np.float32(step), np.float32(stop), depths, weight) + extra)
     return (rt.from_device(depths, (by, bx, k), wait_for=[evt]),
             rt.from_device(weight, (by, bx), wait_for=[evt]))
