@@ -215,6 +215,20 @@ class Camera:
         # |d| >= 1 since forward is orthogonal to right and up: no division by zero.
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
+    def image_positions(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(col, row, z) of world points (..., 3): the continuous image position that
+        ``directions_at`` maps onto each point's direction, and its distance z along the
+        forward axis; col and row are NaN where z <= 0 (behind the camera)."""
+        fwd, right, up = self.basis()
+        v = np.asarray(points, np.float64) - np.asarray(self.origin, np.float64)
+        z = v @ fwd
+        ahead = z > 0
+        zs = np.where(ahead, z, 1.0)          # no division by a zero or negative depth
+        tan_half, w, h = self.tan_half_fov, self.width, self.height
+        col = ((v @ right) / zs / (tan_half * (w / h)) + 1.0) * (0.5 * w)
+        row = (1.0 - (v @ up) / zs / tan_half) * (0.5 * h)
+        return np.where(ahead, col, np.nan), np.where(ahead, row, np.nan), z
+
 
 @dataclass(frozen=True)
 class Scene:

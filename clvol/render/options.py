@@ -15,8 +15,9 @@ from ..errors import ClvolError
 
 # Options defined by the CLI for every method but used only by some.
 SHARED = {"seed": (("--seed",), dict(type=int, default=0,
-                                     help="random seed (same seed, same image)"),
-                   ("pathtrace",))}
+                                     help="random seed (same seed, same image): the path "
+                                          "tracer, and the ray marcher with --ms stochastic"),
+                   ("pathtrace", "raymarch"))}
 DEFAULT_METHOD = "raymarch"
 
 

@@ -244,7 +244,8 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
                     light_resolution: int | None = None, light_interp: str = "transmittance",
                     supersample: int = 1, shortcuts: bool = True, grid=None,
                     runtime=None, weights=None, ms_resolution=None,
-                    domain_fallback: bool = False, view_block=None, view_knots=None):
+                    domain_fallback: bool = False, view_block=None, view_knots=None,
+                    view_samples=None, seed=None):
     """Render ``scene`` with the ray marcher in one call (a ``Renderer`` kept for one frame).
     Returns a RenderResult with layers total, single, multiple (H, W, 3), alpha and depth
     (H, W), and the header.
@@ -257,7 +258,8 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
     lattice of ``ms_resolution`` points per side for this camera and light, used even outside
     the weights' training domain unless ``domain_fallback`` (the Renderer's default).
     ms="view": the same network queried at ``view_knots`` depths per ``view_block`` x
-    ``view_block`` pixels of the camera's view (clvol/render/view.py).
+    ``view_block`` pixels of the camera's view (clvol/render/view.py); ms="stochastic":
+    ``view_samples`` free-flight samples per block from the stream of ``seed``.
     """
     from .renderer import Renderer
     from .sources import source_classes
@@ -266,7 +268,8 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
                 light_interp=light_interp, supersample=supersample, no_shortcuts=not shortcuts)
     per_source = dict(octaves=octaves, ms_a=a, ms_b=b, ms_c=c, ms_grid=ms_grid, weights=weights,
                       ms_resolution=ms_resolution, no_domain_fallback=not domain_fallback,
-                      view_block=view_block, view_knots=view_knots)
+                      view_block=view_block, view_knots=view_knots,
+                      view_samples=view_samples, seed=seed)
     read = getattr(source_classes().get(ms), "options", ())     # those of the source asked for
     opts.update({k: v for k, v in per_source.items() if k in read})
     opts = {k: v for k, v in opts.items() if v is not None}
@@ -278,21 +281,29 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
 def add_arguments(group) -> None:
     from .network import DEFAULT_NETWORK_RESOLUTION
     from .sources import source_classes
-    from .view import DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS
+    from .view import (DEFAULT_STOCHASTIC_BLOCK, DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS,
+                       DEFAULT_VIEW_SAMPLES, STILL_SAMPLES)
     group.add_argument("--ms", choices=sorted(source_classes()), default="network",
                        help="multiple-scattering source: network (the trained network on "
                             "a world lattice, default), view (the trained network at the "
-                            "camera's view), wrenninge (analytic octaves), grid (precomputed F_ms, "
-                            "--ms-grid), none (single scattering only)")
+                            "camera's view), stochastic (the network at one free-flight "
+                            "point per pixel block per frame, accumulated), wrenninge "
+                            "(analytic octaves), grid (precomputed F_ms, --ms-grid), none "
+                            "(single scattering only)")
     group.add_argument("--weights", metavar="FILE.npz",
                        help="network weight file for --ms network (default: the shipped "
                             "model, clvol/data/weights/full_albedo.npz)")
     group.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
                        help=f"F_ms lattice points per side filled by the network (default "
                             f"{DEFAULT_NETWORK_RESOLUTION})")
-    group.add_argument("--view-block", type=int, default=DEFAULT_VIEW_BLOCK, metavar="B",
-                       help=f"--ms view: pixels per block side; each block's queries serve "
-                            f"its pixels (default {DEFAULT_VIEW_BLOCK})")
+    group.add_argument("--view-block", type=int, default=None, metavar="B",
+                       help=f"--ms view and stochastic: pixels per block side; each block's "
+                            f"queries serve its pixels (default {DEFAULT_VIEW_BLOCK} for "
+                            f"view, {DEFAULT_STOCHASTIC_BLOCK} for stochastic)")
+    group.add_argument("--view-samples", type=int, default=DEFAULT_VIEW_SAMPLES, metavar="N",
+                       help=f"--ms stochastic: free-flight samples per block drawn per frame "
+                            f"(default {DEFAULT_VIEW_SAMPLES}; a still view accumulates them "
+                            f"up to {STILL_SAMPLES} per block)")
     group.add_argument("--view-knots", type=int, default=DEFAULT_VIEW_KNOTS, metavar="K",
                        help=f"--ms view: network queries per block, at the quantiles of the "
                             f"camera's in-scattering weight (default {DEFAULT_VIEW_KNOTS})")

@@ -69,7 +69,8 @@ class ViewMs(NetworkMs):
 
     @classmethod
     def from_options(cls, o: dict, runtime=None) -> "ViewMs":
-        return cls(o.get("weights"), o.get("view_block", DEFAULT_VIEW_BLOCK),
+        block = o.get("view_block")
+        return cls(o.get("weights"), DEFAULT_VIEW_BLOCK if block is None else block,
                    o.get("view_knots", DEFAULT_VIEW_KNOTS), runtime)
 
     @property
@@ -109,24 +110,12 @@ class ViewMs(NetworkMs):
         full = depths[..., 0] >= 0                                   # (by, bx)
         d = np.repeat(dirs[full], self.knots, axis=0)                # (n * K, 3)
         pts = np.asarray(cam.origin, np.float64) + depths[full].reshape(-1, 1) * d
-        grey = frame.shortcuts and m.is_grey
-        channels = 1 if grey else 3
+        vals, info = self._evaluate(frame, pts, d)
+        channels = vals.shape[1]
         table = np.zeros((1 + channels,) + depths.shape, np.float32)
         table[0] = depths
-        if len(pts) and self.query is not None:
-            with Stopwatch() as sw:
-                vals = np.asarray(self.query(pts, -d), np.float32).reshape(len(pts), 3)
-            info = {"light": 0.0, "gather": 0.0, "network": sw.seconds, "points": len(pts),
-                    "evaluations": 1 if grey else 3}
-        if len(pts) and self.query is None:
-            vals, info = self.net.evaluate(pts, -d, frame.light.direction, m, frame.shortcuts)
-        if len(pts):
-            vals = vals.reshape(len(vals), -1)                       # (n * K, C)
-            for c in range(channels):
-                table[1 + c][full] = vals[:, c].reshape(-1, self.knots)
-        else:
-            info = {"light": 0.0, "gather": 0.0, "network": 0.0, "points": 0,
-                    "evaluations": 1 if grey else 3}
+        for c in range(channels):
+            table[1 + c][full] = vals[:, c].reshape(-1, self.knots)
         info["depths"] = t_depths
         info["blocks"] = int(full.sum())
         self.info = info
@@ -135,6 +124,25 @@ class ViewMs(NetworkMs):
             frame.count("graded_transmittance")
         frame.count("ms_view_table")
         self._key = key
+
+    def _evaluate(self, frame, pts, dirs):
+        """(F_ms float32 (n, C), info) at world points ``pts`` seen along unit ``dirs`` (n, 3)
+        (omega = -dir, toward the camera): the network, or the benchmark's stand-in
+        ``query``. C = 1 for a grey medium with shortcuts (one evaluation), else 3."""
+        m = frame.medium
+        grey = frame.shortcuts and m.is_grey
+        channels = 1 if grey else 3
+        info = {"light": 0.0, "gather": 0.0, "network": 0.0, "points": len(pts),
+                "evaluations": 1 if grey else 3}
+        if not len(pts):
+            return np.zeros((0, channels), np.float32), info
+        if self.query is not None:
+            with Stopwatch() as sw:
+                vals = np.asarray(self.query(pts, -dirs), np.float32).reshape(len(pts), 3)
+            info["network"] = sw.seconds
+            return vals[:, :channels], info
+        vals, info = self.net.evaluate(pts, -dirs, frame.light.direction, m, frame.shortcuts)
+        return vals.reshape(len(vals), -1), info
 
     def plan(self, medium, shortcuts: bool) -> MsPlan:
         if self.table is None:
@@ -160,4 +168,211 @@ class ViewMs(NetworkMs):
         h.update({"raymarch.view_block": self.block, "raymarch.view_knots": self.knots,
                   "raymarch.view_blocks_queried": info.get("blocks", 0),
                   "seconds.view_depths": round(info.get("depths", 0.0), 4)})
+        return h
+
+
+# --------------------------------------------------------------------------- stochastic
+
+DEFAULT_STOCHASTIC_BLOCK = 2
+DEFAULT_VIEW_SAMPLES = 1
+MAX_VIEW_SAMPLES = 4096
+# A still view stops drawing once every block holds this many samples: the table's noise
+# then sits well below the network's own error (bench/accuracy_vs_time.py, stochastic rows).
+STILL_SAMPLES = 64
+# Through a camera move a block keeps at most this many samples' worth of history, so a new
+# sample weighs at least 1/(MOVE_HISTORY + 1) and the table follows the view (F_ms depends
+# on the direction toward the camera, which the move changed).
+MOVE_HISTORY = 4
+
+
+def check_stochastic_options(samples, seed):
+    def is_int(v):
+        return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+    if not (is_int(samples) and 1 <= samples <= MAX_VIEW_SAMPLES):
+        raise ClvolError(f"raymarch option view_samples = {samples!r}: an integer from 1 to "
+                         f"{MAX_VIEW_SAMPLES} (free-flight samples per block per frame)")
+    if not (is_int(seed) and 0 <= seed < 2 ** 32):
+        raise ClvolError(f"raymarch option seed = {seed!r}: an integer in [0, 2^32)")
+
+
+class _History:
+    """What a stochastic table has accumulated: per block the sum of F_ms over its samples,
+    their count and their mean depth, for one light and medium, at one camera."""
+
+    def __init__(self, key, channels, by, bx):
+        self.key = key
+        self.sums = np.zeros((channels, by, bx), np.float64)
+        self.count = np.zeros((by, bx), np.float64)
+        self.depth = np.zeros((by, bx), np.float64)       # mean sample depth (a sum until
+        self.camera = None                                # divided; see table())
+        self.still = 0                                    # draws since the last move
+
+    def table(self) -> np.ndarray:
+        """(1 + C, by, bx, 1) float32: mean depth (-1 where no sample yet), mean F_ms."""
+        c = self.count
+        inv = np.where(c > 0, 1.0 / np.maximum(c, 1.0), 0.0)
+        t = np.empty((1 + len(self.sums),) + c.shape + (1,), np.float32)
+        t[0, ..., 0] = np.where(c > 0, self.depth * inv, -1.0)
+        t[1:, ..., 0] = self.sums * inv
+        return t
+
+
+@register
+class StochasticViewMs(ViewMs):
+    """MRPNN's estimator at the camera's view: each frame, one free-flight point per block of
+    ``block`` x ``block`` pixels (a uniformly jittered ray, a depth drawn from its
+    in-scattering weight), accumulated per block while the view is still and reprojected
+    when the camera moves. The marcher reads the block means as a one-knot view table
+    (MS_SOURCE 3, VIEW_K 1): F_ms constant along each ray, blended across blocks."""
+    name = "stochastic"
+    options = ("weights", "view_block", "view_samples", "seed", "no_domain_fallback")
+    what = "stochastic view-space F_ms table"
+
+    def __init__(self, weights=None, block: int = DEFAULT_STOCHASTIC_BLOCK,
+                 samples: int = DEFAULT_VIEW_SAMPLES, seed: int = 0, runtime=None):
+        super().__init__(weights, block, 1, runtime)
+        check_stochastic_options(samples, seed)
+        self.samples, self.seed = int(samples), int(seed)
+        self.draws = 0              # draws since construction: the RNG stream's position
+        self.history = None
+
+    @classmethod
+    def from_options(cls, o: dict, runtime=None) -> "StochasticViewMs":
+        block = o.get("view_block")
+        return cls(o.get("weights"), DEFAULT_STOCHASTIC_BLOCK if block is None else block,
+                   o.get("view_samples", DEFAULT_VIEW_SAMPLES), o.get("seed", 0), runtime)
+
+    @property
+    def label(self) -> str:
+        from pathlib import Path
+        n = int(self.history.count.max()) if self.history is not None else 0
+        return (f"network multiple scattering at the camera's view, stochastic (one "
+                f"free-flight sample per {self.block}x{self.block} pixels per frame, up to "
+                f"{n} accumulated; weights {Path(str(self.weights_path)).name})")
+
+    def reset(self) -> None:
+        """Forget the accumulated samples (the next frame starts afresh)."""
+        self.history = None
+        self._key = None
+
+    def _draw(self, frame, rng):
+        """One free-flight sample per block: (points (n, 3), dirs (n, 3), depths (n,),
+        block mask (by, bx)) for the blocks whose jittered ray meets the medium."""
+        from ..kernels.viewdepth import block_grid, view_depths
+        cam, m = frame.camera, frame.medium
+        bx, by = block_grid(cam.width, cam.height, self.block)
+        jitter = rng.random((by, bx, 3), dtype=np.float32)
+        fwd, right, up = cam.basis()
+        density = frame.density if frame.density is not None else frame.grid.density
+        depths, _ = view_depths(density, frame.grid.bbox_min, frame.grid.bbox_max,
+                                m.density_scale, cam.origin, fwd, right, up, cam.tan_half_fov,
+                                cam.width, cam.height, self.block, 1, 1,
+                                VIEW_STEP_FACTOR * frame.step, frame.threshold,
+                                jitter=jitter, runtime=frame.runtime)
+        full = depths[..., 0] >= 0
+        col = (np.arange(bx)[None, :] + jitter[..., 0]) * self.block
+        row = (np.arange(by)[:, None] + jitter[..., 1]) * self.block
+        dirs = cam.directions_at(col[full], row[full])
+        t = depths[full, 0].astype(np.float64)
+        return np.asarray(cam.origin, np.float64) + t[:, None] * dirs, dirs, t, full
+
+    def _reproject(self, h: _History, cam, pts, full) -> None:
+        """Carry the history from ``h.camera`` to ``cam``: each block with a new sample
+        takes the old block its point projects into (at most MOVE_HISTORY samples' worth);
+        the others start empty."""
+        old = h.camera
+        col, row, _ = old.image_positions(pts)
+        by, bx = h.count.shape
+        with np.errstate(invalid="ignore"):            # NaN behind the old camera
+            i = np.floor(col / self.block)
+            j = np.floor(row / self.block)
+        ok = np.isfinite(i) & np.isfinite(j) & (i >= 0) & (i < bx) & (j >= 0) & (j < by)
+        src_i, src_j = i[ok].astype(np.int64), j[ok].astype(np.int64)
+        inv = 1.0 / np.maximum(h.count[src_j, src_i], 1.0)
+        keep = np.minimum(h.count[src_j, src_i], MOVE_HISTORY)
+        sums = np.zeros_like(h.sums)
+        count = np.zeros_like(h.count)
+        depth = np.zeros_like(h.depth)
+        dst = tuple(np.argwhere(full)[ok].T)
+        for c in range(len(sums)):
+            sums[c][dst] = h.sums[c, src_j, src_i] * inv * keep
+        count[dst] = keep
+        # The old mean depth is along the old rays: with one knot the marcher reads only
+        # its sign (a block with samples), and new samples soon outweigh it.
+        depth[dst] = h.depth[src_j, src_i] * inv * keep
+        h.sums, h.count, h.depth = sums, count, depth
+        h.still = 0
+
+    def prepare(self, frame) -> None:
+        from ..kernels.viewdepth import block_grid
+        if self.info:
+            self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0,
+                             reproject=0.0, points=0)
+        self._ensure_network(frame)
+        cam, m = frame.camera, frame.medium
+        grey = frame.shortcuts and m.is_grey
+        key = (tuple(frame.light.direction), m.density_scale, tuple(m.albedo), m.phase,
+               bool(frame.shortcuts), cam.width, cam.height, cam.tan_half_fov)
+        bx, by = block_grid(cam.width, cam.height, self.block)
+        h = self.history
+        if h is None or h.key != key:
+            h = self.history = _History(key, 1 if grey else 3, by, bx)
+        moved = h.camera is not None and (tuple(h.camera.origin) != tuple(cam.origin) or
+                                          not np.array_equal(np.concatenate(h.camera.basis()),
+                                                             np.concatenate(cam.basis())))
+        if not moved and h.still >= STILL_SAMPLES:
+            return                                       # converged: nothing to draw
+        builds = self.net.graded_builds
+        with Stopwatch() as sw:
+            draws = []
+            for _ in range(self.samples):
+                rng = np.random.default_rng([self.seed, self.draws])
+                self.draws += 1
+                draws.append(self._draw(frame, rng))
+        t_depths = sw.seconds
+        t_reproject = 0.0
+        if moved:
+            with Stopwatch() as sw:
+                self._reproject(h, cam, draws[0][0], draws[0][3])
+            t_reproject = sw.seconds
+        pts = np.concatenate([d[0] for d in draws])
+        dirs = np.concatenate([d[1] for d in draws])
+        vals, info = self._evaluate(frame, pts, dirs)
+        start = 0
+        for p, _, t, full in draws:
+            v = vals[start:start + len(p)]
+            start += len(p)
+            for c in range(len(h.sums)):
+                h.sums[c][full] += v[:, c]
+            h.count[full] += 1
+            h.depth[full] += t
+        h.camera = cam
+        h.still += self.samples
+        info.update(depths=t_depths, reproject=t_reproject, blocks=int((h.count > 0).sum()),
+                    samples=int(h.count.max()))
+        self.info = info
+        self.table = frame.runtime.upload(h.table())
+        if self.net.graded_builds != builds:
+            frame.count("graded_transmittance")
+        frame.count("ms_view_table")
+
+    def plan(self, medium, shortcuts: bool) -> MsPlan:
+        p = super().plan(medium, shortcuts)
+        h = self.history
+        n = (int(h.count[h.count > 0].min()), int(h.count.max())) if (
+            h is not None and (h.count > 0).any()) else (0, 0)
+        p.simulated[-1] = (f"multiple scattering (network at the camera's view, stochastic: "
+                           f"one free-flight sample per {self.block}x{self.block}-pixel block "
+                           f"per frame, {n[0]}-{n[1]} accumulated per block)")
+        p.skipped[-1] = ("network evaluations for pixel blocks whose sample ray misses the "
+                         "medium")
+        return p
+
+    def header(self) -> dict:
+        h = super().header()
+        h.pop("raymarch.view_knots", None)
+        info = self.info or {}
+        h.update({"raymarch.view_samples": self.samples, "raymarch.seed": self.seed,
+                  "raymarch.view_accumulated": info.get("samples", 0),
+                  "seconds.view_reproject": round(info.get("reproject", 0.0), 4)})
         return h
