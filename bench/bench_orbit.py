@@ -2,7 +2,8 @@
 single-scattering march of the same frames, in one run.
 
     python bench/bench_orbit.py [--frames 5] [--sizes 256 512] [--volumes cloud cloud128 cloud256]
-                                [--ms network|view] [--view-block B] [--view-knots K]
+                                [--ms network|view|stochastic] [--view-block B] [--view-knots K]
+                                [--view-samples N]
 
 Volumes: ``cloud`` (examples' cloud, 96^3, tests/data/scenes/cloud.toml) and the same cloud
 generator at 128^3 and 256^3. Motions, one change every frame: ``camera`` (an orbit, 3 degrees
@@ -13,7 +14,8 @@ median frame time of each method and their ratio (wall clock and this process's 
 the default method's median split by stage (light field, graded transmittance, view-space
 query depths, gather, network, interpolation of the view-independent cache, march; a stage the
 change did not invalidate costs 0). ``--ms view`` times the view-space source instead of the
-world lattice (clvol/render/view.py). Targets (docs/raymarch.md): camera motion at 256^2 costs <= 1.5x the
+world lattice (clvol/render/view.py), ``--ms stochastic`` its stochastic mode (one draw per
+block per frame; the camera motion then includes the reprojection stage). Targets (docs/raymarch.md): camera motion at 256^2 costs <= 1.5x the
 plain march; a light change costs <= 250 ms at 128^3.
 """
 from __future__ import annotations
@@ -32,8 +34,8 @@ from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import Phase, load_scene  # noqa: E402
 
-STAGES = ("light_field", "graded_transmittance", "view_depths", "gather", "network",
-          "ms_interpolate", "march")
+STAGES = ("light_field", "graded_transmittance", "view_depths", "view_reproject", "gather",
+          "network", "ms_interpolate", "march")
 
 
 def base_scene(volume: str, size: int):
@@ -82,6 +84,7 @@ def run(renderer: Renderer, todo: list[dict]) -> tuple[list[float], dict]:
         stages["light_field"].append(h["seconds.light_field"] if "light_field" in grew else 0.0)
         filled = "ms_lattice" in grew or "ms_view_table" in grew
         stages["view_depths"].append(h.get("seconds.view_depths", 0.0) if filled else 0.0)
+        stages["view_reproject"].append(h.get("seconds.view_reproject", 0.0) if filled else 0.0)
         stages["graded_transmittance"].append(
             h.get("seconds.graded_transmittance", 0.0) if "graded_transmittance" in grew else 0.0)
         stages["gather"].append(h.get("seconds.gather", 0.0) if filled else 0.0)
@@ -106,14 +109,18 @@ def main(argv=None) -> int:
     ap.add_argument("--ms-refresh", type=int, default=None,
                     help="network progressive refresh, 1/K of the lattice per camera move "
                          "(default: the Renderer's)")
-    ap.add_argument("--ms", choices=["network", "view"], default="network",
+    ap.add_argument("--ms", choices=["network", "view", "stochastic"], default="network",
                     help="the multiple-scattering source of the timed method (default network)")
     ap.add_argument("--view-block", type=int, default=None, help="--ms view: block side")
     ap.add_argument("--view-knots", type=int, default=None, help="--ms view: queries per block")
+    ap.add_argument("--view-samples", type=int, default=None,
+                    help="--ms stochastic: draws per block per frame")
     args = ap.parse_args(argv)
-    unused = ([n for n in ("ms_resolution", "ms_directions", "ms_refresh") if getattr(args, n)]
-              if args.ms == "view" else
-              [n for n in ("view_block", "view_knots") if getattr(args, n)])
+    reads = {"network": ("ms_resolution", "ms_directions", "ms_refresh"),
+             "view": ("view_block", "view_knots"),
+             "stochastic": ("view_block", "view_samples")}[args.ms]
+    unused = [n for n in ("ms_resolution", "ms_directions", "ms_refresh", "view_block",
+                          "view_knots", "view_samples") if getattr(args, n) and n not in reads]
     if unused:
         ap.error(f"--{unused[0].replace('_', '-')} is not read with --ms {args.ms}")
     rt = get_runtime()
@@ -121,8 +128,8 @@ def main(argv=None) -> int:
     print(f"medians over {args.frames} frames, one change per frame; ms = milliseconds; "
           f"default method options: ms_resolution={args.ms_resolution or 'default'}, "
           f"ms_directions={args.ms_directions or 0}, ms_refresh={args.ms_refresh or 1}, "
-          f"ms={args.ms}" + (f", view_block={args.view_block or 'default'}, view_knots="
-                             f"{args.view_knots or 'default'}" if args.ms == "view" else ""))
+          f"ms={args.ms}" + "".join(f", {n}={getattr(args, n) or 'default'}" for n in reads
+                                    if args.ms != "network"))
     print("default/plain: wall-clock ms per frame; cpu: CPU time of this process (host + PoCL "
           "threads) per frame, less sensitive to other processes' load")
     print(f"{'volume':9s} {'size':>5s} {'motion':7s} {'timed':>8s} {'plain':>7s} {'ratio':>6s} "
@@ -135,11 +142,7 @@ def main(argv=None) -> int:
             sc = base_scene(volume, size)
             for motion in args.motions:
                 todo = frames(sc, motion, args.frames)
-                opts = ((("ms_resolution", args.ms_resolution),
-                         ("ms_directions", args.ms_directions),
-                         ("ms_refresh", args.ms_refresh)) if args.ms == "network" else
-                        (("view_block", args.view_block), ("view_knots", args.view_knots)))
-                kw = {k: v for k, v in opts if v is not None}
+                kw = {n: getattr(args, n) for n in reads if getattr(args, n) is not None}
                 d = Renderer(sc, grid=grid, ms=args.ms, **kw)
                 td, st = run(d, todo)
                 tp, sp = run(Renderer(sc, ms="none", grid=grid), todo)

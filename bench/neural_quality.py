@@ -23,6 +23,14 @@ Methods, each a whole ``render_raymarch`` / ``render_pathtrace`` call on the loa
               twice (seeds 11, 12); the row scores their mean with the noise of both fills
               removed like the reference's (``scores(test_halves=...)``), so it is the
               representation's bias, not the queries' noise
+  stochastic  only with --stochastic N: ``--ms stochastic`` with N free-flight samples per block
+              accumulated on the still view (the viewer's image after N frames); timed like
+              the network (the whole N-sample render). Its own sampling noise stays in the
+              score: it is what a user sees after N frames
+  pt_stochastic  only with --pt-stochastic N and --stochastic: the stochastic table filled
+              by path-traced point queries (N paths per point) twice, with different sampling
+              and path seeds; the noise of both is removed like pt_view's, so the row is the
+              estimator's bias after that many samples (what the representation leaves)
   pt_lattice  only with --pt-lattice N: the network's F_ms lattice filled by the path tracer's
               point queries (N paths per point) instead, then the same march. Not a baseline
               and not timed: it shows what the lattice itself leaves at this resolution
@@ -102,6 +110,7 @@ TARGET = {"rmse100": 1.0, "relmse": 0.01, "flip": 0.05}
 REF_SEEDS = (7_000_001, 7_000_002)   # the two halves; test renders use other seeds
 PT_EQUAL_SEED = 11
 PT_VIEW_SEEDS = (11, 12)             # the two independent fills of the pt_view row
+STOCHASTIC_SEED = 5                  # the stochastic row's sampling stream
 # Bump when the cache file's layout changes (the key already covers the path tracer's code).
 CACHE_FORMAT = 1
 PATHTRACER_SOURCES = ("cl/pathtrace.cl", "cl/include/rng.h", "cl/include/grid.h",
@@ -276,28 +285,49 @@ def median_time(fn, n: int = 3):
 
 
 def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
-                   pt_lattice: int = 0, pt_view: int = 0, view_options=None) -> dict:
+                   pt_lattice: int = 0, pt_view: int = 0, view_options=None,
+                   stochastic: int = 0, pt_stochastic: int = 0, stochastic_block=None) -> dict:
     """{method: (image, seconds, spp or None, halves or None)} for METHODS, each warmed up
     once untimed; ``halves``: the two independent renders a noisy row is the mean of.
     ``ms_resolution``: the network's F_ms lattice (None: the renderer's default);
     ``pt_lattice`` > 0: also "pt_lattice", that lattice filled by point queries;
     ``pt_view`` > 0: also "pt_view", the view-space table filled by point queries;
     ``view_options``: Renderer options of the view and pt_view rows (view_block, view_knots,
-    supersample; the renderer's defaults for those not given)."""
+    supersample; the renderer's defaults for those not given); ``stochastic`` > 0: also
+    "stochastic" with that many samples per block (block ``stochastic_block``, None the
+    renderer's default), and with ``pt_stochastic`` > 0 "pt_stochastic"."""
+    from clvol.render.renderer import Renderer
     vkw = dict(view_options or {})
+    skw = {"view_block": stochastic_block} if stochastic_block else {}
     out = {}
-    if pt_view:
+
+    def pt_filled(ms, paths, extra_for_seed):
+        """Two renders whose table is filled by point queries with seeds PT_VIEW_SEEDS (and
+        the source options ``extra_for_seed(seed)``): so that scores() removes their noise."""
         from clvol.render.pathtrace import point_query
-        from clvol.render.renderer import Renderer
         halves = []
-        for seed in PT_VIEW_SEEDS:        # twice, so that scores() can remove their noise
-            r = Renderer(scene, "raymarch", grid=grid, ms="view", **vkw)
+        for seed in PT_VIEW_SEEDS:
+            r = Renderer(scene, "raymarch", grid=grid, ms=ms, **extra_for_seed(seed))
             src, _ = r.active_source()
-            if src is r.source:   # the view source runs here (not a domain or thin fallback)
-                src.query = (lambda sd: lambda p, w: point_query(scene, p, w, pt_view, seed=sd,
+            if src is r.source:   # the source runs here (not a domain or thin fallback)
+                src.query = (lambda sd: lambda p, w: point_query(scene, p, w, paths, seed=sd,
                                                                  grid=grid)["Fms"])(seed)
             halves.append(r.render().layers["total"])
-        out["pt_view"] = (0.5 * (halves[0] + halves[1]), float("nan"), pt_view, halves)
+        return (0.5 * (halves[0] + halves[1]), float("nan"), paths, halves)
+
+    if pt_view:
+        out["pt_view"] = pt_filled("view", pt_view, lambda seed: vkw)
+    if stochastic and pt_stochastic:
+        out["pt_stochastic"] = pt_filled(
+            "stochastic", pt_stochastic,
+            lambda seed: dict(skw, view_samples=stochastic, seed=seed))
+    if stochastic:
+        def stochastic_render():
+            return Renderer(scene, "raymarch", grid=grid, ms="stochastic", weights=weights,
+                            view_samples=stochastic, seed=STOCHASTIC_SEED, **skw).render()
+        stochastic_render()                                          # build kernels
+        res, s = median_time(stochastic_render, repeats)
+        out["stochastic"] = (res.layers["total"], s, None, None)
     if pt_lattice:
         from clvol.render.network import DEFAULT_NETWORK_RESOLUTION
         from clvol.render.pathtrace import point_query
@@ -425,6 +455,14 @@ def main(argv=None) -> int:
                     help="S x S rays per pixel for the rows view and pt_view (--view-block then "
                          "counts sub-pixels): separates the representation from pixel-centre "
                          "sampling, since the references average each pixel's area")
+    ap.add_argument("--stochastic", type=int, default=0, metavar="N",
+                    help="also a row with --ms stochastic after N samples per block (the still "
+                         "view's accumulation)")
+    ap.add_argument("--stochastic-block", type=int, default=None, metavar="B",
+                    help="the stochastic source's block side (default: the renderer's)")
+    ap.add_argument("--pt-stochastic", type=int, default=0, metavar="PATHS",
+                    help="with --stochastic: also a row with the stochastic table filled by "
+                         "path-traced point queries (PATHS per point), noise removed")
     ap.add_argument("--ms-resolution", type=int, default=None,
                     help="the network's F_ms lattice (default: the renderer's); the target is "
                          "judged at the default, other values show what the lattice costs")
@@ -448,6 +486,10 @@ def run(args) -> int:
         raise ClvolError(f"--pt-lattice {args.pt_lattice}: must be >= 0 paths per point (0: no row)")
     if args.pt_view < 0:
         raise ClvolError(f"--pt-view {args.pt_view}: must be >= 0 paths per point (0: no row)")
+    if args.stochastic < 0 or args.pt_stochastic < 0:
+        raise ClvolError("--stochastic and --pt-stochastic must be >= 0 (0: no row)")
+    if args.pt_stochastic and not args.stochastic:
+        raise ClvolError("--pt-stochastic needs --stochastic N (the samples per block)")
     if args.repeats < 1:
         raise ClvolError(f"--repeats {args.repeats}: must be >= 1")
     out_path = Path(args.out) if args.out else None
@@ -482,10 +524,13 @@ def run(args) -> int:
                                  {k: v for k, v in (("view_block", args.view_block),
                                                     ("view_knots", args.view_knots),
                                                     ("supersample", args.view_supersample))
-                                  if v is not None})
+                                  if v is not None},
+                                 args.stochastic, args.pt_stochastic, args.stochastic_block)
         floor_flip = flip(h1, h2)
         methods = (METHODS + (("pt_lattice",) if args.pt_lattice else ())
-                   + (("pt_view",) if args.pt_view else ()))
+                   + (("pt_view",) if args.pt_view else ())
+                   + (("stochastic",) if args.stochastic else ())
+                   + (("pt_stochastic",) if args.pt_stochastic else ()))
         for method in methods:
             img, secs, spp, halves = renders[method]
             s = scores(img, h1, h2, test_halves=halves)

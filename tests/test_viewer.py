@@ -219,6 +219,38 @@ def test_newest_request_wins_and_a_dropped_client_leaves_nothing(server):
     asyncio.run(run())
 
 
+def test_stochastic_method_refines_while_still_then_idles_and_reprojects_on_move(server):
+    """The stochastic view-space source: while the view is still the server keeps rendering,
+    one more sample per block each frame, until STILL_SAMPLES; then it sends nothing more.
+    An orbit step keeps MOVE_HISTORY samples of history plus the new one."""
+    import aiohttp
+    from clvol.render.view import MOVE_HISTORY, STILL_SAMPLES
+    url, _ = server
+
+    async def run():
+        async with aiohttp.ClientSession() as session:
+            async with session.ws_connect(url + "ws") as ws:
+                await ws.receive_json()
+                await ws.send_str(json.dumps({"type": "state",
+                                              "state": {"method": "stochastic"}}))
+                counts = []
+                while not counts or counts[-1] < STILL_SAMPLES:
+                    meta, _ = await _next_frame(ws)
+                    if meta["method"] == "stochastic":
+                        counts.append(meta["spp"])
+                        assert "view_depths" in meta["stages_ms"]
+                assert counts == list(range(counts[0], STILL_SAMPLES + 1))
+                with pytest.raises(asyncio.TimeoutError):      # converged: no more frames
+                    await _next_frame(ws, timeout=1.5)
+                await ws.send_str(json.dumps({"type": "state", "state": {"azimuth": 4.0}}))
+                meta, _ = await _next_frame(ws)
+                assert meta["state"]["azimuth"] == 4.0 and meta["spp"] == MOVE_HISTORY + 1
+                await ws.send_str(json.dumps({"type": "state", "state": {"method": "network"}}))
+                await _next_frame(ws)
+
+    asyncio.run(run())
+
+
 def test_loopback_check():
     from clvol.viewer.server import is_loopback
     assert is_loopback("127.0.0.1") and is_loopback("127.0.0.2") and is_loopback("::1")

@@ -84,6 +84,16 @@ class FrameMaker:
             self.renderers[method] = self._renderer_type(self.scene, **options)
         return self.renderers[method]
 
+    @staticmethod
+    def refines(frame: Frame) -> bool:
+        """Whether rendering the same state again improves ``frame``: the path tracer adds
+        a pass; the stochastic source adds a sample per block until it has STILL_SAMPLES."""
+        from ..render.view import STILL_SAMPLES
+        if frame.state.method == "pathtrace":
+            return True
+        n = frame.header.get("raymarch.view_accumulated")
+        return isinstance(n, int) and n < STILL_SAMPLES
+
     def render(self, state: ViewState, previous: Frame | None) -> Frame:
         """One frame for ``state``; for the path tracer, one more pass averaged into
         ``previous`` when it was made for the same state."""
@@ -110,6 +120,8 @@ class FrameMaker:
                     layers = {k: (previous.layers[k] * (1.0 - w) + v * w).astype(np.float32)
                               for k, v in layers.items() if k in previous.layers}
                     spp = n + PT_PASS_SPP
+            if "raymarch.view_accumulated" in result.header:
+                spp = int(result.header["raymarch.view_accumulated"])   # samples per block
             seconds = time.perf_counter() - t0
             self.frames_rendered += 1
             return Frame(state=state, layers=layers, header=dict(result.header), spp=spp,
@@ -198,7 +210,7 @@ class Connection:
             self.wake.clear()
             state = self.state
             last = self.last
-            if (last is not None and state.method != "pathtrace"
+            if (last is not None and not self.maker.refines(last)
                     and last.state.accumulation_key() == state.accumulation_key()):
                 frame = last                  # only the exposure changed: re-tone-map
             else:
@@ -218,7 +230,7 @@ class Connection:
                 await self.ws.send_bytes(data)
             except (ConnectionError, RuntimeError):
                 return
-            if state.method == "pathtrace" and self.state is state:
+            if self.maker.refines(frame) and self.state is state:
                 self.wake.set()               # keep accumulating while the view is still
 
 

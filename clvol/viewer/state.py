@@ -24,6 +24,9 @@ class ViewerMessageError(ClvolError):
 # The viewer's method menu: label -> Renderer keyword options.
 METHODS: dict[str, dict] = {
     "network": {},                                            # the paper's method (default)
+    # the same network at one free-flight point per pixel block per frame: accumulates while
+    # the view is still, reprojects while it moves (clvol/render/view.py)
+    "stochastic": {"method": "raymarch", "ms": "stochastic"},
     "wrenninge": {"method": "raymarch", "ms": "wrenninge"},
     "single": {"method": "raymarch", "ms": "none"},
     "pathtrace": {"method": "pathtrace"},

@@ -63,7 +63,10 @@ function onFrame(buffer) {
   const span = (now - clvol.frameTimes[0]) / 1000;
   $("fps").textContent = span > 0 ? ((clvol.frameTimes.length - 1) / span).toFixed(1) : "-";
   $("framems").textContent = meta.frame_ms.toFixed(1) + " ms (" + meta.width + "\u00d7" + meta.height + ")";
-  $("spp").textContent = meta.method === "pathtrace" ? String(meta.spp) : "-";
+  // the path tracer's samples per pixel; the stochastic source's samples per pixel block
+  $("spplabel").textContent = meta.method === "stochastic" ? "samples" : "spp";
+  $("spp").textContent = meta.method === "pathtrace" || meta.method === "stochastic"
+    ? String(meta.spp) : "-";
   $("stages").textContent = Object.entries(meta.stages_ms)
     .map(([k, v]) => k + ": " + v.toFixed(1) + " ms").join("\n");
   $("effects").textContent = Object.entries(meta.effects).map(([k, v]) => k + ": " + v).join("\n");
