@@ -12,13 +12,17 @@ untimed run at the smallest setting):
   raymarch/grid        + F_ms from a lattice of path-traced point queries (8^3 and 16^3 points,
                        64 paths each); the time includes filling the lattice
   raymarch/network     + F_ms from the trained network (--weights, default
-                       clvol/data/weights/full_albedo.npz) on a 16^3 and 32^3 lattice: frame = the
+                       clvol/data/weights/full_albedo.npz) on a 16^3, 32^3 and 64^3 lattice: frame = the
                        march; light update = graded transmittance + gather + network fill + the
                        light field (the lattice depends on the camera too: a camera move costs
                        the gather + network part again)
   raymarch/view        + the same network at the camera's view (--ms view), blocks of 4, 2 and
                        1 pixels: frame = the march; light update = light field + query depths +
                        gather + network (a camera move costs the same)
+  raymarch/stochastic  + the same network at one free-flight point per pixel block per frame
+                       (--ms stochastic), after 1, 4, 16 and 64 frames of a still view: frame =
+                       the median whole frame (a draw, the queries and the march); light update
+                       = N frames (what an image of that quality costs after a change)
 Times: "frame" is what one more image costs (the march for the ray marcher; the whole render
 for the path tracer), "light update" what a light change costs once (the light field, and the
 lattice fill for the grid source). Errors: the MRPNN metric (RMSE x 100 of tonemapped 8-bit luminance), relMSE and RMSE against the
@@ -155,7 +159,7 @@ def main(argv=None) -> int:
     if args.weights and Path(args.weights).exists():
         src = NetworkSource(args.weights, grid, scene.medium, rt)
         unit_other = other / np.linalg.norm(other)
-        for lattice in (16, 32):
+        for lattice in ((16, 32) if args.quick else (16, 32, 64)):
             src.fill(scene, unit_other, lattice)          # compile and bake once, untimed
 
             def network_change():
@@ -190,6 +194,18 @@ def main(argv=None) -> int:
             res, _ = best_of(3, r.render)               # unchanged: the march
             record("raymarch/view", f"block {block}", res.layers,
                    float(res.header["seconds.march"]), min(updates))
+        # Stochastic: frames of a still view after a light change (which starts it afresh).
+        r = Renderer(scene, "raymarch", grid=grid, ms="stochastic", weights=args.weights)
+        r.render(light=dataclasses.replace(scene.light, direction=tuple(unit_other)))  # compile
+        walls = []
+        for frame in range(1, 65):
+            res, s = timed(r.render)          # the first after the change resets the history
+            walls.append(s)
+            if frame in (1, 4, 16, 64):
+                per_frame = float(np.median(walls))
+                record("raymarch/stochastic",
+                       f"block {r.source.block}, {frame} frame{'s' * (frame > 1)}",
+                       res.layers, per_frame, frame * per_frame)
     elif args.weights:
         print(f"raymarch/network skipped: no weight file {args.weights}")
 
@@ -206,9 +222,11 @@ def main(argv=None) -> int:
 
 
 def svg_plot(rows, title: str, w: int = 640, h: int = 420) -> str:
-    """A log-log scatter of MRPNN error against frame seconds, one colour per method (no plotting
-    dependency: a plain SVG)."""
-    xs = np.array([r["seconds"] for r in rows])
+    """A log-log scatter of MRPNN error against seconds, one colour per method (no plotting
+    dependency: a plain SVG): filled dots joined by a line at the per-frame cost, rings joined
+    by a dashed line at the per-change cost (light update) where a method has one."""
+    xs = np.array([r["seconds"] for r in rows] +
+                  [r["light_update_seconds"] for r in rows if r["light_update_seconds"] > 0])
     ys = np.array([max(r["mrpnn"], 1e-3) for r in rows])
     lx0, lx1 = np.floor(np.log10(xs.min())), np.ceil(np.log10(xs.max()))
     ly0, ly1 = np.floor(np.log10(ys.min())), np.ceil(np.log10(ys.max()))
@@ -222,7 +240,8 @@ def svg_plot(rows, title: str, w: int = 640, h: int = 420) -> str:
 
     colours = {"pathtrace": "#1f77b4", "raymarch/none": "#7f7f7f",
                "raymarch/wrenninge": "#ff7f0e", "raymarch/grid": "#2ca02c",
-               "raymarch/network": "#d62728", "raymarch/view": "#9467bd"}
+               "raymarch/network": "#d62728", "raymarch/view": "#9467bd",
+               "raymarch/stochastic": "#8c564b"}
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" '
            f'font-family="sans-serif" font-size="11">',
            f'<rect width="{w}" height="{h}" fill="white"/>',
@@ -235,7 +254,8 @@ def svg_plot(rows, title: str, w: int = 640, h: int = 420) -> str:
         y = py(10.0 ** e)
         out.append(f'<line x1="{ml}" y1="{y:.1f}" x2="{w - mr}" y2="{y:.1f}" stroke="#ddd"/>')
         out.append(f'<text x="{ml - 5}" y="{y + 4:.1f}" text-anchor="end">{10.0 ** e:g}</text>')
-    out.append(f'<text x="{(ml + w - mr) / 2}" y="{h - 8}" text-anchor="middle">frame seconds (log)</text>')
+    out.append(f'<text x="{(ml + w - mr) / 2}" y="{h - 8}" text-anchor="middle">seconds per '
+               f'frame (dots) and per light change (rings), log</text>')
     out.append(f'<text x="14" y="{(mt + h - mb) / 2}" transform="rotate(-90 14 {(mt + h - mb) / 2})" '
                f'text-anchor="middle">MRPNN error (log)</text>')
     for k, (method, colour) in enumerate(colours.items()):
@@ -245,6 +265,14 @@ def svg_plot(rows, title: str, w: int = 640, h: int = 420) -> str:
         path = " ".join(f"{x:.1f},{y:.1f}" for x, y in pts)
         out.append(f'<polyline points="{path}" fill="none" stroke="{colour}" stroke-width="1.5"/>')
         out += [f'<circle cx="{x:.1f}" cy="{y:.1f}" r="3.5" fill="{colour}"/>' for x, y in pts]
+        change = [(px(r["light_update_seconds"]), py(max(r["mrpnn"], 1e-3))) for r in rows
+                  if r["method"] == method and r["light_update_seconds"] > 0]
+        if change:
+            path = " ".join(f"{x:.1f},{y:.1f}" for x, y in change)
+            out.append(f'<polyline points="{path}" fill="none" stroke="{colour}" '
+                       f'stroke-width="1" stroke-dasharray="4 3"/>')
+            out += [f'<circle cx="{x:.1f}" cy="{y:.1f}" r="3.5" fill="white" stroke="{colour}"/>'
+                    for x, y in change]
         ly = mt + 10 + 18 * k
         out.append(f'<circle cx="{w - mr + 15}" cy="{ly}" r="4" fill="{colour}"/>')
         out.append(f'<text x="{w - mr + 25}" y="{ly + 4}">{method}</text>')

@@ -299,6 +299,8 @@ def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
     from clvol.render.renderer import Renderer
     vkw = dict(view_options or {})
     skw = {"view_block": stochastic_block} if stochastic_block else {}
+    if "supersample" in vkw:
+        skw["supersample"] = vkw["supersample"]
     out = {}
 
     def pt_filled(ms, paths, extra_for_seed):
@@ -452,8 +454,9 @@ def main(argv=None) -> int:
                     help="the view-space source's queries per block (rows view and pt_view; "
                          "default: the renderer's)")
     ap.add_argument("--view-supersample", type=int, default=None, metavar="S",
-                    help="S x S rays per pixel for the rows view and pt_view (--view-block then "
-                         "counts sub-pixels): separates the representation from pixel-centre "
+                    help="S x S rays per pixel for the rows view, pt_view, stochastic and "
+                         "pt_stochastic (--view-block and --stochastic-block then "
+                         "count sub-pixels): separates the representation from pixel-centre "
                          "sampling, since the references average each pixel's area")
     ap.add_argument("--stochastic", type=int, default=0, metavar="N",
                     help="also a row with --ms stochastic after N samples per block (the still "

@@ -344,6 +344,10 @@ def add_arguments(p) -> None:
     p.add_argument("scene", help="scene .toml file")
     p.add_argument("dir", help="output folder (created)")
     p.add_argument("--weights", metavar="FILE.npz", help="network weights (default: shipped)")
+    p.add_argument("--ms", default="network",
+                   help="multiple-scattering source: the C host implements network (the world "
+                        "lattice, default); view and stochastic are Python-only and refused "
+                        "(docs/embedding.md)")
     p.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
                    help=f"F_ms lattice points per side (default {DEFAULT_NETWORK_RESOLUTION}, "
                         f"at most 32)")
@@ -360,7 +364,13 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from .errors import ClvolError
     from .scene import load_scene
+    if args.ms != "network":
+        raise ClvolError(f"clvol bundle: --ms {args.ms} is not implemented by the C host, which "
+                         f"renders the network on the world lattice (--ms network); the "
+                         f"view-space sources (view, stochastic) run only in Python "
+                         f"(docs/embedding.md)")
     scene = load_scene(args.scene)
     over = {k: v for k, v in (("camera.width", args.width), ("camera.height", args.height))
             if v is not None}

@@ -320,6 +320,15 @@ def test_bundle_cli_refuses_bad_options(tmp_path, capsys):
     assert "step = 0.0" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("ms", ["view", "stochastic"])
+def test_bundle_refuses_the_view_space_sources(tmp_path, capsys, ms):
+    scene = ROOT / "examples" / "cloud.toml"
+    assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms", ms]) == 2
+    err = capsys.readouterr().err
+    assert f"--ms {ms} is not implemented by the C host" in err and "embedding.md" in err
+    assert not (tmp_path / "b").exists()
+
+
 def test_bundle_refuses_a_source_the_c_host_lacks(tmp_path, capsys, monkeypatch):
     """A scene the renderer would render with a source the C host does not run (none does
     today: the fallbacks are none and wrenninge) is refused with exit 2, naming it."""
