@@ -329,3 +329,20 @@ def test_sky_only_irradiance_zero_is_legal_for_every_method(tmp_path, options, s
     assert np.isfinite(rgb).all() and (rgb >= 0).all()
     if options.get("method") == "pathtrace" or sky == "constant":
         assert rgb.mean() > 0.05     # the sky is seen (and, path traced, lights the medium)
+
+
+@pytest.mark.oclgrind
+def test_envmap_tiny():
+    """Tiny launches for Oclgrind (tests/test_oclgrind.py): the map NEE, MIS escape and the
+    sampler entry on a 4x2 map with a black texel."""
+    m = np.array([[[1.0, 0.5, 0.2], [0.0, 0.0, 0.0], [0.3, 0.9, 0.1], [2.0, 2.0, 2.0]],
+                  [[0.1, 0.1, 0.1], [0.5, 0.4, 0.3], [0.2, 0.2, 0.9], [0.7, 0.1, 0.4]]],
+                 np.float32)
+    med = make_medium(density=np.full((3, 2, 3), 0.8, np.float32), lobes=[(0.5, 1.0)],
+                      albedo=(0.9, 0.8, 0.7), env_map=m, env_rotation=15.0, max_order=3)
+    cam = Camera((0.1, 0.0, 2.0), (0, 0, 0), (0, 1, 0), 30.0, 2, 2)
+    pt = PathTracer(med, majorant_block=0)
+    assert agreement(pt.render_batch(cam, 1, 0, 1), rpt.render_paths(twin(med), cam, 1, [0])) == 1.0
+    out = env_sample_test(envmap.build_tables(m, (1.0, 1.0, 1.0), 15.0),
+                          np.array([[0.1, 0.2], [0.7, 0.99]], np.float32))
+    assert np.isfinite(out).all() and (out[:, 3] > 0).all()
