@@ -14,6 +14,14 @@
  *   - new direction by exact phase sampling (phase.h, weight 1);
  *   - a path leaving the box collects beta * L_env as order k (order 0: the background
  *     seen through the medium, attenuated by the true transmittance in expectation).
+ *   - with an environment map (PT_ENVMAP; docs/pathtrace.md "Environment maps"): after the
+ *     sun NEE, every vertex also samples a direction d of the map by its luminance
+ *     (pt_env_sample) and adds beta * L(d) f(dot(d, w)) T(x -> d) w_env / p_env(d), with
+ *     T by ratio tracking as for the sun; a path leaving the box after phase sampling
+ *     from vertex k adds beta * L(w) w_phase; power heuristic
+ *     w_env = p_env^2 / (p_env^2 + f^2), w_phase = f^2 / (f^2 + p_env^2) (phase sampling
+ *     is exact: its pdf is f). At the last vertex (k = max_order, or PT_SINGLE_ONLY) no
+ *     direction is phase-sampled, so w_env = 1 there. Camera rays that escape add L(w).
  *   - Russian roulette from vertex PT_RR_START on: survive with q = min(1, max_c beta_c),
  *     beta /= q (unbiased; with albedo ~1, q ~ albedo, so long paths of clouds survive).
  *   - max_order > 0 stops after the NEE of vertex max_order (0 = unlimited); paths longer
@@ -25,11 +33,13 @@
  * (stream = pixel or query index, sample index, block); uniforms are used in order, 4 per
  * block. Draw order: [render: jitter x, y] then per flight step: u_tau and, at a tentative
  * collision inside the box, u_real; per NEE ratio-tracking step: u_tau (+ u_roulette when
- * T < PT_T_RR); per vertex before sampling a direction: u_rr (only if k >= PT_RR_START);
- * phase sample: 3 uniforms (lobe, polar, azimuth). reference/pathtrace.py draws the same.
+ * T < PT_T_RR); PT_ENVMAP: per vertex after the sun NEE, 2 uniforms (row, column of the
+ * map) and the env NEE's ratio-tracking draws; per vertex before sampling a direction:
+ * u_rr (only if k >= PT_RR_START); phase sample: 3 uniforms (lobe, polar, azimuth).
+ * reference/pathtrace.py draws the same.
  *
  * Defines: PHASE_LOBES / PHASE_ISOTROPIC (phase.h); PT_GREY (scalar throughput);
- * PT_ENV (a constant environment); PT_NO_SUN (no sun); PT_SINGLE_ONLY (stop after vertex
+ * PT_ENV (a constant environment); PT_ENVMAP (a lat-long environment map); PT_NO_SUN (no sun); PT_SINGLE_ONLY (stop after vertex
  * 1); PT_RR_START, PT_MAX_VERTICES; PT_TEST_BIAS (tests only: scales sun NEE by its value);
  * PT_LANES (8 or 16 paths per work-item), PT_BATCH (lanes waiting before the vertex code
  * runs), PT_STATS (loop counts in next[1..4], benchmarks only), PT_ORDER_BINS (point
@@ -44,6 +54,9 @@
  *   light_dir float4                unit vector toward the sun
  *   sun       float4                sun irradiance E (RGB, power / area perpendicular to l)
  *   env       float4                environment radiance (RGB), used with PT_ENV
+ *   PT_ENVMAP only (clvol/envmap.py Tables): env_rgbl float [h][w][4] (scaled RGB and
+ *             luminance), env_marg float [h+1], env_cond float [h][w+1] (CDFs, last 1),
+ *             env_w, env_h int, env_rot float (radians about +y), env_inv_total float
  * pt_render: cam_o, cam_f, cam_r, cam_u float4, tan_half, width, height; seed ulong;
  *   sample0 uint; spl int (samples per launch; path g: pixel g % npix, sample
  *   sample0 + g / npix); max_order int; out float [spl*npix][PT_OUT]:
@@ -181,6 +194,12 @@ typedef struct {
     float f[PT_LANES];                                /* phase value of the pending NEE */
     int pend[PT_LANES];                               /* pending step (H_*), 0 = none */
     float acc[9][PT_LANES];                           /* background, order 1, orders >= 2 */
+#ifdef PT_ENVMAP
+    float lx[PT_LANES], ly[PT_LANES], lz[PT_LANES];   /* shadow ray direction */
+    float ec[3][PT_LANES];      /* env NEE: L f w_env / p_env of the pending shadow ray */
+    float pf[PT_LANES];         /* phase pdf of the last phase-sampled direction */
+    int envnee[PT_LANES];       /* the pending shadow ray is the env NEE's */
+#endif
     int k[PT_LANES], vertices[PT_LANES], truncated[PT_LANES], path[PT_LANES];
 } pt_lanes;
 
@@ -267,7 +286,65 @@ typedef struct {
     pt_rgb env;       /* environment radiance */
     spec_t albedo;
     float4 lobe_g, lobe_w;
+#ifdef PT_ENVMAP
+    __global const float *env_rgbl, *env_marg, *env_cond;
+    int env_w, env_h;
+    float env_rot, env_inv_total;
+#endif
 } pt_light;
+
+#if defined(PT_ENV) && defined(PT_ENVMAP)
+#error "PT_ENV (constant) and PT_ENVMAP (map) are exclusive"
+#endif
+
+#ifdef PT_ENVMAP
+/* Largest i in [0, n - 1] with cdf[i] <= u, for cdf[0] = 0 <= u < 1 = cdf[n]: then
+ * cdf[i] <= u < cdf[i + 1], so the bin drawn has a positive width. */
+__attribute__((always_inline))
+int pt_cdf_find(__global const float *cdf, int n, float u) {
+    int lo = 0, hi = n;
+    while (hi - lo > 1) {
+        int mid = (lo + hi) >> 1;
+        if (cdf[mid] <= u) lo = mid; else hi = mid;
+    }
+    return lo;
+}
+
+/* Direction d of the map (world) for uniforms u0 (row), u1 (column): texel by the CDFs,
+ * then uniform in cos(theta) and phi inside it (clvol/envmap.py). Returns the texel's
+ * scaled RGB in .xyz and the pdf per solid angle, lum * inv_total (> 0), in .w. */
+__attribute__((always_inline))
+float4 pt_env_sample(const pt_light *L, float u0, float u1, float3 *d) {
+    const int w = L->env_w, h = L->env_h;
+    int i = pt_cdf_find(L->env_marg, h, u0);
+    float m0 = L->env_marg[i], m1 = L->env_marg[i + 1];
+    float fv = (u0 - m0) / (m1 - m0);                 /* m1 > m0: see pt_cdf_find */
+    __global const float *c = L->env_cond + (size_t)i * (w + 1);
+    int j = pt_cdf_find(c, w, u1);
+    float fu = (u1 - c[j]) / (c[j + 1] - c[j]);
+    float ct0 = cos(CLVOL_PI * (float)i / (float)h), ct1 = cos(CLVOL_PI * (float)(i + 1) / (float)h);
+    float ct = ct0 + fv * (ct1 - ct0);
+    float st = sqrt(fmax(0.0f, 1.0f - ct * ct));
+    float phi = 2.0f * CLVOL_PI * ((float)j + fu) / (float)w + L->env_rot;
+    *d = (float3)(st * cos(phi), ct, -st * sin(phi));
+    float4 t = vload4((size_t)i * w + j, L->env_rgbl);
+    t.w *= L->env_inv_total;
+    return t;
+}
+
+/* The map along unit direction d: scaled RGB in .xyz, pdf of pt_env_sample in .w. */
+__attribute__((always_inline))
+float4 pt_env_lookup(const pt_light *L, float3 d) {
+    const int w = L->env_w, h = L->env_h;
+    float u = (atan2(-d.z, d.x) - L->env_rot) * (0.5f / CLVOL_PI);
+    u -= floor(u);                                    /* [0, 1] */
+    float v = acos(clamp(d.y, -1.0f, 1.0f)) * (1.0f / CLVOL_PI);
+    int j = min((int)(u * (float)w), w - 1), i = min((int)(v * (float)h), h - 1);
+    float4 t = vload4((size_t)i * w + j, L->env_rgbl);
+    t.w *= L->env_inv_total;
+    return t;
+}
+#endif
 
 /* What a launch computes: path g of n is (stream g % nstream, sample sample0 + g / nstream). */
 typedef struct {
@@ -361,9 +438,15 @@ __attribute__((always_inline))
 vi pt_rays_v(pt_lanes *S, vi mask, const pt_medium *m, const pt_light *L, uint2 key) {
     vi shadow = VLOAD(S->mode) == PT_SHADOW;
     vf ox = VLOAD(S->ox), oy = VLOAD(S->oy), oz = VLOAD(S->oz);
+#ifdef PT_ENVMAP
+    vf dx = select(VLOAD(S->wx), VLOAD(S->lx), shadow);
+    vf dy = select(VLOAD(S->wy), VLOAD(S->ly), shadow);
+    vf dz = select(VLOAD(S->wz), VLOAD(S->lz), shadow);
+#else
     vf dx = select(VLOAD(S->wx), (vf)(L->dir.x), shadow);
     vf dy = select(VLOAD(S->wy), (vf)(L->dir.y), shadow);
     vf dz = select(VLOAD(S->wz), (vf)(L->dir.z), shadow);
+#endif
     vf lo = (vf)(0.0f), hi = (vf)(INFINITY);
     vi ok = mask;
     pt_slab_v(ox, dx, m->bmin.x, m->bmax.x, &lo, &hi, &ok);
@@ -448,6 +531,7 @@ void pt_set_beta_v(pt_lanes *S, vi mask, vf r, vf g, vf b) {
 #define H_NEE_DONE 6    /* shadow ray done with transmittance S.T */
 #define H_CONTINUE 7    /* roulette, phase sampling, next flight */
 #define H_RAY 8         /* start the ray of S.mode from S.o */
+#define H_ENV_NEE 9     /* PT_ENVMAP: sample the map, start its shadow ray */
 
 /* Run every lane with a pending step to its next ray (or to PT_IDLE when the launch has
  * no paths left), all lanes together, one step kind after the other. A lane's steps (and
@@ -478,6 +562,27 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             vf br, bg, bb;
             pt_beta_v(S, &br, &bg, &bb);
             pt_add_v(S, e, VLOAD(S->k), L->env.r * br, L->env.g * bg, L->env.b * bb);
+#endif
+#ifdef PT_ENVMAP
+            {   /* L(w), MIS-weighted against the env NEE unless k = 0 (camera ray) */
+                float lr[PT_LANES], lg[PT_LANES], lb[PT_LANES], lp[PT_LANES];
+                int on[PT_LANES];
+                VSTORE(e, on);
+                for (int j = 0; j < PT_LANES; ++j) {
+                    lr[j] = lg[j] = lb[j] = lp[j] = 0.0f;
+                    if (!on[j]) continue;
+                    float4 t = pt_env_lookup(L, (float3)(S->wx[j], S->wy[j], S->wz[j]));
+                    lr[j] = t.x; lg[j] = t.y; lb[j] = t.z; lp[j] = t.w;
+                }
+                vf pf = VLOAD(S->pf), pe = VLOAD(lp);
+                vf den = pf * pf + pe * pe;
+                vf wm = select((vf)(0.0f), pf * pf / den, den > 0.0f);
+                wm = select(wm, (vf)(1.0f), VLOAD(S->k) == 0);
+                vf br, bg, bb;
+                pt_beta_v(S, &br, &bg, &bb);
+                pt_add_v(S, e, VLOAD(S->k), VLOAD(lr) * br * wm, VLOAD(lg) * bg * wm,
+                         VLOAD(lb) * bb * wm);
+            }
 #endif
             h = select(h, (vi)(H_FINISH), e);
         }
@@ -573,7 +678,11 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             h = select(h, (vi)(H_FINISH), dead);
             e &= ~dead;
             VSTORE(VLOAD(S->vertices) - e, S->vertices);
+#ifdef PT_ENVMAP
+            h = select(h, (vi)(H_ENV_NEE), e);
+#else
             h = select(h, (vi)(H_CONTINUE), e);
+#endif
 #ifndef PT_NO_SUN
             /* Also tested at run time, so the general build of a sunless scene draws the
              * same random numbers as the PT_NO_SUN build. (fmax, not ||: LLVM turns a
@@ -584,11 +693,32 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
                 VSTORE(select(VLOAD(S->f), pt_phase_eval_v(mu, L->lobe_g, L->lobe_w), e), S->f);
                 VSTORE(select(VLOAD(S->T), (vf)(1.0f), e), S->T);
                 VSTORE(select(VLOAD(S->mode), (vi)(PT_SHADOW), e), S->mode);
+#ifdef PT_ENVMAP
+                VSTORE(select(VLOAD(S->lx), (vf)(L->dir.x), e), S->lx);
+                VSTORE(select(VLOAD(S->ly), (vf)(L->dir.y), e), S->ly);
+                VSTORE(select(VLOAD(S->lz), (vf)(L->dir.z), e), S->lz);
+                VSTORE(select(VLOAD(S->envnee), (vi)(0), e), S->envnee);
+#endif
                 h = select(h, (vi)(H_RAY), e);
             }
 #endif
         }
         e = h == H_NEE_DONE;
+#ifdef PT_ENVMAP
+        {   /* the env NEE's shadow ray: add beta L f w_env / p_env T as order k */
+            vi en = e & (VLOAD(S->envnee) != 0);
+            if (any(en)) {
+                vf br, bg, bb;
+                pt_beta_v(S, &br, &bg, &bb);
+                vf T = VLOAD(S->T);
+                pt_add_v(S, en, VLOAD(S->k), VLOAD(S->ec[0]) * br * T,
+                         VLOAD(S->ec[1]) * bg * T, VLOAD(S->ec[2]) * bb * T);
+                VSTORE(select(VLOAD(S->envnee), (vi)(0), en), S->envnee);
+                h = select(h, (vi)(H_CONTINUE), en);
+                e &= ~en;
+            }
+        }
+#endif
         if (any(e)) {
             vf s = VLOAD(S->f) * VLOAD(S->T);
 #ifdef PT_TEST_BIAS
@@ -612,8 +742,58 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
                 }
             }
 #endif
+#ifdef PT_ENVMAP
+            h = select(h, (vi)(H_ENV_NEE), e);
+#else
             h = select(h, (vi)(H_CONTINUE), e);
+#endif
         }
+#ifdef PT_ENVMAP
+        e = h == H_ENV_NEE;
+        if (any(e)) {
+            pt_lanes_refill(S, e, key);   /* 2 draws: row, column */
+            vf u0 = pt_lanes_take(S, e);
+            vf u1 = pt_lanes_take(S, e);
+            float a0[PT_LANES], a1[PT_LANES], dx[PT_LANES], dy[PT_LANES], dz[PT_LANES];
+            float lr[PT_LANES], lg[PT_LANES], lb[PT_LANES], lp[PT_LANES];
+            int on[PT_LANES];
+            VSTORE(e, on); VSTORE(u0, a0); VSTORE(u1, a1);
+            for (int j = 0; j < PT_LANES; ++j) {
+                dx[j] = dy[j] = 0.0f; dz[j] = 1.0f;
+                lr[j] = lg[j] = lb[j] = lp[j] = 0.0f;
+                if (!on[j]) continue;
+                float3 d;
+                float4 t = pt_env_sample(L, a0[j], a1[j], &d);
+                dx[j] = d.x; dy[j] = d.y; dz[j] = d.z;
+                lr[j] = t.x; lg[j] = t.y; lb[j] = t.z; lp[j] = t.w;
+            }
+            vf ddx = VLOAD(dx), ddy = VLOAD(dy), ddz = VLOAD(dz), pe = VLOAD(lp);
+            /* Cosine between propagation directions: dot(-d, -w) = dot(d, w). */
+            vf mu = ddx * VLOAD(S->wx) + ddy * VLOAD(S->wy) + ddz * VLOAD(S->wz);
+            vf f = pt_phase_eval_v(mu, L->lobe_g, L->lobe_w);
+#ifdef PT_SINGLE_ONLY
+            vi last = e;
+#else
+            vi last = VLOAD(S->k) == J->max_order;
+#endif
+            /* f w_env / p_env: f / p_env at the last vertex, else f p_env / (p_env^2 + f^2);
+             * p_env > 0 for a drawn texel (pt_cdf_find), guarded all the same. */
+            vf s = select(f * pe / (pe * pe + f * f), f / pe, last);
+            vi go = e & (pe > 0.0f);
+            s = select((vf)(0.0f), s, go);
+            VSTORE(select(VLOAD(S->ec[0]), VLOAD(lr) * s, e), S->ec[0]);
+            VSTORE(select(VLOAD(S->ec[1]), VLOAD(lg) * s, e), S->ec[1]);
+            VSTORE(select(VLOAD(S->ec[2]), VLOAD(lb) * s, e), S->ec[2]);
+            VSTORE(select(VLOAD(S->lx), ddx, go), S->lx);
+            VSTORE(select(VLOAD(S->ly), ddy, go), S->ly);
+            VSTORE(select(VLOAD(S->lz), ddz, go), S->lz);
+            VSTORE(select(VLOAD(S->T), (vf)(1.0f), go), S->T);
+            VSTORE(select(VLOAD(S->mode), (vi)(PT_SHADOW), go), S->mode);
+            VSTORE(select(VLOAD(S->envnee), (vi)(1), go), S->envnee);
+            h = select(h, (vi)(H_RAY), go);
+            h = select(h, (vi)(H_CONTINUE), e & ~go);
+        }
+#endif
         e = h == H_CONTINUE;
         if (any(e)) {
 #ifdef PT_SINGLE_ONLY
@@ -645,6 +825,10 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
                 vf wx = VLOAD(S->wx), wy = VLOAD(S->wy), wz = VLOAD(S->wz);
                 vf nx = wx, ny = wy, nz = wz;
                 pt_phase_sample_v(&nx, &ny, &nz, L->lobe_g, L->lobe_w, u0, u1, u2);
+#ifdef PT_ENVMAP
+                VSTORE(select(VLOAD(S->pf), pt_phase_eval_v(wx * nx + wy * ny + wz * nz,
+                                                            L->lobe_g, L->lobe_w), e), S->pf);
+#endif
                 VSTORE(select(wx, nx, e), S->wx);
                 VSTORE(select(wy, ny, e), S->wy);
                 VSTORE(select(wz, nz, e), S->wz);
@@ -761,9 +945,15 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
             t = select(t, th, hit);
             VSTORE(VLOAD(S.steps) - hit, S.steps);
             vi shadow = mode == PT_SHADOW;
+#ifdef PT_ENVMAP
+            vf dx = select(VLOAD(S.wx), VLOAD(S.lx), shadow);
+            vf dy = select(VLOAD(S.wy), VLOAD(S.ly), shadow);
+            vf dz = select(VLOAD(S.wz), VLOAD(S.lz), shadow);
+#else
             vf dx = select(VLOAD(S.wx), (vf)(L->dir.x), shadow);
             vf dy = select(VLOAD(S.wy), (vf)(L->dir.y), shadow);
             vf dz = select(VLOAD(S.wz), (vf)(L->dir.z), shadow);
+#endif
             pt_lanes_refill(&S, hit, key);   /* accept or roulette, then tau: <= 2 draws */
             vf sigma = pt_sigma_lanes(m, VLOAD(S.ox) + th * dx, VLOAD(S.oy) + th * dy,
                                       VLOAD(S.oz) + th * dz, hit);
@@ -810,7 +1000,20 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
         const int nz, const int mx, const int my, const int mz, const float4 bmin,       \
         const float4 bmax, const float4 bsize, const float scale, const float4 albedo,   \
         const float4 lobe_g, const float4 lobe_w, const float4 light_dir,                \
-        const float4 sun, const float4 env
+        const float4 sun, const float4 env PT_ENVMAP_ARGS
+
+#ifdef PT_ENVMAP
+#define PT_ENVMAP_ARGS                                                                    \
+    , __global const float *env_rgbl, __global const float *env_marg,                     \
+        __global const float *env_cond, const int env_w, const int env_h,                 \
+        const float env_rot, const float env_inv_total
+#define PT_ENVMAP_SETUP                                                                   \
+    L.env_rgbl = env_rgbl; L.env_marg = env_marg; L.env_cond = env_cond;                  \
+    L.env_w = env_w; L.env_h = env_h; L.env_rot = env_rot; L.env_inv_total = env_inv_total;
+#else
+#define PT_ENVMAP_ARGS
+#define PT_ENVMAP_SETUP
+#endif
 
 #define PT_SETUP                                                                          \
     pt_medium m;                                                                          \
@@ -821,7 +1024,8 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
     pt_light L;                                                                           \
     L.dir = light_dir.xyz; L.sun = pt_rgb_of(sun); L.env = pt_rgb_of(env);                \
     L.albedo = SPEC_OF(albedo);                                                           \
-    L.lobe_g = lobe_g; L.lobe_w = lobe_w;
+    L.lobe_g = lobe_g; L.lobe_w = lobe_w;                                                 \
+    PT_ENVMAP_SETUP
 
 /* Work-items share the launch's paths through *next (zero at launch); any number of
  * work-items gives the same rows. */
@@ -855,3 +1059,24 @@ __kernel void pt_query(PT_MEDIUM_ARGS, __global const float *points,
     J.out = out; J.next = next;
     pt_run(&m, &L, &J);
 }
+
+#ifdef PT_ENVMAP
+/* Tests only (tests/test_envmap.py): the map's sampler and lookup on given uniforms
+ * u [n][2]; out [n][8] = direction xyz, pdf of the draw, RGB of the draw, pdf of
+ * pt_env_lookup along the drawn direction. */
+__kernel void pt_env_sample_test(__global const float *env_rgbl, __global const float *env_marg,
+                                 __global const float *env_cond, const int env_w,
+                                 const int env_h, const float env_rot, const float env_inv_total,
+                                 __global const float *u, const int n, __global float *out) {
+    int g = get_global_id(0);
+    if (g >= n) return;
+    pt_light L;
+    PT_ENVMAP_SETUP
+    float3 d;
+    float4 t = pt_env_sample(&L, u[2 * g], u[2 * g + 1], &d);
+    float4 b = pt_env_lookup(&L, d);
+    __global float *o = out + 8 * (size_t)g;
+    o[0] = d.x; o[1] = d.y; o[2] = d.z; o[3] = t.w;
+    o[4] = t.x; o[5] = t.y; o[6] = t.z; o[7] = b.w;
+}
+#endif

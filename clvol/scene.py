@@ -145,10 +145,25 @@ class Medium:
 
 @dataclass(frozen=True)
 class Light:
-    """A distant light. ``direction`` is a unit vector pointing *toward* the light."""
+    """A distant light. ``direction`` is a unit vector pointing *toward* the light.
+
+    The sky is either ``environment`` (constant radiance, RGB) or ``environment_map`` (a
+    lat-long EXR, absolute path, validated when the scene is loaded; convention in
+    clvol/envmap.py and docs/conventions.md) times ``environment_scale`` (RGB), turned by
+    ``environment_rotation`` degrees about the world up axis +y; or neither."""
     direction: tuple[float, float, float]
     irradiance: tuple[float, float, float] = (1.0, 1.0, 1.0)
     environment: tuple[float, float, float] | None = None
+    environment_map: Path | None = None
+    environment_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    environment_rotation: float = 0.0
+
+    def environment_texels(self):
+        """The map's (H, W, 3) float32 texels (unscaled; cached, read-only), or None."""
+        if self.environment_map is None:
+            return None
+        from .envmap import load_map
+        return load_map(self.environment_map)
 
 
 @dataclass(frozen=True)
@@ -275,6 +290,10 @@ class Scene:
                                  "irradiance": list(li.irradiance)}
         if li.environment is not None:
             light["environment"] = list(li.environment)
+        if li.environment_map is not None:
+            light["environment_map"] = str(li.environment_map)
+            light["environment_scale"] = list(li.environment_scale)
+            light["environment_rotation"] = li.environment_rotation
         c = self.camera
         cam = {"origin": list(c.origin), "target": list(c.target), "up": list(c.up),
                "fov_y": c.fov_y, "width": c.width, "height": c.height}

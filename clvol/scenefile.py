@@ -5,7 +5,8 @@ The format is documented in ``docs/scenes.md``; in short::
     [volume]   file = "x.vol" | "x.npy" | "x.npz" | "x.vdb" (+ grid, max_resolution for .vdb)
                or   generator = "cloud" (+ seed, resolution, params)
     [medium]   preset, density_scale, albedo, phase
-    [light]    direction (toward the light), irradiance, environment
+    [light]    direction (toward the light), irradiance, environment (constant sky)
+               or environment_map = "sky.exr" (+ environment_scale, environment_rotation)
     [camera]   origin, target, up, fov_y (degrees), width, height
 
 Every field is validated when the scene is loaded and unknown keys are errors (a typo
@@ -71,7 +72,7 @@ def scene_from_dict(data: dict, source: str = "<scene>", base_dir: Path | None =
         path=None,
         volume=_parse_volume(ctx, tables["volume"], Path(base_dir) if base_dir else Path.cwd()),
         medium=_parse_medium(ctx, tables["medium"]),
-        light=_parse_light(ctx, tables["light"]),
+        light=_parse_light(ctx, tables["light"], Path(base_dir) if base_dir else Path.cwd()),
         camera=_parse_camera(ctx, tables["camera"]),
     )
 
@@ -286,8 +287,12 @@ def _g(ctx, fld, v) -> float:
     return _number(ctx, fld, v, lo=-HG_G_LIMIT, hi=HG_G_LIMIT)
 
 
-def _parse_light(ctx: "_Ctx", t: dict) -> Light:
-    _check_keys(ctx, "light", t, ("direction", "irradiance", "environment"))
+_LIGHT_KEYS = ("direction", "irradiance", "environment", "environment_map", "environment_scale",
+               "environment_rotation")
+
+
+def _parse_light(ctx: "_Ctx", t: dict, base_dir: Path) -> Light:
+    _check_keys(ctx, "light", t, _LIGHT_KEYS)
     if "direction" not in t:
         raise ctx.error("light.direction", None, "missing; a vector [x, y, z] toward the light")
     raw = t["direction"]
@@ -297,7 +302,47 @@ def _parse_light(ctx: "_Ctx", t: dict) -> Light:
         raise ctx.error("light.direction", raw, "must not be the zero vector")
     irr = _rgb(ctx, "light.irradiance", t["irradiance"]) if "irradiance" in t else (1.0, 1.0, 1.0)
     env = _rgb(ctx, "light.environment", t["environment"]) if "environment" in t else None
-    return Light(direction=direction, irradiance=irr, environment=env)
+    env_map, scale, rot = None, (1.0, 1.0, 1.0), 0.0
+    if "environment_map" in t:
+        if env is not None:
+            raise ctx.error("light.environment_map", t["environment_map"], "give either "
+                            "environment (a constant sky) or environment_map, not both")
+        env_map = _parse_environment_map(ctx, t["environment_map"], base_dir)
+    else:
+        for key in ("environment_scale", "environment_rotation"):
+            if key in t:
+                raise ctx.error(f"light.{key}", t[key], 'applies to environment_map = "..." '
+                                "only (none is given)")
+    if "environment_scale" in t:
+        scale = _rgb(ctx, "light.environment_scale", t["environment_scale"])
+    if "environment_rotation" in t:
+        rot = _number(ctx, "light.environment_rotation", t["environment_rotation"],
+                      lo=-360.0, hi=360.0)
+    return Light(direction=direction, irradiance=irr, environment=env, environment_map=env_map,
+                 environment_scale=scale, environment_rotation=rot)
+
+
+def _parse_environment_map(ctx: "_Ctx", f, base_dir: Path) -> Path:
+    """The map's resolved path, its texels read and validated now (clvol/envmap.py), so a
+    bad map fails when the scene loads, with the field named."""
+    from .envmap import load_map
+    from .errors import ImageError
+    if not isinstance(f, str) or not f:
+        raise ctx.error("light.environment_map", f, "must be a non-empty path string to a "
+                        "lat-long .exr")
+    p = Path(f).expanduser()
+    resolved = (p if p.is_absolute() else base_dir / p).resolve()
+    if not resolved.is_file():
+        raise ctx.error("light.environment_map", f, f"file not found: {resolved}")
+    try:
+        load_map(resolved)
+    except ImageError as e:
+        # read_map's message starts with the path, already named here as the field's value.
+        msg = str(e)
+        prefix = f"{resolved}: "
+        raise ctx.error("light.environment_map", f,
+                        msg[len(prefix):] if msg.startswith(prefix) else msg) from None
+    return resolved
 
 
 def _parse_camera(ctx: "_Ctx", t: dict) -> Camera:

@@ -9,6 +9,10 @@ the conventions (light toward l, omega toward the camera, cosines between propag
 directions) and the draw order; per-path rows use the kernel's layout:
 
     (background rgb, order-1 rgb, orders>=2 rgb, vertices, tracking steps, truncated)
+
+Environment maps (cl/pathtrace.cl PT_ENVMAP): the twin builds its own sampling tables
+(``EnvMap``, float64) from the texels, scale and rotation, by the convention stated there
+and in docs/conventions.md; nothing of clvol/envmap.py is imported.
 """
 from __future__ import annotations
 
@@ -55,6 +59,9 @@ class Params:
     max_order: int = 0
     rr_start: int = RR_START
     max_vertices: int = MAX_VERTICES
+    env_map: np.ndarray | None = None
+    env_scale: tuple = (1.0, 1.0, 1.0)
+    env_rotation: float = 0.0      # degrees about +y
 
     def __post_init__(self):
         self.density = np.asarray(self.density, np.float64)
@@ -67,6 +74,64 @@ class Params:
         self.lobes = [tuple(l) for l in (self.lobes or [])]
         self.env = (None if self.environment is None or max(self.environment) <= 0
                     else np.asarray(self.environment, np.float64))
+        self.envmap = None
+        if self.env_map is not None:
+            em = EnvMap(self.env_map, self.env_scale, self.env_rotation)
+            self.envmap = em if em.total > 0 else None   # a black map: no light
+
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])   # Rec. 709
+
+
+class EnvMap:
+    """A lat-long map: row i covers theta = acos(y) in [i pi/H, (i+1) pi/H] from +y, column
+    j covers phi_map in [j 2pi/W, (j+1) 2pi/W], phi_map = atan2(-z, x) - rotation. Texel
+    (i, j) is drawn with probability lum_ij Omega_i / total (Omega_i its solid angle), then
+    a direction uniform in cos(theta) and phi inside it: pdf(d) = lum(texel(d)) / total."""
+
+    def __init__(self, texels, scale, rotation_deg):
+        a = np.asarray(texels, np.float64) * np.asarray(scale, np.float64)
+        self.rgb = a
+        self.h, self.w = a.shape[:2]
+        self.rot = math.radians(rotation_deg)
+        self.lum = a @ LUMA
+        c = np.cos(np.pi * np.arange(self.h + 1) / self.h)
+        self.cos_edges = c
+        weight = self.lum * ((2 * np.pi / self.w) * (c[:-1] - c[1:]))[:, None]
+        row = weight.sum(axis=1)
+        self.total = float(row.sum())
+        self.marg = np.concatenate([[0.0], np.cumsum(row)]) / max(self.total, 1e-300)
+        self.marg[-1] = 1.0
+        self.cond = np.zeros((self.h, self.w + 1))
+        for i in range(self.h):
+            self.cond[i, 1:] = (np.cumsum(weight[i]) / row[i] if row[i] > 0
+                                else np.arange(1, self.w + 1) / self.w)
+            self.cond[i, -1] = 1.0
+
+    @staticmethod
+    def _find(cdf, u: float) -> int:
+        """Largest i < len(cdf) - 1 with cdf[i] <= u."""
+        return min(int(np.searchsorted(cdf, u, side="right")) - 1, len(cdf) - 2)
+
+    def sample(self, u0: float, u1: float):
+        """(direction, rgb, pdf per solid angle) for uniforms u0 (row), u1 (column)."""
+        i = self._find(self.marg, u0)
+        fv = (u0 - self.marg[i]) / (self.marg[i + 1] - self.marg[i])
+        c = self.cond[i]
+        j = self._find(c, u1)
+        fu = (u1 - c[j]) / (c[j + 1] - c[j])
+        ct = self.cos_edges[i] + fv * (self.cos_edges[i + 1] - self.cos_edges[i])
+        st = math.sqrt(max(0.0, 1.0 - ct * ct))
+        phi = 2 * math.pi * (j + fu) / self.w + self.rot
+        d = np.array([st * math.cos(phi), ct, -st * math.sin(phi)])
+        return d, self.rgb[i, j], self.lum[i, j] / self.total
+
+    def lookup(self, d):
+        """(rgb, pdf) of the texel along unit direction d."""
+        u = ((math.atan2(-d[2], d[0]) - self.rot) / (2 * math.pi)) % 1.0
+        v = math.acos(min(1.0, max(-1.0, d[1]))) / math.pi
+        j, i = min(int(u * self.w), self.w - 1), min(int(v * self.h), self.h - 1)
+        return self.rgb[i, j], self.lum[i, j] / self.total
 
 
 class Stream:
@@ -146,6 +211,14 @@ def walk(P: Params, x, w, beta, k: int, rs: Stream, c: Counters, single_only=Fal
     order_bin(k - 1), and its value times k - 1 in the second row."""
     l1, lms = np.zeros(3), np.zeros(3)
     beta = np.asarray(beta, np.float64)
+    em = P.envmap
+
+    def add(contrib):
+        nonlocal l1, lms
+        if k == 1:
+            l1 = l1 + contrib
+        else:
+            lms = lms + contrib
     while True:
         if beta.max() <= 0:
             break
@@ -162,7 +235,16 @@ def walk(P: Params, x, w, beta, k: int, rs: Stream, c: Counters, single_only=Fal
                     b = order_bin(k - 1)
                     orders[0, b] += contrib[0]
                     orders[1, b] += contrib[0] * (k - 1)
-        if single_only or k == P.max_order:
+        last = single_only or k == P.max_order
+        if em is not None:
+            # Map NEE, power heuristic against phase sampling (weight 1 at the last vertex).
+            d, rgb, pe = em.sample(rs.next(), rs.next())
+            if pe > 0:
+                f = float(phase_eval(np.array(np.dot(d, w)), P.lobes))
+                s = f / pe if last else f * pe / (pe * pe + f * f)
+                T = transmittance(P, x, d, rs, c)
+                add(beta * rgb * (s * T))
+        if last:
             break
         if k >= P.max_vertices:
             c.truncated = 1
@@ -173,14 +255,17 @@ def walk(P: Params, x, w, beta, k: int, rs: Stream, c: Counters, single_only=Fal
                 break
             beta = beta / q
         u = np.array([rs.next(), rs.next(), rs.next()])
+        w_old = w
         w = phase_sample(w[None], P.lobes, u[None])[0]
         hit = free_flight(P, x, w, rs, c)
         if hit is None:
             if P.env is not None:
-                if k == 1:
-                    l1 += beta * P.env
-                else:
-                    lms += beta * P.env
+                add(beta * P.env)
+            if em is not None:
+                rgb, pe = em.lookup(w)
+                pf = float(phase_eval(np.array(np.dot(w_old, w)), P.lobes))
+                den = pf * pf + pe * pe
+                add(beta * rgb * (pf * pf / den if den > 0 else 0.0))
             break
         x = hit
         beta = beta * P.albedo
@@ -217,6 +302,8 @@ def render_paths(P: Params, camera, seed: int, samples, pixels=None) -> np.ndarr
             if hit is None:
                 if P.env is not None:
                     bg = P.env.copy()
+                if P.envmap is not None:
+                    bg = P.envmap.lookup(w)[0].copy()
             else:
                 l1, lms = walk(P, hit, w, P.albedo, 1, rs, c)
             out[si, pi] = _row(bg, l1, lms, c)

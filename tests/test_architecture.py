@@ -49,7 +49,7 @@ def test_torch_only_in_the_training_modules():
 # docs/architecture.md, "Layers": a module imports only its own layer and the ones before it.
 LAYERS = [
     ("base", ["errors", "atomic", "progress", "runtime", "__init__"]),
-    ("data", ["scene", "scenefile", "volume", "image", "metrics"]),
+    ("data", ["scene", "scenefile", "envmap", "volume", "image", "metrics"]),
     ("network contract", ["neural.layout", "neural.templates", "neural.phasetable",
                           "neural.export", "neural.__init__"]),
     ("kernels", ["kernels"]),

@@ -47,18 +47,27 @@ def _spiky(shape=(9, 8, 7), seed=1, p=0.05, peak=50.0):
 
 
 def make_medium(density=None, scale=3.0, albedo=(0.9, 0.9, 0.9), lobes=(), light=(0.3, 0.8, 0.5),
-                sun=(1.0, 1.0, 1.0), env=None, max_order=None, **extra):
+                sun=(1.0, 1.0, 1.0), env=None, max_order=None, env_map=None,
+                env_scale=(1.0, 1.0, 1.0), env_rotation=0.0, **extra):
     density = _smooth() if density is None else density
     return Medium(density=density, bbox_min=BMIN, bbox_max=BMAX, density_scale=scale,
                   albedo=tuple(albedo), lobes=list(lobes), light_dir=_unit(light), sun=tuple(sun),
-                  environment=env, max_order=max_order, extra_defines=dict(extra))
+                  environment=env, max_order=max_order, extra_defines=dict(extra),
+                  env_map=env_map, env_scale=tuple(env_scale), env_rotation=env_rotation)
 
 
 def twin(med: Medium) -> rpt.Params:
     return rpt.Params(density=med.density, bbox_min=med.bbox_min, bbox_max=med.bbox_max,
                       density_scale=med.density_scale, albedo=med.albedo, lobes=med.lobes,
                       light_dir=med.light_dir, sun=med.sun, environment=med.environment,
-                      max_order=med.max_order or 0)
+                      max_order=med.max_order or 0, env_map=med.env_map,
+                      env_scale=med.env_scale, env_rotation=med.env_rotation)
+
+
+def _sky_16x8(seed=5):
+    """A 16 x 8 map with distinct texels per channel (tests/test_envmap.py has more)."""
+    rs = np.random.default_rng(seed)
+    return (0.2 + rs.random((8, 16, 3)) * np.array([1.0, 0.6, 1.8])).astype(np.float32)
 
 
 def agreement(k, r, rtol=1e-4, atol=1e-6) -> float:
@@ -77,6 +86,8 @@ SAME_STREAM = {
     "hg-back-single": dict(lobes=[(-0.5, 1.0)], max_order=1, env=(0.1, 0.1, 0.1)),
     "spiky-milk": dict(density=_spiky(), scale=1.0, lobes=[(0.8, 0.7), (-0.3, 0.3)],
                        albedo=(0.999, 0.999, 0.999)),
+    "hg-rgb-envmap": dict(lobes=[(0.7, 1.0)], albedo=(0.95, 0.7, 0.4), env_map=_sky_16x8(),
+                          env_scale=(1.0, 2.0, 0.5), env_rotation=37.0),
 }
 
 

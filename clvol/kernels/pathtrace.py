@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import envmap as envmap_mod
 from ..errors import ClvolError
 from ..runtime import get_runtime
 from . import phase as kphase
@@ -51,6 +52,9 @@ _RENDER_DTYPES = _MEDIUM_DTYPES + [None, None, None, None, np.float32, np.int32,
                                    np.uint64, np.uint32, np.int32, np.int32, None, None]
 _QUERY_DTYPES = _MEDIUM_DTYPES + [None, None, np.int32, np.uint64, np.uint32, np.int32,
                                   np.int32, None, None]
+# -D PT_ENVMAP: the map's buffers and numbers follow the medium arguments.
+_ENVMAP_DTYPES = [None, None, None, np.int32, np.int32, np.float32, np.float32]
+_ENV_TEST_DTYPES = _ENVMAP_DTYPES + [None, np.int32, None]
 # Paths side by side per work-item (cl/pathtrace.cl PT_LANES), measured best on PoCL/AVX-512
 # (docs/pathtrace.md): 8 for images; 16 for point queries, whose long paths spend more of
 # their time in the per-vertex code that 16 lanes share better.
@@ -60,7 +64,9 @@ RENDER_LANES, QUERY_LANES = 8, 16
 @dataclass
 class Medium:
     """What the kernels simulate. ``lobes``: (g, weight) pairs, empty for isotropic;
-    ``environment`` None for none; ``max_order`` None for unlimited."""
+    ``environment`` None for none; ``max_order`` None for unlimited. ``env_map``: a lat-long
+    map (H, W, 3) (clvol/envmap.py; exclusive with ``environment``) times ``env_scale``,
+    turned by ``env_rotation`` degrees about +y; None for none."""
     density: np.ndarray
     bbox_min: np.ndarray
     bbox_max: np.ndarray
@@ -72,6 +78,19 @@ class Medium:
     environment: tuple | None = None
     max_order: int | None = None
     extra_defines: dict = field(default_factory=dict)
+    env_map: np.ndarray | None = None
+    env_scale: tuple = (1.0, 1.0, 1.0)
+    env_rotation: float = 0.0
+
+    def env_tables(self):
+        """The map's sampling tables (clvol/envmap.py), or None without a map or for a
+        black one (nothing to simulate)."""
+        if self.env_map is None:
+            return None
+        if self.environment is not None:
+            raise ClvolError("a constant environment and an environment map are exclusive")
+        t = envmap_mod.build_tables(self.env_map, self.env_scale, self.env_rotation)
+        return t if t.total > 0 else None
 
 
 def specialisation(med: Medium, specialise: bool = True) -> tuple[dict, list[str], list[str]]:
@@ -83,21 +102,30 @@ def specialisation(med: Medium, specialise: bool = True) -> tuple[dict, list[str
     env = med.environment is not None and max(med.environment) > 0
     sun = max(med.sun) > 0
     single = med.max_order == 1
+    tables = med.env_tables()
     if specialise:
         defines = kphase.phase_defines([] if iso else med.lobes)
         if grey:
             defines["PT_GREY"] = 1
         if env:
             defines["PT_ENV"] = 1
+        if tables is not None:
+            defines["PT_ENVMAP"] = 1
         if not sun:
             defines["PT_NO_SUN"] = 1
         if single:
             defines["PT_SINGLE_ONLY"] = 1
     else:
-        defines = {"PHASE_LOBES": 3, "PT_ENV": 1}
+        defines = {"PHASE_LOBES": 3, "PT_ENV" if tables is None else "PT_ENVMAP": 1}
     defines.update(med.extra_defines)
     simulated.append("sun NEE (ratio tracking)" if sun else "no sun")
-    (simulated if env else skipped).append("environment (escaping paths)")
+    if tables is not None:
+        simulated.append(f"environment map {tables.w}x{tables.h} (NEE of luminance-sampled "
+                         "texels and escaping paths, MIS power heuristic)")
+    elif med.env_map is not None:
+        skipped.append("environment map (black: no light)")
+    else:
+        (simulated if env else skipped).append("environment (escaping paths)")
     simulated.append("isotropic phase" if iso else f"HG phase, {len(med.lobes)} lobe(s)")
     simulated.append("grey albedo" if grey else "RGB albedo")
     if single:
@@ -107,7 +135,8 @@ def specialisation(med: Medium, specialise: bool = True) -> tuple[dict, list[str
         simulated.append(f"scattering orders 1..{med.max_order}")
     else:
         simulated.append("all scattering orders")
-    skipped.append("environment NEE")
+    if tables is None:
+        skipped.append("environment NEE")
     return defines, simulated, skipped
 
 
@@ -152,7 +181,20 @@ class PathTracer:
             f4(med.bbox_min), f4(med.bbox_max), self.bsize,
             np.float32(med.density_scale), f4(med.albedo), self.lobe_g, self.lobe_w,
             f4(med.light_dir), f4(med.sun), f4(env))
+        if "PT_ENVMAP" in self.defines:
+            self._medium_args += self.env_args(rt, med.env_tables())
         self.max_order = int(med.max_order or 0)
+
+    @staticmethod
+    def env_args(rt, t) -> tuple:
+        """The PT_ENVMAP kernel arguments of tables t (clvol/envmap.py)."""
+        return (rt.to_device(t.rgbl.ravel()), rt.to_device(t.marginal),
+                rt.to_device(t.conditional.ravel()), np.int32(t.w), np.int32(t.h),
+                np.float32(t.rotation), np.float32(t.inv_total))
+
+    @property
+    def _env_dtypes(self) -> list:
+        return _ENVMAP_DTYPES if "PT_ENVMAP" in self.defines else []
 
     def query_program(self):
         """The program for point queries (built on first use: see QUERY_LANES)."""
@@ -184,7 +226,8 @@ class PathTracer:
         w, h = camera.width, camera.height
         n = w * h * spl
         out = rt.empty((n, PT_OUT))
-        k = self.program.kernel("pt_render", _RENDER_DTYPES)
+        k = self.program.kernel("pt_render", _MEDIUM_DTYPES + self._env_dtypes
+                                + _RENDER_DTYPES[len(_MEDIUM_DTYPES):])
         self._launch(k, n, self._medium_args + (
             f4(camera.origin), f4(fwd), f4(right), f4(up),
             np.float32(camera.tan_half_fov), np.int32(w), np.int32(h),
@@ -201,7 +244,8 @@ class PathTracer:
         n = nq * ppl
         width = PT_OUT + (2 * ORDER_BINS if orders else 0)
         if orders:
-            if "PT_GREY" not in self.defines or "PT_ENV" in self.defines:
+            if ("PT_GREY" not in self.defines or "PT_ENV" in self.defines
+                    or "PT_ENVMAP" in self.defines):
                 raise ClvolError("per-order point queries need a grey albedo and no environment")
             if self._order_program is None:
                 self._order_program = self.rt.program(
@@ -211,8 +255,23 @@ class PathTracer:
         else:
             program = self.query_program()
         out = rt.empty((n, width))
-        k = program.kernel("pt_query", _QUERY_DTYPES)
+        k = program.kernel("pt_query", _MEDIUM_DTYPES + self._env_dtypes
+                           + _QUERY_DTYPES[len(_MEDIUM_DTYPES):])
         self._launch(k, n, self._medium_args + (
             points_buf, omegas_buf, np.int32(nq), np.uint64(seed), np.uint32(sample0),
             np.int32(ppl), np.int32(self.max_order), out), QUERY_LANES)
         return rt.from_device(out, (ppl, nq, width))
+
+
+def env_sample_test(tables, u, runtime=None) -> np.ndarray:
+    """Tests only: cl/pathtrace.cl's map sampler on uniforms u [n][2] (float32):
+    rows [n][8] = direction xyz, pdf of the draw, RGB of the draw, pdf of the lookup
+    along the drawn direction."""
+    rt = runtime or get_runtime()
+    u = np.ascontiguousarray(u, np.float32).reshape(-1, 2)
+    n = len(u)
+    program = rt.program("pathtrace", {"PT_ENVMAP": 1, **kphase.phase_defines([])})
+    out = rt.empty((max(n, 1), 8))
+    k = program.kernel("pt_env_sample_test", _ENV_TEST_DTYPES)
+    rt.launch(k, max(n, 1), PathTracer.env_args(rt, tables) + (rt.to_device(u), np.int32(n), out))
+    return rt.from_device(out, (max(n, 1), 8))[:n]

@@ -5,7 +5,8 @@ passes of cl/pathtrace.cl, averaged in float64 on the host. Layers:
 
 - ``total``    background seen through the medium + single + multiple scattering;
 - ``single``   order 1 (paths with one scattering vertex: sun NEE at the first vertex and,
-               with an environment, environment light after one scattering);
+               with an environment, environment light after one scattering; with a map,
+               its NEE at the first vertex too);
 - ``multiple`` orders >= 2;
 - ``total_se`` standard error of ``total`` per pixel and channel (from the sample variance).
 
@@ -59,14 +60,19 @@ def _check_int(name: str, value, lo: int, allow_none: bool = True):
     return int(value)
 
 
-def _medium(scene, grid, max_order, sun, environment) -> Medium:
+def _medium(scene, grid, max_order, sun, environment, env_map: bool = False) -> Medium:
+    """The kernel's Medium; ``env_map``: with the scene's environment map (renders only)."""
     m = scene.medium
+    light = scene.light
     lobes = [] if m.phase.is_isotropic else [(l.g, l.weight) for l in m.phase.lobes]
+    texels = light.environment_texels() if env_map else None
     return Medium(density=grid.density, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max,
                   density_scale=m.density_scale, albedo=tuple(m.albedo), lobes=lobes,
-                  light_dir=tuple(scene.light.direction), sun=tuple(sun),
+                  light_dir=tuple(light.direction), sun=tuple(sun),
                   environment=None if environment is None else tuple(environment),
-                  max_order=max_order)
+                  max_order=max_order, env_map=texels,
+                  env_scale=tuple(light.environment_scale),
+                  env_rotation=float(light.environment_rotation))
 
 
 def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
@@ -92,7 +98,7 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
     t_start = time.perf_counter()
     grid = grid if grid is not None else scene.volume.load()
     light = scene.light
-    med = _medium(scene, grid, max_order, light.irradiance, light.environment)
+    med = _medium(scene, grid, max_order, light.irradiance, light.environment, env_map=True)
     med.extra_defines = dict(extra_defines or {})
     pt = PathTracer(med, majorant_block, specialise=specialise, runtime=runtime,
                     device_medium=device_medium)

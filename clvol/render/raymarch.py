@@ -106,6 +106,10 @@ class Plan:
         if env is not None:
             sim.append("background (environment radiance behind the medium)")
             skip.append("environment in-scattering (the medium is lit by the sun only)")
+        if getattr(light, "environment_map", None) is not None:
+            skip.append("environment light from the map (in-scattering and background: the "
+                        "real-time method does not read environment maps; black behind the "
+                        "medium)")
         background = tuple(env) if env is not None else (0.0, 0.0, 0.0)
         sim.append("extinction along camera rays")
         defines = dict(phase_defines(lobes))
