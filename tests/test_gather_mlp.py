@@ -231,3 +231,29 @@ def test_tiny():
         got = gather_mlp(net, pyr, gt, pts, om, gt.light_dir, medium, 0.5, channel_albedo=ch, **kw)
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max() + 1e-30)
         assert np.abs(want).max() > 0
+
+
+@pytest.mark.parametrize("albedo", [0.9, (0.7, 0.95, 0.8)])
+def test_network_source_fused_and_unfused_paths_agree(tmp_path, albedo):
+    """NetworkSource.evaluate (clvol/render/network.py) on its fused default and on the
+    unfused pair (fused=False): the same F_ms (identical bits measured; same tolerance as
+    above), and the time split says which path ran."""
+    from clvol.neural.export import gather_contract, save_weights
+    from clvol.render import network as rnet
+    w = network(5, seed=11)
+    path = tmp_path / "net.npz"
+    save_weights(path, w.arch, w.params, gather_contract(16, 0.6), training={"note": "test"})
+    grid = generate("cloud", seed=4, resolution=(12, 16, 10))
+    medium = Medium(25.0, (albedo,) * 3 if np.isscalar(albedo) else albedo, Phase.hg(0.7))
+    rs = np.random.default_rng(2)
+    pts = rs.uniform(grid.bbox_min, grid.bbox_max, (150, 3))
+    om = unit(rs.normal(size=(150, 3)))
+    light = unit((0.5, 0.8, 0.3))
+    fused = rnet.NetworkSource(path, grid, medium)
+    assert fused.fused is rnet.FUSED_DEFAULT
+    a, ia = rnet.NetworkSource(path, grid, medium, fused=True).evaluate(pts, om, light)
+    b, ib = rnet.NetworkSource(path, grid, medium, fused=False).evaluate(pts, om, light)
+    assert a.shape == b.shape == ((150,) if np.isscalar(albedo) else (150, 3))
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-6 * np.abs(b).max() + 1e-30)
+    assert np.abs(b).max() > 0
+    assert ia["gather"] == 0.0 and ia["network"] > 0 and ib["gather"] > 0
