@@ -153,7 +153,8 @@ def test_fused_matches_composed_twins(case):
         g_ch, w_ch = (got, want) if channels is None else (got[:, ch], want[:, ch])
         err = np.abs(g_ch - w_ch)
         bound = f_bound(y, b, a)
-        assert np.all(err <= bound), f"channel {ch}: max err {err.max():.3g}, at bound {bound[np.argmax(err)]:.3g}"
+        assert np.all(err <= bound), (f"channel {ch}: max err {err.max():.3g}, "
+                                      f"at bound {bound[np.argmax(err)]:.3g}")
         # power: F varies far beyond the bound, and more than half the queries have F > 0
         assert np.ptp(w_ch) > 10 * np.median(bound) and np.mean(w_ch > 0) > 0.5
     if channels is not None:
