@@ -4,17 +4,18 @@
 
     python bench/bench_gather_mlp.py [--rgb] [--repeats 5] [--sizes 16384 65536 262144]
 
-Both paths run as the renderer runs them: ``NetworkSource.evaluate`` (clvol/render/network.py)
+Two paths run as the renderer runs them: ``NetworkSource.evaluate`` (clvol/render/network.py)
 with ``fused=True`` / ``fused=False`` on the shipped network (clvol/data/weights/full_albedo.npz,
 its 64^3 pyramid) and a 128^3 procedural cloud, queries at random occupied voxels (jittered)
 looking in random directions; the unfused pair goes through device memory in chunks of
-NETWORK_CHUNK queries (as evaluate does; ~100 MiB of features per chunk), the fused kernel in
-one launch. A third row, "pair reused", is the unfused pair at its best: gather(as_buffers)
-into feature buffers kept from the previous repeat (no fresh 100 MiB buffers, no chunks) then
-MlpKernel.forward, as a caller that keeps its buffers would run it. The graded transmittance
-and the bake are made once before timing (per light, not per query batch). The machine is shared with other engineers, so each figure is a median
-over repeats in which the two paths alternate, given as wall time of the call and as process
-CPU time / cores (what it would take with the cores to itself); load average before and after.
+NETWORK_CHUNK queries (as evaluate does; ~100 MiB of features per chunk, fresh buffers per
+call), the fused kernel in one launch. A third, "pair reused", is the unfused pair at its best:
+gather(as_buffers) into feature buffers kept from the previous repeat (no fresh buffers, no
+chunks) then MlpKernel.forward, as a caller that keeps its buffers would run it. The graded
+transmittance and the bake are made once before timing (per light, not per query batch). The
+machine is shared with other engineers, so each figure is a median over repeats in which the
+three paths alternate, given as wall time of the call and as process CPU time / cores (what it
+would take with the cores to itself); load average before and after.
 """
 from __future__ import annotations
 

@@ -2,8 +2,9 @@
 
 ``NetworkSource`` holds one weight file and one volume on the device (the MLP's packed
 weights, the density pyramid at the weights' base resolution) and fills an F_ms lattice for a
-camera position, a light and a medium: graded transmittance toward the light, render-mode
-template gather at the lattice points, the fused OpenCL MLP. ``NetworkMs`` is the marcher's
+camera position, a light and a medium: graded transmittance toward the light, then the
+render-mode template gather at the lattice points and the OpenCL network, in one kernel by
+default (clvol/kernels/gather_mlp.py) or as two. ``NetworkMs`` is the marcher's
 source built on it: it refills the lattice only when the camera position, the light or the
 medium changed.
 
