@@ -289,6 +289,17 @@ def query_order(pyramid: Pyramid, points: np.ndarray) -> np.ndarray:
     return np.argsort(key, kind="stable").astype(np.int32)
 
 
+def gather_defines(pyramid: Pyramid, lobes: tuple, render: bool) -> dict:
+    """The -D options of cl/gather.cl's device functions (also cl/gather_mlp.cl's)."""
+    defines = dict(phase_defines(lobes), NP=layout.N_POINTS,
+                   COARSE_LEVEL=coarse_level(pyramid.base_resolution))
+    if render:
+        defines["GATHER_RENDER"] = 1
+    if pyramid.runtime.is_pocl and USE_SHUFFLE:
+        defines["GATHER_SHUFFLE"] = 1
+    return defines
+
+
 def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium, channel_albedo,
            mode: str = "train", level_weights=None, bias: float = 0.0,
            return_t_enter: bool = False, as_buffers: bool = False, sort: bool = True,
@@ -324,12 +335,7 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
         raise GatherError("as_buffers=True is for mode='render' (training reads host arrays)")
     lobes = _lobes(medium)
     cfg = config_vectors(medium, channel_albedo, om, l)
-    defines = dict(phase_defines(lobes), NP=NP, COARSE_LEVEL=coarse_level(pyramid.base_resolution))
-    if render:
-        defines["GATHER_RENDER"] = 1
-    if rt.is_pocl and USE_SHUFFLE:
-        defines["GATHER_SHUFFLE"] = 1
-    prog = rt.program("gather", defines=defines)
+    prog = rt.program("gather", defines=gather_defines(pyramid, lobes, render))
     k = prog.kernel("gather", [None, None, None, None, np.int32, np.int32, None, np.float32,
                                None, None, None, None, None, np.int32, None, None, None, None,
                                None, np.float32, None, np.int32, None, None, None])

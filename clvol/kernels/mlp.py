@@ -71,16 +71,20 @@ class MlpKernel:
         self._kernels = {}
         self._extra = dict(defines or {})
 
+    def defines(self, channels: int, decode: bool) -> dict:
+        """The -D options of cl/mlp.cl's device functions (also cl/gather_mlp.cl's)."""
+        defines = kernel_defines(self.arch, channels, decode)
+        if self.rt.is_pocl:   # Clang builtins, measured faster on PoCL (see cl/mlp.cl)
+            defines["MLP_TRANSPOSE16"] = 1
+            defines["MLP_PREFETCH"] = 1
+        defines.update(self._extra)   # runtime._define_flags skips None values
+        return defines
+
     def kernel(self, channels: int, decode: bool):
         key = (channels, bool(decode))
         k = self._kernels.get(key)
         if k is None:
-            defines = kernel_defines(self.arch, channels, decode)
-            if self.rt.is_pocl:   # Clang builtins, measured faster on PoCL (see cl/mlp.cl)
-                defines["MLP_TRANSPOSE16"] = 1
-                defines["MLP_PREFETCH"] = 1
-            defines.update(self._extra)   # runtime._define_flags skips None values
-            prog = self.rt.program("mlp", defines=defines)
+            prog = self.rt.program("mlp", defines=self.defines(channels, decode))
             k = self._kernels[key] = prog.kernel(
                 "mlp_forward", [None, None, None, None, np.int32, None])
         return k
@@ -93,15 +97,9 @@ class MlpKernel:
         alb = np.zeros(4, np.float32)
         if channel_albedo is not None:
             alb[:3] = _channel_albedo(channel_albedo)
-        items = -(-int(n) // QUERIES_PER_ITEM)
-        # A work-item holds ~105 KB of private arrays (all 798 features of its 16 queries, the
-        # layer buffers). PoCL's CPU driver with a NULL local size packs many work-items into
-        # one group and overflows its stack (segfault at 256 items); groups of one work-item
-        # also need no padding of the global size.
-        local = (1,) if self.rt.entry.kind == "cpu" else None
-        return self.rt.launch(self.kernel(channels, decode), items,
-                              (features, config, self.params_buf, alb, np.int32(n), out),
-                              local_size=local, pad=1 if local else 64, wait_for=wait_for)
+        return launch_items(self.rt, self.kernel(channels, decode), n,
+                            (features, config, self.params_buf, alb, np.int32(n), out),
+                            wait_for=wait_for)
 
     def forward(self, features, config, channel_albedo=None, decode: bool = False,
                 n: int | None = None) -> np.ndarray:
@@ -145,6 +143,18 @@ class MlpKernel:
             F = self.forward(features, cfg, decode=True, n=n)
             return np.repeat(F[:, None], 3, axis=1)
         return self.forward(features, config, channel_albedo=alb, decode=True, n=n)
+
+
+def launch_items(rt, kernel, n: int, args, wait_for=None):
+    """Launch a kernel that evaluates the network for 16 queries per work-item (mlp_forward,
+    gather_mlp) over n queries. A work-item holds ~105 KB of private arrays (all 798 features
+    of its 16 queries, the layer buffers). PoCL's CPU driver with a NULL local size packs many
+    work-items into one group and overflows its stack (segfault at 256 items); groups of one
+    work-item also need no padding of the global size."""
+    items = -(-int(n) // QUERIES_PER_ITEM)
+    local = (1,) if rt.entry.kind == "cpu" else None
+    return rt.launch(kernel, items, args, local_size=local, pad=1 if local else 64,
+                     wait_for=wait_for)
 
 
 def _channel_albedo(a) -> np.ndarray:

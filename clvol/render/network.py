@@ -2,8 +2,9 @@
 
 ``NetworkSource`` holds one weight file and one volume on the device (the MLP's packed
 weights, the density pyramid at the weights' base resolution) and fills an F_ms lattice for a
-camera position, a light and a medium: graded transmittance toward the light, render-mode
-template gather at the lattice points, the fused OpenCL MLP. ``NetworkMs`` is the marcher's
+camera position, a light and a medium: graded transmittance toward the light, then the
+render-mode template gather at the lattice points and the OpenCL network, in one kernel by
+default (clvol/kernels/gather_mlp.py) or as two. ``NetworkMs`` is the marcher's
 source built on it: it refills the lattice only when the camera position, the light or the
 medium changed.
 
@@ -24,6 +25,11 @@ from .sources import GridMs, MsGrid, MsPlan, check_ms_grid, ms_lattice, register
 
 DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
 NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
+FUSED_CHUNK = 262144              # lattice points per fused launch (no features in memory)
+# The fused gather + network kernel (cl/gather_mlp.cl) as NetworkSource's default path; the
+# unfused pair (gather, then mlp_forward) stays reachable with fused=False
+# (bench/bench_gather_mlp.py compares them; docs/network.md has the figures).
+FUSED_DEFAULT = True
 # Outside the domain the network is still the best source measured, except for strongly
 # backward phases (docs/raymarch.md, "Validity domain"; bench/domain_fallback.py).
 BACKWARD_LIMIT = -0.8          # mean cosine below this: an analytic source instead
@@ -179,9 +185,12 @@ class NetworkSource:
     density scale), gathers render-mode features (the weights' level combination baked by the
     gather) at an F_ms lattice and evaluates the network there: one evaluation per point for a
     grey albedo (``grey_shortcut``), else one per distinct non-zero channel albedo.
+    ``fused`` (default ``FUSED_DEFAULT``): gather and network in one kernel
+    (clvol/kernels/gather_mlp.py), else the gather's features through device memory to the
+    network's kernel.
     """
 
-    def __init__(self, weights, grid, medium, runtime=None):
+    def __init__(self, weights, grid, medium, runtime=None, fused: bool | None = None):
         from ..kernels.mlp import MlpKernel
         from ..kernels.pyramid import build_pyramid
         self.rt = runtime or get_runtime()
@@ -193,6 +202,7 @@ class NetworkSource:
         self.pyramid = build_pyramid(grid, self.base, self.rt)
         self._graded = (None, None)
         self.graded_builds = 0
+        self.fused = FUSED_DEFAULT if fused is None else bool(fused)
 
     def graded(self, light_dir, density_scale=None):
         from ..kernels.transmittance import check_light_dir, graded_transmittance
@@ -235,8 +245,10 @@ class NetworkSource:
         """(F_ms, info) at world points ``pts`` (N, 3) toward unit directions ``om`` (N, 3)
         for a light toward ``light_dir``: float32 (N,) for a grey albedo with the shortcut,
         else (N, 3); >= 0 (the network's rare negative outputs are clipped). info: seconds
-        "light", "gather", "network", "evaluations" (per point) and "points"."""
+        "light", "gather", "network", "evaluations" (per point) and "points"; on the fused
+        path (``self.fused``) "network" holds the gather's time too and "gather" is 0."""
         from ..kernels.gather import gather
+        from ..kernels.gather_mlp import gather_mlp
         from ..kernels.transmittance import check_light_dir
         rt = self.rt
         medium = self.medium if medium is None else medium
@@ -252,22 +264,31 @@ class NetworkSource:
         info["light"] = sw.seconds
         out = np.zeros((len(pts),) if grey else (len(pts), 3), np.float32)
         reuse = None
-        for i in range(0, len(pts), NETWORK_CHUNK):
-            sl = slice(i, i + NETWORK_CHUNK)
-            with Stopwatch() as sw:
-                g = gather(self.pyramid, graded, pts[sl], om[sl], l, medium, float(alb[0]),
-                           mode="render", level_weights=self.weights.level_weights,
-                           bias=self.weights.level_bias, as_buffers=True, reuse=reuse)
-                rt.finish()
-            info["gather"] += sw.seconds
-            reuse = g
-            with Stopwatch() as sw:
-                if grey:     # the config's albedo is the medium's: one evaluation per point
-                    out[sl] = self.mlp.forward(g["features"], g["config"], decode=True, n=g["n"])
-                else:        # one per distinct non-zero channel albedo (the kernel dedupes)
-                    out[sl] = self.mlp.forward(g["features"], g["config"], channel_albedo=alb,
-                                               decode=True, n=g["n"])
-            info["network"] += sw.seconds
+        if self.fused:
+            for i in range(0, len(pts), FUSED_CHUNK):
+                sl = slice(i, i + FUSED_CHUNK)
+                with Stopwatch() as sw:   # grey: the config's albedo is the medium's
+                    out[sl] = gather_mlp(self.mlp, self.pyramid, graded, pts[sl], om[sl], l, medium,
+                                         float(alb[0]), self.weights.level_weights,
+                                         self.weights.level_bias, None if grey else alb)
+                info["network"] += sw.seconds
+        else:
+            for i in range(0, len(pts), NETWORK_CHUNK):
+                sl = slice(i, i + NETWORK_CHUNK)
+                with Stopwatch() as sw:
+                    g = gather(self.pyramid, graded, pts[sl], om[sl], l, medium, float(alb[0]),
+                               mode="render", level_weights=self.weights.level_weights,
+                               bias=self.weights.level_bias, as_buffers=True, reuse=reuse)
+                    rt.finish()
+                info["gather"] += sw.seconds
+                reuse = g
+                with Stopwatch() as sw:
+                    if grey:     # the config's albedo is the medium's: one evaluation per point
+                        out[sl] = self.mlp.forward(g["features"], g["config"], decode=True, n=g["n"])
+                    else:        # one per distinct non-zero channel albedo (the kernel dedupes)
+                        out[sl] = self.mlp.forward(g["features"], g["config"], channel_albedo=alb,
+                                                   decode=True, n=g["n"])
+                info["network"] += sw.seconds
         info["evaluations"] = 1 if grey else len(set(float(a) for a in alb if a > 0))
         info["points"] = int(len(pts))
         if not np.all(np.isfinite(out)):

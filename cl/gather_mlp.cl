@@ -1,0 +1,83 @@
+/* Fused render-mode gather + network: F_ms for N queries without writing their features.
+ *
+ * The unfused pair, cl/gather.cl `gather` (render mode) then cl/mlp.cl `mlp_forward`, writes
+ * 3 x 266 floats per query (~200 MiB for 65,536 queries) and reads them back. Here one
+ * work-item takes 16 queries (the network's lanes) and, per chunk of 16 template points,
+ * gathers each query's chunk as the gather kernel does (template points in lanes), then
+ * transposes the 16 x 16 blocks in registers into the network's layout (queries in lanes):
+ * the features stay in private memory. Both halves are the shared device functions of
+ * cl/include/gather_core.h and mlp_core.h, so the output equals the unfused pair's (tested,
+ * tests/test_gather_mlp.py). Twin: reference/gather_mlp.py. Host: clvol/kernels/gather_mlp.py.
+ *
+ * Arguments: those of `gather` in render mode (cl/gather.cl; dens is read only for t_enter's
+ * coarse level), then config [N][9] (clvol/kernels/gather.py config_vectors), params and
+ * channel_albedo as `mlp_forward`'s, N, and out [N][MLP_CHANNELS]: decoded F (MLP_DECODE 1),
+ * out[q] for query q whatever the processing order.
+ * Defines: the gather's (NP, COARSE_LEVEL, phase, GATHER_SHUFFLE) and the network's (cl/mlp.cl);
+ * NP must equal N_POINTS. Private memory is the network's (~105 KB) plus 16 queries' gather
+ * state and three 16 x 16 blocks: the host launches groups of one work-item on CPUs, as
+ * for mlp_forward.
+ */
+#include "gather_core.h"
+#include "mlp_core.h"
+
+#if NP != N_POINTS
+#error "gather_mlp: the gather's template points (NP) must be the network's (N_POINTS)"
+#endif
+
+__kernel void gather_mlp(__global const float *dens, __global const float *baked,
+                         __global const int *loff, const int L, const int n0,
+                         const float4 cmin4, const float csize, __global const float *tpl,
+                         __global const int *pinfo, __global const float *hl_spacing,
+                         __global const float *ptab, const int NA,
+                         __global const float *points, __global const float *omegas,
+                         const float4 light4, const float4 lobe_g, const float4 lobe_w,
+                         const float c_out, __global const int *order,
+                         __global const float *config, __global const float *params,
+                         const float4 channel_albedo, const int N, __global float *out) {
+    const int q0 = get_global_id(0) * 16;
+    if (q0 >= N) return;
+    const float3 cmin = cmin4.xyz;
+    const float3 l = light4.xyz;
+
+    int qs[16], coff[16];
+    for (int j = 0; j < 16; ++j) {
+        qs[j] = order[min(q0 + j, N - 1)];   /* tail lanes repeat the last query, never stored */
+        coff[j] = qs[j] * CONFIG_DIM;
+    }
+    V cfg[CONFIG_DIM], albedo_cfg;
+    mlp_config(config, coff, params, cfg, &albedo_cfg);
+
+    gather_query s[16];
+    float centre[16];      /* the centre point's exact phase feature, per query */
+    for (int j = 0; j < 16; ++j) {
+        gather_query_init(&s[j], vload3(qs[j], points), vload3(qs[j], omegas), l,
+                          dens + loff[COARSE_LEVEL], n0, cmin, csize, L, hl_spacing, NA);
+        centre[j] = log1p(phase_eval(s[j].mu, lobe_g, lobe_w));
+    }
+
+    V x[N_TYPES * N_POINTS];
+    for (int c = 0; c < CHUNKS; ++c) {
+        V fd[16], ft[16], fp[16];          /* row j: query j's 16 points of this chunk */
+        for (int j = 0; j < 16; ++j) {
+            i16 lvl, n, off, inside;
+            v16 gx, gy, gz;
+            gather_chunk_points(&s[j], c, l, cmin, csize, n0, tpl, pinfo, loff, &lvl, &n, &off,
+                                &inside, &gx, &gy, &gz);
+            gather_render_chunk(baked, n, off, inside, gx, gy, gz, c_out, &fd[j], &ft[j]);
+            fp[j] = gather_phase_chunk(&s[j], c, ptab);
+        }
+        /* row i: point 16 c + i of the 16 queries (the network's lanes) */
+        transpose16(fd);
+        transpose16(ft);
+        transpose16(fp);
+        const int np = c < CHUNKS - 1 ? 16 : TAIL;
+        for (int i = 0; i < np; ++i) {
+            x[16 * c + i] = fd[i];
+            x[N_POINTS + 16 * c + i] = ft[i];
+            x[2 * N_POINTS + 16 * c + i] = fp[i];
+        }
+    }
+    x[2 * N_POINTS] = vload16(0, centre);
+    mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, qs, min(16, N - q0));
+}

@@ -1,0 +1,286 @@
+/* The network's forward pass as device functions (cl/mlp.cl documents it; twin
+ * reference/mlp.py), shared by the mlp_forward kernel and the fused gather + network kernel
+ * (cl/gather_mlp.cl): mlp_config (the 16 lanes' config), transpose16, mlp_run (normalise,
+ * pool, every channel's evaluation, decode, store). Needs the defines listed in cl/mlp.cl. */
+#ifndef CLVOL_MLP_CORE_H
+#define CLVOL_MLP_CORE_H
+
+#define CONFIG_DIM 9
+#define CFG_GMEAN 6
+#define CFG_ALBEDO 7
+/* The albedo as the network reads it (-D MLP_ALBEDO_LOG1M: -log(1 - a + 1e-4), which
+ * resolves 0.99 .. 1; docs/network.md), before the config normalisation. */
+#ifdef MLP_ALBEDO_LOG1M
+#define ALBEDO_INPUT(a) (-log1p(1e-4f - (a)))
+#else
+#define ALBEDO_INPUT(a) (a)
+#endif
+#define CFG_ALPHA 8
+#define N_TYPES 3
+#define SQUEEZE 8
+#define PAD8(x) (((x) + 7) & ~7)
+
+typedef float16 V;
+
+__constant int COUNTS[N_LAYERS] = {LAYER_COUNTS};
+__constant int HEADW[HEAD_DEPTH] = {HEAD_WIDTHS};
+
+/* y[0 .. pad8(n_out)) = b + W x over n_in inputs; returns the next layer's parameters.
+ * Outputs go in blocks of 16 accumulators (one x load per 16 FMAs, 16 independent chains to
+ * hide the FMA latency), the last 8 of a width that is not a multiple of 16 in a block of 8. */
+#define ACC8(A, B, C, D, E, F, G, H, OFF) \
+    A = fma(xi, (V)(w[OFF]), A); B = fma(xi, (V)(w[OFF + 1]), B); \
+    C = fma(xi, (V)(w[OFF + 2]), C); D = fma(xi, (V)(w[OFF + 3]), D); \
+    E = fma(xi, (V)(w[OFF + 4]), E); F = fma(xi, (V)(w[OFF + 5]), F); \
+    G = fma(xi, (V)(w[OFF + 6]), G); H = fma(xi, (V)(w[OFF + 7]), H)
+#define INIT8(A, B, C, D, E, F, G, H, OFF) \
+    A = (V)(bias[OFF]); B = (V)(bias[OFF + 1]); C = (V)(bias[OFF + 2]); D = (V)(bias[OFF + 3]); \
+    E = (V)(bias[OFF + 4]); F = (V)(bias[OFF + 5]); G = (V)(bias[OFF + 6]); H = (V)(bias[OFF + 7])
+#define STORE8(A, B, C, D, E, F, G, H, OFF) \
+    if (relu) { A = fmax(A, 0.0f); B = fmax(B, 0.0f); C = fmax(C, 0.0f); D = fmax(D, 0.0f); \
+                E = fmax(E, 0.0f); F = fmax(F, 0.0f); G = fmax(G, 0.0f); H = fmax(H, 0.0f); } \
+    y[OFF] = A; y[OFF + 1] = B; y[OFF + 2] = C; y[OFF + 3] = D; \
+    y[OFF + 4] = E; y[OFF + 5] = F; y[OFF + 6] = G; y[OFF + 7] = H
+
+__attribute__((always_inline))
+static inline __global const float *dense(__global const float *p, const int n_in, const int n_out,
+                                          const V *x, V *y, const int relu) {
+    const int np = PAD8(n_out);
+    __global const float *bias = p + n_in * np;
+    int o = 0;
+    for (; o + 16 <= np; o += 16) {
+        V a0, a1, a2, a3, a4, a5, a6, a7, b0, b1, b2, b3, b4, b5, b6, b7;
+        INIT8(a0, a1, a2, a3, a4, a5, a6, a7, o);
+        INIT8(b0, b1, b2, b3, b4, b5, b6, b7, o + 8);
+        __global const float *w = p + o;
+        for (int i = 0; i < n_in; ++i, w += np) {
+            const V xi = x[i];
+            ACC8(a0, a1, a2, a3, a4, a5, a6, a7, 0);
+            ACC8(b0, b1, b2, b3, b4, b5, b6, b7, 8);
+        }
+        STORE8(a0, a1, a2, a3, a4, a5, a6, a7, o);
+        STORE8(b0, b1, b2, b3, b4, b5, b6, b7, o + 8);
+    }
+    if (o < np) {
+        V a0, a1, a2, a3, a4, a5, a6, a7;
+        INIT8(a0, a1, a2, a3, a4, a5, a6, a7, o);
+        __global const float *w = p + o;
+        for (int i = 0; i < n_in; ++i, w += np) {
+            const V xi = x[i];
+            ACC8(a0, a1, a2, a3, a4, a5, a6, a7, 0);
+        }
+        STORE8(a0, a1, a2, a3, a4, a5, a6, a7, o);
+    }
+    return bias + np;
+}
+
+/* One value per lane: src[off[j] + idx] for the 16 queries (off: lane offsets, clamped to n-1). */
+__attribute__((always_inline))
+static inline V lanes(__global const float *src, const int *off, const int idx) {
+    return (V)(src[off[0] + idx], src[off[1] + idx], src[off[2] + idx], src[off[3] + idx],
+               src[off[4] + idx], src[off[5] + idx], src[off[6] + idx], src[off[7] + idx],
+               src[off[8] + idx], src[off[9] + idx], src[off[10] + idx], src[off[11] + idx],
+               src[off[12] + idx], src[off[13] + idx], src[off[14] + idx], src[off[15] + idx]);
+}
+
+#ifdef MLP_TRANSPOSE16
+/* In-register 16x16 transpose: round b swaps bit b of the row index with bit b of the lane
+ * index (4 rounds x 16 two-source shuffles, one instruction each with Clang's
+ * __builtin_shufflevector). The host enables it on PoCL only: other compilers may lack the
+ * builtin, and Oclgrind reports its shuffles' results as uninitialised although the transpose is
+ * exact (a false positive of its per-instruction vector shadows; tests/test_mlp.py checks both
+ * load paths give bit-identical outputs). */
+#define TR0L 0, 16, 2, 18, 4, 20, 6, 22, 8, 24, 10, 26, 12, 28, 14, 30
+#define TR0H 1, 17, 3, 19, 5, 21, 7, 23, 9, 25, 11, 27, 13, 29, 15, 31
+#define TR1L 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29
+#define TR1H 2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30, 31
+#define TR2L 0, 1, 2, 3, 16, 17, 18, 19, 8, 9, 10, 11, 24, 25, 26, 27
+#define TR2H 4, 5, 6, 7, 20, 21, 22, 23, 12, 13, 14, 15, 28, 29, 30, 31
+#define TR3L 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23
+#define TR3H 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31
+#define TR_ROUND(B, LO, HI)                                                  \
+    for (int i = 0; i < 16; ++i)                                             \
+        if (!(i & (1 << B))) {                                               \
+            const V lo = r[i], hi = r[i | (1 << B)];                         \
+            r[i] = __builtin_shufflevector(lo, hi, LO);                      \
+            r[i | (1 << B)] = __builtin_shufflevector(lo, hi, HI);           \
+        }
+#endif
+
+/* r[i] lane j <- r[j] lane i (a 16x16 transpose in place). */
+__attribute__((always_inline))
+static inline void transpose16(V *r) {
+#ifdef MLP_TRANSPOSE16
+    TR_ROUND(0, TR0L, TR0H)
+    TR_ROUND(1, TR1L, TR1H)
+    TR_ROUND(2, TR2L, TR2H)
+    TR_ROUND(3, TR3L, TR3H)
+#else
+    float t[256], col[16];
+    for (int j = 0; j < 16; ++j) vstore16(r[j], 0, t + 16 * j);
+    for (int i = 0; i < 16; ++i) {
+        for (int j = 0; j < 16; ++j) col[j] = t[16 * j + i];
+        r[i] = vload16(0, col);
+    }
+#endif
+}
+
+/* All features of the 16 queries, lane = query: x[t * N_POINTS + point]. With
+ * MLP_TRANSPOSE16, rows of 16 consecutive floats are read per query and transposed in
+ * registers (per-lane reads, 16 cache lines per vector, were half of the kernel's time on
+ * PoCL); features still come from memory, hence the optional prefetch. */
+__attribute__((always_inline))
+static inline void load_features(__global const float *features, const int *off, V *x) {
+    int c = 0;
+#ifdef MLP_TRANSPOSE16
+    for (; c + 16 <= N_TYPES * N_POINTS; c += 16) {
+        V r[16];
+        for (int j = 0; j < 16; ++j) {
+#ifdef MLP_PREFETCH
+            /* 16 rows 3 KB apart: ask for the line 8 ahead (+10-20% on PoCL; the host sets
+             * MLP_PREFETCH on PoCL only, as Oclgrind has no prefetch intrinsic) */
+            __builtin_prefetch((const __global void *)(features + off[j] + c + 128));
+#endif
+            r[j] = vload16(0, features + off[j] + c);
+        }
+        transpose16(r);
+        for (int j = 0; j < 16; ++j) x[c + j] = r[j];
+    }
+#endif
+    for (; c < N_TYPES * N_POINTS; ++c) x[c] = lanes(features, off, c);
+}
+
+/* The normalised config of the 16 queries (rows coff[j] of config) and their albedo as given. */
+__attribute__((always_inline))
+static inline void mlp_config(__global const float *config, const int *coff,
+                              __global const float *params, V *cfg, V *albedo_cfg) {
+    __global const float *cshift = params + 6, *cscale = params + 6 + CONFIG_DIM;
+    for (int i = 0; i < CONFIG_DIM; ++i)
+        cfg[i] = (lanes(config, coff, i) - cshift[i]) * cscale[i];
+    *albedo_cfg = lanes(config, coff, CFG_ALBEDO);
+#ifdef MLP_ALBEDO_LOG1M
+    cfg[CFG_ALBEDO] = (ALBEDO_INPUT(*albedo_cfg) - cshift[CFG_ALBEDO]) * cscale[CFG_ALBEDO];
+#endif
+}
+
+/* The network on the raw features x of 16 queries (normalised here, in place) with their
+ * config (mlp_config); lane j's output goes to out[rows[j] * MLP_CHANNELS + ch], j < count. */
+__attribute__((always_inline))
+static inline void mlp_run(V *x, V *cfg, const V albedo_cfg, __global const float *params,
+                           const float4 channel_albedo, __global float *out, const int *rows,
+                           const int count) {
+    __global const float *fshift = params, *fscale = params + 3;
+    __global const float *cshift = params + 6, *cscale = params + 6 + CONFIG_DIM;
+    __global const float *layers = params + 6 + 2 * CONFIG_DIM;
+    /* Features, normalised in the same pass that pools them into the squeeze vectors of all
+     * layers (channel independent). */
+    V v[N_LAYERS][SQUEEZE];
+    {
+        int start = 0;
+        for (int k = 0; k < N_LAYERS; ++k) {
+            const int cnt = COUNTS[k];
+            for (int t = 0; t < N_TYPES; ++t) {
+                const float sh = fshift[t], sc = fscale[t];
+                V *xt = x + t * N_POINTS + start;
+                V y = (xt[0] - sh) * sc;
+                V s = y, m = y;
+                xt[0] = y;
+                for (int j = 1; j < cnt; ++j) {
+                    y = (xt[j] - sh) * sc;
+                    xt[j] = y;
+                    s += y;
+                    m = fmax(m, y);
+                }
+                v[k][t] = s / (float)cnt;
+                v[k][N_TYPES + t] = m;
+            }
+            v[k][6] = cfg[CFG_GMEAN];
+            v[k][7] = cfg[CFG_ALPHA];
+            start += cnt;
+        }
+    }
+
+    float albedos[4] = {channel_albedo.s0, channel_albedo.s1, channel_albedo.s2, 0.0f};
+    V res[MLP_CHANNELS];
+    for (int ch = 0; ch < MLP_CHANNELS; ++ch) {
+#if MLP_CHANNELS == 3
+        /* A channel with the albedo of an earlier one is the same evaluation; albedo 0 has
+         * no multiple scattering to predict (y = 0, F = 0). */
+        int same = -1;
+        for (int e = 0; e < ch; ++e)
+            if (albedos[e] == albedos[ch]) same = e;
+        if (same >= 0) { res[ch] = res[same]; continue; }
+        if (albedos[ch] == 0.0f) { res[ch] = (V)(0.0f); continue; }
+        cfg[CFG_ALBEDO] = (V)((ALBEDO_INPUT(albedos[ch]) - cshift[CFG_ALBEDO]) * cscale[CFG_ALBEDO]);
+#endif
+        __global const float *p = layers;
+        V mod[N_TYPES * 2][PAD8(MODULE_WIDTH)];   /* dense writes whole blocks of 8 */
+        V h[MAXW], a[MAXW], e[MAXW], z[MAXW], u[MAXW];
+        for (int t = 0; t < N_TYPES; ++t) {
+            for (int s = 0; s < 2; ++s) {
+                const int k0 = s ? N_DIFFUSE : 0, k1 = s ? N_LAYERS : N_DIFFUSE;
+                int start = 0;
+                for (int k = 0; k < k0; ++k) start += COUNTS[k];
+                const V *xt = x + t * N_POINTS;
+                for (int i = 0; i < COUNTS[k0]; ++i) h[i] = xt[start + i];
+                for (int k = k0; k < k1; ++k) {
+                    const int cnt = COUNTS[k], width = cnt + CONFIG_DIM;
+                    for (int i = 0; i < cnt; ++i) a[i] = h[i];
+                    for (int i = 0; i < CONFIG_DIM; ++i) a[cnt + i] = cfg[i];
+                    p = dense(p, SQUEEZE, SE_HIDDEN, v[k], e, 1);
+                    p = dense(p, SE_HIDDEN, width, e, z, 0);
+                    for (int i = 0; i < width; ++i) z[i] = a[i] / (1.0f + exp(-z[i]));
+                    start += cnt;
+                    if (k + 1 < k1) {
+                        const int nxt = COUNTS[k + 1];
+                        const V *xn = xt + start;   /* the next layer's features */
+                        p = dense(p, width, nxt, z, u, 1);
+                        for (int i = 0; i < nxt; ++i) u[i] += xn[i];
+                        p = dense(p, nxt, nxt, u, h, 1);
+                        for (int i = 0; i < nxt; ++i) h[i] += xn[i];
+                    } else {
+                        p = dense(p, width, MODULE_WIDTH, z, mod[2 * t + s], 1);
+                    }
+                }
+            }
+        }
+        /* Merges per type, written straight into the head's input [m_d, m_T, m_p, c]. */
+        for (int t = 0; t < N_TYPES; ++t) {
+            for (int i = 0; i < MODULE_WIDTH; ++i) {
+                a[i] = mod[2 * t][i];
+                a[MODULE_WIDTH + i] = mod[2 * t + 1][i];
+            }
+            p = dense(p, 2 * MODULE_WIDTH, MODULE_WIDTH, a, e, 1);
+            for (int i = 0; i < MODULE_WIDTH; ++i) u[t * MODULE_WIDTH + i] = e[i];
+        }
+        for (int i = 0; i < CONFIG_DIM; ++i) u[N_TYPES * MODULE_WIDTH + i] = cfg[i];
+        int width = N_TYPES * MODULE_WIDTH + CONFIG_DIM;
+        V *src = u, *dst = h;
+        for (int j = 0; j < HEAD_DEPTH; ++j) {
+            p = dense(p, width, HEADW[j], src, dst, 1);
+            width = HEADW[j];
+            V *tmp = src; src = dst; dst = tmp;
+        }
+        p = dense(p, width, 1, src, dst, 0);
+        res[ch] = dst[0];
+    }
+
+    for (int ch = 0; ch < MLP_CHANNELS; ++ch) {
+        V y = res[ch];
+#if MLP_DECODE
+#if MLP_CHANNELS == 3
+        const V alb = (V)(albedos[ch]);
+#else
+        const V alb = albedo_cfg;
+#endif
+        const V a2 = alb * alb;
+        y = (a2 * a2) * fmax(expm1(y), 0.0f);   /* albedo^4: gamma = 4 */
+#endif
+        float r[16];
+        vstore16(y, 0, r);
+        for (int j = 0; j < count; ++j)
+            out[rows[j] * MLP_CHANNELS + ch] = r[j];
+    }
+}
+
+#endif

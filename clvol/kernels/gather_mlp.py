@@ -1,0 +1,68 @@
+"""Host wrapper for cl/gather_mlp.cl: the render-mode gather and the network in one kernel.
+
+    net = MlpKernel(weights)
+    F = gather_mlp(net, pyr, graded, points, omegas, light_dir, medium, albedo,
+                   level_weights=w, bias=b)                        # F [N], config albedo
+    F = gather_mlp(..., channel_albedo=(0.9, 0.95, 1.0))          # F [N][3], one per channel
+
+The inputs are those of ``gather(..., mode="render")`` (clvol/kernels/gather.py; ``albedo``
+is its ``channel_albedo``, the config's albedo) and of ``MlpKernel.forward(...,
+channel_albedo=None or RGB, decode=True)``, and the result is the same: F decoded, [N] or
+[N][3] (tests/test_gather_mlp.py). The features never leave the kernel's private memory
+(no ~200 MiB per 65,536 queries written and read back); the bake of the combined
+transmittance grid is the gather's (``bake_render_grid``, cached per pyramid).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..neural import layout
+from .gather import (GatherError, _check_inputs, _lobes, _phase_table_padded, _static,
+                     bake_render_grid, config_vectors, gather_defines, query_order)
+from .grid import f4
+from .mlp import MlpKernel, _channel_albedo, launch_items
+from .phase import lobe_vectors
+
+
+def gather_mlp(net: MlpKernel, pyramid, graded, points, omegas, light_dir, medium, albedo,
+               level_weights, bias: float = 0.0, channel_albedo=None,
+               sort: bool = True) -> np.ndarray:
+    """F (decoded, >= 0 up to the network's sign) at N queries: [N] with ``albedo`` (scalar or
+    (N,)) in the config, or [N][3] with ``channel_albedo`` (one evaluation per distinct
+    non-zero channel albedo; albedo-0 channels give 0). ``sort``: process the queries in
+    ``query_order`` (faster; results in the caller's order either way)."""
+    if net.arch.n_points != layout.N_POINTS:
+        raise GatherError(f"the network reads {net.arch.n_points} template points, the gather "
+                          f"writes {layout.N_POINTS}")
+    if net.rt is not pyramid.runtime:
+        raise GatherError("the network and the pyramid must live on the same runtime")
+    pts, om, l = _check_inputs(pyramid, graded, points, omegas, light_dir, medium, "render")
+    rt = pyramid.runtime
+    n = len(pts)
+    channels = 1 if channel_albedo is None else 3
+    alb = np.zeros(4, np.float32)
+    if channel_albedo is not None:
+        alb[:3] = _channel_albedo(channel_albedo)
+    lobes = _lobes(medium)
+    cfg = config_vectors(medium, albedo, om, l)
+    baked = bake_render_grid(pyramid, graded, medium.density_scale, level_weights, bias)
+    if n == 0:
+        return np.zeros((0,) if channels == 1 else (0, 3), np.float32)
+    defines = dict(gather_defines(pyramid, lobes, render=True), **net.defines(channels, True))
+    k = rt.program("gather_mlp", defines=defines).kernel(
+        "gather_mlp", [None, None, None, np.int32, np.int32, None, np.float32, None, None, None,
+                       None, np.int32, None, None, None, None, None, np.float32, None, None,
+                       None, None, np.int32, None])
+    st = _static(pyramid)
+    ptab = _phase_table_padded(lobes)
+    lg, lw = lobe_vectors(lobes)
+    order = query_order(pyramid, pts) if sort else np.arange(n, dtype=np.int32)
+    out = rt.empty((n, channels))
+    evt = launch_items(rt, k, n, (
+        pyramid.buffer, baked.buffer, st["loff"], np.int32(pyramid.n_levels),
+        np.int32(pyramid.base_resolution), f4(pyramid.cube_min), np.float32(pyramid.cube_size),
+        st["tpl"], st["pinfo"], st["hl"], rt.to_device(ptab), np.int32(ptab.shape[0]),
+        rt.to_device(pts), rt.to_device(om), f4(l), lg, lw, np.float32(baked.c_out),
+        rt.to_device(order), rt.to_device(cfg), net.params_buf, alb, np.int32(n), out))
+    F = rt.from_device(out, (n, channels), wait_for=[evt])
+    return F[:, 0] if channels == 1 else F
