@@ -108,12 +108,13 @@ def test_recompute_by_change():
 
 def test_reprojection_carries_values_to_where_the_points_went():
     """F = a + b x (world x, the same for every direction): after 64 samples at camera A the
-    camera slides 0.25 along x (the cloud moves ~5 pixels, over 2 blocks), and one more
+    camera slides 0.25 along x (the cloud moves ~5 pixels), and one more
     sample is drawn. Reprojected history keeps F where its points are: each pixel must
     still gather albedo E alpha F(mean x) (within 4%: 5 samples' noise, spread of x along a
     ray ~0.1 -> 0.5% of F each, and the move's change of the mean x along a ray, <1%).
-    Planted: history read from the same screen block instead (no reprojection) gives a
-    median error of 0.093 (measured)."""
+    (The test image is 26 pixels wide: one pixel per block.) Planted: new points looked up
+    in the new view's own blocks (no reprojection) give a median error of 0.092; old points
+    splatted through the old camera instead of the new one fail the bound as well."""
     scene = _scene(**{"medium.preset": "smoke", "medium.density_scale": 8.0})
     a, b = 0.1, 0.05
     r = _renderer(scene, lambda p, w: (a + b * p[:, 0])[:, None].repeat(3, 1), view_samples=64)
@@ -130,6 +131,16 @@ def test_reprojection_carries_values_to_where_the_points_went():
         return a + b * (o[0] + dep * dirs[..., 0])
     rel = _relative_error(scene, res, f_of_depth)
     assert np.median(np.abs(rel)) < 0.02 and np.abs(rel).max() < 0.06
+
+
+def test_default_block_follows_the_image_size():
+    from clvol.render.view import auto_block
+    assert [auto_block(w, h) for w, h in ((26, 19), (96, 96), (128, 72), (256, 256),
+                                          (300, 512))] == [1, 2, 2, 4, 8]
+    res = _renderer(_scene(**{"camera.width": 130, "camera.height": 40})).render()
+    assert res.header["raymarch.view_block"] == 2
+    res = _renderer(_scene(), view_block=3).render()
+    assert res.header["raymarch.view_block"] == 3
 
 
 def test_grey_evaluates_once_and_empty_view_asks_nothing():

@@ -285,8 +285,8 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
 def add_arguments(group) -> None:
     from .network import DEFAULT_NETWORK_RESOLUTION
     from .sources import source_classes
-    from .view import (DEFAULT_STOCHASTIC_BLOCK, DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS,
-                       DEFAULT_VIEW_SAMPLES, STILL_SAMPLES)
+    from .view import (DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS, DEFAULT_VIEW_SAMPLES,
+                       STILL_SAMPLES, STOCHASTIC_BLOCKS_ACROSS)
     group.add_argument("--ms", choices=sorted(source_classes()), default="network",
                        help="multiple-scattering source: network (the trained network on "
                             "a world lattice, default), view (the trained network at the "
@@ -303,7 +303,8 @@ def add_arguments(group) -> None:
     group.add_argument("--view-block", type=int, default=None, metavar="B",
                        help=f"--ms view and stochastic: pixels per block side; each block's "
                             f"queries serve its pixels (default {DEFAULT_VIEW_BLOCK} for "
-                            f"view, {DEFAULT_STOCHASTIC_BLOCK} for stochastic)")
+                            f"view; for stochastic about {STOCHASTIC_BLOCKS_ACROSS} blocks "
+                            f"across the image: 2 at 128^2, 4 at 256^2)")
     group.add_argument("--view-samples", type=int, default=DEFAULT_VIEW_SAMPLES, metavar="N",
                        help=f"--ms stochastic: free-flight samples per block drawn per frame "
                             f"(default {DEFAULT_VIEW_SAMPLES}; a still view accumulates them "

@@ -173,7 +173,11 @@ class ViewMs(NetworkMs):
 
 # --------------------------------------------------------------------------- stochastic
 
-DEFAULT_STOCHASTIC_BLOCK = 2
+# The stochastic source's default block: about this many blocks across the image's longer
+# side (block = max(1, round(side / 64)): 2 at 96^2-128^2, 4 at 256^2, 8 at 512^2). Its frame
+# cost scales with the blocks, and at 64 across a 256^2 camera move costs about 1.5x the plain
+# march (docs/raymarch.md, "Stochastic view-space F_ms").
+STOCHASTIC_BLOCKS_ACROSS = 64
 DEFAULT_VIEW_SAMPLES = 1
 MAX_VIEW_SAMPLES = 4096
 # A still view stops drawing once every block holds this many samples: the table's noise
@@ -183,6 +187,12 @@ STILL_SAMPLES = 64
 # sample weighs at least 1/(MOVE_HISTORY + 1) and the table follows the view (F_ms depends
 # on the direction toward the camera, which the move changed).
 MOVE_HISTORY = 4
+
+
+def auto_block(width: int, height: int) -> int:
+    """The stochastic source's block for an image: about STOCHASTIC_BLOCKS_ACROSS blocks
+    across its longer side."""
+    return max(1, int(round(max(width, height) / STOCHASTIC_BLOCKS_ACROSS)))
 
 
 def check_stochastic_options(samples, seed):
@@ -228,9 +238,10 @@ class StochasticViewMs(ViewMs):
     options = ("weights", "view_block", "view_samples", "seed", "no_domain_fallback")
     what = "stochastic view-space F_ms table"
 
-    def __init__(self, weights=None, block: int = DEFAULT_STOCHASTIC_BLOCK,
+    def __init__(self, weights=None, block: int | None = None,
                  samples: int = DEFAULT_VIEW_SAMPLES, seed: int = 0, runtime=None):
-        super().__init__(weights, block, 1, runtime)
+        super().__init__(weights, 1 if block is None else block, 1, runtime)
+        self.fixed_block = block        # None: chosen from the image size (auto_block)
         check_stochastic_options(samples, seed)
         self.samples, self.seed = int(samples), int(seed)
         self.draws = 0              # draws since construction: the RNG stream's position
@@ -238,8 +249,7 @@ class StochasticViewMs(ViewMs):
 
     @classmethod
     def from_options(cls, o: dict, runtime=None) -> "StochasticViewMs":
-        block = o.get("view_block")
-        return cls(o.get("weights"), DEFAULT_STOCHASTIC_BLOCK if block is None else block,
+        return cls(o.get("weights"), o.get("view_block"),
                    o.get("view_samples", DEFAULT_VIEW_SAMPLES), o.get("seed", 0), runtime)
 
     @property
@@ -277,29 +287,48 @@ class StochasticViewMs(ViewMs):
         return np.asarray(cam.origin, np.float64) + t[:, None] * dirs, dirs, t, full
 
     def _reproject(self, h: _History, cam, pts, full) -> None:
-        """Carry the history from ``h.camera`` to ``cam``: each block with a new sample
-        takes the old block its point projects into (at most MOVE_HISTORY samples' worth);
-        the others start empty."""
+        """Carry the history from ``h.camera`` to ``cam`` (at most MOVE_HISTORY samples'
+        worth per block). A block with a new sample takes the old block its new point
+        projects into; a block without one (its ray missed this frame, as at silhouettes)
+        takes an old block whose mean point projects into it; the others start empty."""
         old = h.camera
-        col, row, _ = old.image_positions(pts)
         by, bx = h.count.shape
-        with np.errstate(invalid="ignore"):            # NaN behind the old camera
-            i = np.floor(col / self.block)
-            j = np.floor(row / self.block)
-        ok = np.isfinite(i) & np.isfinite(j) & (i >= 0) & (i < bx) & (j >= 0) & (j < by)
-        src_i, src_j = i[ok].astype(np.int64), j[ok].astype(np.int64)
-        inv = 1.0 / np.maximum(h.count[src_j, src_i], 1.0)
-        keep = np.minimum(h.count[src_j, src_i], MOVE_HISTORY)
+        src = np.full((by, bx), -1, np.int64)               # flat old block index per block
+
+        def blocks_of(camera, points):
+            col, row, _ = camera.image_positions(points)
+            with np.errstate(invalid="ignore"):            # NaN behind the camera
+                i, j = np.floor(col / self.block), np.floor(row / self.block)
+            ok = np.isfinite(i) & np.isfinite(j) & (i >= 0) & (i < bx) & (j >= 0) & (j < by)
+            return ok, (np.where(ok, j, 0) * bx + np.where(ok, i, 0)).astype(np.int64)
+
+        # forward: old blocks' mean points (old centre ray at the mean depth) into the view
+        had = np.flatnonzero(h.count.ravel() > 0)
+        if len(had):
+            jj, ii = np.divmod(had, bx)
+            d = old.directions_at((ii + 0.5) * self.block, (jj + 0.5) * self.block)
+            mean_t = h.depth.ravel()[had] / h.count.ravel()[had]
+            ok, dst = blocks_of(cam, np.asarray(old.origin, np.float64) + mean_t[:, None] * d)
+            src.ravel()[dst[ok]] = had[ok]
+        # backward, where this frame drew: the old block under each new point wins
+        ok, old_block = blocks_of(old, pts)
+        new_blocks = np.flatnonzero(full.ravel())
+        src.ravel()[new_blocks[ok]] = old_block[ok]
+        src.ravel()[new_blocks[~ok]] = -1
+        take = src >= 0
+        s_flat = src[take]
+        count_old = h.count.ravel()[s_flat]
+        keep = np.minimum(count_old, MOVE_HISTORY)
+        scale = keep / np.maximum(count_old, 1.0)           # 0 where the old block was empty
         sums = np.zeros_like(h.sums)
-        count = np.zeros_like(h.count)
-        depth = np.zeros_like(h.depth)
-        dst = tuple(np.argwhere(full)[ok].T)
         for c in range(len(sums)):
-            sums[c][dst] = h.sums[c, src_j, src_i] * inv * keep
-        count[dst] = keep
+            sums[c][take] = h.sums[c].ravel()[s_flat] * scale
+        count = np.zeros_like(h.count)
+        count[take] = keep
         # The old mean depth is along the old rays: with one knot the marcher reads only
         # its sign (a block with samples), and new samples soon outweigh it.
-        depth[dst] = h.depth[src_j, src_i] * inv * keep
+        depth = np.zeros_like(h.depth)
+        depth[take] = h.depth.ravel()[s_flat] * scale
         h.sums, h.count, h.depth = sums, count, depth
         h.still = 0
 
@@ -311,6 +340,8 @@ class StochasticViewMs(ViewMs):
         self._ensure_network(frame)
         cam, m = frame.camera, frame.medium
         grey = frame.shortcuts and m.is_grey
+        self.block = (auto_block(cam.width, cam.height) if self.fixed_block is None
+                      else self.fixed_block)
         key = (tuple(frame.light.direction), m.density_scale, tuple(m.albedo), m.phase,
                bool(frame.shortcuts), cam.width, cam.height, cam.tan_half_fov)
         bx, by = block_grid(cam.width, cam.height, self.block)
