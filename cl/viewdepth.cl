@@ -22,6 +22,9 @@
  *            to (i + z)/K. Without VIEW_JITTER all three are 1/2 (the deterministic source);
  *            with uniform random values and VIEW_K = 1 the depth is a free-flight sample of
  *            the block's in-scattering weight (the stochastic source, docs/raymarch.md).
+ *   VIEW_FREE_FLIGHT (with VIEW_JITTER, K = 1, one ray): one pass instead; the depth where
+ *            the optical depth reaches -log(1 - z), -1 (weight 0) when the ray leaves the
+ *            box or reaches `stop` first; weight 1 for a collision. See the block below.
  * Global size: bx * by work-items (guarded), bx = ceil(width / VIEW_BLOCK).
  */
 #include "grid.h"
@@ -41,6 +44,9 @@
 
 #if VIEW_K < 1 || VIEW_K > 16 || VIEW_RAYS < 1 || VIEW_RAYS > 4
 #error "VIEW_K must be 1..16 and VIEW_RAYS 1..4"
+#endif
+#if defined(VIEW_FREE_FLIGHT) && (VIEW_K != 1 || VIEW_RAYS != 1 || !defined(VIEW_JITTER))
+#error "VIEW_FREE_FLIGHT draws one depth on one jittered ray: VIEW_K 1, VIEW_RAYS 1, VIEW_JITTER"
 #endif
 
 /* Advance every sample ray over segment [ta, ta + step]; returns C at its end and whether
@@ -66,6 +72,32 @@ float advance(__global const float *density, int nx, int ny, int nz, float3 bmin
     }
     *more = go;
     return c / (float)VIEW_R2;
+}
+
+/* VIEW_FREE_FLIGHT: one unconditioned free flight along d from t_in to t_out: march until
+ * the optical depth reaches -log(1 - z), in one pass (it usually ends ~1 optical depth in).
+ * Returns the depth, or -1 when the ray leaves the box, or its transmittance falls below
+ * `stop`, first. Given a collision the depth is distributed as T_cam sigma_t / (1 - T(end)),
+ * as the two-pass quantile with a random level, and tau is exactly linear in a segment. */
+__attribute__((always_inline))
+float free_flight_depth(__global const float *density, int nx, int ny, int nz, float3 bmin,
+                        float3 cell, float density_scale, float3 o, float3 d, float t_in,
+                        float t_out, float z, float step, float stop) {
+    const float target = -log(1.0f - z);                /* z < 1: finite; z = 1: never met */
+    const float tau_stop = stop > 0.0f ? -log(stop) : INFINITY;
+    float depth = -1.0f, tau_acc = 0.0f;
+    const int n = t_in <= t_out ? (int)ceil((t_out - t_in) / step) : 0;
+    for (int s = 0; s < n && depth < 0.0f && tau_acc <= tau_stop; ++s) {
+        const float ta = t_in + (float)s * step, tb = fmin(ta + step, t_out);
+        const float3 p = o + (0.5f * (ta + tb)) * d;
+        const float dtau = density_scale
+            * grid_lookup(density, nx, ny, nz, (p - bmin) / cell - 0.5f) * (tb - ta);
+        /* target > tau_acc, so reaching it here means dtau > 0: no division by 0 */
+        if (tau_acc + dtau >= target)
+            depth = ta + (tb - ta) * (target - tau_acc) / dtau;
+        tau_acc += dtau;
+    }
+    return depth;
 }
 
 __kernel void view_depths(__global const float *density, const int nx, const int ny,
@@ -112,6 +144,12 @@ __kernel void view_depths(__global const float *density, const int nx, const int
         }
     }
     __global float *out = depths + (size_t)b * VIEW_K;
+#ifdef VIEW_FREE_FLIGHT
+    /* One unconditioned free flight (free_flight_depth above). */
+    out[0] = free_flight_depth(density, nx, ny, nz, bmin.xyz, cell, density_scale, o, d[0],
+                               t0[0], t1[0], jit.z, step, stop);
+    weight[b] = out[0] >= 0.0f ? 1.0f : 0.0f;
+#else
     float w = 0.0f;
     int n_steps = 0;
     if (t_lo <= t_hi) {
@@ -145,4 +183,5 @@ __kernel void view_depths(__global const float *density, const int nx, const int
     }
     /* Rounding may leave the top level just above the last C: put it at the last segment. */
     for (; k < VIEW_K; ++k) out[k] = t_lo + (float)n_steps * step;
+#endif
 }

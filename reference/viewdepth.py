@@ -124,3 +124,46 @@ def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, rig
             s = int(np.argmax(c[1:] >= u))          # first segment whose end reaches u
             depths[b, i] = t_lo[b] + step * (s + (u - c[s]) / (c[s + 1] - c[s]))
     return depths.reshape(by, bx, k), np.where(w >= EMPTY_WEIGHT, w, 0.0).reshape(by, bx)
+
+
+def free_flight_depths(density, bbox_min, bbox_max, density_scale, origin, forward, right, up,
+                       tan_half, width, height, block, step, jitter, stop=1e-3):
+    """One unconditioned free flight per block (the kernel's VIEW_FREE_FLIGHT): the block's
+    one jittered ray (``jitter`` as above) marched over segments [t0 + k step, ...] from its
+    own box entry t0, sigma_t at each segment's midpoint; the depth where the optical depth
+    reaches -log(1 - z) (z clamped to [MIN_LEVEL, 1]), interpolated linearly inside its
+    segment (tau is linear there). -1 and weight 0 where the ray leaves the box first, or
+    its optical depth passes -log(stop) first; weight 1 for a collision.
+
+    Returns (depths (by, bx, 1), weight (by, bx)) like view_depths."""
+    density = np.asarray(density, np.float64)
+    nz, ny, nx = density.shape
+    bmin, bmax = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
+    cell = (bmax - bmin) / np.array([nx, ny, nz], np.float64)
+    o = np.asarray(origin, np.float64)
+    d = sample_rays(forward, right, up, tan_half, width, height, block, 1, jitter)[:, :, 0]
+    by, bx, _ = d.shape
+    z = np.clip(np.asarray(jitter, np.float64)[..., 2], MIN_LEVEL, 1.0)
+    with np.errstate(divide="ignore"):
+        target = -np.log1p(-z)                              # inf for z = 1: never reached
+    tau_stop = -np.log(stop) if stop > 0 else np.inf
+    depths = np.full((by, bx, 1), -1.0)
+    for j in range(by):
+        for i in range(bx):
+            t0, t1 = box_intersect(o[None], d[j, i][None], bmin, bmax)
+            t0, t1 = float(t0[0]), float(t1[0])
+            if not t0 <= t1:
+                continue
+            tau = 0.0
+            for s in range(int(np.ceil((t1 - t0) / step))):
+                ta = t0 + s * step
+                tb = min(ta + step, t1)
+                p = o + 0.5 * (ta + tb) * d[j, i]
+                dtau = density_scale * float(grid_lookup(density, ((p - bmin) / cell - 0.5)[None])[0]) * (tb - ta)
+                if tau + dtau >= target[j, i]:
+                    depths[j, i, 0] = ta + (tb - ta) * (target[j, i] - tau) / dtau
+                    break
+                tau += dtau
+                if tau > tau_stop:
+                    break
+    return depths, (depths[..., 0] >= 0).astype(np.float64)

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from clvol.kernels.viewdepth import view_depths as kernel_depths
+from reference.viewdepth import free_flight_depths as twin_free_flight
 from reference.viewdepth import view_depths as twin_depths
 from scene_toml import look_at
 
@@ -120,3 +121,60 @@ def test_homogeneous_slab_closed_form():
             d, wt = depths_of(**dict(kw, jitter=None if z == 0.5 else jitter))
             np.testing.assert_allclose(d[0, 0], want, atol=3e-3)
             assert abs(float(wt[0, 0]) - w) < 1e-5
+
+
+@pytest.mark.parametrize("name", ["jitter_one_knot", "inside_free", "opaque_free"])
+def test_free_flight_matches_twin(name):
+    """VIEW_FREE_FLIGHT against the twin, same tolerance as above. z spans (0, 1): small z
+    collide near the entry, z near 1 pass the stop (or the box) first and miss.
+
+    Not run under Oclgrind: its --uninitialized plugin crashes (a segmentation fault in the
+    simulator, Oclgrind 21.10) on every VIEW_RAYS 1 build of this kernel, the deterministic
+    one-ray path that predates the free flight included; the two-ray cases above run there."""
+    base = {"jitter_one_knot": "jitter_one_knot", "inside_free": "inside",
+            "opaque_free": "opaque"}[name]
+    kw = _case(base)
+    bx, by = -(-kw["width"] // kw["block"]), -(-kw["height"] // kw["block"])
+    kw.update(rays=1, k=1)
+    if kw["jitter"] is None or kw["jitter"].shape != (by, bx, 3):
+        rng = np.random.default_rng(5)
+        kw["jitter"] = rng.random((by, bx, 3)).astype(np.float32)
+    kw["jitter"][0, 0, 2] = np.float32(1 - 2 ** -20)           # beyond the stop: a miss
+    got_d, got_w = kernel_depths(**kw, free_flight=True)
+    tw = {k: v for k, v in kw.items() if k not in ("rays", "k")}
+    want_d, want_w = twin_free_flight(**tw)
+    np.testing.assert_array_equal(got_d < 0, want_d < 0)
+    np.testing.assert_array_equal(got_w, want_w)
+    hit = want_d >= 0
+    assert hit.any() and (~hit).any()
+    span = float(want_d[hit].max() - want_d[hit].min()) or 1.0
+    assert np.abs(got_d - want_d)[hit].max() <= 2e-5 * max(span, 1.0)
+
+
+def test_free_flight_slab_closed_form():
+    """Down the axis of a homogeneous box: the optical depth sigma (t - t_in) reaches
+    -log(1 - z) at t_in - log(1 - z)/sigma, exactly (tau is linear in every segment; float32
+    rounding only: 1e-5), while sigma L = 4 > -log(1 - z); z = 0.99 needs 4.6 > 4: a miss."""
+    dens = np.ones((4, 4, 4), np.float32)
+    sigma = 2.0
+    origin = np.array([0.0, 0.0, 5.0])
+    f, r, u = look_at(origin, np.zeros(3))
+    kw = dict(density=dens, bbox_min=np.array([-1.0, -1.0, -1.0]),
+              bbox_max=np.array([1.0, 1.0, 1.0]), density_scale=sigma, origin=origin, forward=f,
+              right=r, up=u, tan_half=math.tan(math.radians(2.0)), width=2, height=2, block=2,
+              step=0.05)
+    for z in (0.03, 0.5, 0.97, 0.99):
+        jitter = np.array([[[0.5, 0.5, z]]], np.float32)
+        want = 4.0 - math.log1p(-float(np.float32(z))) / sigma if z < 0.98 else -1.0
+        d, w = kernel_depths(**kw, rays=1, k=1, jitter=jitter, free_flight=True)
+        dt, wt = twin_free_flight(**kw, jitter=jitter)
+        for depth, weight in ((d, w), (dt, wt)):
+            assert abs(float(depth[0, 0, 0]) - want) < 1e-5 * 5
+            assert float(weight[0, 0]) == (1.0 if want > 0 else 0.0)
+
+
+def test_free_flight_needs_one_jittered_knot():
+    from clvol.errors import ClvolError
+    kw = _case("odd")
+    with pytest.raises(ClvolError, match="free flight"):
+        kernel_depths(**kw, free_flight=True)

@@ -19,10 +19,12 @@ def block_grid(width: int, height: int, block: int) -> tuple[int, int]:
 
 def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, right, up,
                 tan_half, width, height, block, rays, k, step, stop=1e-3, jitter=None,
-                runtime=None):
+                free_flight=False, runtime=None):
     """(depths float32 (by, bx, k), weight float32 (by, bx)): see the twin. ``density`` is
     a NumPy array or a DeviceArray already on the device; ``jitter`` None (the
-    deterministic placement) or (by, bx, 3) values in [0, 1) (the stochastic source)."""
+    deterministic placement) or (by, bx, 3) values in [0, 1) (the stochastic source);
+    ``free_flight`` (needs jitter, k = rays = 1): one unconditioned free flight per block
+    instead of the quantile, weight 1 for a collision and 0 for none."""
     rt = runtime or get_runtime()
     if not (1 <= k <= MAX_VIEW_K and 1 <= rays <= MAX_VIEW_RAYS and block >= 1):
         raise ClvolError(f"view depths: k = {k} must be 1..{MAX_VIEW_K}, rays = {rays} "
@@ -44,6 +46,11 @@ def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, rig
         j4[..., :3] = jit
         defines["VIEW_JITTER"] = 1
         extra = (rt.upload(j4.reshape(-1)).buffer,)
+    if free_flight:
+        if jitter is None or k != 1 or rays != 1:
+            raise ClvolError(f"view depths: a free flight needs jitter, k = 1 and rays = 1 "
+                             f"(got k = {k}, rays = {rays}, jitter {'given' if jitter is not None else 'None'})")
+        defines["VIEW_FREE_FLIGHT"] = 1
     prog = rt.program("viewdepth", defines)
     kern = prog.kernel("view_depths", [None, np.int32, np.int32, np.int32, None, None, np.float32,
                                        None, None, None, None, np.float32, np.int32, np.int32,

@@ -267,7 +267,11 @@ class StochasticViewMs(ViewMs):
 
     def _draw(self, frame, rng):
         """One free-flight sample per block: (points (n, 3), dirs (n, 3), depths (n,),
-        block mask (by, bx)) for the blocks whose jittered ray meets the medium."""
+        block mask (by, bx)) for the blocks whose jittered ray collides. The flight is
+        unconditioned (one pass, usually ending ~1 optical depth in); a ray that escapes
+        draws nothing this frame, and the collisions are distributed as the in-scattering
+        weight, so the block's mean over them is still the estimator's (only thin blocks
+        collect samples more slowly)."""
         from ..kernels.viewdepth import block_grid, view_depths
         cam, m = frame.camera, frame.medium
         bx, by = block_grid(cam.width, cam.height, self.block)
@@ -278,7 +282,7 @@ class StochasticViewMs(ViewMs):
                                 m.density_scale, cam.origin, fwd, right, up, cam.tan_half_fov,
                                 cam.width, cam.height, self.block, 1, 1,
                                 VIEW_STEP_FACTOR * frame.step, frame.threshold,
-                                jitter=jitter, runtime=frame.runtime)
+                                jitter=jitter, free_flight=True, runtime=frame.runtime)
         full = depths[..., 0] >= 0
         col = (np.arange(bx)[None, :] + jitter[..., 0]) * self.block
         row = (np.arange(by)[:, None] + jitter[..., 1]) * self.block
