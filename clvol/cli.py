@@ -108,7 +108,22 @@ def _cmd_compare(args) -> int:
     return 0
 
 
-def check_render_outputs(output: str, png: str | None, exposure: float | None):
+def parse_exposure(text):
+    """``--exposure``: None (not given: from the image), "image", "scene" or a finite number
+    of stops (a float). Anything else raises ``ClvolError`` with one line."""
+    if text is None or text in ("image", "scene"):
+        return text
+    try:
+        stops = float(text)
+    except (TypeError, ValueError):
+        stops = None
+    if stops is None or not math.isfinite(stops):
+        raise ClvolError(f"--exposure {text}: give a finite number of stops, 'image' (chosen "
+                         f"from the image) or 'scene' (from the scene's light)")
+    return stops
+
+
+def check_render_outputs(output: str, png: str | None, exposure):
     """Refuse, before any rendering, outputs that would be lost or mislabelled: the EXR must
     be named .exr, the preview .png and not the EXR's own path; both folders must exist and
     the exposure be finite. Returns the preview's path (None: no preview)."""
@@ -122,8 +137,7 @@ def check_render_outputs(output: str, png: str | None, exposure: float | None):
             raise ClvolError(f"--png {png}: the preview is a PNG; name it .png")
         if Path(png).resolve() == out.resolve():
             raise ClvolError(f"--png {png}: the same file as -o; the preview would overwrite the EXR")
-    if exposure is not None and not math.isfinite(exposure):
-        raise ClvolError(f"--exposure {exposure!r}: must be a finite number of stops")
+    parse_exposure(exposure)
     for p in (out, Path(png) if png is not None else None):
         folder = p.resolve().parent if p is not None else None
         if folder is not None and not folder.is_dir():
@@ -134,7 +148,7 @@ def check_render_outputs(output: str, png: str | None, exposure: float | None):
 
 
 def _cmd_render(args) -> int:
-    from .image import write_exr, write_png_preview
+    from .image import choose_exposure, write_exr, write_png_preview
     from .render import METHODS
     from .render.options import given_options
     from .render.renderer import Renderer
@@ -145,6 +159,7 @@ def _cmd_render(args) -> int:
             if getattr(args, name) is not None:
                 raise ClvolError(f"--{name} sets the PNG preview: give --png too")
     png = check_render_outputs(args.output, args.png, args.exposure)
+    exposure = parse_exposure(args.exposure)
     tone = args.tone or "filmic"
     configure(device=args.device, profiling=args.profile)
     scene = load_scene(args.scene)
@@ -157,12 +172,14 @@ def _cmd_render(args) -> int:
     if args.profile:
         print("device time per kernel:\n" + get_runtime().timing_report(), file=sys.stderr)
     header = {"scene": str(args.scene), **result.header}
+    if png is not None:     # the preview's exposure, also recorded in the EXR's header
+        stops, how = choose_exposure(exposure, result.layers["total"], scene.light)
+        header.update({"preview.exposure": f"{stops:+.4f}", "preview.exposure_from": how,
+                       "preview.tone": tone})
     write_exr(args.output, result.layers, header)
     print(f"wrote {args.output}", file=sys.stderr)
     if png is not None:
-        used = write_png_preview(png, result.layers["total"], exposure=args.exposure,
-                                 curve=tone)
-        how = "chosen from the image" if args.exposure is None else "given"
+        used = write_png_preview(png, result.layers["total"], exposure=stops, curve=tone)
         print(f"wrote {png} (exposure {used:+.2f} stops, {how}; {tone} tone curve)",
               file=sys.stderr)
     if not args.quiet:
@@ -304,9 +321,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output .exr")
     p.add_argument("--png", nargs="?", const="", default=None, metavar="FILE",
                    help="also write a tonemapped PNG preview (default: next to the EXR)")
-    p.add_argument("--exposure", type=float, default=None,
-                   help="preview exposure in stops (default: chosen from the image so its bright "
-                        "parts sit below white; the EXR is never changed)")
+    p.add_argument("--exposure", default=None, metavar="STOPS|image|scene",
+                   help="preview exposure: a number of stops; 'image' (the default: chosen from "
+                        "the image so its bright parts sit below white); or 'scene' (from the "
+                        "light only, so a dark medium looks dark: docs/scenes.md, 'Previews'). "
+                        "The EXR's pixels are never changed")
     p.add_argument("--tone", choices=["filmic", "linear"], default=None,
                    help="preview tone curve: filmic (default; highlights roll off) or linear "
                         "(clamp to [0, 1], then sRGB)")

@@ -303,6 +303,60 @@ def auto_exposure(rgb: np.ndarray) -> float:
     return float(np.clip(math.log2(AUTO_WHITE / level), -30.0, 30.0))
 
 
+EXPOSURE_MODES = ("image", "scene")
+
+
+def white_luminance(light) -> float:
+    """Luminance of the scene's reference white: the radiance of a white Lambertian surface
+    facing the sun under the sky, ``Y(irradiance) / pi + Y(mean sky radiance)``.
+
+    ``light`` is a ``clvol.scene.Light``. The sky is its constant ``environment``, or its
+    ``environment_map``'s solid-angle mean times ``environment_scale``; none counts 0. (Under a
+    constant sky of radiance L a white surface sees irradiance pi L and sends back L; the mean
+    over the sphere is exact for a white sphere lit by any map.) Y: Rec. 709 luminance."""
+    sun = float(np.dot(np.asarray(light.irradiance, dtype=np.float64), _REC709_LUMA)) / math.pi
+    sky = np.zeros(3)
+    if light.environment is not None:
+        sky = np.asarray(light.environment, dtype=np.float64)
+    elif light.environment_map is not None:
+        from .envmap import row_solid_angles
+        texels = np.asarray(light.environment_texels(), dtype=np.float64)
+        h, w = texels.shape[:2]
+        mean = np.einsum("hwc,h->c", texels, row_solid_angles(h, w)) / (4.0 * math.pi)
+        sky = mean * np.asarray(light.environment_scale, dtype=np.float64)
+    return sun + float(sky @ _REC709_LUMA)
+
+
+def scene_exposure(light) -> float | None:
+    """Scene-referred exposure in stops, from the light only (never the image): maps the
+    reference white (``white_luminance``) to ``AUTO_WHITE``, the level auto exposure gives the
+    image's bright pixels: ``log2(AUTO_WHITE / white_luminance(light))``. So two scenes under
+    the same light get the same exposure and a dark medium looks dark. Irradiance 1, no sky:
+    ``log2(0.8 pi)`` = +1.33 stops. None when the scene has no light (white luminance 0)."""
+    white = white_luminance(light)
+    if not (math.isfinite(white) and white > 0.0):
+        return None
+    return float(np.clip(math.log2(AUTO_WHITE / white), -30.0, 30.0))
+
+
+def choose_exposure(exposure, rgb: np.ndarray, light=None) -> tuple[float, str]:
+    """``(stops, how)`` of a preview: ``exposure`` is a number of stops (how = "given"),
+    "image" or None (``auto_exposure``: "chosen from the image") or "scene"
+    (``scene_exposure(light)``: "from the scene's light"; a scene without light falls back
+    to the image: "chosen from the image: the scene has no light")."""
+    if exposure is None or exposure == "image":
+        return auto_exposure(rgb), "chosen from the image"
+    if exposure == "scene":
+        stops = scene_exposure(light) if light is not None else None
+        if stops is None:
+            return auto_exposure(rgb), "chosen from the image: the scene has no light"
+        return stops, "from the scene's light"
+    if isinstance(exposure, str) or not math.isfinite(float(exposure)):
+        raise ImageError(f"exposure {exposure!r}: give a finite number of stops, "
+                         f"{' or '.join(repr(m) for m in EXPOSURE_MODES)}")
+    return float(exposure), "given"
+
+
 def filmic(x: np.ndarray) -> np.ndarray:
     """A filmic shoulder on linear values >= 0: ``x (2.51 x + 0.03) / (x (2.43 x + 0.59) + 0.14)``
     (Narkowicz's fit of the ACES reference rendering transform). Smooth, monotonic, 0 -> 0,

@@ -23,6 +23,9 @@ def _render(tmp_path, *args):
     (["-o", "x.exr", "--png", "z.exr"], "name it .png"),     # a PNG under an .exr name
     (["-o", "x.exr", "--png", "x.exr"], "name it .png"),
     (["-o", "x.exr", "--png", "--exposure", "nan"], "finite"),
+    (["-o", "x.exr", "--png", "--exposure", "scenes"], "'image' (chosen from the image) or 'scene'"),
+    (["-o", "x.exr", "--png", "--exposure=-inf"], "finite"),
+    (["-o", "x.exr", "--exposure", "scene"], "give --png too"),
     (["-o", "x.exr", "--png", "missing/p.png"], "does not exist"),
     (["-o", "missing/x.exr"], "does not exist"),
 ])

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from clvol.image import AUTO_WHITE
 from clvol.scene import load_scene
 from clvol.viewer.state import LIMITS, ViewerMessageError, ViewState, orbit_frame
 from scene_toml import write_scene
@@ -68,7 +69,8 @@ def test_orbit_keeps_distance_and_turns_about_up(scene_path):
     ({"density_scale": 0.0}, "density_scale"), ({"elevation": 90.0}, "elevation"),
     ({"method": "magic"}, "method"), ({"resolution": 100}, "resolution"),
     ({"resolution": True}, "resolution"), ({"preset": "lava"}, "preset"), ({"zoom": 1}, "zoom"),
-    ({"exposure": float("inf")}, "exposure"),
+    ({"exposure": float("inf")}, "exposure"), ({"exposure": "scenes"}, "exposure"),
+    ({"exposure": ["scene"]}, "exposure"),
 ])
 def test_bad_fields_are_refused_by_name(scene_path, changes, field):
     s = ViewState.from_scene(load_scene(scene_path))
@@ -165,6 +167,16 @@ def test_server_protocol_errors_frames_and_save(server):
                 await ws.send_str(json.dumps({"type": "state", "state": {"azimuth": 30.0}}))
                 meta2, _ = await _next_frame(ws)
                 assert meta2["state"]["azimuth"] == 30.0 and meta2["id"] > meta["id"]
+                assert meta2["exposure_from"] == "chosen from the image"
+                # Exposure from the scene's light (clvol.image.scene_exposure), then back.
+                await ws.send_str(json.dumps({"type": "state", "state": {"exposure": "scene"}}))
+                meta3, _ = await _next_frame(ws)
+                assert meta3["exposure_from"] == "from the scene's light"
+                # SCENE's light: irradiance 1, no sky -> log2(0.8 pi) = +1.33 stops.
+                assert meta3["exposure"] == pytest.approx(math.log2(AUTO_WHITE * math.pi))
+                await ws.send_str(json.dumps({"type": "state", "state": {"exposure": None}}))
+                meta4, _ = await _next_frame(ws)
+                assert meta4["exposure_from"] == "chosen from the image"
                 await ws.send_str(json.dumps({"type": "save"}))
                 while True:
                     msg = await ws.receive()
@@ -449,6 +461,16 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
     d.execute_script("const s = document.getElementById('g'); s.value = 0.2;"
                      "s.dispatchEvent(new Event('input'));")
     _wait(d, lambda: _frames(d) > n, "a frame after the error")
+
+    # Exposure from the light: the menu sends "scene", the slider shows the stops used.
+    d.execute_script("const e = document.getElementById('expmode'); e.value = 'scene';"
+                     "e.dispatchEvent(new Event('change'));")
+    _wait(d, lambda: _meta(d)["exposure_from"] == "from the scene's light", "a light-exposed frame")
+    assert abs(float(d.execute_script("return document.getElementById('exposure').value"))
+               - math.log2(AUTO_WHITE * math.pi)) < 0.051            # the slider's step is 0.1
+    d.execute_script("const e = document.getElementById('expmode'); e.value = 'image';"
+                     "e.dispatchEvent(new Event('change'));")
+    _wait(d, lambda: _meta(d)["exposure_from"] == "chosen from the image", "an auto frame")
 
     # The path tracer accumulates while the view is still: spp grows.
     d.execute_script("const m = document.getElementById('method'); m.value = 'pathtrace';"

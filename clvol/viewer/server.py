@@ -131,14 +131,18 @@ class FrameMaker:
         self.executor.shutdown(wait=True, cancel_futures=True)
 
 
-def encode_frame(frame: Frame, frame_id: int, exposure: float | None) -> bytes:
-    from ..image import encode_png_rgb8, tonemap_srgb8
-    pixels, used = tonemap_srgb8(frame.layers["total"], exposure, curve="filmic")
+def encode_frame(frame: Frame, frame_id: int, exposure: float | str | None,
+                 light=None) -> bytes:
+    """``exposure``: stops, None (from the image) or "scene" (from ``light``, the scene's
+    light: clvol.image.scene_exposure); the frame's meta says which ("exposure_from")."""
+    from ..image import choose_exposure, encode_png_rgb8, tonemap_srgb8
+    stops, how = choose_exposure(exposure, frame.layers["total"], light)
+    pixels, used = tonemap_srgb8(frame.layers["total"], stops, curve="filmic")
     meta = {
         "type": "frame", "id": frame_id, "method": frame.state.method,
         "width": int(pixels.shape[1]), "height": int(pixels.shape[0]),
         "spp": frame.spp, "frame_ms": round(frame.seconds * 1e3, 2),
-        "stages_ms": frame.stage_ms, "exposure": used,
+        "stages_ms": frame.stage_ms, "exposure": used, "exposure_from": how,
         "effects": {k: v for k, v in frame.header.items()
                     if k.startswith(("simulated", "skipped", "effects"))},
         "warning": frame.header.get("warning") or frame.header.get("validity_warning"),
@@ -225,7 +229,7 @@ class Connection:
             self.last = frame
             self.frame_id += 1
             data = await loop.run_in_executor(None, encode_frame, frame, self.frame_id,
-                                              state.exposure)
+                                              state.exposure, self.maker.scene.light)
             try:
                 await self.ws.send_bytes(data)
             except (ConnectionError, RuntimeError):

@@ -95,7 +95,9 @@ class ViewState:
     albedo: tuple[float, float, float]
     g: float
     density_scale: float
-    exposure: float | None = None      # None: chosen from the image (clvol.image.auto_exposure)
+    # None: chosen from the image (clvol.image.auto_exposure); "scene": from the scene's light
+    # (clvol.image.scene_exposure); a number: stops.
+    exposure: float | str | None = None
     method: str = "network"
     resolution: int = 256
     preset: str | None = None
@@ -182,8 +184,11 @@ def _check_field(key: str, value):
         if not isinstance(value, (list, tuple)) or len(value) != 3:
             raise ViewerMessageError(f"albedo: expected [r, g, b], got {value!r}")
         return tuple(_number("albedo", v) for v in value)
-    if key == "exposure" and value is None:
-        return None
+    if key == "exposure" and (value is None or (isinstance(value, str) and value == "scene")):
+        return value
+    if key == "exposure" and isinstance(value, str):
+        raise ViewerMessageError(f"exposure: {value!r} is not a number of stops, null (from "
+                                 f"the image) or \"scene\" (from the light)")
     if key in LIMITS:
         return _number(key, value)
     if key == "method":

@@ -29,8 +29,8 @@ function showState(s) {
   s.albedo.forEach((a, i) => { $("albedo" + i).value = a; });
   $("g").value = s.g;
   $("density").value = Math.log10(s.density_scale);
-  $("autoexp").checked = s.exposure === null;
-  if (s.exposure !== null) $("exposure").value = s.exposure;
+  $("expmode").value = s.exposure === null ? "image" : s.exposure === "scene" ? "scene" : "manual";
+  if (typeof s.exposure === "number") $("exposure").value = s.exposure;
 }
 
 // The medium controls follow the server when it changed the medium on its own (a preset sets
@@ -73,7 +73,7 @@ function onFrame(buffer) {
   const w = $("warning");
   w.hidden = !meta.warning;
   w.textContent = meta.warning || "";
-  if (!$("autoexp").checked) return;
+  if ($("expmode").value === "manual") return;
   $("exposure").value = meta.exposure;
 }
 
@@ -111,8 +111,12 @@ function setup() {
   }
   $("g").oninput = () => send({ g: Number($("g").value) });
   $("density").oninput = () => send({ density_scale: Math.pow(10, Number($("density").value)) });
-  $("exposure").oninput = () => { $("autoexp").checked = false; send({ exposure: Number($("exposure").value) }); };
-  $("autoexp").onchange = () => send({ exposure: $("autoexp").checked ? null : Number($("exposure").value) });
+  $("exposure").oninput = () => { $("expmode").value = "manual"; send({ exposure: Number($("exposure").value) }); };
+  // auto: chosen from each frame; from the light: clvol.image.scene_exposure (docs/scenes.md)
+  $("expmode").onchange = () => {
+    const mode = $("expmode").value;
+    send({ exposure: mode === "image" ? null : mode === "scene" ? "scene" : Number($("exposure").value) });
+  };
   $("save").onclick = () => clvol.socket.send(JSON.stringify({ type: "save" }));
 
   const img = $("frame");
