@@ -34,3 +34,30 @@ def test_example_renders_finite_and_fills_the_frame(path, options):
         # sparsest example; the solids and clouds cover 40-70%).
         assert np.mean(alpha > 0.05) > 0.3, np.mean(alpha > 0.05)
     assert rgb.mean() > 0
+
+
+def test_silver_lining_example_has_bright_edges_in_both_methods():
+    """examples/cloud_silver.toml: the sun behind the cloud, 21 degrees from the line of sight.
+    Thin edges (alpha 0.05-0.5 in the real-time image) must be brighter than the thick core
+    (alpha > 0.95), in the real-time image and in the path tracer's, and the two ratios must
+    agree. Measured at 128^2: 1.57 (real time) and 1.70 (path tracer, 64 spp); with the
+    cloud.toml light (39 degrees) 0.36 and 0.33. Here 64^2, 32 spp: the edge mask holds 158
+    pixels and the ratio measured 1.82 (real time) and 1.96 / 2.00 / 2.09 (path tracer, seeds
+    5 / 4 / 3: the noise moves it by a few per cent), so 1.2 and a 25% agreement are far from
+    both the noise and the no-lining case."""
+    path = Path(__file__).resolve().parents[1] / "examples" / "cloud_silver.toml"
+    scene = clvol.load_scene(path)
+    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, width=64, height=64))
+    grid = scene.volume.load()
+    rt = clvol.Renderer(scene, grid=grid).render()
+    pt = clvol.Renderer(scene, "pathtrace", grid=grid, spp=32, seed=3).render()
+    alpha = rt.layers["alpha"]
+    edge, core = (alpha > 0.05) & (alpha < 0.5), alpha > 0.95
+    assert edge.sum() > 50 and core.sum() > 500
+
+    def ratio(res):
+        lum = res.layers["total"].mean(axis=2)
+        return lum[edge].mean() / lum[core].mean()
+    r_rt, r_pt = ratio(rt), ratio(pt)
+    assert r_rt > 1.2 and r_pt > 1.2, (r_rt, r_pt)
+    assert abs(r_rt / r_pt - 1) < 0.25, (r_rt, r_pt)
