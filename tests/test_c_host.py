@@ -124,9 +124,16 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
         built.add((stem, tuple(rtm._define_flags(defines))))
         return orig(stem, defines, extra_options)
     monkeypatch.setattr(rt, "program", recording)
+    # The C host launches the gather and the network as two kernels; Python's default fuses
+    # them (cl/gather_mlp.cl, the same bits: tests/test_gather_mlp.py). The programs are
+    # compared with Python's unfused path, the image with both.
+    import clvol.render.network as network
+    monkeypatch.setattr(network, "FUSED_DEFAULT", False)
     res = Renderer(scene, "raymarch", ms_resolution=MS_RES, runtime=rt).render()
     want = res.layers["total"]
     monkeypatch.undo()
+    fused = Renderer(scene, "raymarch", ms_resolution=MS_RES, runtime=rt).render()
+    np.testing.assert_array_equal(fused.layers["total"], want)
     if scene.medium.albedo[0] > 0:
         assert res.header["raymarch.ms"] == source
     if source == "network":
