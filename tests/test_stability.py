@@ -106,6 +106,10 @@ METHODS = {
     "raymarch-grid": ("raymarch", dict(ms="grid")),
     "raymarch-network": ("raymarch", dict(ms="network", ms_resolution=8,
                                           no_domain_fallback=True)),
+    "raymarch-view": ("raymarch", dict(ms="view", view_block=2, view_knots=3,
+                                       no_domain_fallback=True)),
+    "raymarch-stochastic": ("raymarch", dict(ms="stochastic", view_block=2, view_samples=2,
+                                             no_domain_fallback=True)),
     "pathtrace": ("pathtrace", dict(spp=1, seed=3)),
 }
 
