@@ -440,6 +440,13 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
                                       "getElementById('albedo' + i).value))") == jade["albedo"],
           "the albedo sliders at the preset's values")
     assert abs(float(d.execute_script("return document.getElementById('g').value")) - jade["g"]) < 1e-6
+    # ... and the numbers beside the sliders show the preset's values.
+    _wait(d, lambda: d.find_element(By.ID, "g_num").text == f"{jade['g']:.2f}", "g's number")
+    assert d.find_element(By.ID, "albedo0_num").text == f"{jade['albedo'][0]:.3f}"
+    dens = float(d.find_element(By.ID, "density_num").text)
+    # the slider holds log10 in steps of 0.01 (10^0.005 - 1 = 1.2% either side) and the
+    # number has 3 digits (0.2% more)
+    assert abs(dens / _meta(d)["state"]["density_scale"] - 1) < 0.014
     n = _frames(d)
     d.execute_script("const s = document.getElementById('albedo1'); s.value = 0.5;"
                      "s.dispatchEvent(new Event('input'));")
@@ -462,6 +469,8 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
                      "s.dispatchEvent(new Event('input'));")
     _wait(d, lambda: _frames(d) > n, "a frame after the error")
 
+    # A slider's number follows the slider as it moves.
+    assert d.find_element(By.ID, "g_num").text == "0.20"
     # Exposure from the light: the menu sends "scene", the slider shows the stops used.
     d.execute_script("const e = document.getElementById('expmode'); e.value = 'scene';"
                      "e.dispatchEvent(new Event('change'));")

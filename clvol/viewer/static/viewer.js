@@ -21,6 +21,20 @@ function send(changes) {
   }
 }
 
+// Every slider shows its value beside it (a span made in setup()): the number the server
+// receives, in the unit a user thinks in (the density slider is log10 of the scale).
+const SLIDER_TEXT = {
+  albedo0: (v) => v.toFixed(3), albedo1: (v) => v.toFixed(3), albedo2: (v) => v.toFixed(3),
+  g: (v) => v.toFixed(2),
+  density: (v) => Math.pow(10, v).toPrecision(3),
+  exposure: (v) => (v >= 0 ? "+" : "") + v.toFixed(1) + " stops",
+};
+function showNumbers() {
+  for (const [id, text] of Object.entries(SLIDER_TEXT)) {
+    $(id + "_num").textContent = text(Number($(id).value));
+  }
+}
+
 function showState(s) {
   Object.assign(state, s);
   $("method").value = s.method;
@@ -31,6 +45,7 @@ function showState(s) {
   $("density").value = Math.log10(s.density_scale);
   $("expmode").value = s.exposure === null ? "image" : s.exposure === "scene" ? "scene" : "manual";
   if (typeof s.exposure === "number") $("exposure").value = s.exposure;
+  showNumbers();
 }
 
 // The medium controls follow the server when it changed the medium on its own (a preset sets
@@ -43,6 +58,7 @@ function syncMedium(s) {
   s.albedo.forEach((a, i) => { $("albedo" + i).value = a; });
   $("g").value = s.g;
   $("preset").value = s.preset || "";
+  showNumbers();
 }
 
 function onFrame(buffer) {
@@ -73,8 +89,8 @@ function onFrame(buffer) {
   const w = $("warning");
   w.hidden = !meta.warning;
   w.textContent = meta.warning || "";
-  if ($("expmode").value === "manual") return;
-  $("exposure").value = meta.exposure;
+  if ($("expmode").value !== "manual") $("exposure").value = meta.exposure;
+  showNumbers();
 }
 
 function connect() {
@@ -98,6 +114,13 @@ function connect() {
 
 // ------------------------------------------------------------------ controls
 function setup() {
+  for (const id of Object.keys(SLIDER_TEXT)) {
+    const span = document.createElement("span");
+    span.id = id + "_num";
+    span.className = "num";
+    $(id).insertAdjacentElement("afterend", span);
+    $(id).addEventListener("input", showNumbers);
+  }
   for (const p of PRESETS) {
     const o = document.createElement("option");
     o.value = p; o.textContent = p;
