@@ -1,0 +1,54 @@
+#!/usr/bin/env python3
+"""What the ray marcher's single scattering alone leaves against the path tracer's.
+
+    python bench/single_scattering_error.py [--size 96] [--spp 512] [--scenes NAME ...]
+
+For each scene of bench/neural_quality.py (default: cloud, smoke, backscatter): the path
+tracer at ``--max-order 1`` twice (two seeds, --spp each, so that the score removes the
+reference's noise as neural_quality's does) against ``--ms none`` at 1 and 3 x 3 rays per
+pixel. Printed: noise-corrected RMSE x 100 and the image mean over the reference's, the same
+metric as neural_quality's tables. It separates the single-scattering part (the voxelised
+light field, pixel-centre sampling) from what an F_ms representation leaves there.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+
+from _common import ROOT, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
+
+from clvol.render.renderer import Renderer  # noqa: E402
+from clvol.runtime import get_runtime  # noqa: E402
+
+SEEDS = (101, 102)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=96)
+    ap.add_argument("--spp", type=int, default=512, help="per reference half (default 512)")
+    ap.add_argument("--scenes", nargs="+", default=["cloud", "smoke", "backscatter"])
+    args = ap.parse_args(argv)
+    spec = importlib.util.spec_from_file_location("neural_quality",
+                                                  ROOT / "bench" / "neural_quality.py")
+    nq = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(nq)
+    print(machine(get_runtime()))
+    print(f"{args.size}^2, path tracer --max-order 1 at 2 x {args.spp} spp (seeds {SEEDS})")
+    print(f"{'scene':14s} {'rays/pixel':>10s} {'rmse100':>8s} {'mean':>6s}")
+    for name, path in nq.resolve_scenes(args.scenes).items():
+        sc = nq.bench_scene(path, args.size)
+        grid = sc.volume.load()
+        halves = [Renderer(sc, "pathtrace", grid=grid, spp=args.spp, seed=s, max_order=1)
+                  .render().layers["total"] for s in SEEDS]
+        for ss in (1, 3):
+            img = Renderer(sc, "raymarch", grid=grid, ms="none", supersample=ss).render()
+            s = nq.scores(img.layers["total"], halves[0], halves[1])
+            print(f"{name:14s} {ss * ss:10d} {s['rmse100']:8.2f} {s['mean']:6.3f}", flush=True)
+    print(machine(get_runtime()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
