@@ -2,9 +2,10 @@
 source field over the medium, read by cl/raymarch.cl (define ENV) at every march point.
 
 Directions. The sphere is cut into K near-equal cells around a Fibonacci set of directions
-w_i (solid angle Omega = 4 pi / K each). A constant sky L gives each cell the irradiance
-E_i = L Omega; a lat-long map gives E_i = sum of L_texel Omega_texel over the texels whose
-centre is nearest w_i (the map's integral is kept exactly: sum_i E_i = int L dw).
+w_i (solid angle Omega_i = 4 pi / K each). A constant sky L gives each cell the irradiance
+E_i = L Omega_i; a lat-long map gives E_i = sum of L_texel Omega_texel over the texels whose
+centre is nearest w_i (the map's integral is kept exactly: sum_i E_i = int L dw), and the
+cell's solid angle Omega_i = the sum of those texels' (so a uniform map is a furnace too).
 
 Transmittance (``EnvTransmittance``): for every w_i the exact light transmittance field
 T_i(x) toward w_i (cl/transmittance.cl's sweep, optical depth accumulated along the light
@@ -14,11 +15,11 @@ density, the density scale and the direction set: a new sky does not rebuild it.
 Single scattering. In-scattered radiance per unit extinction toward the camera at x:
 
     S_c(x) = albedo_c sum_i E_i,c T_i(x) f_i(x),
-    f_i(x) = f(w_i . u) / sum_j Omega f(w_j . u),   u = normalize(x - camera origin),
+    f_i(x) = f(w_i . u) / sum_j Omega_j f(w_j . u),   u = normalize(x - camera origin),
 
 with f the scene's phase function with every lobe's g multiplied by (1 - 1/K), the mean
 cosine of a cell of solid angle 4 pi / K (the HG lobe convolved with a lobe as wide as a
-cell: HG convolved with HG(g_s) is HG(g g_s)). The normalisation makes sum_i Omega f_i = 1
+cell: HG convolved with HG(g_s) is HG(g g_s)). The normalisation makes sum_i Omega_i f_i = 1
 exactly, so a cell-sized sampling of a sharp forward lobe neither gains nor loses energy.
 u is the direction of the camera ray through x, so the field is exact in direction for every
 pixel; an anisotropic phase therefore makes the field depend on the camera position (rebuilt
@@ -39,9 +40,13 @@ the light of all orders at x is the geometric series t sum_n (albedo (1 - t))^n,
 orders >= 1 are t albedo (1 - t) / (1 - albedo (1 - t)); spread over the blocked fraction
 1 - t this is
 
-    R_c = albedo_c t / (1 - albedo_c (1 - t))
+    R_c = (albedo_c t / (1 - albedo_c (1 - t)))^p,   p = MS_EXPONENT = 2
 
-(1 at albedo 1; the denominator is 0 only for albedo 1 and t = 0, where the limit 1 is used).
+(1 at albedo 1 for any p; the denominator is 0 only for albedo 1 and t = 0, where the limit 1
+is used). The plain series (p = 1) was measured too bright below albedo 1 (+50% on the cloud
+at albedo 0.9: a photon scattered once is deeper than x on average, so it escapes less
+often than t); p = 2 was fitted on the sky-only cloud at albedo 0.9 (48^3, density 64) and
+checked at other albedos, densities and resolutions (docs/raymarch.md).
 
 Background: a constant sky is the kernel's constant background; a map is looked up (nearest
 texel, clvol/envmap.py) along every camera ray (``background_image``).
@@ -59,6 +64,8 @@ from ..errors import ClvolError
 DEFAULT_ENV_DIRECTIONS = 64
 DEFAULT_ENV_RESOLUTION = 32
 INV_4PI = 1.0 / (4.0 * math.pi)
+# The escape model's R is raised to this power (fitted: docs/raymarch.md "Environment light").
+MS_EXPONENT = 2.0
 
 
 def sky_directions(k: int) -> np.ndarray:
@@ -84,6 +91,7 @@ class Sky:
     irradiance: np.ndarray
     colour: tuple
     channels: int
+    solid_angles: np.ndarray     # (K,) Omega_i: 4 pi / K, or a map's texels' in cell i
 
     @property
     def total(self) -> np.ndarray:
@@ -112,20 +120,23 @@ def make_sky(light, k: int, grey_albedo: bool = True) -> Sky:
     m = getattr(light, "environment_map", None)
     if m is None:
         L = np.asarray(light.environment, np.float64)
+        om = np.full(k, omega)
         if grey_albedo:
-            return Sky(dirs, np.full((k, 1), omega), tuple(L), 1)
-        return Sky(dirs, np.tile(L * omega, (k, 1)), (1.0, 1.0, 1.0), 3)
+            return Sky(dirs, np.full((k, 1), omega), tuple(L), 1, om)
+        return Sky(dirs, np.tile(L * omega, (k, 1)), (1.0, 1.0, 1.0), 3, om)
     rgb = np.asarray(light.environment_texels(), np.float64)
     h, w = rgb.shape[:2]
     td = texel_directions(h, w, light.environment_rotation).reshape(-1, 3)
-    energy = (rgb * np.asarray(light.environment_scale, np.float64)
-              * row_solid_angles(h, w)[:, None, None]).reshape(-1, 3)
+    texel_omega = np.broadcast_to(row_solid_angles(h, w)[:, None], (h, w)).ravel()
+    energy = (rgb * np.asarray(light.environment_scale, np.float64)).reshape(-1, 3) \
+        * texel_omega[:, None]
     cell = np.empty(len(td), np.int64)
     for s in range(0, len(td), 65536):                    # nearest direction per texel
         cell[s:s + 65536] = np.argmax(td[s:s + 65536] @ dirs.T, axis=1)
     e = np.zeros((k, 3))
     np.add.at(e, cell, energy)
-    return Sky(dirs, e, (1.0, 1.0, 1.0), 3)
+    om = np.bincount(cell, weights=texel_omega, minlength=k)   # sums to 4 pi
+    return Sky(dirs, e, (1.0, 1.0, 1.0), 3, om)
 
 
 def background_image(light, camera) -> np.ndarray:
@@ -169,11 +180,12 @@ class EnvTransmittance:
         return True
 
 
-def phase_weights(points, origin, dirs, lobes) -> np.ndarray | None:
+def phase_weights(points, origin, dirs, lobes, solid_angles) -> np.ndarray | None:
     """(K, P) float32 f_i at ``points`` (P, 3) seen from ``origin`` (the module doc: cell-
-    widened lobes, normalised so sum_i Omega f_i = 1), or None for an isotropic phase."""
+    widened lobes, normalised so sum_i Omega_i f_i = 1), or None for an isotropic phase."""
     if not lobes:
         return None
+    om = np.asarray(solid_angles, np.float64)
     k = len(dirs)
     gs = 1.0 - 1.0 / k
     u = np.asarray(points, np.float64) - np.asarray(origin, np.float64)
@@ -189,8 +201,8 @@ def phase_weights(points, origin, dirs, lobes) -> np.ndarray | None:
         a = 1.0 - ga
         den = a * a + 2.0 * ga * (1.0 - m)                    # >= a^2 > 0 for |g| < 1
         f += wt * a * (1.0 + ga) * INV_4PI / (den * np.sqrt(den))
-    # HG > 0 everywhere for |g| < 1, so the sum is > 0.
-    return (f / ((4.0 * math.pi / k) * f.sum(axis=0, keepdims=True))).astype(np.float32)
+    # HG > 0 everywhere for |g| < 1 and the Omega_i sum to 4 pi, so the sum is > 0.
+    return (f / (om @ f)[None, :]).astype(np.float32)
 
 
 def voxel_centres(cube_min, cube_size, n) -> np.ndarray:
@@ -209,7 +221,8 @@ def source_field(T, sky: Sky, albedo, lobes, cube_min, cube_size, origin) -> np.
     alb = np.full(C, alb[0]) if C == 1 else alb
     Tf = T.reshape(k, -1)
     E = sky.irradiance                                          # (K, C)
-    fw = phase_weights(voxel_centres(cube_min, cube_size, n), origin, sky.directions, lobes)
+    fw = phase_weights(voxel_centres(cube_min, cube_size, n), origin, sky.directions, lobes,
+                       sky.solid_angles)
     out = np.empty((2 * C, n ** 3), np.float32)
     reach = E.T.astype(np.float32) @ Tf                        # (C, P): sum_i E_i T_i
     total = sky.total
@@ -228,7 +241,7 @@ def source_field(T, sky: Sky, albedo, lobes, cube_min, cube_size, origin) -> np.
         t = np.clip(reach[c].astype(np.float64) / total[c], 0.0, 1.0)
         den = 1.0 - alb[c] * (1.0 - t)
         # den = 0 only at albedo 1 and t = 0, where R's limit is 1.
-        R = np.where(den > 0, alb[c] * t / np.where(den > 0, den, 1.0), 1.0)
+        R = np.where(den > 0, alb[c] * t / np.where(den > 0, den, 1.0), 1.0) ** MS_EXPONENT
         blocked = np.maximum(sky_f[c].astype(np.float64) - single[c], 0.0)  # sum E f (1 - T)
         out[C + c] = alb[c] * R * blocked
     return out.reshape((2 * C,) + (n,) * 3)

@@ -119,7 +119,7 @@ class Plan:
                        f"function along each camera ray)")
             sim.append("environment multiple scattering (approximation: the sky light "
                        "blocked toward each direction arrives scattered, scaled by an escape "
-                       "model's albedo t / (1 - albedo (1 - t)); exact in a white furnace; "
+                       "model's (albedo t / (1 - albedo (1 - t)))^2; exact in a white furnace; "
                        "measured error in docs/raymarch.md)")
         elif env_on:
             skip.append("environment in-scattering (" + ("a black sky" if sky_dark else
