@@ -192,17 +192,19 @@ def phase_weights(points, origin, dirs, lobes, solid_angles) -> np.ndarray | Non
     norm = np.linalg.norm(u, axis=1, keepdims=True)
     # A point at the camera itself sees every direction alike: any unit u will do there.
     u = np.where(norm > 0, u / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
-    mu = dirs @ u.T                                            # (K, P)
-    f = np.zeros_like(mu)
+    # float32 from here: the field is float32, and this runs per camera position.
+    one_minus_mu = 1.0 - (dirs.astype(np.float32) @ u.T.astype(np.float32))   # (K, P)
+    f = np.zeros_like(one_minus_mu)
     for g, wt in lobes:
         gg = g * gs
-        m = -mu if gg < 0 else mu
         ga = abs(gg)
         a = 1.0 - ga
-        den = a * a + 2.0 * ga * (1.0 - m)                    # >= a^2 > 0 for |g| < 1
-        f += wt * a * (1.0 + ga) * INV_4PI / (den * np.sqrt(den))
+        # 1 - mu' with mu' = sign(g) mu: 1 - mu, or 2 - (1 - mu) for a backward lobe.
+        om_mu = one_minus_mu if gg >= 0 else 2.0 - one_minus_mu
+        den = np.float32(a * a) + np.float32(2.0 * ga) * om_mu   # >= a^2 > 0 for |g| < 1
+        f += np.float32(wt * a * (1.0 + ga) * INV_4PI) / (den * np.sqrt(den))
     # HG > 0 everywhere for |g| < 1 and the Omega_i sum to 4 pi, so the sum is > 0.
-    return (f / (om @ f)[None, :]).astype(np.float32)
+    return f * (1.0 / (om.astype(np.float32) @ f))[None, :]
 
 
 def voxel_centres(cube_min, cube_size, n) -> np.ndarray:
@@ -230,9 +232,9 @@ def source_field(T, sky: Sky, albedo, lobes, cube_min, cube_size, origin) -> np.
         single = reach * np.float32(INV_4PI)
         sky_f = np.repeat((total * INV_4PI)[:, None], Tf.shape[1], axis=1)
     else:
-        single = np.stack([(E[:, c].astype(np.float32)[:, None] * fw * Tf).sum(axis=0)
-                           for c in range(C)])
-        sky_f = E.T.astype(np.float32) @ fw                    # (C, P): sum_i E_i f_i
+        E32 = E.T.astype(np.float32)
+        single = E32 @ (fw * Tf)                               # (C, P): sum_i E_i f_i T_i
+        sky_f = E32 @ fw                                       # (C, P): sum_i E_i f_i
     for c in range(C):
         out[c] = alb[c] * single[c]
         if not total[c] > 0:
