@@ -21,6 +21,19 @@ function send(changes) {
   }
 }
 
+// The sky control: a colour (its largest channel scaled to 1) and a radiance (that channel's
+// value). sky = [r, g, b] radiance, all 0 for no sky (or the environment map's scale).
+function showSky(sky) {
+  const m = Math.max(sky[0], sky[1], sky[2]);
+  const hex = (v) => Math.round(255 * (m > 0 ? v / m : 1)).toString(16).padStart(2, "0");
+  $("skycolour").value = "#" + sky.map(hex).join("");
+  $("skylevel").value = m;
+}
+function sendSky() {
+  const h = $("skycolour").value, m = Number($("skylevel").value);
+  send({ sky: [1, 3, 5].map((i) => (m * parseInt(h.slice(i, i + 2), 16)) / 255) });
+}
+
 function showState(s) {
   Object.assign(state, s);
   $("method").value = s.method;
@@ -28,6 +41,7 @@ function showState(s) {
   $("preset").value = s.preset || "";
   s.albedo.forEach((a, i) => { $("albedo" + i).value = a; });
   $("g").value = s.g;
+  showSky(s.sky);
   $("density").value = Math.log10(s.density_scale);
   $("autoexp").checked = s.exposure === null;
   if (s.exposure !== null) $("exposure").value = s.exposure;
@@ -110,6 +124,8 @@ function setup() {
     $("albedo" + i).oninput = () => send({ albedo: [0, 1, 2].map((j) => Number($("albedo" + j).value)) });
   }
   $("g").oninput = () => send({ g: Number($("g").value) });
+  $("skycolour").oninput = sendSky;
+  $("skylevel").oninput = sendSky;
   $("density").oninput = () => send({ density_scale: Math.pow(10, Number($("density").value)) });
   $("exposure").oninput = () => { $("autoexp").checked = false; send({ exposure: Number($("exposure").value) }); };
   $("autoexp").onchange = () => send({ exposure: $("autoexp").checked ? null : Number($("exposure").value) });
