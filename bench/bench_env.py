@@ -116,6 +116,7 @@ def main(argv=None) -> int:
         sc = scene_with("map" if what == "map rotation" else "constant", args.size)
         r = Renderer(sc, grid=grid, ms="none", **env_opts)
         r.render()
+        before = dict(r.counts)
         env = []
         for i in range(1, args.frames + 1):
             if what == "sky colour":
@@ -126,8 +127,9 @@ def main(argv=None) -> int:
                 ch = {"medium": dataclasses.replace(sc.medium,
                                                     density_scale=sc.medium.density_scale * (1 + 0.05 * i))}
             env.append(r.render(**ch).header["seconds.environment"])
-        print(f"  {what:14s} {np.median(env) * 1e3:8.1f} ms  (recomputed: "
-              f"{', '.join(k for k in sorted(r.counts) if k.startswith('env_'))})", flush=True)
+        grew = sorted(k for k in r.counts if k.startswith("env_") and r.counts[k] != before.get(k, 0))
+        print(f"  {what:14s} {np.median(env) * 1e3:8.1f} ms  (recomputed: {', '.join(grew)})",
+              flush=True)
     print("\n".join(verdicts))
     print(machine(rt))
     return 0
