@@ -368,7 +368,11 @@ def test_header_lists_simulated_and_skipped_effects():
     assert "single scattering" in r.header["simulated"]
     assert "background" in r.header["simulated"]
     assert "multiple scattering (--ms none)" in r.header["skipped"]
-    assert "environment in-scattering" in r.header["skipped"]
+    assert "environment single scattering" in r.header["simulated"]
+    assert "environment multiple scattering (approximation" in r.header["simulated"]
+    assert "environment" not in r.header["skipped"]
+    r = render_raymarch(_scene(**{"medium.albedo": 0.0, "light.environment": [0.2, 0.2, 0.2]}))
+    assert "environment in-scattering (albedo 0" in r.header["skipped"]
     r = render_raymarch(_scene(**{"medium.albedo": 0.0}))
     assert "single and multiple scattering" in r.header["skipped"]
     assert r.header["raymarch.light_resolution"] == 0        # no light field was built
