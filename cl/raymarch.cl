@@ -33,6 +33,12 @@
  *   LIGHT_TAU 0|1    the light field holds T_light (0, default) or its optical depth (1);
  *                    which one is read trilinearly changes the result (docs/raymarch.md)
  *   RAYMARCH_STATS 0|1  count work per tile into `stats` (benchmarks; off otherwise)
+ *   ENV 0|1          environment in-scattering: 1 reads the environment source field `env`
+ *                    (clvol/render/environment.py) at each segment's source point; absent
+ *                    (0) the kernel is the one without an environment, bit for bit
+ *   ENV_CHANNELS 1|3 planes per part of `env` (1: grey, coloured by env_colour once per ray)
+ *   BG_IMAGE 0|1     the background is the per-pixel image `bg_image` (an environment map
+ *                    seen along each camera ray) instead of the constant `background`
  *
  * Arguments (float4 holds a 3-vector in xyz; world units throughout):
  *   density    float [nz][ny][nx]     raw density over bmin..bmax; sigma_t = density * density_scale
@@ -50,6 +56,14 @@
  *   origin, forward, right, up, tan_half, width, height    pinhole camera (grid.h camera_ray)
  *   light_dir  unit, toward the light; irradiance E (RGB); albedo (RGB); lobe_g, lobe_w (phase.h)
  *   background RGB radiance seen where rays leave the box (environment radiance, or 0)
+ *   env        float [2 C][en][en][en] with ENV (else untouched, may be 4 bytes): the
+ *              environment's in-scattered radiance per unit extinction over the cube
+ *              env_min .. + env_size (voxel centres), planes 0..C-1 single scattering
+ *              (albedo, phase and transmittance toward the sky directions folded in),
+ *              planes C..2C-1 the multiple-scattering approximation; C = ENV_CHANNELS.
+ *              The pixel gets env_colour (RGB) times their march integrals: into `single`
+ *              and `multiple` respectively
+ *   bg_image   float [height][width][3] with BG_IMAGE: background radiance per pixel
  *   oct_a, oct_b, oct_c  Wrenninge extinction, contribution and eccentricity multipliers
  *   step       segment length; threshold: a ray stops once T_cam < threshold (the light it
  *              misses is < threshold * its largest source radiance; reference/raymarch.py)
@@ -87,6 +101,18 @@
 #endif
 #ifndef LIGHT_TAU
 #define LIGHT_TAU 0
+#endif
+#ifndef ENV
+#define ENV 0
+#endif
+#ifndef ENV_CHANNELS
+#define ENV_CHANNELS 1
+#endif
+#ifndef BG_IMAGE
+#define BG_IMAGE 0
+#endif
+#if ENV_CHANNELS != 1 && ENV_CHANNELS != 3
+#error "ENV_CHANNELS must be 1 or 3"
 #endif
 
 #if MS_OCTAVES < 1 || MS_OCTAVES > 8
@@ -186,6 +212,8 @@ __kernel void raymarch(
     const float tan_half, const int width, const int height,
     const float4 light_dir, const float4 irradiance, const float4 albedo,
     const float4 lobe_g, const float4 lobe_w, const float4 background,
+    __global const float *env, const int en, const float4 env_min, const float env_size,
+    const float4 env_colour, __global const float *bg_image,
     const float oct_a, const float oct_b, const float oct_c,
     const float step, const float threshold,
     __global float *total, __global float *single, __global float *multiple,
@@ -328,6 +356,16 @@ __kernel void raymarch(
     v16 M0 = (v16)(0.0f), M1 = (v16)(0.0f), M2 = (v16)(0.0f);
 #endif
 
+#if ENV
+    const float ecell = env_size / (float)en;
+    const int eplane = en * en * en;
+#if ENV_CHANNELS == 1
+    v16 ES = (v16)(0.0f), EM = (v16)(0.0f);
+#else
+    v16 ES0 = (v16)(0.0f), ES1 = (v16)(0.0f), ES2 = (v16)(0.0f);
+    v16 EM0 = (v16)(0.0f), EM1 = (v16)(0.0f), EM2 = (v16)(0.0f);
+#endif
+#endif
 #if RAYMARCH_STATS
     uint n_iter = 0, n_lit = 0, n_maj = 0, n_active = 0;
 #endif
@@ -463,6 +501,26 @@ __kernel void raymarch(
 #endif
         }
 #endif
+#if ENV
+        /* The environment's source field at the same source point (sky light is constant
+         * over the medium's colour, so it is a field of its own, not a light lookup). */
+        if (any(tau > 0.0f)) {
+            const v16 ex = (rx - env_min.x) / ecell - 0.5f;
+            const v16 ey = (ry - env_min.y) / ecell - 0.5f;
+            const v16 ez = (rz - env_min.z) / ecell - 0.5f;
+#if ENV_CHANNELS == 1
+            ES += w * lookup16(env, en, en, en, ex, ey, ez);
+            EM += w * lookup16(env + eplane, en, en, en, ex, ey, ez);
+#else
+            ES0 += w * lookup16(env, en, en, en, ex, ey, ez);
+            ES1 += w * lookup16(env + eplane, en, en, en, ex, ey, ez);
+            ES2 += w * lookup16(env + 2 * eplane, en, en, en, ex, ey, ez);
+            EM0 += w * lookup16(env + 3 * eplane, en, en, en, ex, ey, ez);
+            EM1 += w * lookup16(env + 4 * eplane, en, en, en, ex, ey, ez);
+            EM2 += w * lookup16(env + 5 * eplane, en, en, en, ex, ey, ez);
+#endif
+        }
+#endif
         A += w;
         /* Depth: the same mean position, t_a + frac * len, weighted by this segment's share
          * of the extinction (exact for a constant sigma_t over the segment). */
@@ -486,16 +544,35 @@ __kernel void raymarch(
     m_r = ae.x * M0; m_g = ae.y * M1; m_b = ae.z * M2;
 #endif
 #endif
+#if ENV
+#if ENV_CHANNELS == 1
+    s_r += env_colour.x * ES; s_g += env_colour.y * ES; s_b += env_colour.z * ES;
+    m_r += env_colour.x * EM; m_g += env_colour.y * EM; m_b += env_colour.z * EM;
+#else
+    s_r += env_colour.x * ES0; s_g += env_colour.y * ES1; s_b += env_colour.z * ES2;
+    m_r += env_colour.x * EM0; m_g += env_colour.y * EM1; m_b += env_colour.z * EM2;
+#endif
+#endif
     const i16 pix = py * width + px;
+#if BG_IMAGE
+    /* Padding lanes read pixel 0 (never stored). */
+    const i16 bgi = select((i16)(0), pix, valid) * 3;
+    const v16 bg_r = gather16(bg_image, bgi), bg_g = gather16(bg_image, bgi + 1),
+              bg_b = gather16(bg_image, bgi + 2);
+#else
+#define bg_r background.x
+#define bg_g background.y
+#define bg_b background.z
+#endif
     store_lanes(single, 3, 0, s_r, pix, valid);
     store_lanes(single, 3, 1, s_g, pix, valid);
     store_lanes(single, 3, 2, s_b, pix, valid);
     store_lanes(multiple, 3, 0, m_r, pix, valid);
     store_lanes(multiple, 3, 1, m_g, pix, valid);
     store_lanes(multiple, 3, 2, m_b, pix, valid);
-    store_lanes(total, 3, 0, s_r + m_r + T * background.x, pix, valid);
-    store_lanes(total, 3, 1, s_g + m_g + T * background.y, pix, valid);
-    store_lanes(total, 3, 2, s_b + m_b + T * background.z, pix, valid);
+    store_lanes(total, 3, 0, s_r + m_r + T * bg_r, pix, valid);
+    store_lanes(total, 3, 1, s_g + m_g + T * bg_g, pix, valid);
+    store_lanes(total, 3, 2, s_b + m_b + T * bg_b, pix, valid);
     store_lanes(alpha, 1, 0, A, pix, valid);
     store_lanes(depth, 1, 0, select((v16)(0.0f), D / A, A > 0.0f), pix, valid);
 #if RAYMARCH_STATS

@@ -71,6 +71,16 @@ distance from the camera of the first extinction event given that one happens in
 integrated per segment exactly for a constant sigma_t: its share T_cam(t_a)(1 - e^-tau) times
 its mean position t_s.
 
+Environment (``env``, kernel define ENV): a field (2 C, n, n, n), C = 1 or 3, over the cube
+env_min .. env_min + env_size, read trilinearly (clamped) at every segment's source point t_s
+like the light field: planes 0..C-1 are the environment's single-scattered radiance per unit
+extinction (albedo, phase and transmittance toward the sky folded in by
+clvol/render/environment.py), planes C..2C-1 its multiple-scattering approximation. Their
+march integrals, times ``env_colour`` (RGB; the sky's colour when C = 1), are added to
+``single`` and ``multiple``. The lookup happens whether or not the sun lights the medium
+(``lit``). ``bg_image`` (H, W, 3), when given, replaces the constant background per pixel
+(kernel define BG_IMAGE: an environment map seen along each camera ray).
+
 Everything runs in float64 on the float32 inputs; the kernel runs in float32 (tolerances in
 tests/test_raymarch.py).
 """
@@ -115,7 +125,8 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              light_dir, irradiance, albedo, lobes, background,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
              step=None, threshold=1e-3, skip_empty=True, lit=True,
-             light_quantity="transmittance", view_block=4):
+             light_quantity="transmittance", view_block=4, env=None, env_min=(0, 0, 0),
+             env_size=1.0, env_colour=(1, 1, 1), bg_image=None):
     """Render one image. Returns a dict of float64 arrays: total, single, multiple (H, W, 3),
     alpha, depth (H, W).
 
@@ -164,6 +175,12 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
                   ms_grid.shape[0] - 1 if source == "view" else 1))
     A = np.zeros(n_rays)
     D = np.zeros(n_rays)
+    if env is not None:
+        env = np.asarray(env)
+        env_c = env.shape[0] // 2
+        env_cell = float(env_size) / env.shape[1]
+        ES = np.zeros((n_rays, env_c))
+        EM = np.zeros((n_rays, env_c))
     hit = t0 <= t1
     dt = float(step)
 
@@ -209,6 +226,10 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
                     M[:, ch] += w * _lookup(ms_grid[ch], gmin, gcell, ps)
             elif source == "view":
                 M += w[:, None] * view_interp(vd, vv, ts)
+        if env is not None:
+            for ch in range(env_c):
+                ES[:, ch] += w * _lookup(env[ch], np.asarray(env_min, f64), env_cell, ps)
+                EM[:, ch] += w * _lookup(env[env_c + ch], np.asarray(env_min, f64), env_cell, ps)
         A += w
         D += w * ts
         T = T * np.exp(-tau)
@@ -217,7 +238,13 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     ae = np.asarray(albedo, f64) * np.asarray(irradiance, f64)
     single_rgb = (f0 * S)[:, None] * ae if lit else np.zeros((n_rays, 3))
     multiple = M * ae if (lit and source != "none") else np.zeros((n_rays, 3))
-    total = single_rgb + multiple + T[:, None] * np.asarray(background, f64)
+    if env is not None:
+        ec = np.asarray(env_colour, f64)
+        single_rgb = single_rgb + ES * ec
+        multiple = multiple + EM * ec
+    bg = (np.asarray(background, f64) if bg_image is None else
+          np.asarray(bg_image, f64).reshape(-1, 3))
+    total = single_rgb + multiple + T[:, None] * bg
     with np.errstate(divide="ignore", invalid="ignore"):
         depth = np.where(A > 0, D / A, 0.0)
     shape = (height, width)

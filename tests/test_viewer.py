@@ -6,6 +6,7 @@ Every server here listens on 127.0.0.1 with port 0 (a free port), never another 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import math
 import os
@@ -97,8 +98,29 @@ def test_preset_sets_albedo_and_its_own_phase(scene_path):
 
 def test_limits_cover_every_numeric_field():
     numeric = {"azimuth", "elevation", "distance", "sun_azimuth", "sun_elevation", "g",
-               "density_scale", "exposure", "albedo"}
+               "density_scale", "exposure", "albedo", "sky"}
     assert numeric == set(LIMITS)
+
+
+def test_sky_control_sets_the_environment(scene_path):
+    """The sky field becomes the light's constant environment (all 0: none), is checked like
+    the albedo, and a Renderer given that light renders the sky-lit medium."""
+    import clvol
+    scene = load_scene(scene_path)
+    s = ViewState.from_scene(scene)
+    assert s.light(scene.light, scene.camera).environment == scene.light.environment
+    blue = s.update({"sky": [0.2, 0.3, 0.6]})
+    li = blue.light(scene.light, scene.camera)
+    assert li.environment == (0.2, 0.3, 0.6)
+    assert blue.update({"sky": [0, 0, 0]}).light(scene.light, scene.camera).environment is None
+    for bad in ([1, 2], [0.1, -1, 0.2], "blue"):
+        with pytest.raises(ViewerMessageError, match="sky"):
+            s.update({"sky": bad})
+    cam = dataclasses.replace(scene.camera, width=12, height=10)
+    r = clvol.Renderer(dataclasses.replace(scene, camera=cam), ms="none")
+    dark = r.render(light=dataclasses.replace(li, irradiance=(0.0, 0.0, 0.0), environment=None))
+    lit = r.render(light=dataclasses.replace(li, irradiance=(0.0, 0.0, 0.0)))
+    assert dark.layers["single"].max() == 0 and lit.layers["single"].max() > 0
 
 
 # ------------------------------------------------------------------ the server process

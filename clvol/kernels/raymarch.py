@@ -62,6 +62,7 @@ _SCALARS = ([None, np.int32, np.int32, np.int32, None, None, np.float32]       #
             + [None, np.int32, np.int32, np.int32, None, None]                   # ms grid
             + [None, None, None, None, np.float32, np.int32, np.int32]           # camera
             + [None] * 6                                                         # light, medium
+            + [None, np.int32, None, np.float32, None, None]                     # environment
             + [np.float32] * 5                                                   # a, b, c, step, thr
             + [None] * 6)                                                        # outputs
 
@@ -75,7 +76,8 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
              step=None, threshold=1e-3, skip_empty=True, lit=True,
              light_quantity="transmittance", runtime=None, read_back=True, stats=False,
-             view_block=4):
+             view_block=4, env=None, env_min=(0, 0, 0), env_size=1.0,
+             env_colour=(1, 1, 1), bg_image=None):
     """Launch the ray marcher. Returns {layer: array} (float32; total/single/multiple
     (H, W, 3), alpha/depth (H, W)), or with ``read_back=False`` (event, {layer: buffer}).
 
@@ -84,7 +86,10 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     active lane-segments per 4 x 4 tile).
     ``ms_grid`` is (C, gz, gy, gx) with C = 1 or 3 (source "grid"), or the view-space table
     (1 + C, by, bx, K) of blocks of ``view_block`` pixels (source "view"), else ignored (may
-    be None). ``light`` may be None when ``lit`` is False. Argument meanings: see the twin.
+    be None). ``light`` may be None when ``lit`` is False. ``env`` (2 C, n, n, n), C = 1 or 3:
+    the environment's source field over the cube env_min .. + env_size (builds with ENV);
+    ``bg_image`` (H, W, 3): per-pixel background (builds with BG_IMAGE). Argument meanings:
+    see the twin.
     """
     rt = runtime or get_runtime()
     if source == "grid":
@@ -108,7 +113,8 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
                   origin, forward, right, up, tan_half, width, height,
                   light_dir, irradiance, albedo, lobes, background, a=a, b=b, c=c, step=step,
                   threshold=threshold, lit=lit, light_quantity=light_quantity, runtime=rt,
-                  read_back=read_back, stats=stats)
+                  read_back=read_back, stats=stats, env=env, env_min=env_min,
+                  env_size=env_size, env_colour=env_colour, bg_image=bg_image)
 
 
 def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
@@ -116,10 +122,13 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
            origin, forward, right, up, tan_half, width, height,
            light_dir, irradiance, albedo, lobes, background, *, a=0.5, b=0.5, c=0.5,
            step=None, threshold=1e-3, lit=True, light_quantity="transmittance", runtime=None,
-           read_back=True, stats=False):
+           read_back=True, stats=False, env=None, env_min=(0, 0, 0), env_size=1.0,
+           env_colour=(1, 1, 1), bg_image=None):
     """Launch cl/raymarch.cl built with ``defines`` (``raymarch_defines``, or the phase, LIT,
     SKIP_EMPTY and a multiple-scattering source's own). ``ms_grid``: a (C, gz, gy, gx)
-    DeviceArray or None. Returns what ``raymarch`` returns."""
+    DeviceArray or None. ``env`` / ``bg_image`` (see ``raymarch``) add the ENV / BG_IMAGE
+    defines; without them the defines (and the program) are those of a scene without an
+    environment. Returns what ``raymarch`` returns."""
     rt = runtime or get_runtime()
     if step is None or not step > 0:
         raise ClvolError(f"step must be > 0 (world units), got {step}")
@@ -147,6 +156,23 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
     defines = dict(defines)
     if stats:
         defines["RAYMARCH_STATS"] = 1
+    if env is not None:
+        env = _device(env, rt)
+        if len(env.shape) != 4 or env.shape[0] not in (2, 6) or len(set(env.shape[1:])) != 1:
+            raise ClvolError(f"env must be (2 C, n, n, n) with C = 1 or 3, got {env.shape}")
+        defines.update(ENV=1, ENV_CHANNELS=env.shape[0] // 2)
+        en = env.shape[1]
+    else:
+        dummy = dummy or rt.empty(1)
+        env, en = DeviceArray(dummy, (2, 1, 1, 1)), 1
+    if bg_image is not None:
+        bg_image = _device(bg_image, rt)
+        if tuple(bg_image.shape) != (height, width, 3):
+            raise ClvolError(f"bg_image must be ({height}, {width}, 3), got {bg_image.shape}")
+        defines["BG_IMAGE"] = 1
+    else:
+        dummy = dummy or rt.empty(1)
+        bg_image = DeviceArray(dummy, (1,))
     if light_quantity not in LIGHT_QUANTITIES:
         raise ClvolError(f"light_quantity {light_quantity!r}: one of {LIGHT_QUANTITIES}")
     defines["LIGHT_TAU"] = int(light_quantity == "optical_depth")
@@ -164,6 +190,8 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
             f4(origin), f4(forward), f4(right), f4(up), np.float32(tan_half),
             np.int32(width), np.int32(height),
             f4(light_dir), f4(irradiance), f4(albedo), g, w, f4(background),
+            env.buffer, np.int32(en), f4(env_min), np.float32(env_size), f4(env_colour),
+            bg_image.buffer,
             np.float32(a), np.float32(b), np.float32(c), np.float32(step),
             np.float32(threshold),
             outs["total"], outs["single"], outs["multiple"], outs["alpha"], outs["depth"],

@@ -78,19 +78,26 @@ class Plan:
     simulated: tuple
     skipped: tuple
     channels: int = 1
+    env_scatter: bool = False      # the environment's in-scattering (clvol/render/environment.py)
+    env_background: str = "none"   # "none", "constant" (``background``) or "map" (per pixel)
 
     @classmethod
     def make(cls, medium, light, source: MsSource, shortcuts: bool = True,
-             skip_empty: bool = True) -> "Plan":
+             skip_empty: bool = True, env_directions: int = 0, env_resolution: int = 0) -> "Plan":
         sim, skip = [], []
         lit = is_lit(medium, light) or not shortcuts
         phase = medium.phase
         lobes = [(lo.g, lo.weight) for lo in phase.lobes]
+        from .environment import has_environment
+        env_on = has_environment(light)
+        sky_dark = light.environment is not None and not any(v > 0 for v in light.environment)
+        env_scatter = env_on and ((any(a > 0 for a in medium.albedo) and not sky_dark)
+                                  or not shortcuts)
         if lit:
-            sim.append("single scattering")
+            sim.append("single scattering" + (" of the sun light" if env_on else ""))
         else:
-            skip.append("single and multiple scattering (albedo * irradiance = 0: no light "
-                        "field, no source)")
+            skip.append(("sun light scattering" if env_on else "single and multiple scattering")
+                        + " (albedo * irradiance = 0: no light field, no source)")
         if shortcuts and phase.is_isotropic:
             lobes = []
             skip.append("phase evaluation (isotropic: constant 1/(4 pi))")
@@ -103,19 +110,31 @@ class Plan:
             skip.append("per-channel marching (albedo and irradiance are constant over the "
                         "medium: one colour-free march, colour applied once per ray)")
         env = light.environment
+        env_map = getattr(light, "environment_map", None) is not None
+        if env_scatter:
+            what = "the map's" if env_map else "the sky's"
+            sim.append(f"environment single scattering ({what} light from {env_directions} "
+                       f"directions, each cell's irradiance with the transmittance toward it "
+                       f"({env_resolution}^3 fields from the density pyramid) and the phase "
+                       f"function along each camera ray)")
+            sim.append("environment multiple scattering (approximation: the sky light "
+                       "blocked toward each direction arrives scattered, scaled by an escape "
+                       "model's (albedo t / (1 - albedo (1 - t)))^2; exact in a white furnace; "
+                       "measured error in docs/raymarch.md)")
+        elif env_on:
+            skip.append("environment in-scattering (" + ("a black sky" if sky_dark else
+                        "albedo 0: nothing scatters") + ")")
         if env is not None:
             sim.append("background (environment radiance behind the medium)")
-            skip.append("environment in-scattering (the medium is lit by the sun only)")
-        if getattr(light, "environment_map", None) is not None:
-            skip.append("environment light from the map (in-scattering and background: the "
-                        "real-time method does not read environment maps; black behind the "
-                        "medium)")
+        if env_map:
+            sim.append("background (the environment map along each camera ray)")
         background = tuple(env) if env is not None else (0.0, 0.0, 0.0)
         sim.append("extinction along camera rays")
         defines = dict(phase_defines(lobes))
         defines.update(LIT=int(lit), SKIP_EMPTY=int(bool(skip_empty)))
         defines.update(ms.defines)
-        return cls(lit, defines, lobes, ms, background, tuple(sim), tuple(skip), channels)
+        return cls(lit, defines, lobes, ms, background, tuple(sim), tuple(skip), channels,
+                   env_scatter, "map" if env_map else "constant" if env is not None else "none")
 
 
 class RayMarcher:
@@ -129,7 +148,8 @@ class RayMarcher:
 
     def __init__(self, grid, medium, runtime=None, block: int = DEFAULT_BLOCK,
                  light_resolution: int | None = None, light_interp: str = "transmittance",
-                 device_medium: DeviceMedium | None = None):
+                 device_medium: DeviceMedium | None = None, env_directions: int | None = None,
+                 env_resolution: int | None = None):
         self.rt = runtime or get_runtime()
         self.grid = grid
         self.medium = medium
@@ -144,6 +164,21 @@ class RayMarcher:
         self.light_field = None
         self._light_key = None
         self.light_builds = 0
+        from .environment import DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_RESOLUTION, sky_directions
+        self.env_directions = int(env_directions or DEFAULT_ENV_DIRECTIONS)
+        sky_directions(self.env_directions)                    # refuses a bad count
+        self.env_resolution = int(env_resolution or DEFAULT_ENV_RESOLUTION)
+        if not (is_power_of_two(self.env_resolution) and 4 <= self.env_resolution <= 256):
+            raise ClvolError(f"raymarch option env_resolution = {env_resolution!r}: must be a "
+                             f"power of two from 4 to 256")
+        self._env_T = None
+        self._env_sky = self._env_sky_key = None
+        self._env_field = self._env_field_key = None
+        self._bg = self._bg_key = None
+        # Called with a stage name ("env_transmittance", "env_sky", "env_field",
+        # "env_background") each time one is recomputed (the Renderer counts them).
+        self.count = lambda stage: None
+        self.env_seconds = 0.0     # host time of the last frame's environment precomputation
 
     @property
     def pyramid(self):
@@ -196,9 +231,15 @@ class RayMarcher:
         if isinstance(source, str):
             opts = {"ms_grid": ms_grid, **(octaves.as_options() if octaves is not None else {})}
             source = make_source(source, opts, self.rt)
-        plan = Plan.make(self.medium, light, source, shortcuts, skip_empty)
+        plan = Plan.make(self.medium, light, source, shortcuts, skip_empty,
+                         self.env_directions, self.env_resolution)
         if plan.lit:
             self.ensure_light(light.direction)
+        from ..runtime import Stopwatch
+        with Stopwatch() as sw:
+            env_kw = self.environment(camera, light, plan)
+            self.rt.finish()
+        self.env_seconds = sw.seconds
         g = self.grid
         fwd, right, up = camera.basis()
         cube_min = self.pyramid.cube_min if plan.lit else np.zeros(3)
@@ -215,10 +256,58 @@ class RayMarcher:
             light.direction, light.irradiance, self.medium.albedo, plan.lobes,
             plan.background, a=o.a, b=o.b, c=o.c, step=step * float(np.min(g.cell_size)),
             threshold=threshold, lit=plan.lit, light_quantity=self.light_interp,
-            runtime=self.rt, read_back=read_back, stats=stats)
+            runtime=self.rt, read_back=read_back, stats=stats, **env_kw)
         if read_back:
             return res, plan
         return res + (plan,)
+
+
+    # ------------------------------------------------------------------ environment
+    def environment(self, camera, light, plan) -> dict:
+        """The environment's kernel arguments for this frame (``launch``'s env, env_min,
+        env_size, env_colour, bg_image), rebuilding only what changed:
+
+            env_transmittance   density scale (or first use): K sweeps on the env pyramid
+            env_sky             the sky (constant colour, map, its scale or rotation)
+            env_field           any of those, the albedo, the phase, or (anisotropic phase
+                                only) the camera position
+            env_background      a map scene's camera or map
+        """
+        from . import environment as E
+        out = {}
+        if plan.env_background == "map":
+            key = (E.sky_key(light, 0), camera)
+            if key != self._bg_key:
+                self._bg = self.rt.upload(E.background_image(light, camera))
+                self._bg_key = key
+                self.count("env_background")
+            out["bg_image"] = self._bg
+        if not plan.env_scatter:
+            return out
+        if self._env_T is None:
+            self._env_T = E.EnvTransmittance(self.grid, self.env_directions, self.env_resolution,
+                                             self.rt, self.dm.cache)
+        if self._env_T.ensure(self.medium.density_scale):
+            self.count("env_transmittance")
+        alb = tuple(float(a) for a in self.medium.albedo)
+        grey = alb[0] == alb[1] == alb[2]
+        skey = (E.sky_key(light, self.env_directions), grey)
+        if skey != self._env_sky_key:
+            self._env_sky = E.make_sky(light, self.env_directions, grey)
+            self._env_sky_key = skey
+            self.count("env_sky")
+        pyr = self._env_T.pyramid
+        fkey = (skey, self._env_T.builds, alb, tuple(plan.lobes),
+                tuple(camera.origin) if plan.lobes else None)
+        if fkey != self._env_field_key:
+            field = E.source_field(self._env_T.T, self._env_sky, alb, plan.lobes, pyr.cube_min,
+                                   pyr.cube_size, camera.origin)
+            self._env_field = self.rt.upload(field)
+            self._env_field_key = fkey
+            self.count("env_field")
+        out.update(env=self._env_field, env_min=pyr.cube_min, env_size=pyr.cube_size,
+                   env_colour=self._env_sky.colour)
+        return out
 
 
 def make_source(ms: str, options: dict | None = None, runtime=None) -> MsSource:
@@ -350,6 +439,12 @@ def add_arguments(group) -> None:
     group.add_argument("--light-interp", choices=list(LIGHT_QUANTITIES), default="transmittance",
                        help="what is blended trilinearly between light-field voxels: T "
                             "(default) or the optical depth (docs/raymarch.md)")
+    group.add_argument("--env-directions", type=int, default=None, metavar="K",
+                       help="environment light: sky directions (cells) whose transmittance "
+                            "fields light the medium (default 64; docs/raymarch.md)")
+    group.add_argument("--env-resolution", type=int, default=None, metavar="N",
+                       help="environment light: voxels per side of each direction's "
+                            "transmittance field (power of two; default 32)")
     group.add_argument("--supersample", type=int, default=1,
                        help="S x S rays per pixel (default 1)")
     group.add_argument("--no-skip-empty", action="store_true",

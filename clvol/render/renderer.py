@@ -17,6 +17,11 @@ change invalidates it:
     light_field             light direction or density scale changed
     graded_transmittance    the same, for the network's pyramid
     ms_lattice              camera position, light direction or medium changed (network)
+    env_transmittance       density scale changed (transmittance toward the sky directions)
+    env_sky                 the environment (constant sky, map, scale, rotation) changed
+    env_field               the same, the albedo or phase, or with an anisotropic phase
+                            the camera position (clvol/render/environment.py)
+    env_background          a map scene's camera or map changed
     march                   every call
 
 ``counts`` counts each stage's recomputations (tests check them).
@@ -182,7 +187,10 @@ class Renderer:
             if self._marcher is None:
                 self._marcher = RayMarcher(grid, medium, self.rt, o["majorant_block"],
                                            o["light_resolution"], o["light_interp"],
-                                           device_medium=self.device_medium)
+                                           device_medium=self.device_medium,
+                                           env_directions=o["env_directions"],
+                                           env_resolution=o["env_resolution"])
+                self._marcher.count = self._count
             rm = self._marcher
             rm.set_medium(medium)
             if s > 1:
@@ -217,6 +225,9 @@ class Renderer:
             "seconds.load": round(sw_load.seconds, 4),
             "seconds.light_field": round(sw_light.seconds, 4),
             "seconds.march": round(sw_march.seconds, 4),
+            **({"seconds.environment": round(rm.env_seconds, 4),
+                "raymarch.env_directions": rm.env_directions,
+                "raymarch.env_resolution": rm.env_resolution} if plan.env_scatter else {}),
             "raymarch.ms": source.name,
             "raymarch.step_voxels": step,
             "raymarch.step": step * float(np.min(grid.cell_size)),

@@ -44,6 +44,7 @@ LIMITS: dict[str, tuple[float, float]] = {
     "density_scale": (1e-4, 1e4),
     "exposure": (-20.0, 20.0),     # stops
     "albedo": (0.0, 1.0),          # per channel
+    "sky": (0.0, 1e3),             # per channel: sky radiance (or an environment map's scale)
 }
 
 
@@ -101,6 +102,9 @@ class ViewState:
     method: str = "network"
     resolution: int = 256
     preset: str | None = None
+    # The sky: a constant environment radiance (RGB; all 0 = no sky), or for a scene with an
+    # environment map the map's scale.
+    sky: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @classmethod
     def from_scene(cls, scene: Scene) -> "ViewState":
@@ -116,7 +120,10 @@ class ViewState:
                    g=float(lobes[0].g) if len(lobes) == 1 else scene.medium.phase.mean_cosine,
                    density_scale=float(scene.medium.density_scale),
                    resolution=int(cam.width) if cam.width in RESOLUTIONS else 256,
-                   preset=scene.medium.preset)
+                   preset=scene.medium.preset,
+                   sky=tuple(float(v) for v in (
+                       scene.light.environment_scale if scene.light.environment_map is not None
+                       else scene.light.environment or (0.0, 0.0, 0.0))))
 
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
@@ -149,7 +156,11 @@ class ViewState:
 
     def light(self, base: Light, camera: Camera) -> Light:
         d = _direction(orbit_frame(camera), self.sun_azimuth, self.sun_elevation)
-        return dataclasses.replace(base, direction=tuple(d.tolist()))
+        if base.environment_map is not None:
+            return dataclasses.replace(base, direction=tuple(d.tolist()),
+                                       environment_scale=tuple(self.sky))
+        sky = tuple(self.sky) if any(v > 0 for v in self.sky) else None
+        return dataclasses.replace(base, direction=tuple(d.tolist()), environment=sky)
 
     def medium(self, base: Medium) -> Medium:
         """The scene's medium with the client's albedo, density scale and phase. A preset
@@ -180,10 +191,10 @@ def _number(key: str, value) -> float:
 
 
 def _check_field(key: str, value):
-    if key == "albedo":
+    if key in ("albedo", "sky"):
         if not isinstance(value, (list, tuple)) or len(value) != 3:
-            raise ViewerMessageError(f"albedo: expected [r, g, b], got {value!r}")
-        return tuple(_number("albedo", v) for v in value)
+            raise ViewerMessageError(f"{key}: expected [r, g, b], got {value!r}")
+        return tuple(_number(key, v) for v in value)
     if key == "exposure" and (value is None or (isinstance(value, str) and value == "scene")):
         return value
     if key == "exposure" and isinstance(value, str):

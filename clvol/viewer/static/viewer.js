@@ -28,11 +28,25 @@ const SLIDER_TEXT = {
   g: (v) => v.toFixed(2),
   density: (v) => Math.pow(10, v).toPrecision(3),
   exposure: (v) => (v >= 0 ? "+" : "") + v.toFixed(1) + " stops",
+  skylevel: (v) => v.toFixed(2),
 };
 function showNumbers() {
   for (const [id, text] of Object.entries(SLIDER_TEXT)) {
     $(id + "_num").textContent = text(Number($(id).value));
   }
+}
+
+// The sky control: a colour (its largest channel scaled to 1) and a radiance (that channel's
+// value). sky = [r, g, b] radiance, all 0 for no sky (or the environment map's scale).
+function showSky(sky) {
+  const m = Math.max(sky[0], sky[1], sky[2]);
+  const hex = (v) => Math.round(255 * (m > 0 ? v / m : 1)).toString(16).padStart(2, "0");
+  $("skycolour").value = "#" + sky.map(hex).join("");
+  $("skylevel").value = m;
+}
+function sendSky() {
+  const h = $("skycolour").value, m = Number($("skylevel").value);
+  send({ sky: [1, 3, 5].map((i) => (m * parseInt(h.slice(i, i + 2), 16)) / 255) });
 }
 
 function showState(s) {
@@ -42,6 +56,7 @@ function showState(s) {
   $("preset").value = s.preset || "";
   s.albedo.forEach((a, i) => { $("albedo" + i).value = a; });
   $("g").value = s.g;
+  showSky(s.sky);
   $("density").value = Math.log10(s.density_scale);
   $("expmode").value = s.exposure === null ? "image" : s.exposure === "scene" ? "scene" : "manual";
   if (typeof s.exposure === "number") $("exposure").value = s.exposure;
@@ -133,6 +148,8 @@ function setup() {
     $("albedo" + i).oninput = () => send({ albedo: [0, 1, 2].map((j) => Number($("albedo" + j).value)) });
   }
   $("g").oninput = () => send({ g: Number($("g").value) });
+  $("skycolour").oninput = sendSky;
+  $("skylevel").oninput = sendSky;
   $("density").oninput = () => send({ density_scale: Math.pow(10, Number($("density").value)) });
   $("exposure").oninput = () => { $("expmode").value = "manual"; send({ exposure: Number($("exposure").value) }); };
   // auto: chosen from each frame; from the light: clvol.image.scene_exposure (docs/scenes.md)

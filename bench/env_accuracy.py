@@ -1,0 +1,80 @@
+"""Environment light in the ray marcher against the path tracer: sky-only and sun + sky clouds.
+
+    python bench/env_accuracy.py [--spp 512] [--size 64] [--cases ...] [--env K:N ...]
+
+Scene: the cloud generator (seed 1) at --volume^3 voxels, HG 0.857, density scale and albedo
+per case, under the constant blue sky (0.3, 0.5, 0.9) with the sun off (irradiance 0) or on
+(irradiance 1, direction of examples/cloud.toml); camera of examples/cloud.toml at
+size x size. Reference: the path tracer, two runs of --spp samples per pixel with seeds 11
+and 12; their mean is the reference and their difference its noise (subtracted from the
+squared error: "noise-corrected"). The ray marcher runs with the default --ms network (which
+serves the sun light; the sky is the environment source of clvol/render/environment.py) for
+each K:N (sky directions : field resolution). Printed per case: image means, their relative
+difference, and RMSE x 100 raw and noise-corrected.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from _common import machine  # noqa: E402  (puts the checkout first on sys.path)
+
+from clvol.render.renderer import Renderer  # noqa: E402
+from clvol.runtime import get_runtime  # noqa: E402
+from clvol.scene import scene_from_dict  # noqa: E402
+
+CASES = {  # name: (density scale, albedo, sun irradiance)
+    "sky-0.999": (64.0, 0.999, 0.0), "sky-0.95": (64.0, 0.95, 0.0), "sky-0.9": (64.0, 0.9, 0.0),
+    "sky-0.8-thin": (30.0, 0.8, 0.0), "sun+sky-0.999": (64.0, 0.999, 1.0),
+    "sun+sky-0.9": (64.0, 0.9, 1.0)}
+
+
+def scene(volume, size, ds, albedo, sun):
+    return scene_from_dict({
+        "volume": {"generator": "cloud", "seed": 1, "resolution": volume},
+        "medium": {"preset": "cloud", "density_scale": ds, "albedo": albedo},
+        "light": {"direction": [0.45, 0.4, -0.8], "irradiance": sun,
+                  "environment": [0.3, 0.5, 0.9]},
+        "camera": {"origin": [0.0, 0.15, 1.6], "target": [0, 0.06, 0], "up": [0, 1, 0],
+                   "fov_y": 35.0, "width": size, "height": size}})
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spp", type=int, default=512)
+    ap.add_argument("--size", type=int, default=64)
+    ap.add_argument("--volume", type=int, default=96)
+    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    ap.add_argument("--env", nargs="+", default=["64:32", "64:64"],
+                    help="K:N pairs (sky directions : field resolution)")
+    args = ap.parse_args(argv)
+    rt = get_runtime()
+    print(machine(rt))
+    print(f"cloud {args.volume}^3, {args.size}^2, path tracer 2 x {args.spp} spp (seeds 11, 12)")
+    print(f"{'case':14s} {'K:N':6s} {'mean rm':>8s} {'mean pt':>8s} {'rel':>7s} "
+          f"{'rmse x100':>9s} {'corrected':>9s} {'pt noise':>8s}")
+    for name in args.cases:
+        ds, alb, sun = CASES[name]
+        sc = scene(args.volume, args.size, ds, alb, sun)
+        r = Renderer(sc, "pathtrace", spp=args.spp)
+        p1 = r.render(seed=11).layers["total"].astype(np.float64)
+        p2 = r.render(seed=12).layers["total"].astype(np.float64)
+        pt, noise = 0.5 * (p1 + p2), ((p1 - p2) ** 2).mean() / 4
+        for kn in args.env:
+            k, n = (int(x) for x in kn.split(":"))
+            a = Renderer(sc, env_directions=k, env_resolution=n).render().layers["total"]
+            a = a.astype(np.float64)
+            mse = ((a - pt) ** 2).mean()
+            print(f"{name:14s} {kn:6s} {a.mean():8.4f} {pt.mean():8.4f} "
+                  f"{a.mean() / pt.mean() - 1:+7.3f} {100 * np.sqrt(mse):9.3f} "
+                  f"{100 * np.sqrt(max(mse - noise, 0.0)):9.3f} {100 * np.sqrt(noise):8.3f}",
+                  flush=True)
+    print(machine(rt))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,249 @@
+"""Environment light for the ray marcher: the sky's single and multiple scattering as one
+source field over the medium, read by cl/raymarch.cl (define ENV) at every march point.
+
+Directions. The sphere is cut into K near-equal cells around a Fibonacci set of directions
+w_i (solid angle Omega_i = 4 pi / K each). A constant sky L gives each cell the irradiance
+E_i = L Omega_i; a lat-long map gives E_i = sum of L_texel Omega_texel over the texels whose
+centre is nearest w_i (the map's integral is kept exactly: sum_i E_i = int L dw), and the
+cell's solid angle Omega_i = the sum of those texels' (so a uniform map is a furnace too).
+
+Transmittance (``EnvTransmittance``): for every w_i the exact light transmittance field
+T_i(x) toward w_i (cl/transmittance.cl's sweep, optical depth accumulated along the light
+rays) on a pyramid of ``resolution``^3 voxels over the medium's cube. It depends only on the
+density, the density scale and the direction set: a new sky does not rebuild it.
+
+Single scattering. In-scattered radiance per unit extinction toward the camera at x:
+
+    S_c(x) = albedo_c sum_i E_i,c T_i(x) f_i(x),
+    f_i(x) = f(w_i . u) / sum_j Omega_j f(w_j . u),   u = normalize(x - camera origin),
+
+with f the scene's phase function with every lobe's g multiplied by (1 - 1/K), the mean
+cosine of a cell of solid angle 4 pi / K (the HG lobe convolved with a lobe as wide as a
+cell: HG convolved with HG(g_s) is HG(g g_s)). The normalisation makes sum_i Omega_i f_i = 1
+exactly, so a cell-sized sampling of a sharp forward lobe neither gains nor loses energy.
+u is the direction of the camera ray through x, so the field is exact in direction for every
+pixel; an anisotropic phase therefore makes the field depend on the camera position (rebuilt
+when it moves); an isotropic one (f_i = 1 / (4 pi)) does not.
+
+Multiple scattering (an approximation, measured in docs/raymarch.md "Environment light").
+The sky light that does not reach x directly along w_i (the fraction 1 - T_i) is taken to
+arrive at x after scattering instead, from the same direction, diminished by a factor R:
+
+    M_c(x) = albedo_c R_c(x) sum_i E_i,c (1 - T_i(x)) f_i(x).
+
+In a white furnace (albedo 1, uniform sky) the exact radiance is L everywhere, so R = 1
+there: single + multiple = albedo sum_i E_i f_i = L for any phase function (the furnace is
+exact by construction). For albedo < 1, R comes from a one-number escape model: with
+t_c(x) = sum_i E_i,c T_i(x) / sum_i E_i,c the fraction of the sky's irradiance that reaches x
+unscattered, a photon is taken to reach the sky at each scattering with probability t, so
+the light of all orders at x is the geometric series t sum_n (albedo (1 - t))^n, of which
+orders >= 1 are t albedo (1 - t) / (1 - albedo (1 - t)); spread over the blocked fraction
+1 - t this is
+
+    R_c = (albedo_c t / (1 - albedo_c (1 - t)))^p,   p = MS_EXPONENT = 2
+
+(1 at albedo 1 for any p; the denominator is 0 only for albedo 1 and t = 0, where the limit 1
+is used). The plain series (p = 1) was measured too bright below albedo 1 (+50% on the cloud
+at albedo 0.9: a photon scattered once is deeper than x on average, so it escapes less
+often than t); p = 2 was fitted on the sky-only cloud at albedo 0.9 (48^3, density 64) and
+checked at other albedos, densities and resolutions (docs/raymarch.md).
+
+Background: a constant sky is the kernel's constant background; a map is looked up (nearest
+texel, clvol/envmap.py) along every camera ray (``background_image``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..envmap import row_solid_angles, texel_directions
+from ..errors import ClvolError
+
+DEFAULT_ENV_DIRECTIONS = 64
+DEFAULT_ENV_RESOLUTION = 32
+INV_4PI = 1.0 / (4.0 * math.pi)
+# The escape model's R is raised to this power (fitted: docs/raymarch.md "Environment light").
+MS_EXPONENT = 2.0
+
+
+def sky_directions(k: int) -> np.ndarray:
+    """(k, 3) float64 unit directions of a Fibonacci sphere (near-equal cells)."""
+    if not (isinstance(k, (int, np.integer)) and 1 <= k <= 1024):
+        raise ClvolError(f"environment directions = {k!r}: must be an integer from 1 to 1024")
+    i = np.arange(k) + 0.5
+    y = 1.0 - 2.0 * i / k
+    r = np.sqrt(np.maximum(0.0, 1.0 - y * y))
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * i
+    return np.stack([r * np.cos(phi), y, r * np.sin(phi)], axis=-1)
+
+
+def has_environment(light) -> bool:
+    return light.environment is not None or getattr(light, "environment_map", None) is not None
+
+
+@dataclass(frozen=True)
+class Sky:
+    """The sky cut into cells: ``directions`` (K, 3), ``irradiance`` (K, C) E_i per cell
+    (C = 1: in units of ``colour``; C = 3: RGB), ``colour`` (RGB, applied once per ray)."""
+    directions: np.ndarray
+    irradiance: np.ndarray
+    colour: tuple
+    channels: int
+    solid_angles: np.ndarray     # (K,) Omega_i: 4 pi / K, or a map's texels' in cell i
+
+    @property
+    def total(self) -> np.ndarray:
+        """(C,) sum_i E_i."""
+        return self.irradiance.sum(axis=0)
+
+    @property
+    def dark(self) -> bool:
+        return not (np.any(self.total > 0) and np.any(np.asarray(self.colour) > 0))
+
+
+def sky_key(light, k: int):
+    """What the cells depend on (a cache key)."""
+    m = getattr(light, "environment_map", None)
+    if m is not None:
+        return ("map", str(m), tuple(light.environment_scale), float(light.environment_rotation), k)
+    return ("constant", tuple(light.environment), k)
+
+
+def make_sky(light, k: int, grey_albedo: bool = True) -> Sky:
+    """The cells of ``light``'s environment. A constant sky is grey (C = 1, coloured once per
+    ray) when the albedo is grey too; otherwise (a map, or a coloured albedo, whose multiple
+    scattering is not linear in the sky colour per channel) C = 3."""
+    dirs = sky_directions(k)
+    omega = 4.0 * math.pi / k
+    m = getattr(light, "environment_map", None)
+    if m is None:
+        L = np.asarray(light.environment, np.float64)
+        om = np.full(k, omega)
+        if grey_albedo:
+            return Sky(dirs, np.full((k, 1), omega), tuple(L), 1, om)
+        return Sky(dirs, np.tile(L * omega, (k, 1)), (1.0, 1.0, 1.0), 3, om)
+    rgb = np.asarray(light.environment_texels(), np.float64)
+    h, w = rgb.shape[:2]
+    td = texel_directions(h, w, light.environment_rotation).reshape(-1, 3)
+    texel_omega = np.broadcast_to(row_solid_angles(h, w)[:, None], (h, w)).ravel()
+    energy = (rgb * np.asarray(light.environment_scale, np.float64)).reshape(-1, 3) \
+        * texel_omega[:, None]
+    cell = np.empty(len(td), np.int64)
+    for s in range(0, len(td), 65536):                    # nearest direction per texel
+        cell[s:s + 65536] = np.argmax(td[s:s + 65536] @ dirs.T, axis=1)
+    e = np.zeros((k, 3))
+    np.add.at(e, cell, energy)
+    om = np.bincount(cell, weights=texel_omega, minlength=k)   # sums to 4 pi
+    return Sky(dirs, e, (1.0, 1.0, 1.0), 3, om)
+
+
+def background_image(light, camera) -> np.ndarray:
+    """(H, W, 3) float32 radiance of the map along the camera's pixel-centre rays."""
+    from ..envmap import lookup
+    d = camera.pixel_directions()
+    return lookup(light.environment_texels(), light.environment_scale,
+                  light.environment_rotation, d).astype(np.float32)
+
+
+class EnvTransmittance:
+    """T_i(x) toward each of ``k`` sky directions on a ``resolution``^3 pyramid over the
+    medium's cube (float32 (K, n, n, n) on the host). Rebuilt when the density scale changes."""
+
+    def __init__(self, grid, k: int, resolution: int, runtime, cache: dict):
+        self.grid, self.k, self.n, self.rt, self.cache = grid, k, resolution, runtime, cache
+        self.T = None
+        self._scale = None
+        self.builds = 0
+
+    @property
+    def pyramid(self):
+        key = ("env_pyramid", self.n)
+        if key not in self.cache:
+            from ..kernels.pyramid import build_pyramid
+            self.cache[key] = build_pyramid(self.grid, self.n, self.rt)
+        return self.cache[key]
+
+    def ensure(self, density_scale: float) -> bool:
+        """Build the fields unless they are those of ``density_scale``; True when built."""
+        if self.T is not None and self._scale == float(density_scale):
+            return False
+        from ..kernels.transmittance import light_transmittance
+        pyr = self.pyramid
+        dirs = sky_directions(self.k)
+        T = np.empty((self.k,) + (self.n,) * 3, np.float32)
+        for i, w in enumerate(dirs):
+            T[i] = light_transmittance(pyr, density_scale, w)
+        self.T, self._scale = T, float(density_scale)
+        self.builds += 1
+        return True
+
+
+def phase_weights(points, origin, dirs, lobes, solid_angles) -> np.ndarray | None:
+    """(K, P) float32 f_i at ``points`` (P, 3) seen from ``origin`` (the module doc: cell-
+    widened lobes, normalised so sum_i Omega_i f_i = 1), or None for an isotropic phase."""
+    if not lobes:
+        return None
+    om = np.asarray(solid_angles, np.float64)
+    k = len(dirs)
+    gs = 1.0 - 1.0 / k
+    u = np.asarray(points, np.float64) - np.asarray(origin, np.float64)
+    norm = np.linalg.norm(u, axis=1, keepdims=True)
+    # A point at the camera itself sees every direction alike: any unit u will do there.
+    u = np.where(norm > 0, u / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
+    # float32 from here: the field is float32, and this runs per camera position.
+    one_minus_mu = 1.0 - (dirs.astype(np.float32) @ u.T.astype(np.float32))   # (K, P)
+    f = np.zeros_like(one_minus_mu)
+    for g, wt in lobes:
+        gg = g * gs
+        ga = abs(gg)
+        a = 1.0 - ga
+        # 1 - mu' with mu' = sign(g) mu: 1 - mu, or 2 - (1 - mu) for a backward lobe.
+        om_mu = one_minus_mu if gg >= 0 else 2.0 - one_minus_mu
+        den = np.float32(a * a) + np.float32(2.0 * ga) * om_mu   # >= a^2 > 0 for |g| < 1
+        f += np.float32(wt * a * (1.0 + ga) * INV_4PI) / (den * np.sqrt(den))
+    # HG > 0 everywhere for |g| < 1 and the Omega_i sum to 4 pi, so the sum is > 0.
+    return f * (1.0 / (om.astype(np.float32) @ f))[None, :]
+
+
+def voxel_centres(cube_min, cube_size, n) -> np.ndarray:
+    """(n^3, 3) world positions of a cube's voxel centres, [z][y][x] order."""
+    c = (np.arange(n) + 0.5) * (cube_size / n)
+    z, y, x = np.meshgrid(c, c, c, indexing="ij")
+    return np.stack([x.ravel(), y.ravel(), z.ravel()], axis=-1) + np.asarray(cube_min)
+
+
+def source_field(T, sky: Sky, albedo, lobes, cube_min, cube_size, origin) -> np.ndarray:
+    """(2 C, n, n, n) float32: the single (planes 0..C-1) and multiple (C..2C-1) in-scattered
+    radiance per unit extinction (module doc), from T (K, n, n, n)."""
+    k, n = T.shape[0], T.shape[1]
+    C = sky.channels
+    alb = np.asarray(albedo, np.float64)
+    alb = np.full(C, alb[0]) if C == 1 else alb
+    Tf = T.reshape(k, -1)
+    E = sky.irradiance                                          # (K, C)
+    fw = phase_weights(voxel_centres(cube_min, cube_size, n), origin, sky.directions, lobes,
+                       sky.solid_angles)
+    out = np.empty((2 * C, n ** 3), np.float32)
+    reach = E.T.astype(np.float32) @ Tf                        # (C, P): sum_i E_i T_i
+    total = sky.total
+    if fw is None:
+        single = reach * np.float32(INV_4PI)
+        sky_f = np.repeat((total * INV_4PI)[:, None], Tf.shape[1], axis=1)
+    else:
+        E32 = E.T.astype(np.float32)
+        single = E32 @ (fw * Tf)                               # (C, P): sum_i E_i f_i T_i
+        sky_f = E32 @ fw                                       # (C, P): sum_i E_i f_i
+    for c in range(C):
+        out[c] = alb[c] * single[c]
+        if not total[c] > 0:
+            out[C + c] = 0.0
+            continue
+        t = np.clip(reach[c].astype(np.float64) / total[c], 0.0, 1.0)
+        den = 1.0 - alb[c] * (1.0 - t)
+        # den = 0 only at albedo 1 and t = 0, where R's limit is 1.
+        R = np.where(den > 0, alb[c] * t / np.where(den > 0, den, 1.0), 1.0) ** MS_EXPONENT
+        blocked = np.maximum(sky_f[c].astype(np.float64) - single[c], 0.0)  # sum E f (1 - T)
+        out[C + c] = alb[c] * R * blocked
+    return out.reshape((2 * C,) + (n,) * 3)

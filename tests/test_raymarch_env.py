@@ -1,0 +1,129 @@
+"""Environment light in the ray marcher (clvol/render/environment.py; docs/raymarch.md
+"Environment light"): the white furnace, the map background, the path tracer on a sky-only
+cloud, and the recompute table of a Renderer whose sky changes. The kernel's ENV and BG_IMAGE
+paths against their twin are in tests/test_raymarch.py (test_kernel_matches_twin_environment).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import clvol
+from clvol import envmap
+from clvol.image import write_exr
+from clvol.render import environment as env
+from clvol.scene import scene_from_dict
+
+SKY = (0.3, 0.5, 0.9)
+CAM = {"origin": [0.0, 0.15, 1.6], "target": [0.0, 0.06, 0.0], "up": [0.0, 1.0, 0.0],
+       "fov_y": 35.0}
+
+
+def _scene(albedo=1.0, phase=None, light=None, size=(36, 28), res=24, scale=30.0):
+    d = {"volume": {"generator": "cloud", "seed": 1, "resolution": res},
+         "medium": {"preset": "cloud", "density_scale": scale, "albedo": albedo},
+         "light": {"direction": [0.45, 0.4, -0.8], "irradiance": 0.0,
+                   **({"environment": list(SKY)} if light is None else light)},
+         "camera": {**CAM, "width": size[0], "height": size[1]}}
+    if phase:
+        d["medium"]["phase"] = phase
+    return scene_from_dict(d)
+
+
+def test_sky_directions_cover_the_sphere_evenly():
+    d = env.sky_directions(64)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(d.mean(axis=0), 0.0, atol=0.02)   # no preferred side
+
+
+@pytest.mark.parametrize("phase", [{"type": "isotropic"}, None], ids=["iso", "hg0.857"])
+def test_white_furnace_renders_the_sky_everywhere(phase):
+    """Albedo 1 under a uniform sky: the medium vanishes. The model is exact there for any
+    phase function (environment.py: single + multiple = albedo sum_i E_i f_i = L), so what is
+    left is float32 rounding over a march of ~100 segments: measured 3e-7, bound 1e-5 (100x
+    the rounding of a float32 sum of that length), far inside the 1% target."""
+    r = clvol.Renderer(_scene(phase=phase), ms="none").render()
+    tot = r.layers["total"].astype(np.float64)
+    assert (r.layers["alpha"] > 0.9).mean() > 0.2          # the cloud covers the image
+    assert r.layers["multiple"].max() > 0.1 * max(SKY)       # and scatters many times
+    np.testing.assert_allclose(tot, np.broadcast_to(SKY, tot.shape), rtol=1e-5)
+
+
+def test_furnace_with_a_uniform_map_and_the_map_background(tmp_path):
+    """A uniform map (scaled, turned) is a furnace too, its cells' solid angles being the map's
+    own; where no ray meets the medium the map itself is seen."""
+    write_exr(tmp_path / "u.exr", {"total": np.ones((8, 16, 3), np.float32)})
+    light = {"environment_map": str(tmp_path / "u.exr"), "environment_scale": list(SKY),
+             "environment_rotation": 30.0}
+    r = clvol.Renderer(_scene(light=light), ms="none").render()
+    tot = r.layers["total"].astype(np.float64)
+    np.testing.assert_allclose(tot, np.broadcast_to(SKY, tot.shape), rtol=1e-5)
+    assert "environment map along each camera ray" in r.header["simulated"]
+
+
+def test_map_background_is_the_map_along_each_camera_ray(tmp_path):
+    rs = np.random.default_rng(3)
+    m = (0.1 + rs.random((8, 16, 3))).astype(np.float32)
+    write_exr(tmp_path / "m.exr", {"total": m})
+    scene = _scene(albedo=0.0, light={"environment_map": str(tmp_path / "m.exr"),
+                                      "environment_scale": [1.0, 0.5, 2.0],
+                                      "environment_rotation": -40.0}, size=(33, 21))
+    r = clvol.Renderer(scene, ms="none").render()
+    clear = r.layers["alpha"] == 0
+    assert 0.2 < clear.mean() < 0.95
+    want = envmap.lookup(m, (1.0, 0.5, 2.0), -40.0, scene.camera.pixel_directions())
+    t = r.layers["total"]
+    # Nearest-texel lookups may flip at a texel border between float32 and float64 rays.
+    agree = np.all(np.abs(t - want) <= 1e-6 * np.abs(want), axis=-1)
+    assert agree[clear].mean() > 0.98
+    assert "environment in-scattering (albedo 0" in r.header["skipped"]
+
+
+def test_sky_only_cloud_matches_the_path_tracer():
+    """A sky-only cloud (24^3, albedo 0.99, HG 0.857, optical depth ~10) against the path
+    tracer at 2 x 128 spp, noise-corrected (the two runs' difference estimates the reference's
+    noise). Measured: image mean -2.7%, RMSE x100 3.2 (reference noise 0.8). Bounds: the
+    issue's 5% on the mean; RMSE x100 <= 4 (the 96^3 clouds measure 0.7-4.3 at albedo 0.8-1,
+    docs/raymarch.md)."""
+    scene = _scene(albedo=0.99, size=(32, 32))
+    r = clvol.Renderer(scene, "pathtrace", spp=128)
+    p1 = r.render(seed=5).layers["total"].astype(np.float64)
+    p2 = r.render(seed=6).layers["total"].astype(np.float64)
+    pt = 0.5 * (p1 + p2)
+    noise = ((p1 - p2) ** 2).mean() / 4                  # variance of the two runs' mean
+    rm = clvol.Renderer(scene, ms="none").render().layers["total"].astype(np.float64)
+    rel = rm.mean() / pt.mean() - 1
+    rmse = 100 * np.sqrt(max(((rm - pt) ** 2).mean() - noise, 0.0))
+    print(f"mean {rel:+.4f}, rmse x100 {rmse:.3f} (reference noise {100 * np.sqrt(noise):.3f})")
+    assert abs(rel) < 0.05, (rm.mean(), pt.mean())
+    assert rmse < 4.0
+
+
+def test_environment_change_recomputes_only_what_depends_on_it():
+    scene = _scene(albedo=0.9, size=(16, 12))
+    r = clvol.Renderer(scene, ms="none")
+    r.render()
+    base = dict(r.counts)
+    assert base["env_transmittance"] == base["env_sky"] == base["env_field"] == 1
+    r.render()                                                    # nothing changed
+    assert dict(r.counts) == {**base, "march": 2}
+    blue = dataclasses.replace(scene.light, environment=(0.1, 0.2, 0.6))
+    a = r.render(light=blue)                                       # a new sky: no new sweeps
+    assert r.counts["env_transmittance"] == 1 and r.counts["env_sky"] == 2
+    assert r.counts["env_field"] == 2
+    cam = dataclasses.replace(scene.camera, origin=(0.2, 0.15, 1.6))
+    r.render(camera=cam, light=blue)                               # anisotropic: field per camera
+    assert r.counts["env_field"] == 3 and r.counts["env_sky"] == 2
+    thick = dataclasses.replace(scene.medium, density_scale=45.0)
+    r.render(camera=cam, light=blue, medium=thick)                 # new density: new sweeps
+    assert r.counts["env_transmittance"] == 2
+    assert r.counts.get("light_field", 0) == 0                     # no sun: no light field
+    # The new sky is what was rendered: a fresh Renderer agrees bit for bit.
+    fresh = clvol.Renderer(dataclasses.replace(scene, light=blue), ms="none").render()
+    np.testing.assert_array_equal(a.layers["total"], fresh.layers["total"])
+    # Without an environment nothing of it is computed.
+    plain = clvol.Renderer(_scene(light={}), ms="none")
+    plain.render()
+    assert not any(k.startswith("env_") for k in plain.counts)
