@@ -26,7 +26,7 @@ import numpy as np
 import _common
 
 ROOT = _common.ROOT
-EXAMPLES = ("cloud", "cloud_large", "jade", "milk", "wax", "smoke")
+EXAMPLES = ("cloud", "cloud_silver", "cloud_sky", "cloud_large", "jade", "milk", "wax", "smoke")
 ERROR_GAIN = 4.0
 GAP = 4
 # label -> Renderer options (the paper's method is the default: no options)
