@@ -272,7 +272,7 @@ def main(argv=None) -> int:
             print(f"{label:18s} {seconds:6.1f} s  {len(failed)}/{len(results)} tests fail"
                   + (f"  ({bug.what})" if bug else ""), flush=True)
             for k in failed:
-                print(f"{'':20s}FAIL {k} ({times[k]:.1f} s)\n{'':25s}{why[k]}")
+                print(f"{'':20s}FAIL {k} ({times[k]:.2f} s)\n{'':25s}{why[k]}")
             if bug:
                 summary.append((bug, failed, len(results), seconds, times, why))
     finally:
@@ -291,7 +291,7 @@ def main(argv=None) -> int:
             first = min(failed, key=lambda k: times[k])
             by = (f"`{first}`" + (f" (+{len(failed) - 1} more of {n})" if len(failed) > 1
                                   else f" (1 of {n})"))
-            lines.append(f"| `{bug.name}` | {by} | {times[first]:.1f} | {seconds:.1f} |")
+            lines.append(f"| `{bug.name}` | {by} | {times[first]:.2f} | {seconds:.1f} |")
         else:
             lines.append(f"| `{bug.name}` | **none** (0 of {n} fail) | - | {seconds:.1f} |")
     print()

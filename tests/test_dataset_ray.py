@@ -218,8 +218,8 @@ def test_two_node_loopback_cluster_makes_the_serial_bytes(serial, tmp_path):
     logs.mkdir()
     env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0",
            # The Ray Client proxy (started by `ray start --head`) forks a server process per
-           # client with a preexec_fn, so the fork runs gRPC's atfork child handler; that
-           # handler starts gRPC threads in the child before exec, and they can segfault it
+           # client with a preexec_fn, so the child runs the at-fork hooks, gRPC's fork
+           # support among them; it starts threads in the child before exec, which can segfault
            # (strace: the child "killed by SIGSEGV" before exec, no log; the proxy then waits
            # out its channel timeout and answers "Initialization failure from server").
            # It happened in 2 of 2 cold tries and 0 of 3 with gRPC's fork support off (the
