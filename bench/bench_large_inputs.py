@@ -59,14 +59,12 @@ def env() -> dict:
         filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
 
 
-def timed_child(cmd: list, **kw) -> tuple[subprocess.CompletedProcess, float, int]:
-    """Run ``cmd``; (result, wall s, peak RSS of the child in bytes). Children are waited for
-    one at a time, so RUSAGE_CHILDREN's ru_maxrss before/after isolates this one only when it
-    is larger than every earlier child: the child also prints its own ru_maxrss where it can."""
+def timed_child(cmd: list, **kw) -> tuple[subprocess.CompletedProcess, float]:
+    """Run ``cmd`` with this checkout first on PYTHONPATH: (result, wall seconds). The child
+    prints its own peak RSS (ru_maxrss): RUSAGE_CHILDREN here would be the largest child's."""
     t = time.perf_counter()
     r = subprocess.run(cmd, capture_output=True, text=True, env=env(), **kw)
-    dt = time.perf_counter() - t
-    return r, dt, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+    return r, time.perf_counter() - t
 
 
 # -- vdb ----------------------------------------------------------------------------------------
@@ -120,7 +118,7 @@ def case_vdb(args) -> None:
         dense = 4 * math.prod(int(h) - int(l) + 3 for l, h in zip(box[:3], box[3:]))
         print(f"  the dense grid at full resolution would be {dense / 2**30:.2f} GiB")
         for maxres in args.max_resolution:
-            r, dt, _ = timed_child([sys.executable, "-c", LOAD, str(path), str(maxres)])
+            r, dt = timed_child([sys.executable, "-c", LOAD, str(path), str(maxres)])
             if r.returncode != 0:
                 print(f"  max_resolution {maxres}: FAILED (exit {r.returncode}): "
                       f"{r.stderr.strip()[-1500:]}")
@@ -140,7 +138,7 @@ def case_vdb(args) -> None:
                "import resource, sys; from clvol.cli import main; rc = main(sys.argv[1:]); "
                "print('PEAK', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024); "
                "sys.exit(rc)", "render", str(scene), "-o", str(d / "x.exr"), "--quiet"]
-        r, dt, _ = timed_child(cmd)
+        r, dt = timed_child(cmd)
         peak = next((int(line.split()[1]) for line in r.stdout.splitlines()
                      if line.startswith("PEAK")), 0)
         err = r.stderr.strip().splitlines()
@@ -152,7 +150,7 @@ def case_vdb(args) -> None:
         scene.write_text(f'[volume]\nfile = "{path}"\nmax_resolution = {maxres}\n\n'
                          + cloud[cloud.index("[medium]"):])
         cmd += ["--width", "64", "--height", "64"]
-        r, dt, _ = timed_child(cmd)
+        r, dt = timed_child(cmd)
         peak = next((int(line.split()[1]) for line in r.stdout.splitlines()
                      if line.startswith("PEAK")), 0)
         err = r.stderr.strip().splitlines()
@@ -172,7 +170,7 @@ def case_render(args) -> None:
            "--height", str(args.size), "-o", str(out), "--quiet"]
     print(f"  command: clvol render examples/cloud.toml --width {args.size} --height {args.size} "
           f"-o {out} --quiet")
-    r, dt, _ = timed_child(cmd)
+    r, dt = timed_child(cmd)
     peak = [int(x) for line in r.stdout.splitlines() if line.startswith("PEAK")
             for x in line.split()[1:]]
     err = r.stderr.strip().splitlines()
@@ -217,15 +215,14 @@ def case_loop(args) -> None:
             n, nbytes = live_buffers()
             rows[i] = (time.perf_counter() - t0, rss_now(), n, nbytes)
             print(f"  frame {i:6d}: {rows[i][0]:8.1f} s, RSS {mib(rows[i][1])}, "
-                  f"{n} live OpenCL buffers ({mib(nbytes)}), header ms={res.header.get('raymarch.ms')}",
-                  flush=True)
+                  f"{n} live OpenCL buffers ({mib(nbytes)}), "
+                  f"header ms={res.header.get('raymarch.ms')}", flush=True)
     last = args.frames
     first = 100 if 100 in rows else min(rows)
-    t = rows[last][0] - rows[first][0]
-    print(f"  frames {first}..{last}: {t / max(last - first, 1) * 1e3:.2f} ms a frame; RSS "
-          f"{mib(rows[first][1])} -> {mib(rows[last][1])} ({(rows[last][1] - rows[first][1]) / 2**20:+.1f} "
-          f"MiB); live buffers {rows[first][2]} -> {rows[last][2]} "
-          f"({(rows[last][3] - rows[first][3]) / 2**20:+.2f} MiB); peak RSS {mib(peak_rss_self())}; "
+    (t1, rss1, n1, b1), (t2, rss2, n2, b2) = rows[first], rows[last]
+    print(f"  frames {first}..{last}: {(t2 - t1) / max(last - first, 1) * 1e3:.2f} ms a frame; "
+          f"RSS {mib(rss1)} -> {mib(rss2)} ({(rss2 - rss1) / 2**20:+.1f} MiB); live buffers "
+          f"{n1} -> {n2} ({(b2 - b1) / 2**20:+.2f} MiB); peak RSS {mib(peak_rss_self())}; "
           f"stages counted: {dict(r.counts)}")
 
 
