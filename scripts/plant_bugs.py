@@ -4,6 +4,14 @@
     python scripts/plant_bugs.py                 # baseline + every bug, the default tests
     python scripts/plant_bugs.py --bugs lattice-corners --keep
     python scripts/plant_bugs.py --tests tests/test_raymarch.py
+    python scripts/plant_bugs.py --mutation c-nx-ny c-octave-ab --report /tmp/table.md
+
+Each bug names the tests it is run against (its own ``tests``: the tests written for it and
+the older ones it used to pass); ``--tests`` runs one list for all of them instead. The
+baseline runs the union of the selected bugs' tests. For each bug the report gives the wall
+time of its pytest run and, per failing test, the test's own time (pytest's junit "time":
+setup + call, e.g. building the C host in a module fixture counts toward the first test
+using it).
 
 Each run copies the working tree (not .git, caches) to a fresh temporary folder, recreates the
 ``clvol/_cl -> ../cl`` link there so the kernels come from the copy (clvol finds them through
@@ -62,6 +70,7 @@ class Bug:
     name: str
     path: str
     what: str
+    tests: tuple = tuple(DEFAULT_TESTS)
 
     def apply(self, root: Path) -> None:
         f = root / self.path
@@ -90,7 +99,7 @@ def _lattice_corners(text: str) -> str:
 
 
 def _exactly_once(text: str, pattern: str, repl: str) -> str:
-    new, n = re.subn(pattern, repl, text)
+    new, n = re.subn(pattern, repl, text, flags=re.M)
     if n != 1:
         raise PatchError(f"expected exactly one match of {pattern!r}, found {n}")
     return new
@@ -117,8 +126,46 @@ def _shadow_sigma_bias(text: str) -> str:
     return _exactly_once(text, r"1\.0f - sigma / sm\)", "1.0f - 1.01f * sigma / sm)")
 
 
+def _c_nx_ny(text: str) -> str:
+    # The C host's ray-march arguments: the density grid's nx and ny swapped (the majorant
+    # kernel's arguments, which start the same way, are left alone).
+    return _exactly_once(text, r"h->d_density, h->nx, h->ny, h->nz, &bmin",
+                         "h->d_density, h->ny, h->nx, h->nz, &bmin")
+
+
+def _c_octave_ab(text: str) -> str:
+    # The C host's ray-march arguments: Wrenninge octave parameters a and b swapped.
+    return _exactly_once(text, r"abc\[0\], abc\[1\], abc\[2\]", "abc[1], abc[0], abc[2]")
+
+
+def _backward_limit(text: str) -> str:
+    return _exactly_once(text, r"^BACKWARD_LIMIT = -0\.8\b", "BACKWARD_LIMIT = -0.7")
+
+
+def _backward_albedo(text: str) -> str:
+    return _exactly_once(text, r"^BACKWARD_ALBEDO = 0\.9\b", "BACKWARD_ALBEDO = 0.8")
+
+
+def _coarse_level_plus_one(text: str) -> str:
+    # The pyramid level of the gather's coarse occupancy grid one level too coarse.
+    span = function_span(text, r"^def coarse_level\(", r"^(def |class |@)")
+    return replace_once(text, span, r"(return max\(0, .*\))\n", r"\1 + 1\n")
+
+
 PATCHES = {"mirrored-frame": _mirrored_frame, "lattice-corners": _lattice_corners,
-           "shadow-bias": _shadow_rate_bias, "shadow-bias-ratio": _shadow_sigma_bias}
+           "shadow-bias": _shadow_rate_bias, "shadow-bias-ratio": _shadow_sigma_bias,
+           "c-nx-ny": _c_nx_ny, "c-octave-ab": _c_octave_ab,
+           "backward-limit": _backward_limit, "backward-albedo": _backward_albedo,
+           "coarse-level": _coarse_level_plus_one}
+# test_c_render_matches_python's network cases are left out: on a tree where the Python render
+# fuses gather + MLP and the bundle does not list the fused program, they fail unpatched.
+C_TESTS = ("tests/test_c_host.py::test_c_render_matches_python[cloud.toml-overrides3-True-1-none]",
+           "tests/test_c_host.py::test_c_render_matches_python[smoke.toml-overrides2-True-1-none]",
+           "tests/test_c_host.py::test_c_render_matches_python[smoke.toml-overrides4-True-1-wrenninge]",
+           "tests/test_c_host.py::test_c_render_matches_python_on_a_non_cubic_volume_and_image",
+           "tests/test_c_host.py::test_c_octaves_with_distinct_parameters_match_python")
+FALLBACK_TESTS = ("tests/test_fallback_rule.py",
+                  "tests/test_renderer.py::test_outside_the_domain_warns_and_uses_the_measured_alternative")
 BUGS = [
     Bug("mirrored-frame", "clvol/neural/phasetable.py",
         "phase feature's view term with the camera reflected across the light axis"),
@@ -128,6 +175,16 @@ BUGS = [
         "1% extinction bias on shadow rays (tentative collisions at 1.01 x the majorant rate)"),
     Bug("shadow-bias-ratio", "cl/pathtrace.cl",
         "1% extinction bias on shadow rays written into the ratio (1 - 1.01 sigma/sigma_maj)"),
+    Bug("c-nx-ny", "examples/c/clvol_render.c",
+        "C host: nx and ny swapped in the ray-march kernel's arguments", C_TESTS),
+    Bug("c-octave-ab", "examples/c/clvol_render.c",
+        "C host: Wrenninge octave parameters a and b swapped", C_TESTS),
+    Bug("backward-limit", "clvol/render/network.py",
+        "network fallback: BACKWARD_LIMIT -0.8 -> -0.7", FALLBACK_TESTS),
+    Bug("backward-albedo", "clvol/render/network.py",
+        "network fallback: BACKWARD_ALBEDO 0.9 -> 0.8", FALLBACK_TESTS),
+    Bug("coarse-level", "clvol/kernels/gather.py",
+        "gather: coarse_level one level too coarse (+ 1)", ("tests/test_gather.py",)),
 ]
 
 
@@ -148,15 +205,21 @@ def make_copy(dest: Path) -> Path:
     return dest
 
 
-def run_tests(root: Path, tests: list[str]) -> tuple[dict, dict, float]:
+def run_tests(root: Path, tests: list[str]) -> tuple[dict, dict, float, dict]:
+    """Run ``tests`` in the copy: ({test: pass/FAIL/skip}, {test: why}, wall seconds,
+    {test: pytest's own seconds for it})."""
     xml = root / "plant-report.xml"
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                    f"--junitxml={xml}", *tests], cwd=root, capture_output=True, text=True)
+    p = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                        f"--junitxml={xml}", *tests], cwd=root, capture_output=True, text=True)
     seconds = time.perf_counter() - t0
-    results, why = {}, {}
+    if not xml.exists():
+        raise RuntimeError(f"pytest wrote no report (exit {p.returncode}):\n{p.stdout[-2000:]}"
+                           f"{p.stderr[-2000:]}")
+    results, why, times = {}, {}, {}
     for case in ET.parse(xml).getroot().iter("testcase"):
         name = f"{case.get('classname', '').split('.')[-1]}::{case.get('name')}"
+        times[name] = float(case.get("time") or 0.0)
         bad = case.find("failure")
         bad = bad if bad is not None else case.find("error")
         if bad is not None:
@@ -166,20 +229,35 @@ def run_tests(root: Path, tests: list[str]) -> tuple[dict, dict, float]:
             results[name] = "skip"
         else:
             results[name] = "pass"
-    return results, why, seconds
+    return results, why, seconds, times
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--bugs", nargs="*", default=[b.name for b in BUGS],
-                    choices=[b.name for b in BUGS])
-    ap.add_argument("--tests", nargs="*", default=DEFAULT_TESTS)
+    names = [b.name for b in BUGS]
+    ap.add_argument("--bugs", "--mutation", nargs="*", default=None, choices=names,
+                    help="bugs to plant (default: all)")
+    ap.add_argument("--tests", nargs="*", default=None,
+                    help="one test list for every bug (default: each bug's own tests)")
     ap.add_argument("--no-baseline", action="store_true", help="skip the unpatched run")
     ap.add_argument("--keep", action="store_true", help="keep the scratch copies")
+    ap.add_argument("--report", help="also write the summary table (markdown) to this file")
     args = ap.parse_args(argv)
 
-    runs = ([] if args.no_baseline else [None]) + [b for b in BUGS if b.name in args.bugs]
-    table = {}
+    bugs = [b for b in BUGS if args.bugs is None or b.name in args.bugs]
+
+    def tests_of(bug):
+        if args.tests is not None:
+            return list(args.tests)
+        if bug is not None:
+            return list(bug.tests)
+        union = []
+        for b in bugs:
+            union += [t for t in b.tests if t not in union]
+        return union
+
+    runs = ([] if args.no_baseline else [None]) + bugs
+    table, summary = {}, []
     scratch = Path(tempfile.mkdtemp(prefix="clvol-plant-"))
     try:
         for bug in runs:
@@ -187,13 +265,16 @@ def main(argv=None) -> int:
             root = make_copy(scratch / label)
             if bug:
                 bug.apply(root)
-            results, why, seconds = run_tests(root, args.tests)
+            tests = tests_of(bug)
+            results, why, seconds, times = run_tests(root, tests)
             table[label] = results
             failed = [k for k, v in results.items() if v == "FAIL"]
             print(f"{label:18s} {seconds:6.1f} s  {len(failed)}/{len(results)} tests fail"
                   + (f"  ({bug.what})" if bug else ""), flush=True)
             for k in failed:
-                print(f"{'':20s}FAIL {k}\n{'':25s}{why[k]}")
+                print(f"{'':20s}FAIL {k} ({times[k]:.2f} s)\n{'':25s}{why[k]}")
+            if bug:
+                summary.append((bug, failed, len(results), seconds, times, why))
     finally:
         if args.keep:
             print(f"scratch copies kept in {scratch}")
@@ -201,17 +282,28 @@ def main(argv=None) -> int:
             shutil.rmtree(scratch, ignore_errors=True)
 
     names = sorted({k for r in table.values() for k in r})
+    lines = ["| test | " + " | ".join(table) + " |", "|---|" + "---|" * len(table)]
+    lines += [f"| {n} | " + " | ".join(table[c].get(n, "-") for c in table) + " |"
+              for n in names]
+    lines += ["", "| bug | caught by | test's own s | pytest run, wall s |", "|---|---|---|---|"]
+    for bug, failed, n, seconds, times, why in summary:
+        if failed:
+            first = min(failed, key=lambda k: times[k])
+            by = (f"`{first}`" + (f" (+{len(failed) - 1} more of {n})" if len(failed) > 1
+                                  else f" (1 of {n})"))
+            lines.append(f"| `{bug.name}` | {by} | {times[first]:.2f} | {seconds:.1f} |")
+        else:
+            lines.append(f"| `{bug.name}` | **none** (0 of {n} fail) | - | {seconds:.1f} |")
     print()
-    print("| test | " + " | ".join(table) + " |")
-    print("|---|" + "---|" * len(table))
-    for n in names:
-        print(f"| {n} | " + " | ".join(table[c].get(n, "-") for c in table) + " |")
+    print("\n".join(lines))
+    if args.report:
+        Path(args.report).write_text("\n".join(lines) + "\n")
     ok = True
     if "baseline" in table and any(v != "pass" for v in table["baseline"].values()):
         print("\nbaseline (no bug) does not pass: the results above mean nothing", file=sys.stderr)
         ok = False
-    for bug in runs:
-        if bug and not any(v == "FAIL" for v in table[bug.name].values()):
+    for bug in bugs:
+        if not any(v == "FAIL" for v in table[bug.name].values()):
             print(f"\n{bug.name}: no test failed", file=sys.stderr)
             ok = False
     return 0 if ok else 1

@@ -71,6 +71,21 @@ def local_init_kwargs(workers: int | None = None) -> dict:
     return kw
 
 
+def connect_error_message(address: str | None, exc: BaseException) -> str:
+    """One line for a failed ray.init: the exception's first line and, when Ray sends a
+    traceback (Ray Client: "Initialization failure from server:" and the server's
+    traceback), its last line, which names the cause."""
+    lines = [x.strip() for x in str(exc).splitlines() if x.strip()]
+    what = lines[0] if lines else type(exc).__name__
+    if len(lines) > 1 and lines[-1] != what:
+        what = f"{what.rstrip(':')}: {lines[-1]}"
+    msg = f"cannot start or reach Ray at {address or 'local'}: {what}"
+    if "Starting Ray client server failed" in what:
+        msg += (" (on the head: run `ray start --head` with GRPC_ENABLE_FORK_SUPPORT=0 in its "
+                "environment, see docs/dataset.md)")
+    return msg
+
+
 def _fault_switch() -> tuple | None:
     spec = os.environ.get("CLVOL_FAULT_KILL_SHARD")
     if not spec:
@@ -128,8 +143,7 @@ def make_dataset_ray(spec: ds.DatasetSpec, out_dir, address: str | None = None,
             else:
                 ray.init(address=address, logging_level="WARNING")
         except (ConnectionError, ValueError, RuntimeError) as exc:
-            raise DistributedError(f"cannot start or reach Ray at {address or 'local'}: "
-                                   f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+            raise DistributedError(connect_error_message(address, exc)) from None
         started = True
     try:
         return _run(ray, spec, out, todo, progress, retries, on_shard)
