@@ -56,7 +56,8 @@
  *   origin, forward, right, up, tan_half, width, height    pinhole camera (grid.h camera_ray)
  *   light_dir  unit, toward the light; irradiance E (RGB); albedo (RGB); lobe_g, lobe_w (phase.h)
  *   background RGB radiance seen where rays leave the box (environment radiance, or 0)
- *   env        float [2 C][en][en][en] with ENV (else untouched, may be 4 bytes): the
+ *   env        (last arguments, only with ENV; then bg_image, only with BG_IMAGE)
+ *              float [2 C][en][en][en]: the
  *              environment's in-scattered radiance per unit extinction over the cube
  *              env_min .. + env_size (voxel centres), planes 0..C-1 single scattering
  *              (albedo, phase and transmittance toward the sky directions folded in),
@@ -212,12 +213,20 @@ __kernel void raymarch(
     const float tan_half, const int width, const int height,
     const float4 light_dir, const float4 irradiance, const float4 albedo,
     const float4 lobe_g, const float4 lobe_w, const float4 background,
-    __global const float *env, const int en, const float4 env_min, const float env_size,
-    const float4 env_colour, __global const float *bg_image,
     const float oct_a, const float oct_b, const float oct_c,
     const float step, const float threshold,
     __global float *total, __global float *single, __global float *multiple,
-    __global float *alpha, __global float *depth, __global uint *stats)
+    __global float *alpha, __global float *depth, __global uint *stats
+    /* Only with the environment's defines, last: without them the argument list is the one
+     * hosts of scenes without an environment (the C host) pass. */
+#if ENV
+    , __global const float *env, const int en, const float4 env_min, const float env_size,
+    const float4 env_colour
+#endif
+#if BG_IMAGE
+    , __global const float *bg_image
+#endif
+    )
 {
     const int tiles_x = (width + TILE - 1) / TILE;
     const int tile = get_global_id(0);

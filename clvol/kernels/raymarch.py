@@ -62,9 +62,10 @@ _SCALARS = ([None, np.int32, np.int32, np.int32, None, None, np.float32]       #
             + [None, np.int32, np.int32, np.int32, None, None]                   # ms grid
             + [None, None, None, None, np.float32, np.int32, np.int32]           # camera
             + [None] * 6                                                         # light, medium
-            + [None, np.int32, None, np.float32, None, None]                     # environment
             + [np.float32] * 5                                                   # a, b, c, step, thr
             + [None] * 6)                                                        # outputs
+_ENV_SCALARS = [None, np.int32, None, np.float32, None]       # env, en, min, size, colour (ENV)
+_BG_SCALARS = [None]                                           # bg_image (BG_IMAGE)
 
 
 def raymarch(density, bbox_min, bbox_max, density_scale,
@@ -162,22 +163,17 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
             raise ClvolError(f"env must be (2 C, n, n, n) with C = 1 or 3, got {env.shape}")
         defines.update(ENV=1, ENV_CHANNELS=env.shape[0] // 2)
         en = env.shape[1]
-    else:
-        dummy = dummy or rt.empty(1)
-        env, en = DeviceArray(dummy, (2, 1, 1, 1)), 1
     if bg_image is not None:
         bg_image = _device(bg_image, rt)
         if tuple(bg_image.shape) != (height, width, 3):
             raise ClvolError(f"bg_image must be ({height}, {width}, 3), got {bg_image.shape}")
         defines["BG_IMAGE"] = 1
-    else:
-        dummy = dummy or rt.empty(1)
-        bg_image = DeviceArray(dummy, (1,))
     if light_quantity not in LIGHT_QUANTITIES:
         raise ClvolError(f"light_quantity {light_quantity!r}: one of {LIGHT_QUANTITIES}")
     defines["LIGHT_TAU"] = int(light_quantity == "optical_depth")
     prog = rt.program("raymarch", defines)
-    k = prog.kernel("raymarch", _SCALARS)
+    k = prog.kernel("raymarch", _SCALARS + (_ENV_SCALARS if env is not None else [])
+                    + (_BG_SCALARS if bg_image is not None else []))
     g, w = lobe_vectors(lobes)
     outs = {name: rt.empty((height * width * ch,)) for name, ch in LAYERS}
     n_tiles = -(-width // TILE) * -(-height // TILE)
@@ -190,12 +186,14 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
             f4(origin), f4(forward), f4(right), f4(up), np.float32(tan_half),
             np.int32(width), np.int32(height),
             f4(light_dir), f4(irradiance), f4(albedo), g, w, f4(background),
-            env.buffer, np.int32(en), f4(env_min), np.float32(env_size), f4(env_colour),
-            bg_image.buffer,
             np.float32(a), np.float32(b), np.float32(c), np.float32(step),
             np.float32(threshold),
             outs["total"], outs["single"], outs["multiple"], outs["alpha"], outs["depth"],
             outs["stats"])
+    if env is not None:
+        args += (env.buffer, np.int32(en), f4(env_min), np.float32(env_size), f4(env_colour))
+    if bg_image is not None:
+        args += (bg_image.buffer,)
     # An explicit local size: with a NULL one, PoCL 3.1 picked work-groups for 512 x 512
     # images (16384 tiles) that crashed it (segfault). 16 and 64 measured alike on PoCL;
     # Oclgrind 21.10 crashes with 64.
