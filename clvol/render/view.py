@@ -180,8 +180,9 @@ class ViewMs(NetworkMs):
 STOCHASTIC_BLOCKS_ACROSS = 64
 DEFAULT_VIEW_SAMPLES = 1
 MAX_VIEW_SAMPLES = 4096
-# A still view stops drawing once every block holds this many samples: the table's noise
-# then sits well below the network's own error (bench/accuracy_vs_time.py, stochastic rows).
+# A still view stops drawing after this many draws per block (a thin block, whose ray often
+# escapes, holds fewer samples): the table's noise then sits well below the network's own
+# error (bench/accuracy_vs_time.py, stochastic rows: 16 frames already reach the curve's best).
 STILL_SAMPLES = 64
 # Through a camera move a block keeps at most this many samples' worth of history, so a new
 # sample weighs at least 1/(MOVE_HISTORY + 1) and the table follows the view (F_ms depends
@@ -213,8 +214,8 @@ class _History:
         self.key = key
         self.sums = np.zeros((channels, by, bx), np.float64)
         self.count = np.zeros((by, bx), np.float64)
-        self.depth = np.zeros((by, bx), np.float64)       # mean sample depth (a sum until
-        self.camera = None                                # divided; see table())
+        self.depth = np.zeros((by, bx), np.float64)       # sum of sample depths
+        self.camera = None                                # the camera of the last draw
         self.still = 0                                    # draws since the last move
 
     def table(self) -> np.ndarray:
