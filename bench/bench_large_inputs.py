@@ -67,6 +67,15 @@ def timed_child(cmd: list, **kw) -> tuple[subprocess.CompletedProcess, float]:
     return r, time.perf_counter() - t
 
 
+def render_child(cmd):
+    """(process, seconds, peak RSS bytes printed as "PEAK n", stderr lines) of a child
+    render run by ``timed_child``."""
+    r, dt = timed_child(cmd)
+    peak = next((int(line.split()[1]) for line in r.stdout.splitlines()
+                 if line.startswith("PEAK")), 0)
+    return r, dt, peak, r.stderr.strip().splitlines()
+
+
 # -- vdb ----------------------------------------------------------------------------------------
 LOAD = """
 import json, resource, sys, time
@@ -138,10 +147,7 @@ def case_vdb(args) -> None:
                "import resource, sys; from clvol.cli import main; rc = main(sys.argv[1:]); "
                "print('PEAK', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024); "
                "sys.exit(rc)", "render", str(scene), "-o", str(d / "x.exr"), "--quiet"]
-        r, dt = timed_child(cmd)
-        peak = next((int(line.split()[1]) for line in r.stdout.splitlines()
-                     if line.startswith("PEAK")), 0)
-        err = r.stderr.strip().splitlines()
+        r, dt, peak, err = render_child(cmd)
         print(f"  clvol render of the file without max_resolution: exit {r.returncode} in "
               f"{dt:.1f} s, peak RSS {mib(peak)}, {len(err)} line(s) on stderr: "
               f"{err[-1] if err else ''}")
@@ -150,10 +156,7 @@ def case_vdb(args) -> None:
         scene.write_text(f'[volume]\nfile = "{path}"\nmax_resolution = {maxres}\n\n'
                          + cloud[cloud.index("[medium]"):])
         cmd += ["--width", "64", "--height", "64"]
-        r, dt = timed_child(cmd)
-        peak = next((int(line.split()[1]) for line in r.stdout.splitlines()
-                     if line.startswith("PEAK")), 0)
-        err = r.stderr.strip().splitlines()
+        r, dt, peak, err = render_child(cmd)
         print(f"  clvol render with max_resolution = {maxres} at 64^2 (default method): exit "
               f"{r.returncode} in {dt:.1f} s, peak RSS {mib(peak)}"
               + (f"; stderr: {' | '.join(err[-3:])}" if err else ""))
