@@ -160,12 +160,12 @@ def main(argv=None) -> int:
         src = NetworkSource(args.weights, grid, scene.medium, rt)
         unit_other = other / np.linalg.norm(other)
         for lattice in ((16, 32) if args.quick else (16, 32, 64)):
-            src.fill(scene, unit_other, lattice)          # compile and bake once, untimed
+            src.fill(unit_other, lattice, origin=scene.camera.origin)   # compile and bake once, untimed
 
             def network_change():
                 """Two light changes (graded T + gather + network); info of the second."""
-                a = src.fill(scene, unit_other, lattice)[1]
-                msg, b = src.fill(scene, scene.light.direction, lattice)
+                a = src.fill(unit_other, lattice, origin=scene.camera.origin)[1]
+                msg, b = src.fill(scene.light.direction, lattice, origin=scene.camera.origin)
                 return msg, {k: (a[k] + b[k]) / 2 for k in ("light", "gather", "network")}
             (msg, info), _ = best_of(3, network_change)
             fill_s = info["light"] + info["gather"] + info["network"]

@@ -82,8 +82,8 @@ def test_grey_shortcut_equals_three_channels(weights_file):
     sc = _scene(0.95)
     grid = sc.volume.load()
     src = NetworkSource(weights_file, grid, sc.medium)
-    g1, i1 = src.fill(sc, sc.light.direction, 8, grey_shortcut=True)
-    g3, i3 = src.fill(sc, sc.light.direction, 8, grey_shortcut=False)
+    g1, i1 = src.fill(sc.light.direction, 8, grey_shortcut=True, origin=sc.camera.origin)
+    g3, i3 = src.fill(sc.light.direction, 8, grey_shortcut=False, origin=sc.camera.origin)
     assert g1.values.shape == (8, 8, 8) and g3.values.shape == (8, 8, 8, 3)
     assert i1["evaluations"] == 1
     for c in range(3):
@@ -109,7 +109,7 @@ def test_lattice_matches_numpy_reference(weights_file):
     sc = _scene([0.9, 0.95, 0.0], [(0.7, 0.6), (-0.3, 0.4)])
     grid = sc.volume.load()
     src = NetworkSource(weights_file, grid, sc.medium)
-    msg, info = src.fill(sc, sc.light.direction, (5, 6, 7))
+    msg, info = src.fill(sc.light.direction, (5, 6, 7), origin=sc.camera.origin)
     assert msg.values.shape == (7, 6, 5, 3) and info["evaluations"] == 2
     res, lo, hi, pts, om = ms_lattice(sc, (5, 6, 7), grid.bbox_min, grid.bbox_max)
     w = load_weights(weights_file)

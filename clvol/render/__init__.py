@@ -8,11 +8,10 @@ that every method reads (``DeviceMedium``) is clvol/kernels/majorant.py's.
 
 Render-method registry shared by the CLI and Python callers.
 
-A render method lives in its own module and exposes:
-
-- ``add_arguments(group)``: its own ``argparse`` options (names must not clash with the
-  common ones defined in ``clvol.cli``);
-- ``render(scene, args) -> RenderResult``: the image and what was simulated.
+A render method lives in its own module and exposes ``add_arguments(group)``: its own
+``argparse`` options (names must not clash with the common ones defined in ``clvol.cli``).
+The ``Renderer`` (clvol/render/renderer.py) runs every method; the CLI builds one from the
+options the user gave.
 
 Methods are imported lazily so that ``clvol info`` or ``clvol compare`` never build kernels.
 """

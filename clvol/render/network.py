@@ -214,11 +214,11 @@ class NetworkSource:
             self.graded_builds += 1
         return self._graded[1]
 
-    def fill(self, scene, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
+    def fill(self, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
              bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None, active=None,
              omegas=None):
         """(MsGrid, info): F_ms at the lattice (``ms_lattice``) for the camera at ``origin``
-        (default the scene camera's) and a light toward ``light_dir``; info has seconds
+        and a light toward ``light_dir``; info has seconds
         "light" (graded fields), "gather", "network", "evaluations" (network evaluations
         per lattice point) and "points" (lattice points evaluated). ``active``: a boolean
         mask over the lattice points ([z][y][x] order); the others get F_ms = 0. ``omegas``:
@@ -226,7 +226,9 @@ class NetworkSource:
         medium = self.medium if medium is None else medium
         if bbox_min is None or bbox_max is None:
             bbox_min, bbox_max = self.grid.bbox_min, self.grid.bbox_max
-        res, lo, hi, pts_all, om_all = ms_lattice(scene, resolution, bbox_min, bbox_max,
+        if origin is None and omegas is None:
+            raise ClvolError("NetworkSource.fill: give the camera's origin (or omegas)")
+        res, lo, hi, pts_all, om_all = ms_lattice(None, resolution, bbox_min, bbox_max,
                                                   (0.0, 0.0, 0.0) if omegas is not None else origin)
         if omegas is not None:
             om_all = np.broadcast_to(np.asarray(omegas, np.float64), om_all.shape)
@@ -399,8 +401,7 @@ class NetworkMs(GridMs):
         light = frame.light.direction
         if (self.refresh == 1 or self._key is None or self.ms_grid is None
                 or key[1:] != self._key[1:]):
-            self.ms_grid, self.info = self.net.fill(None, light, self.resolution, active=active,
-                                                    **fill)
+            self.ms_grid, self.info = self.net.fill(light, self.resolution, active=active, **fill)
             self._todo = 0
         else:
             if key[0] != self._key[0]:           # the camera moved: every subset is stale
@@ -412,7 +413,7 @@ class NetworkMs(GridMs):
             idx = np.flatnonzero(active) if active is not None else np.arange(n)
             subset = np.zeros(n, bool)
             subset[idx[part::self.refresh]] = True
-            g, self.info = self.net.fill(None, light, self.resolution, active=subset, **fill)
+            g, self.info = self.net.fill(light, self.resolution, active=subset, **fill)
             vals = np.array(self.ms_grid.values, np.float32, copy=True)
             flat, new = vals.reshape(n, -1), np.asarray(g.values).reshape(n, -1)
             flat[subset] = new[subset]
@@ -428,7 +429,7 @@ class NetworkMs(GridMs):
         if self._table is None or self._table[0] != light_key:
             tables, info = [], None
             for d in dirs:
-                g, i = self.net.fill(None, frame.light.direction, self.resolution,
+                g, i = self.net.fill(frame.light.direction, self.resolution,
                                      grey_shortcut=frame.shortcuts, medium=frame.medium,
                                      active=active, omegas=d)
                 tables.append(np.asarray(g.values, np.float32))

@@ -165,17 +165,6 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
     return RenderResult(layers=layers, header=header)
 
 
-def render(scene, args) -> RenderResult:
-    """The ``clvol render --method pathtrace`` entry point."""
-    rt = get_runtime(getattr(args, "device", None), getattr(args, "profile", False))
-    result = render_pathtrace(scene, spp=args.spp, seed=args.seed, max_order=args.max_order,
-                              time_budget=args.time, runtime=rt,
-                              majorant_block=args.majorant_block)
-    if getattr(args, "profile", False):
-        import sys
-        print(rt.timing_report(), file=sys.stderr)
-    return result
-
 
 def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
                 max_order: int | None = None, grid=None, runtime=None,

@@ -453,9 +453,3 @@ def add_arguments(group) -> None:
                        help="run the general kernel even where the scene allows a shortcut "
                             "(same image, slower; for testing)")
 
-
-def render(scene, args):
-    """``clvol render --method raymarch``: a Renderer with the options the user gave."""
-    from .options import given_options
-    from .renderer import Renderer
-    return Renderer(scene, "raymarch", **given_options(args, ["raymarch"])).render()

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..errors import ClvolError
 from ..runtime import Stopwatch, get_runtime
-from . import RenderResult, method_module
+from . import RenderResult
 from .options import DEFAULT_METHOD, bind, option_label
 
 
@@ -63,7 +63,6 @@ class Renderer:
     def __init__(self, scene, method: str | None = None, *, grid=None, runtime=None,
                  device: str | None = None, **options):
         self.method = method or DEFAULT_METHOD
-        self.module = method_module(self.method)
         self.given = dict(options)
         self.options = bind(self.method, self.given)
         self.scene = scene

@@ -145,7 +145,7 @@ def encode_frame(frame: Frame, frame_id: int, exposure: float | str | None,
         "stages_ms": frame.stage_ms, "exposure": used, "exposure_from": how,
         "effects": {k: v for k, v in frame.header.items()
                     if k.startswith(("simulated", "skipped", "effects"))},
-        "warning": frame.header.get("warning") or frame.header.get("validity_warning"),
+        "warning": frame.header.get("warning"),
         "header": {k: v for k, v in frame.header.items() if isinstance(v, (str, int, float))},
         "state": frame.state.to_json(),
     }
