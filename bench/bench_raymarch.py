@@ -34,7 +34,8 @@ import numpy as np
 
 from _common import ROOT, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from clvol.kernels.pyramid import build_pyramid  # noqa: E402
-from clvol.render.raymarch import RayMarcher, render_raymarch  # noqa: E402
+from clvol.render.raymarch import RayMarcher  # noqa: E402
+from clvol.render.renderer import render_raymarch  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 from clvol.volume.generators import generate  # noqa: E402

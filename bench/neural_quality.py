@@ -82,7 +82,7 @@ from clvol.metrics import (LUMA, flip, flip_available, mrpnn_exposure,  # noqa: 
                            tonemap_srgb)
 from clvol.render.network import shipped_weights  # noqa: E402
 from clvol.render.pathtrace import DEFAULT_BLOCK, render_pathtrace  # noqa: E402
-from clvol.render.raymarch import render_raymarch  # noqa: E402
+from clvol.render.renderer import render_raymarch  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 
 SCENES = {

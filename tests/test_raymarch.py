@@ -21,7 +21,7 @@ import pytest
 from clvol.errors import ClvolError
 from clvol.kernels import raymarch as kraymarch
 from clvol.kernels.majorant import build_majorant
-from clvol.render.raymarch import render_raymarch
+from clvol.render.renderer import render_raymarch
 from clvol.render.sources import MsGrid, Octaves
 from clvol.scene import scene_from_dict
 from clvol.volume.grid import Grid

@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import ClvolError, WeightsError
 from ..neural.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
 from ..runtime import Stopwatch, get_runtime
-from .sources import GridMs, MsGrid, MsPlan, check_ms_grid, ms_lattice, register
+from .sources import GridMs, MsGrid, MsPlan, check_ms_grid, ms_lattice
 
 DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
 NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
@@ -298,7 +298,6 @@ class NetworkSource:
         return np.maximum(out, 0.0), info
 
 
-@register
 class NetworkMs(GridMs):
     """The network's lattice marched like a precomputed grid. The lattice depends on the
     camera position (omega toward it), the light direction and the medium; ``prepare``

@@ -7,7 +7,7 @@ majorant) and the exact light field toward the light (``set_light``: the light-c
 ``march(camera, light, source)`` renders a camera with a multiple-scattering source from
 clvol/render/sources.py. ``Plan`` decides what the kernel simulates for a medium and a light,
 and which shortcuts it takes (with reasons, for the header). The stateful ``Renderer``
-(clvol/render/renderer.py) drives all of it; ``render_raymarch`` is the one-call form.
+(clvol/render/renderer.py) drives all of it; its ``render_raymarch`` is the one-call form.
 
 ``shortcuts=False`` forces the general kernel (all lobes evaluated, three colour planes, light
 lookups even at albedo 0): the tests check that every shortcut gives the same image. The
@@ -313,7 +313,7 @@ class RayMarcher:
 def make_source(ms: str, options: dict | None = None, runtime=None) -> MsSource:
     """The source named ``ms`` (``--ms``), built from render ``options`` by the source itself
     (``MsSource.from_options``)."""
-    from .sources import source_class
+    from .msregistry import source_class
     return source_class(ms).from_options(options or {}, runtime)
 
 
@@ -330,50 +330,12 @@ def downsample(layers: dict, s: int) -> dict:
     return out
 
 
-def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float = 0.5,
-                    b: float = 0.5, c: float = 0.5, ms_grid=None,
-                    step: float = DEFAULT_STEP, threshold: float = DEFAULT_THRESHOLD,
-                    skip_empty: bool = True, block: int = DEFAULT_BLOCK,
-                    light_resolution: int | None = None, light_interp: str = "transmittance",
-                    supersample: int = 1, shortcuts: bool = True, grid=None,
-                    runtime=None, weights=None, ms_resolution=None,
-                    domain_fallback: bool = False, view_block=None, view_knots=None,
-                    view_samples=None, seed=None):
-    """Render ``scene`` with the ray marcher in one call (a ``Renderer`` kept for one frame).
-    Returns a RenderResult with layers total, single, multiple (H, W, 3), alpha and depth
-    (H, W), and the header.
-
-    step: segment length in voxels of the density grid (smallest cell side);
-    threshold: early termination transmittance (error < threshold x the largest source
-    radiance along the ray); supersample: S x S rays per pixel on a regular sub-grid, box
-    filtered (1 = pixel centres); grid: the loaded volume (else ``scene.volume.load()``).
-    ms="network": ``weights`` (a weight file; default the shipped model) fills an F_ms
-    lattice of ``ms_resolution`` points per side for this camera and light, used even outside
-    the weights' training domain unless ``domain_fallback`` (the Renderer's default).
-    ms="view": the same network queried at ``view_knots`` depths per ``view_block`` x
-    ``view_block`` pixels of the camera's view (clvol/render/view.py); ms="stochastic":
-    ``view_samples`` free-flight samples per block from the stream of ``seed``.
-    """
-    from .renderer import Renderer
-    from .sources import source_classes
-    opts = dict(ms=ms, step=step, threshold=threshold, no_skip_empty=not skip_empty,
-                majorant_block=block, light_resolution=light_resolution,
-                light_interp=light_interp, supersample=supersample, no_shortcuts=not shortcuts)
-    per_source = dict(octaves=octaves, ms_a=a, ms_b=b, ms_c=c, ms_grid=ms_grid, weights=weights,
-                      ms_resolution=ms_resolution, no_domain_fallback=not domain_fallback,
-                      view_block=view_block, view_knots=view_knots,
-                      view_samples=view_samples, seed=seed)
-    read = getattr(source_classes().get(ms), "options", ())     # those of the source asked for
-    opts.update({k: v for k, v in per_source.items() if k in read})
-    opts = {k: v for k, v in opts.items() if v is not None}
-    return Renderer(scene, "raymarch", grid=grid, runtime=runtime, **opts).render()
-
 
 # --------------------------------------------------------------------------- CLI options
 
 def add_arguments(group) -> None:
     from .network import DEFAULT_NETWORK_RESOLUTION
-    from .sources import source_classes
+    from .msregistry import source_classes
     from .view import (DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS, DEFAULT_VIEW_SAMPLES,
                        STILL_SAMPLES, STOCHASTIC_BLOCKS_ACROSS)
     group.add_argument("--ms", choices=sorted(source_classes()), default="network",

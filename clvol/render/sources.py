@@ -13,7 +13,7 @@ tests a source's name:
 Sources: ``NoMs`` ("none", single scattering only), ``OctavesMs`` ("wrenninge", the games'
 analytic octaves), ``GridMs`` ("grid", a precomputed ``MsGrid``), ``NetworkMs``
 ("network", clvol/render/network.py) and ``ViewMs`` ("view", the network at the camera's
-view, clvol/render/view.py). ``SOURCES`` maps ``--ms`` names to classes.
+view, clvol/render/view.py). clvol/render/msregistry.py maps ``--ms`` names to classes.
 """
 from __future__ import annotations
 
@@ -305,25 +305,3 @@ def _no_grid() -> ClvolError:
     return ClvolError("raymarch option ms = 'grid' needs an ms grid (--ms-grid FILE.npz, "
                       "or ms_grid=MsGrid(...) in Python)")
 
-
-SOURCES: dict[str, type] = {"none": NoMs, "wrenninge": OctavesMs, "grid": GridMs}
-
-
-def register(cls) -> type:
-    SOURCES[cls.name] = cls
-    return cls
-
-
-def source_classes() -> dict[str, type]:
-    """Every ``--ms`` source by name. Read the registry through this: the network source
-    registers when clvol/render/network.py is imported (it imports this module, so this module
-    cannot import it at the top), and a reader that came first would miss it."""
-    from . import network, view  # noqa: F401
-    return SOURCES
-
-
-def source_class(ms: str) -> type:
-    classes = source_classes()
-    if ms not in classes:
-        raise ClvolError(f"raymarch option ms = {ms!r}: choose one of {sorted(classes)}")
-    return classes[ms]

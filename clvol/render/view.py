@@ -21,7 +21,7 @@ from ..errors import ClvolError
 from ..kernels.raymarch import ms_defines
 from ..runtime import Stopwatch
 from .network import NetworkMs
-from .sources import MsPlan, register
+from .sources import MsPlan
 
 DEFAULT_VIEW_BLOCK = 4     # pixels per block side
 DEFAULT_VIEW_KNOTS = 4     # query depths per block
@@ -47,7 +47,6 @@ def check_view_options(block, knots):
                          f"{MAX_VIEW_K} (network queries per block)")
 
 
-@register
 class ViewMs(NetworkMs):
     """The network at ``knots`` depths per ``block`` x ``block`` pixels of the camera's view."""
     name = "view"
@@ -228,7 +227,6 @@ class _History:
         return t
 
 
-@register
 class StochasticViewMs(ViewMs):
     """MRPNN's estimator at the camera's view: each frame, one free-flight point per block of
     ``block`` x ``block`` pixels (a uniformly jittered ray, a depth drawn from its
