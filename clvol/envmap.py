@@ -96,6 +96,13 @@ def row_solid_angles(h: int, w: int) -> np.ndarray:
     return (2.0 * np.pi / w) * (c[:-1] - c[1:])
 
 
+def mean_radiance(texels) -> np.ndarray:
+    """Solid-angle mean (float64, [3]) of a lat-long map's (H, W, 3) texels over the sphere."""
+    texels = np.asarray(texels, dtype=np.float64)
+    h, w = texels.shape[:2]
+    return np.einsum("hwc,h->c", texels, row_solid_angles(h, w)) / (4.0 * math.pi)
+
+
 def direction_to_texel(d, rotation_deg: float, h: int, w: int):
     """(row, column) int arrays of unit directions d (..., 3) (the module's convention)."""
     d = np.asarray(d, np.float64)

@@ -310,21 +310,13 @@ def white_luminance(light) -> float:
     """Luminance of the scene's reference white: the radiance of a white Lambertian surface
     facing the sun under the sky, ``Y(irradiance) / pi + Y(mean sky radiance)``.
 
-    ``light`` is a ``clvol.scene.Light``. The sky is its constant ``environment``, or its
-    ``environment_map``'s solid-angle mean times ``environment_scale``; none counts 0. (Under a
+    ``light`` is a ``clvol.scene.Light``. The sky is ``Light.sky_mean()``: its constant
+    ``environment``, or its ``environment_map``'s solid-angle mean times
+    ``environment_scale``; none counts 0. (Under a
     constant sky of radiance L a white surface sees irradiance pi L and sends back L; the mean
     over the sphere is exact for a white sphere lit by any map.) Y: Rec. 709 luminance."""
     sun = float(np.dot(np.asarray(light.irradiance, dtype=np.float64), _REC709_LUMA)) / math.pi
-    sky = np.zeros(3)
-    if light.environment is not None:
-        sky = np.asarray(light.environment, dtype=np.float64)
-    elif light.environment_map is not None:
-        from .envmap import row_solid_angles
-        texels = np.asarray(light.environment_texels(), dtype=np.float64)
-        h, w = texels.shape[:2]
-        mean = np.einsum("hwc,h->c", texels, row_solid_angles(h, w)) / (4.0 * math.pi)
-        sky = mean * np.asarray(light.environment_scale, dtype=np.float64)
-    return sun + float(sky @ _REC709_LUMA)
+    return sun + float(light.sky_mean() @ _REC709_LUMA)
 
 
 def scene_exposure(light) -> float | None:

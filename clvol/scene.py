@@ -165,6 +165,18 @@ class Light:
         from .envmap import load_map
         return load_map(self.environment_map)
 
+    def sky_mean(self) -> np.ndarray:
+        """Mean radiance (float64, [3]) of the sky over the sphere: the constant
+        ``environment``, or the map's solid-angle mean times ``environment_scale``; zeros
+        for no sky."""
+        if self.environment is not None:
+            return np.asarray(self.environment, dtype=np.float64)
+        if self.environment_map is not None:
+            from .envmap import mean_radiance
+            return mean_radiance(self.environment_texels()) * \
+                np.asarray(self.environment_scale, dtype=np.float64)
+        return np.zeros(3)
+
 
 @dataclass(frozen=True)
 class Camera:
