@@ -15,7 +15,9 @@ with the file name and the dotted field, quotes the bad value and says what is a
 
     examples/x.toml: [medium.albedo] = [1.2, 0.5, 0.5]: each component must be in [0, 1]
 
-The data model (``Scene`` and its parts) is clvol/scene.py.
+``Scene`` (the whole scene, its dict form ``to_dict`` and ``with_overrides``) is defined here,
+beside the parser it validates through; its parts are clvol/scenemodel.py's. Import all of them
+from clvol/scene.py.
 """
 from __future__ import annotations
 
@@ -23,14 +25,108 @@ import dataclasses
 import difflib
 import math
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .errors import SceneError, VolumeError
-from .scene import (_ALREADY_UNIT, HG_G_LIMIT, MAX_IMAGE_SIZE, MAX_VDB_RESOLUTION, MHG_MAX_LOBES,
-                    MHG_WEIGHT_TOL, PRESETS, VOLUME_SUFFIXES, Camera, Light, Lobe, Medium, Phase,
-                    Scene, VolumeSpec)
+from .scenemodel import (_ALREADY_UNIT, HG_G_LIMIT, MAX_IMAGE_SIZE, MAX_VDB_RESOLUTION,
+                         MHG_MAX_LOBES, MHG_WEIGHT_TOL, PRESETS, VOLUME_SUFFIXES, Camera, Light,
+                         Lobe, Medium, Phase, VolumeSpec)
+
+
+# --------------------------------------------------------------------------- the scene
+
+@dataclass(frozen=True)
+class Scene:
+    path: Path | None
+    volume: VolumeSpec
+    medium: Medium
+    light: Light
+    camera: Camera
+
+    def to_dict(self) -> dict:
+        """Plain dict that ``scene_from_dict`` turns back into an equal scene.
+
+        The volume file is written as an absolute path; the medium is written fully
+        resolved (preset name kept for information, plus its albedo and phase).
+        """
+        v = self.volume
+        vol: dict[str, Any] = {}
+        if v.file is not None:
+            vol["file"] = str(v.file)
+            if v.grid is not None:
+                vol["grid"] = v.grid
+            if v.max_resolution is not None:
+                vol["max_resolution"] = v.max_resolution
+        else:
+            vol["generator"] = v.generator
+            vol["seed"] = v.seed
+            if v.resolution is not None:
+                vol["resolution"] = (list(v.resolution) if isinstance(v.resolution, tuple)
+                                     else v.resolution)
+            if v.params:
+                vol["params"] = dict(v.params)
+        if v.bbox_min is not None:
+            vol["bbox_min"] = list(v.bbox_min)
+            vol["bbox_max"] = list(v.bbox_max)
+        m = self.medium
+        med: dict[str, Any] = {}
+        if m.preset is not None:
+            med["preset"] = m.preset
+        med["density_scale"] = m.density_scale
+        med["albedo"] = list(m.albedo)
+        med["phase"] = _phase_to_dict(m.phase)
+        li = self.light
+        light: dict[str, Any] = {"direction": list(li.direction),
+                                 "irradiance": list(li.irradiance)}
+        if li.environment is not None:
+            light["environment"] = list(li.environment)
+        if li.environment_map is not None:
+            light["environment_map"] = str(li.environment_map)
+            light["environment_scale"] = list(li.environment_scale)
+            light["environment_rotation"] = li.environment_rotation
+        c = self.camera
+        cam = {"origin": list(c.origin), "target": list(c.target), "up": list(c.up),
+               "fov_y": c.fov_y, "width": c.width, "height": c.height}
+        return {"volume": vol, "medium": med, "light": light, "camera": cam}
+
+    def with_overrides(self, overrides: dict[str, Any], source: str = "<override>") -> "Scene":
+        """A validated copy with dotted fields replaced, e.g. ``{"camera.width": 512}``.
+
+        A value of ``None`` removes the field (e.g. ``"light.environment"``). Setting
+        ``"medium.preset"`` also resets albedo and phase to the preset's, unless they are
+        overridden too. Errors name ``source`` as the file.
+        """
+        data = self.to_dict()
+        if "medium.preset" in overrides:
+            for key in ("albedo", "phase"):
+                if f"medium.{key}" not in overrides:
+                    data["medium"].pop(key, None)
+        for dotted, value in overrides.items():
+            parts = dotted.split(".")
+            node = data
+            for p in parts[:-1]:
+                node = node.setdefault(p, {})
+                if not isinstance(node, dict):
+                    raise SceneError(f"{source}: [{dotted}]: {p} is not a table")
+            if value is None:
+                node.pop(parts[-1], None)
+            else:
+                node[parts[-1]] = value
+        s = scene_from_dict(data, source=source)
+        return dataclasses.replace(s, path=self.path)
+
+
+
+def _phase_to_dict(p: Phase) -> dict:
+    if p.type == "isotropic":
+        return {"type": "isotropic"}
+    if p.type == "hg":
+        return {"type": "hg", "g": p.lobes[0].g}
+    return {"type": "mhg", "lobes": [{"g": l.g, "weight": l.weight} for l in p.lobes]}
 
 
 # --------------------------------------------------------------------------- loading
