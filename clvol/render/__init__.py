@@ -3,7 +3,8 @@
 Layout: ``renderer`` (the stateful ``Renderer`` applications hold), ``options`` (options
 bound to methods), the two methods ``raymarch`` (the ray marcher and its plan) and
 ``pathtrace`` (the reference path tracer and point queries), ``sources`` (multiple-scattering
-sources: none, octaves, grid) and ``network`` (the network source). The volume on the device
+sources: none, octaves, grid), ``network`` and ``view`` (the network sources) and
+``msregistry`` (the ``--ms`` names of them all). The volume on the device
 that every method reads (``DeviceMedium``) is clvol/kernels/majorant.py's.
 
 Render-method registry shared by the CLI and Python callers.
