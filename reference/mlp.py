@@ -1,6 +1,6 @@
 """NumPy twin of cl/mlp.cl and of clvol.neural.model.Model: the network's forward pass.
 
-Inputs follow clvol/neural/layout.py: features float32 [N][3][P] (density, transmittance, phase; P = 266
+Inputs follow the feature contract (docs/network.md): features float32 [N][3][P] (density, transmittance, phase; P = 266
 template points, diffuse layers then highlight layers), config float32 [N][9]
 (g0 g1 g2 w0 w1 w2 g_mean albedo alpha). In training, ``levels`` [N][L][P] replaces the
 transmittance feature by sum_l level_weights[l] * levels[:, l] + level_bias (the seed's 3D-CNN);
@@ -19,19 +19,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from clvol.neural import layout      # the feature contract: constants only
-
-# Written here from the seed and docs/network.md, not imported from clvol/neural/export.py (the
-# code the twin checks): the output encoding's gamma (seed eq. 20), the template order of the
-# modules, the albedo input's offset. ``arch`` is read as data only (its fields: layer_counts,
-# n_diffuse_layers, head_widths, albedo_input); the slicing is derived here.
+# Written here from the seed, docs/network.md and docs/templates.md, not imported from clvol
+# (a twin shares no code with what it checks, the feature contract included): the output
+# encoding's gamma (seed eq. 20), the template order of the modules, the albedo input's
+# offset, the feature and config layout, the default point and level counts.
+# tests/test_mlp.py holds each equal to clvol's statement. ``arch`` is read as data only (its
+# fields: layer_counts, n_diffuse_layers, head_widths, albedo_input); the slicing is derived.
 GAMMA = 4.0
 TEMPLATES = ("diffuse", "highlight")
-TYPES = layout.FEATURE_TYPES
+TYPES = ("density", "transmittance", "phase")
+CONFIG_FIELDS = ("g0", "g1", "g2", "w0", "w1", "w2", "g_mean", "albedo", "alpha")
 ALBEDO_EPS = 1e-4
-G_MEAN = layout.CONFIG_FIELDS.index("g_mean")
-ALBEDO = layout.CONFIG_FIELDS.index("albedo")
-ALPHA = layout.CONFIG_FIELDS.index("alpha")
+G_MEAN = CONFIG_FIELDS.index("g_mean")
+ALBEDO = CONFIG_FIELDS.index("albedo")
+ALPHA = CONFIG_FIELDS.index("alpha")
+N_POINTS = sum((6, 8, 12, 16, 24, 32, 48, 48)) + sum((32, 16, 16, 8))   # diffuse + highlight
+N_LEVELS = 9                      # graded transmittance levels of a 256^3 base: 256^3 .. 1^3
 
 
 def _relu(x):
@@ -169,7 +172,7 @@ def config_rows(lobes, albedo, alpha) -> np.ndarray:
     scalar and alpha [N] (radians), as the gather writes it."""
     alpha = np.atleast_1d(np.asarray(alpha, np.float64))
     n = len(alpha)
-    c = np.zeros((n, len(layout.CONFIG_FIELDS)), np.float32)
+    c = np.zeros((n, len(CONFIG_FIELDS)), np.float32)
     for k, (g, w) in enumerate(lobes):
         c[:, k], c[:, 3 + k] = g, w
     c[:, G_MEAN] = sum(g * w for g, w in lobes)
@@ -184,8 +187,8 @@ def random_inputs(n: int, rng: np.random.Generator, arch=None,
     [0, 1], phase log1p(f f*) in [0, 4]; alpha uniform in [0, pi]; albedo uniform in [0.3, 1]
     unless given. Returns (features, config) or (features, config, levels). Without ``arch``,
     the layout's point and level counts."""
-    P = layout.N_POINTS if arch is None else sum(int(k) for k in arch.layer_counts)
-    n_levels = layout.N_LEVELS if arch is None else int(arch.n_levels)
+    P = N_POINTS if arch is None else sum(int(k) for k in arch.layer_counts)
+    n_levels = N_LEVELS if arch is None else int(arch.n_levels)
     f = np.empty((n, 3, P), np.float32)
     # spatially smooth-ish: a per-query level plus per-point variation, so layers differ
     f[:, 0] = np.clip(rng.uniform(0, 2, (n, 1)) + rng.normal(0, 0.5, (n, P)), 0, 3)

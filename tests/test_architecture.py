@@ -8,18 +8,28 @@ ROOT = Path(__file__).resolve().parents[1]
 CLVOL = ROOT / "clvol"
 
 
-def imports(path: Path) -> set[str]:
-    """Absolute names of the modules ``path`` imports (relative imports resolved)."""
+def import_statements(path: Path):
+    """(module, names) for every import statement of ``path``, anywhere in it, relative
+    imports resolved: ``import a.b`` gives ("a.b", []), ``from .x import y, z`` ("pkg.x",
+    ["y", "z"])."""
     package = list(path.relative_to(ROOT).with_suffix("").parts[:-1])
-    out = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
-            out.update(a.name for a in node.names)
+            for a in node.names:
+                yield a.name, []
         elif isinstance(node, ast.ImportFrom):
             base = package[:len(package) - node.level + 1] if node.level else []
-            mod = ".".join(base + ([node.module] if node.module else []))
-            out.add(mod)
-            out.update(f"{mod}.{a.name}" for a in node.names)
+            yield ".".join(base + ([node.module] if node.module else [])), \
+                [a.name for a in node.names]
+
+
+def imports(path: Path) -> set[str]:
+    """Absolute names of the modules ``path`` imports (relative imports resolved), and of
+    the names it takes from them."""
+    out = set()
+    for mod, names in import_statements(path):
+        out.add(mod)
+        out.update(f"{mod}.{n}" for n in names)
     return out
 
 
@@ -30,6 +40,14 @@ def modules(folder: Path):
 def test_imports_resolve_relative_names():
     got = imports(CLVOL / "kernels" / "majorant.py")
     assert "clvol.errors" in got and "clvol.kernels.grid" in got and "numpy" in got
+
+
+def test_twins_import_nothing_from_clvol():
+    """reference/ is the independent statement of every kernel: it imports nothing from
+    clvol (not even the feature contract; tests hold its own constants equal to clvol's)."""
+    bad = {p.name: sorted(m for m in imports(p) if m == "clvol" or m.startswith("clvol."))
+           for p in modules(ROOT / "reference")}
+    assert not {k: v for k, v in bad.items() if v}
 
 
 def test_kernels_do_not_import_the_render_layer():
@@ -106,16 +124,10 @@ def import_graph() -> dict[str, set[str]]:
     known = {module_name(p): p for p in modules(CLVOL)}
     graph = {}
     for name, path in known.items():
-        package = list(path.relative_to(ROOT).with_suffix("").parts[:-1])
         targets = set()
-        for node in ast.walk(ast.parse(path.read_text(), str(path))):
-            if isinstance(node, ast.Import):
-                targets.update(a.name for a in node.names)
-            elif isinstance(node, ast.ImportFrom):
-                base = package[:len(package) - node.level + 1] if node.level else []
-                mod = ".".join(base + ([node.module] if node.module else []))
-                targets.update(f"{mod}.{a.name}" if f"{mod}.{a.name}" in known else mod
-                               for a in node.names)
+        for mod, names in import_statements(path):
+            targets.update([f"{mod}.{n}" if f"{mod}.{n}" in known else mod for n in names]
+                           or [mod])
         edges = set()
         for m in targets:
             while m and m not in known:       # a name inside a module: the module

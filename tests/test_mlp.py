@@ -267,11 +267,14 @@ def test_log1m_albedo_input_matches_reference(albedo):
 
 def test_twin_constants_and_slicing_agree_with_the_export_module():
     """reference/mlp.py writes the encoding's gamma, the template order, the albedo input's
-    offset and the layer slicing itself (a twin shares no code with what it checks); here
-    the two statements are held equal."""
-    from clvol.neural import export
+    offset, the feature and config layout, the point and level counts and the layer slicing
+    itself (a twin shares no code with what it checks); here the two statements are held
+    equal."""
+    from clvol.neural import export, layout
     assert (ref.GAMMA, ref.TEMPLATES, ref.TYPES, ref.ALBEDO_EPS) == \
         (export.GAMMA, export.TEMPLATES, export.TYPES, export.ALBEDO_EPS)
+    assert (ref.TYPES, ref.CONFIG_FIELDS, ref.N_POINTS, ref.N_LEVELS) == \
+        (layout.FEATURE_TYPES, layout.CONFIG_FIELDS, layout.N_POINTS, layout.N_LEVELS)
     for arch in (export.Architecture(), export.Architecture(layer_counts=(3, 5, 2, 4),
                                                             n_diffuse_layers=3)):
         assert ref.layer_slices(arch) == arch.layer_slices()
