@@ -34,15 +34,16 @@ VIEW_STEP_FACTOR = 2.0
 MAX_VIEW_BLOCK = 64
 
 
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
 def check_view_options(block, knots):
     from ..kernels.viewdepth import MAX_VIEW_K
-
-    def is_int(v):
-        return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-    if not (is_int(block) and 1 <= block <= MAX_VIEW_BLOCK):
+    if not (_is_int(block) and 1 <= block <= MAX_VIEW_BLOCK):
         raise ClvolError(f"raymarch option view_block = {block!r}: an integer from 1 to "
                          f"{MAX_VIEW_BLOCK} (pixels per block side)")
-    if not (is_int(knots) and 1 <= knots <= MAX_VIEW_K):
+    if not (_is_int(knots) and 1 <= knots <= MAX_VIEW_K):
         raise ClvolError(f"raymarch option view_knots = {knots!r}: an integer from 1 to "
                          f"{MAX_VIEW_K} (network queries per block)")
 
@@ -196,12 +197,10 @@ def auto_block(width: int, height: int) -> int:
 
 
 def check_stochastic_options(samples, seed):
-    def is_int(v):
-        return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-    if not (is_int(samples) and 1 <= samples <= MAX_VIEW_SAMPLES):
+    if not (_is_int(samples) and 1 <= samples <= MAX_VIEW_SAMPLES):
         raise ClvolError(f"raymarch option view_samples = {samples!r}: an integer from 1 to "
                          f"{MAX_VIEW_SAMPLES} (free-flight samples per block per frame)")
-    if not (is_int(seed) and 0 <= seed < 2 ** 32):
+    if not (_is_int(seed) and 0 <= seed < 2 ** 32):
         raise ClvolError(f"raymarch option seed = {seed!r}: an integer in [0, 2^32)")
 
 
