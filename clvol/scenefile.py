@@ -39,6 +39,16 @@ from .scenemodel import (_ALREADY_UNIT, HG_G_LIMIT, MAX_IMAGE_SIZE, MAX_VDB_RESO
 
 # --------------------------------------------------------------------------- the scene
 
+# Fields that depend on another: overriding the key drops them unless they are overridden too
+# (Scene.with_overrides). A constant sky (light.environment, not None) replaces a map.
+OVERRIDE_RESETS = {
+    "medium.preset": ("medium.albedo", "medium.phase"),
+    "light.environment_map": ("light.environment_scale", "light.environment_rotation"),
+    "light.environment": ("light.environment_map", "light.environment_scale",
+                          "light.environment_rotation"),
+}
+
+
 @dataclass(frozen=True)
 class Scene:
     path: Path | None
@@ -96,15 +106,19 @@ class Scene:
     def with_overrides(self, overrides: dict[str, Any], source: str = "<override>") -> "Scene":
         """A validated copy with dotted fields replaced, e.g. ``{"camera.width": 512}``.
 
-        A value of ``None`` removes the field (e.g. ``"light.environment"``). Setting
-        ``"medium.preset"`` also resets albedo and phase to the preset's, unless they are
-        overridden too. Errors name ``source`` as the file.
+        A value of ``None`` removes the field (e.g. ``"light.environment"``). A field that
+        others depend on takes them along unless they are overridden too (OVERRIDE_RESETS):
+        setting ``"medium.preset"`` resets albedo and phase to the preset's; setting or
+        removing ``"light.environment_map"`` drops its scale and rotation; a constant
+        ``"light.environment"`` replaces the map with them. Errors name ``source`` as the file.
         """
         data = self.to_dict()
-        if "medium.preset" in overrides:
-            for key in ("albedo", "phase"):
-                if f"medium.{key}" not in overrides:
-                    data["medium"].pop(key, None)
+        for key, value in overrides.items():
+            if key in OVERRIDE_RESETS and not (key == "light.environment" and value is None):
+                for dep in OVERRIDE_RESETS[key]:
+                    if dep not in overrides:
+                        table, field = dep.split(".")
+                        data.get(table, {}).pop(field, None)
         for dotted, value in overrides.items():
             parts = dotted.split(".")
             node = data

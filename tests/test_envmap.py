@@ -317,6 +317,25 @@ def test_map_scene_round_trips_and_renders_with_its_header(tmp_path):
     assert "environment" not in rm.header["skipped"]
 
 
+def test_overrides_drop_or_replace_the_map_with_its_scale_and_rotation(tmp_path):
+    """Removing the map takes its scale and rotation along (they apply to a map only and
+    would be refused alone); a constant sky replaces the map; a new map keeps a scale that is
+    overridden with it."""
+    write_exr(tmp_path / "sky.exr", {"total": sky_16x8()})
+    scene = clvol.load_scene(_scene(tmp_path, {"environment_map": "sky.exr",
+                                               "environment_scale": [1.0, 0.5, 2.0],
+                                               "environment_rotation": -45.0}))
+    bare = scene.with_overrides({"light.environment_map": None}).light
+    assert bare.environment_map is None and bare.environment is None
+    sky = scene.with_overrides({"light.environment": [0.1, 0.2, 0.3]}).light
+    assert sky.environment == (0.1, 0.2, 0.3) and sky.environment_map is None
+    kept = scene.with_overrides({"light.environment_map": str(tmp_path / "sky.exr"),
+                                 "light.environment_scale": 3.0}).light
+    assert kept.environment_scale == (3.0, 3.0, 3.0) and kept.environment_rotation == 0.0
+    # removing a constant sky leaves the map alone
+    assert scene.with_overrides({"light.environment": None}).light == scene.light
+
+
 @pytest.mark.parametrize("options", [{}, {"method": "raymarch", "ms": "wrenninge"},
                                      {"method": "pathtrace", "spp": 2}],
                          ids=["default", "wrenninge", "pathtrace"])
