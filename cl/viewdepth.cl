@@ -83,7 +83,7 @@ __attribute__((always_inline))
 float free_flight_depth(__global const float *density, int nx, int ny, int nz, float3 bmin,
                         float3 cell, float density_scale, float3 o, float3 d, float t_in,
                         float t_out, float z, float step, float stop) {
-    const float target = -log(1.0f - z);                /* z < 1: finite; z = 1: never met */
+    const float target = -log1p(-z);     /* exact for small z, where 1 - z rounds; z = 1: never met */
     const float tau_stop = stop > 0.0f ? -log(stop) : INFINITY;
     float depth = -1.0f, tau_acc = 0.0f;
     const int n = t_in <= t_out ? (int)ceil((t_out - t_in) / step) : 0;
