@@ -169,3 +169,21 @@ def test_bad_stochastic_options_are_named(opts, text):
 def test_options_of_one_source_are_refused_for_another(ms, opts, flag):
     with pytest.raises(ClvolError, match=flag):
         Renderer(_scene(), "raymarch", ms=ms, **opts)
+
+
+def test_refining_flag_ends_for_empty_and_unlit_views():
+    """The viewer re-renders a still view while the header says ``raymarch.view_refining``.
+    It must end: after STILL_SAMPLES draws even where no block ever collects a sample (the
+    camera looking away: the count stays 0), and at once when nothing is lit (the source is
+    not prepared; its last frame's figures must not be reported as this frame's)."""
+    away = _scene(**{"camera.target": [0.0, 0.3, 5.0]})
+    r = _renderer(away, lambda p, w: np.zeros((len(p), 3)), view_samples=STILL_SAMPLES // 2)
+    assert r.render().header["raymarch.view_refining"] is True
+    res = r.render()
+    assert res.header["raymarch.view_refining"] is False
+    assert res.header["raymarch.view_accumulated"] == 0
+    scene = _scene()
+    r = _renderer(scene, _distance_query(scene))
+    assert r.render().header["raymarch.view_refining"] is True
+    dark = dataclasses.replace(scene.medium, albedo=(0.0, 0.0, 0.0))
+    assert r.render(medium=dark).header["raymarch.view_refining"] is False

@@ -204,6 +204,8 @@ class Renderer:
                                      reach, rm.dm.cache, rm.density,
                                      o["step"] * float(np.min(grid.cell_size)),
                                      o["threshold"]))
+            else:
+                source.skip()
             with Stopwatch() as sw_light:
                 if is_lit(medium, light) or not shortcuts:
                     if rm.ensure_light(light.direction):

@@ -207,6 +207,10 @@ class MsSource:
     def prepare(self, frame: Frame) -> None:
         """Fill this source's data for the frame (nothing to do for an analytic source)."""
 
+    def skip(self) -> None:
+        """This frame does not read the source (nothing is lit): forget per-frame state that
+        its header would otherwise report as this frame's."""
+
     def plan(self, medium, shortcuts: bool) -> MsPlan:
         return MsPlan(ms_defines("none"), skipped=[f"multiple scattering (--ms {self.name})"])
 

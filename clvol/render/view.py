@@ -258,10 +258,8 @@ class StochasticViewMs(ViewMs):
                 f"free-flight sample per {self.block}x{self.block} pixels per frame, up to "
                 f"{n} accumulated; weights {Path(str(self.weights_path)).name})")
 
-    def reset(self) -> None:
-        """Forget the accumulated samples (the next frame starts afresh)."""
-        self.history = None
-        self._key = None
+    def skip(self) -> None:
+        self.info = dict(self.info or {}, refining=False)
 
     def _draw(self, frame, rng):
         """One free-flight sample per block: (points (n, 3), dirs (n, 3), depths (n,),
@@ -354,6 +352,7 @@ class StochasticViewMs(ViewMs):
                                           not np.array_equal(np.concatenate(h.camera.basis()),
                                                              np.concatenate(cam.basis())))
         if not moved and h.still >= STILL_SAMPLES:
+            self.info = dict(self.info or {}, refining=False)
             return                                       # converged: nothing to draw
         builds = self.net.graded_builds
         with Stopwatch() as sw:
@@ -382,7 +381,7 @@ class StochasticViewMs(ViewMs):
         h.camera = cam
         h.still += self.samples
         info.update(depths=t_depths, reproject=t_reproject, blocks=int((h.count > 0).sum()),
-                    samples=int(h.count.max()))
+                    samples=int(h.count.max()), refining=h.still < STILL_SAMPLES)
         self.info = info
         self.table = frame.runtime.upload(h.table())
         if self.net.graded_builds != builds:
@@ -407,5 +406,7 @@ class StochasticViewMs(ViewMs):
         info = self.info or {}
         h.update({"raymarch.view_samples": self.samples, "raymarch.seed": self.seed,
                   "raymarch.view_accumulated": info.get("samples", 0),
+                  # whether another frame of this view draws more (the viewer's refine rule)
+                  "raymarch.view_refining": bool(info.get("refining", False)),
                   "seconds.view_reproject": round(info.get("reproject", 0.0), 4)})
         return h

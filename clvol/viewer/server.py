@@ -87,12 +87,11 @@ class FrameMaker:
     @staticmethod
     def refines(frame: Frame) -> bool:
         """Whether rendering the same state again improves ``frame``: the path tracer adds
-        a pass; the stochastic source adds a sample per block until it has STILL_SAMPLES."""
-        from ..render.view import STILL_SAMPLES
+        a pass; the stochastic source says whether it still draws (its own rule: a still
+        view draws STILL_SAMPLES times, then stops; an empty or unlit view never refines)."""
         if frame.state.method == "pathtrace":
             return True
-        n = frame.header.get("raymarch.view_accumulated")
-        return isinstance(n, int) and n < STILL_SAMPLES
+        return frame.header.get("raymarch.view_refining") is True
 
     def render(self, state: ViewState, previous: Frame | None) -> Frame:
         """One frame for ``state``; for the path tracer, one more pass averaged into
