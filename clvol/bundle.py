@@ -149,6 +149,11 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     else:
         plan = Plan.make(medium, light, source, True, skip_empty)
         active = None
+    if plan.env_scatter or plan.env_background == "map":
+        raise ClvolError(f"{scene.path or 'scene'}: the renderer lights this medium with the "
+                         f"sky (or shows a map behind it), which the C host (examples/c/) "
+                         f"does not implement; a bundle renders the sun and a constant "
+                         f"background only (docs/embedding.md)")
     network = network and plan.lit
     channels = plan.channels if plan.lit else 1
     grey = medium.is_grey

@@ -327,6 +327,16 @@ def test_bundle_cli_refuses_bad_options(tmp_path, capsys):
     assert "step = 0.0" in capsys.readouterr().err
 
 
+def test_bundle_refuses_a_sky_lit_scene(tmp_path, capsys):
+    """The sky's in-scattering and a map background are Python-only: a bundle of
+    examples/cloud_sky.toml would render another image in C, so it is refused by name."""
+    scene = ROOT / "examples" / "cloud_sky.toml"
+    assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms-resolution", "4"]) == 2
+    err = capsys.readouterr().err
+    assert "cloud_sky.toml" in err and "sky" in err and "C host" in err
+    assert not (tmp_path / "b").exists()
+
+
 @pytest.mark.parametrize("ms", ["view", "stochastic"])
 def test_bundle_refuses_the_view_space_sources(tmp_path, capsys, ms):
     scene = ROOT / "examples" / "cloud.toml"
