@@ -132,7 +132,7 @@ class FrameMaker:
 
 def encode_frame(frame: Frame, frame_id: int, exposure: float | str | None,
                  light=None) -> bytes:
-    """``exposure``: stops, None (from the image) or "scene" (from ``light``, the scene's
+    """``exposure``: stops, None (from the image) or "scene" (from ``light``, the frame's
     light: clvol.image.scene_exposure); the frame's meta says which ("exposure_from")."""
     from ..image import choose_exposure, encode_png_rgb8, tonemap_srgb8
     stops, how = choose_exposure(exposure, frame.layers["total"], light)
@@ -227,8 +227,10 @@ class Connection:
                 return
             self.last = frame
             self.frame_id += 1
+            # "from the light" uses the frame's own light (the client's sun and sky)
+            light = frame.state.light(self.maker.scene.light, self.maker.scene.camera)
             data = await loop.run_in_executor(None, encode_frame, frame, self.frame_id,
-                                              state.exposure, self.maker.scene.light)
+                                              state.exposure, light)
             try:
                 await self.ws.send_bytes(data)
             except (ConnectionError, RuntimeError):
