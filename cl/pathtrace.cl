@@ -98,6 +98,9 @@
 #if PT_ORDER_BINS != (PT_ORDER_EXACT - 1 + (17 - PT_ORDER_EXACT_LOG2) * PT_ORDER_SUB)
 #error "PT_ORDER_BINS must cover exponents up to 2^17 - 1 > PT_MAX_VERTICES"
 #endif
+#if defined(PT_ENV) || defined(PT_ENVMAP)
+#error "PT_ORDER_BINS bins the sun's contributions only: no environment (labels are per unit sun)"
+#endif
 #define PT_ROW (PT_OUT + 2 * PT_ORDER_BINS)
 
 __attribute__((always_inline))

@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ImageError
+from .image import REC709_LUMA   # Rec. 709 luminance, as the auto exposure
 
-LUMA = (0.2126, 0.7152, 0.0722)   # Rec. 709, as clvol/image.py's auto exposure
 MAX_ROWS = 8192                   # a 16384 x 8192 map is 1.6 GB of float32 RGBA: refuse above
 
 
@@ -98,9 +98,12 @@ def row_solid_angles(h: int, w: int) -> np.ndarray:
 
 def mean_radiance(texels) -> np.ndarray:
     """Solid-angle mean (float64, [3]) of a lat-long map's (H, W, 3) texels over the sphere."""
-    texels = np.asarray(texels, dtype=np.float64)
-    h, w = texels.shape[:2]
-    return np.einsum("hwc,h->c", texels, row_solid_angles(h, w)) / (4.0 * math.pi)
+    def build():
+        t = np.asarray(texels)
+        h, w = t.shape[:2]
+        return np.einsum("hwc,h->c", t, row_solid_angles(h, w).astype(t.dtype),
+                         dtype=np.float64) / (4.0 * math.pi)
+    return _per_map("mean", texels, (), build).copy()
 
 
 def direction_to_texel(d, rotation_deg: float, h: int, w: int):
@@ -140,12 +143,34 @@ class Tables:
     rotation: float
 
 
+# What was last derived from a read-only map (load_map's), with the map itself (kept alive,
+# so that its id stays its own): every path-tracer pass of the viewer, and every frame
+# exposed from the light, asks again for the same map's tables and mean.
+_LAST: dict = {}
+
+
+def _per_map(name: str, rgb, key: tuple, build):
+    hit = _LAST.get(name)
+    if hit is not None and hit[0] is rgb and hit[1] == key:
+        return hit[2]
+    value = build()
+    if isinstance(rgb, np.ndarray) and not rgb.flags.writeable:
+        _LAST[name] = (rgb, key, value)
+    return value
+
+
 def build_tables(rgb, scale=(1.0, 1.0, 1.0), rotation_deg: float = 0.0) -> Tables:
     """The sampling tables of a map (H, W, 3) times ``scale`` (RGB), turned by
-    ``rotation_deg``. CDFs are summed in float64 and stored as float32."""
+    ``rotation_deg``. CDFs are summed in float64 and stored as float32. A read-only map with
+    the same scale and rotation as the last call reuses its tables."""
+    key = (tuple(float(v) for v in np.broadcast_to(scale, (3,))), float(rotation_deg))
+    return _per_map("tables", rgb, key, lambda: _build_tables(rgb, scale, rotation_deg))
+
+
+def _build_tables(rgb, scale, rotation_deg: float) -> Tables:
     a = np.asarray(rgb, np.float64) * np.asarray(scale, np.float64)[None, None, :]
     h, w = a.shape[:2]
-    lum = a @ np.asarray(LUMA)
+    lum = a @ REC709_LUMA
     weight = lum * row_solid_angles(h, w)[:, None]          # lum_ij Omega_i >= 0
     row = weight.sum(axis=1)
     total = float(row.sum())
@@ -172,6 +197,6 @@ def build_tables(rgb, scale=(1.0, 1.0, 1.0), rotation_deg: float = 0.0) -> Table
 
 def lookup(rgb, scale, rotation_deg: float, d) -> np.ndarray:
     """Radiance (..., 3) float64 of the scaled map along unit directions d (nearest texel)."""
-    a = np.asarray(rgb, np.float64)
+    a = np.asarray(rgb)
     i, j = direction_to_texel(d, rotation_deg, a.shape[0], a.shape[1])
-    return a[i, j] * np.asarray(scale, np.float64)
+    return a[i, j].astype(np.float64) * np.asarray(scale, np.float64)

@@ -285,7 +285,7 @@ TONE_CURVES = ("filmic", "linear")
 # Auto exposure maps this percentile of the lit pixels' luminance to AUTO_WHITE.
 AUTO_PERCENTILE = 99.0
 AUTO_WHITE = 0.8
-_REC709_LUMA = np.array([0.2126, 0.7152, 0.0722])
+REC709_LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
 def auto_exposure(rgb: np.ndarray) -> float:
@@ -293,7 +293,7 @@ def auto_exposure(rgb: np.ndarray) -> float:
     to ``AUTO_WHITE`` (so a small object on black is exposed for itself, not for the
     background). 0 for an all-black image."""
     a = np.asarray(rgb, dtype=np.float64)
-    lum = a.reshape(-1, 3) @ _REC709_LUMA
+    lum = a.reshape(-1, 3) @ REC709_LUMA
     lit = lum[lum > 0.0]
     if lit.size == 0:
         return 0.0
@@ -315,8 +315,8 @@ def white_luminance(light) -> float:
     ``environment_scale``; none counts 0. (Under a
     constant sky of radiance L a white surface sees irradiance pi L and sends back L; the mean
     over the sphere is exact for a white sphere lit by any map.) Y: Rec. 709 luminance."""
-    sun = float(np.dot(np.asarray(light.irradiance, dtype=np.float64), _REC709_LUMA)) / math.pi
-    return sun + float(light.sky_mean() @ _REC709_LUMA)
+    sun = float(np.dot(np.asarray(light.irradiance, dtype=np.float64), REC709_LUMA)) / math.pi
+    return sun + float(light.sky_mean() @ REC709_LUMA)
 
 
 def scene_exposure(light) -> float | None:

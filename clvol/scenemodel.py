@@ -16,11 +16,10 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from .errors import ClvolError, SceneError, VolumeError
+from .errors import ClvolError, VolumeError
 
 # --------------------------------------------------------------------------- limits
 

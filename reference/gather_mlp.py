@@ -1,7 +1,6 @@
 """NumPy twin of cl/gather_mlp.cl (the fused render-mode gather + network): reference/gather.py's
 render-mode features and reference/mlp.py's config rows, forward pass and decode, composed.
 Nothing of its own beyond the composition (the two twins are the yardsticks)."""
-import numpy as np
 
 from reference import gather as rgather
 from reference import mlp as rmlp

@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import os
 import struct
-import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -170,14 +168,21 @@ def _write_vol(path: Path, grid: Grid) -> None:
 
 # --------------------------------------------------------------------------- .npy / .npz
 
+def _unreadable(path, kind: str, e: Exception) -> VolumeError:
+    """The one-line error for a file NumPy could not read as ``kind`` (.npy, .npz)."""
+    return VolumeError(f"{path}: cannot read as {kind}: {type(e).__name__}: "
+                       f"{str(e).splitlines()[0] if str(e) else ''}")
+
+
 def _read_npy(path: Path) -> Grid:
     try:
         arr = np.load(path, allow_pickle=False)
+    except MemoryError:
+        raise
     except Exception as e:
         # numpy parses the header as a Python literal: a corrupt one raises SyntaxError or
         # tokenize errors besides ValueError (found by tests/test_fuzz.py)
-        raise VolumeError(f"{path}: cannot read as .npy: {type(e).__name__}: "
-                          f"{str(e).splitlines()[0] if str(e) else ''}") from None
+        raise _unreadable(path, ".npy", e) from None
     return Grid(density_to_float32(arr, str(path)), np.array(DEFAULT_BBOX_MIN),
                 np.array(DEFAULT_BBOX_MAX))
 
@@ -185,9 +190,10 @@ def _read_npy(path: Path) -> Grid:
 def _read_npz(path: Path) -> Grid:
     try:
         npz = np.load(path, allow_pickle=False)
+    except MemoryError:
+        raise
     except Exception as e:            # see below: a corrupt archive raises many types
-        raise VolumeError(f"{path}: cannot read as .npz: {type(e).__name__}: "
-                          f"{str(e).splitlines()[0] if str(e) else ''}") from None
+        raise _unreadable(path, ".npz", e) from None
     if not isinstance(npz, np.lib.npyio.NpzFile):
         raise VolumeError(f"{path}: not a .npz archive (it holds a bare .npy array); rename it .npy")
     try:
@@ -210,13 +216,12 @@ def _read_npz(path: Path) -> Grid:
                 bbox_min, bbox_max = npz["bbox_min"], npz["bbox_max"]
             else:
                 bbox_min, bbox_max = DEFAULT_BBOX_MIN, DEFAULT_BBOX_MAX
-    except VolumeError:
+    except (VolumeError, MemoryError):
         raise
     except Exception as e:
         # zipfile and zlib raise many types for a corrupt archive (zlib.error,
         # NotImplementedError, RuntimeError for "encrypted" members; tests/test_fuzz.py found
         # each): all of them mean "not a readable .npz"
-        raise VolumeError(f"{path}: cannot read as .npz: {type(e).__name__}: "
-                          f"{str(e).splitlines()[0] if str(e) else ''}") from None
+        raise _unreadable(path, ".npz", e) from None
     lo, hi = check_bbox(bbox_min, bbox_max, str(path))
     return Grid(density_to_float32(density, str(path)), lo, hi)
