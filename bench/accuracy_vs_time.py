@@ -4,7 +4,7 @@ reference of our own, with the seconds each took, measured in one run.
     python bench/accuracy_vs_time.py [--scene examples/cloud.toml] [--size 128] [--ref-spp 1024]
                                      [--quick] [--out out/bench]
 
-Methods and settings (each point is one render, timed warm: kernels are compiled by a first
+Methods and settings (each point is the median of up to 3 renders, timed warm: kernels are compiled by a first
 untimed run at the smallest setting):
   pathtrace     spp 1, 4, 16, 64, 256 (unbiased; error falls as 1/sqrt(time))
   raymarch/none        single scattering only, step 2, 1, 0.5 voxels
@@ -22,7 +22,8 @@ untimed run at the smallest setting):
   raymarch/stochastic  + the same network at one free-flight point per pixel block per frame
                        (--ms stochastic), after 1, 4, 16 and 64 frames of a still view: frame =
                        the median whole frame (a draw, the queries and the march); light update
-                       = N frames (what an image of that quality costs after a change)
+                       = the N frames since the change, summed (what an image of that quality
+                       costs after a change; the first frame rebuilds the light field)
 Times: "frame" is what one more image costs (the march for the ray marcher; the whole render
 for the path tracer), "light update" what a light change costs once (the light field, and the
 lattice fill for the grid source). Errors: the MRPNN metric (RMSE x 100 of tonemapped 8-bit luminance), relMSE and RMSE against the
@@ -72,15 +73,14 @@ def timed(fn):
     return out, time.perf_counter() - t0
 
 
-def best_of(n, fn):
-    """(result, seconds) of the fastest of n runs: the machine is shared, and the minimum is
-    the least disturbed estimate of what the work itself costs."""
-    best = None
+def median_of(n, fn):
+    """(result of the last run, median seconds of n runs): the machine is shared; the
+    median is the project's figure for a time (docs/testing.md, benchmarks)."""
+    out, times = None, []
     for _ in range(n):
-        out, s = timed(fn)
-        if best is None or s < best[1]:
-            best = (out, s)
-    return best
+        out, t = timed(fn)
+        times.append(t)
+    return out, float(np.median(times))
 
 
 def main(argv=None) -> int:
@@ -124,7 +124,7 @@ def main(argv=None) -> int:
     spps = (1, 4, 16, 64) if args.quick else (1, 4, 16, 64, 256)
     for spp in spps:
         repeats = 3 if spp <= 16 else 1
-        res, s = best_of(repeats, lambda: render_pathtrace(scene, spp=spp, seed=1, grid=grid,
+        res, s = median_of(repeats, lambda: render_pathtrace(scene, spp=spp, seed=1, grid=grid,
                                                            progress=False))
         record("pathtrace", f"{spp} spp", res.layers, s)
 
@@ -140,12 +140,12 @@ def main(argv=None) -> int:
         rm.set_light(scene.light.direction)
         rm.rt.finish()
 
-    light_s = best_of(3, light_change)[1] / 2  # two light changes per run
+    light_s = median_of(3, light_change)[1] / 2  # two light changes per run
     cam = scene.camera
     for ms in ("none", "wrenninge"):
         for step in (2.0, 1.0, 0.5):
             rm.march(cam, scene.light, ms=ms, step=step)  # compile this variant, untimed
-            (layers, _), s = best_of(3, lambda: rm.march(cam, scene.light, ms=ms, step=step))
+            (layers, _), s = median_of(3, lambda: rm.march(cam, scene.light, ms=ms, step=step))
             record(f"raymarch/{ms}", f"step {step:g} voxel", layers, s, light_s)
     for lattice in ((8,) if args.quick else (8, 16)):
         def query(points, omegas):
@@ -153,7 +153,7 @@ def main(argv=None) -> int:
         msg, fill_s = timed(lambda: fill_ms_grid(scene, lattice, query, grid.bbox_min,
                                                  grid.bbox_max))
         rm.march(cam, scene.light, ms="grid", ms_grid=msg)
-        (layers, _), s = best_of(3, lambda: rm.march(cam, scene.light, ms="grid", ms_grid=msg))
+        (layers, _), s = median_of(3, lambda: rm.march(cam, scene.light, ms="grid", ms_grid=msg))
         record("raymarch/grid", f"{lattice}^3 lattice, 64 paths", layers, s, light_s + fill_s)
 
     if args.weights and Path(args.weights).exists():
@@ -167,10 +167,10 @@ def main(argv=None) -> int:
                 a = src.fill(unit_other, lattice, origin=scene.camera.origin)[1]
                 msg, b = src.fill(scene.light.direction, lattice, origin=scene.camera.origin)
                 return msg, {k: (a[k] + b[k]) / 2 for k in ("light", "gather", "network")}
-            (msg, info), _ = best_of(3, network_change)
+            (msg, info), _ = median_of(3, network_change)
             fill_s = info["light"] + info["gather"] + info["network"]
             rm.march(cam, scene.light, ms="grid", ms_grid=msg)
-            (layers, _), s = best_of(3, lambda: rm.march(cam, scene.light, ms="grid", ms_grid=msg))
+            (layers, _), s = median_of(3, lambda: rm.march(cam, scene.light, ms="grid", ms_grid=msg))
             record("raymarch/network", f"{lattice}^3 lattice", layers, s, light_s + fill_s)
             print(f"{'':21}(light update: light field {light_s:.3f} s, graded T {info['light']:.3f} s, "
                   f"gather {info['gather']:.3f} s, network {info['network']:.3f} s)")
@@ -185,15 +185,15 @@ def main(argv=None) -> int:
             moved = dataclasses.replace(scene.light, direction=tuple(unit_other))
             r.render(light=moved)                       # compile, untimed
             updates = []
-            for _ in range(3):                          # a light change each way, best of 3
+            for _ in range(3):                          # a light change each way, median of 3
                 r.render(light=moved)
                 h = r.render().header
                 updates.append(sum(float(h.get(k, 0.0)) for k in (
                     "seconds.light_field", "seconds.graded_transmittance", "seconds.view_depths",
                     "seconds.gather", "seconds.network")))
-            res, _ = best_of(3, r.render)               # unchanged: the march
+            res, _ = median_of(3, r.render)               # unchanged: the march
             record("raymarch/view", f"block {block}", res.layers,
-                   float(res.header["seconds.march"]), min(updates))
+                   float(res.header["seconds.march"]), float(np.median(updates)))
         # Stochastic: frames of a still view after a light change (which starts it afresh).
         r = Renderer(scene, "raymarch", grid=grid, ms="stochastic", weights=args.weights)
         r.render(light=dataclasses.replace(scene.light, direction=tuple(unit_other)))  # compile
@@ -202,10 +202,11 @@ def main(argv=None) -> int:
             res, s = timed(r.render)          # the first after the change resets the history
             walls.append(s)
             if frame in (1, 4, 16, 64):
-                per_frame = float(np.median(walls))
+                # frame: the median frame so far; per change: all N frames since the change
+                # (the first rebuilds the light field)
                 record("raymarch/stochastic",
                        f"block {r.source.block}, {frame} frame{'s' * (frame > 1)}",
-                       res.layers, per_frame, frame * per_frame)
+                       res.layers, float(np.median(walls)), float(sum(walls)))
     elif args.weights:
         print(f"raymarch/network skipped: no weight file {args.weights}")
 
@@ -218,6 +219,7 @@ def main(argv=None) -> int:
     svg_path.write_text(svg_plot(rows, f"{Path(args.scene).name} {args.size}x{args.size}, "
                                        f"reference {args.ref_spp} spp"))
     print(f"\nwrote {csv_path} and {svg_path}")
+    print(machine(rt))                                   # the load after the run
     return 0
 
 

@@ -10,7 +10,9 @@ and 12; their mean is the reference and their difference its noise (subtracted f
 squared error: "noise-corrected"). The ray marcher runs with the default --ms network (which
 serves the sun light; the sky is the environment source of clvol/render/environment.py) for
 each K:N (sky directions : field resolution). Printed per case: image means, their relative
-difference, and RMSE x 100 raw and noise-corrected.
+difference, and rmse100: the metric of bench/neural_quality.py's tables (RMSE x 100 of
+tonemapped luminance, the reference's noise removed; ``neural_quality.scores``), with the
+score before noise removal beside it.
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ import time
 import numpy as np
 
 from _common import machine  # noqa: E402  (puts the checkout first on sys.path)
+from neural_quality import scores  # noqa: E402  (bench/ is on sys.path)
 
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
@@ -55,23 +58,21 @@ def main(argv=None) -> int:
     print(machine(rt))
     print(f"cloud {args.volume}^3, {args.size}^2, path tracer 2 x {args.spp} spp (seeds 11, 12)")
     print(f"{'case':14s} {'K:N':6s} {'mean rm':>8s} {'mean pt':>8s} {'rel':>7s} "
-          f"{'rmse x100':>9s} {'corrected':>9s} {'pt noise':>8s}")
+          f"{'rmse100':>8s} {'raw':>7s}")
     for name in args.cases:
         ds, alb, sun = CASES[name]
         sc = scene(args.volume, args.size, ds, alb, sun)
         r = Renderer(sc, "pathtrace", spp=args.spp)
         p1 = r.render(seed=11).layers["total"].astype(np.float64)
         p2 = r.render(seed=12).layers["total"].astype(np.float64)
-        pt, noise = 0.5 * (p1 + p2), ((p1 - p2) ** 2).mean() / 4
+        pt = 0.5 * (p1 + p2)
         for kn in args.env:
             k, n = (int(x) for x in kn.split(":"))
             a = Renderer(sc, env_directions=k, env_resolution=n).render().layers["total"]
-            a = a.astype(np.float64)
-            mse = ((a - pt) ** 2).mean()
+            s = scores(a.astype(np.float64), p1, p2, with_flip=False)
             print(f"{name:14s} {kn:6s} {a.mean():8.4f} {pt.mean():8.4f} "
-                  f"{a.mean() / pt.mean() - 1:+7.3f} {100 * np.sqrt(mse):9.3f} "
-                  f"{100 * np.sqrt(max(mse - noise, 0.0)):9.3f} {100 * np.sqrt(noise):8.3f}",
-                  flush=True)
+                  f"{a.mean() / pt.mean() - 1:+7.3f} {s['rmse100']:8.2f} "
+                  f"{s['rmse100_raw']:7.2f}", flush=True)
     print(machine(rt))
     return 0
 

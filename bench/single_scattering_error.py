@@ -13,10 +13,10 @@ light field, pixel-centre sampling) from what an F_ms representation leaves ther
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 
-from _common import ROOT, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
+from _common import machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
+from neural_quality import bench_scene, resolve_scenes, scores  # noqa: E402
 
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
@@ -30,21 +30,17 @@ def main(argv=None) -> int:
     ap.add_argument("--spp", type=int, default=512, help="per reference half (default 512)")
     ap.add_argument("--scenes", nargs="+", default=["cloud", "smoke", "backscatter"])
     args = ap.parse_args(argv)
-    spec = importlib.util.spec_from_file_location("neural_quality",
-                                                  ROOT / "bench" / "neural_quality.py")
-    nq = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(nq)
     print(machine(get_runtime()))
     print(f"{args.size}^2, path tracer --max-order 1 at 2 x {args.spp} spp (seeds {SEEDS})")
     print(f"{'scene':14s} {'rays/pixel':>10s} {'rmse100':>8s} {'mean':>6s}")
-    for name, path in nq.resolve_scenes(args.scenes).items():
-        sc = nq.bench_scene(path, args.size)
+    for name, path in resolve_scenes(args.scenes).items():
+        sc = bench_scene(path, args.size)
         grid = sc.volume.load()
         halves = [Renderer(sc, "pathtrace", grid=grid, spp=args.spp, seed=s, max_order=1)
                   .render().layers["total"] for s in SEEDS]
         for ss in (1, 3):
             img = Renderer(sc, "raymarch", grid=grid, ms="none", supersample=ss).render()
-            s = nq.scores(img.layers["total"], halves[0], halves[1])
+            s = scores(img.layers["total"], halves[0], halves[1])
             print(f"{name:14s} {ss * ss:10d} {s['rmse100']:8.2f} {s['mean']:6.3f}", flush=True)
     print(machine(get_runtime()))
     return 0
