@@ -1,16 +1,19 @@
 """Frames per second of `clvol view` in a real browser while orbiting.
 
     python bench/bench_viewer.py [examples/cloud.toml] [--seconds 8] [--size 256]
+                                 [--methods single network stochastic ...]
 
 Starts the viewer on 127.0.0.1 (a free port), opens it in headless Chromium (Debian's
 chromium + chromedriver, driven by Selenium), and for each method sends the next orbit step
 (2 degrees) as soon as a frame arrives, as a user dragging continuously would: a new camera
-every frame. Prints frames per second, the last frame's time and its split by stage.
+every frame. Prints frames per second, and the median over the orbit's frames of the frame
+time and of each stage (the render header's seconds), with the load.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -23,9 +26,14 @@ ORBIT_JS = """
 const seconds = arguments[0], done = arguments[arguments.length - 1];
 const start = performance.now(), n0 = window.clvol.framesReceived;
 let az = 0;
+const metas = [];
 const step = () => {
+  if (window.clvol.framesReceived > n0) metas.push(window.clvol.lastMeta);
   const t = performance.now() - start;
-  if (t > seconds * 1000) { done((window.clvol.framesReceived - n0) / (t / 1000)); return; }
+  if (t > seconds * 1000) {
+    done({fps: (window.clvol.framesReceived - n0) / (t / 1000), metas: metas});
+    return;
+  }
   const seen = window.clvol.framesReceived;
   az += 2;
   window.clvol.socket.send(JSON.stringify({type: 'state', state: {azimuth: az}}));
@@ -72,10 +80,14 @@ def main(argv=None) -> int:
             d.execute_script("window.clvol.socket.send(JSON.stringify({type: 'state', state: "
                              f"{{method: '{method}', resolution: {args.size}}}}}))")
             time.sleep(3.0)          # first frame of the method (builds, lattice) off the clock
-            fps = d.execute_async_script(ORBIT_JS, args.seconds)
-            meta = d.execute_script("return window.clvol.lastMeta")
-            stages = ", ".join(f"{k} {v:.1f}" for k, v in meta["stages_ms"].items() if v)
-            print(f"{method:>10}: {fps:6.2f} frames/s; last frame {meta['frame_ms']:.1f} ms "
+            got = d.execute_async_script(ORBIT_JS, args.seconds)
+            metas = got["metas"] or [d.execute_script("return window.clvol.lastMeta")]
+            names = sorted({k for m in metas for k in m["stages_ms"]})
+            med = {k: statistics.median(m["stages_ms"].get(k, 0.0) for m in metas)
+                   for k in names}
+            stages = ", ".join(f"{k} {v:.1f}" for k, v in med.items() if v)
+            print(f"{method:>10}: {got['fps']:6.2f} frames/s; median frame "
+                  f"{statistics.median(m['frame_ms'] for m in metas):.1f} ms over {len(metas)} "
                   f"({stages} ms); load {os.getloadavg()[0]:.2f}")
     finally:
         d.quit()
