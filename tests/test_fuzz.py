@@ -172,11 +172,15 @@ def view_state():
 
 
 FIELDS = ["azimuth", "elevation", "distance", "sun_azimuth", "sun_elevation", "albedo", "g",
-          "density_scale", "resolution", "preset", "method", "exposure", "nope"]
+          "density_scale", "resolution", "preset", "method", "exposure", "sky", "nope"]
+
+
+# besides arbitrary values, the strings the viewer gives meaning to (exposure "scene")
+VIEWER_VALUES = st.one_of(VALUES, st.sampled_from(["scene", "image", "network", "stochastic"]))
 
 
 @FUZZ
-@given(st.one_of(VALUES, st.dictionaries(st.sampled_from(FIELDS), VALUES, max_size=5)))
+@given(st.one_of(VALUES, st.dictionaries(st.sampled_from(FIELDS), VIEWER_VALUES, max_size=5)))
 def test_viewer_state_messages_apply_or_fail_in_one_line(view_state, changes):
     from clvol.viewer.state import ViewerMessageError
     try:

@@ -129,8 +129,9 @@ CASES = {
 def test_fused_matches_composed_twins(case):
     light, medium, alb, channels, albedo_input = CASES[case]
     grid, pyr, gt = scene(light, medium.density_scale)
-    w = network(pyr.n_levels, seed=len(case), albedo_input=albedo_input)
-    pts, om = queries(grid, pyr, light, seed=len(case))
+    seed = list(CASES).index(case) + 5          # each case its own draws
+    w = network(pyr.n_levels, seed=seed, albedo_input=albedo_input)
+    pts, om = queries(grid, pyr, light, seed=seed)
     lobes = tuple((l.g, l.weight) for l in medium.phase.lobes)
     lw, lb = w.level_weights, w.level_bias
     got = gather_mlp(MlpKernel(w), pyr, gt, pts, om, gt.light_dir, medium, alb,
@@ -163,8 +164,23 @@ def test_fused_matches_composed_twins(case):
         assert np.max(np.abs(swapped - want)) > 10 * np.median(bound)
 
 
+def random_queries(seed: int, n: int, extent: float):
+    """n points uniform in [-extent, extent]^3 and unit directions, float32."""
+    rs = np.random.default_rng(seed)
+    return (rs.uniform(-extent, extent, (n, 3)).astype(np.float32),
+            unit(rs.normal(size=(n, 3))).astype(np.float32))
+
+
+def unfused(net, w, pyr, gt, pts, om, medium, albedo, channels):
+    """The unfused pair on the device: gather (render, buffers) -> mlp_forward (decode)."""
+    g = gather(pyr, gt, pts, om, gt.light_dir, medium, albedo, mode="render", as_buffers=True,
+               level_weights=w.level_weights, bias=w.level_bias)
+    return net.forward(g["features"], g["config"], channel_albedo=channels, decode=True,
+                       n=g["n"])
+
+
 @pytest.mark.parametrize("channels", [None, (0.0, 0.7, 0.9), (0.85, 0.85, 0.6)])
-def test_fused_equals_unfused(channels):
+def test_fused_equals_unfused(channels, monkeypatch):
     """The fused kernel vs gather (render, device buffers) -> mlp_forward(decode) on the same
     device: 300 queries (19 work-items, a tail of 12), both render load paths, sorted and
     unsorted processing; albedo 0 and repeated channel albedos (the kernel's shortcuts)."""
@@ -173,23 +189,17 @@ def test_fused_equals_unfused(channels):
     grid, pyr, gt = scene(light, medium.density_scale)
     w = network(pyr.n_levels, seed=7)
     net = MlpKernel(w)
-    rs = np.random.default_rng(4)
-    pts = rs.uniform(-0.7, 0.7, (300, 3)).astype(np.float32)
-    om = unit(rs.normal(size=(300, 3))).astype(np.float32)
+    pts, om = random_queries(4, 300, 0.7)
     kw = dict(level_weights=w.level_weights, bias=w.level_bias)
-    g = gather(pyr, gt, pts, om, gt.light_dir, medium, 0.85, mode="render", as_buffers=True, **kw)
-    want = net.forward(g["features"], g["config"], channel_albedo=channels, decode=True, n=g["n"])
+    want = unfused(net, w, pyr, gt, pts, om, medium, 0.85, channels)
     assert np.ptp(want) > 0.1
     for shuffle in (True, False):
-        kgather.USE_SHUFFLE = shuffle
-        try:
-            for sort in (True, False):
-                got = gather_mlp(net, pyr, gt, pts, om, gt.light_dir, medium, 0.85,
-                                 channel_albedo=channels, sort=sort, **kw)
-                assert got.shape == want.shape and np.all(np.isfinite(got))
-                np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max() + 1e-30)
-        finally:
-            kgather.USE_SHUFFLE = True
+        monkeypatch.setattr(kgather, "USE_SHUFFLE", shuffle)
+        for sort in (True, False):
+            got = gather_mlp(net, pyr, gt, pts, om, gt.light_dir, medium, 0.85,
+                             channel_albedo=channels, sort=sort, **kw)
+            assert got.shape == want.shape and np.all(np.isfinite(got))
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max() + 1e-30)
     if channels is not None and channels[0] == 0:
         assert np.all(got[:, 0] == 0)
 
@@ -222,13 +232,10 @@ def test_tiny():
     gt = graded_transmittance(pyr, medium.density_scale, unit(light))
     w = network(pyr.n_levels, seed=3)
     net = MlpKernel(w)
-    rs = np.random.default_rng(1)
-    pts = rs.uniform(-0.4, 0.4, (3, 3)).astype(np.float32)
-    om = unit(rs.normal(size=(3, 3))).astype(np.float32)
+    pts, om = random_queries(1, 3, 0.4)
     kw = dict(level_weights=w.level_weights, bias=w.level_bias)
-    gb = gather(pyr, gt, pts, om, gt.light_dir, medium, 0.5, mode="render", as_buffers=True, **kw)
     for ch in (None, (0.5, 0.9, 0.7)):
-        want = net.forward(gb["features"], gb["config"], channel_albedo=ch, decode=True, n=3)
+        want = unfused(net, w, pyr, gt, pts, om, medium, 0.5, ch)
         got = gather_mlp(net, pyr, gt, pts, om, gt.light_dir, medium, 0.5, channel_albedo=ch, **kw)
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * np.abs(want).max() + 1e-30)
         assert np.abs(want).max() > 0

@@ -144,7 +144,7 @@ def test_unused_options_refused_in_python():
     sc = small_scene()
     with pytest.raises(ClvolError, match=r"option spp \(--spp\) is not used by method 'raymarch'"):
         clvol.Renderer(sc, "raymarch", ms="none", spp=4)
-    with pytest.raises(ClvolError, match=r"weights \(--weights\) is used only with --ms network or view"):
+    with pytest.raises(ClvolError, match=r"weights \(--weights\) is used only with --ms network or view or stochastic "):
         clvol.Renderer(sc, ms="none", weights="x.npz")
     with pytest.raises(ClvolError, match="unknown render option 'no_such'"):
         clvol.Renderer(sc, no_such=1)

@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from clvol.kernels.viewdepth import block_grid
 from clvol.kernels.viewdepth import view_depths as kernel_depths
 from reference.viewdepth import free_flight_depths as twin_free_flight
 from reference.viewdepth import view_depths as twin_depths
@@ -42,7 +43,7 @@ def _case(name):
     if name.startswith("jitter"):                           # the stochastic source's draws
         if name == "jitter_one_knot":
             block, rays, k = 3, 1, 1
-        bx, by = -(-width // block), -(-height // block)
+        bx, by = block_grid(width, height, block)
         rng = np.random.default_rng(11)
         # x, y and z of a block all differ, so a swap of two of them shows; z reaches both
         # ends (0 is clamped to the smallest level, values near 1 take the last level)
@@ -80,7 +81,7 @@ def test_midpoint_jitter_is_the_deterministic_placement():
     """Jitter (1/2, 1/2, 1/2) everywhere puts the rays and levels where the deterministic
     source does, bit for bit (the same float32 arithmetic on the same values)."""
     kw = _case("odd")
-    bx, by = -(-kw["width"] // kw["block"]), -(-kw["height"] // kw["block"])
+    bx, by = block_grid(kw["width"], kw["height"], kw["block"])
     plain_d, plain_w = kernel_depths(**kw)
     mid_d, mid_w = kernel_depths(**dict(kw, jitter=np.full((by, bx, 3), 0.5, np.float32)))
     np.testing.assert_array_equal(mid_d, plain_d)
@@ -92,7 +93,7 @@ def test_midpoint_jitter_is_the_deterministic_placement():
 def test_bad_jitter_is_refused():
     from clvol.errors import ClvolError
     kw = _case("odd")
-    bx, by = -(-kw["width"] // kw["block"]), -(-kw["height"] // kw["block"])
+    bx, by = block_grid(kw["width"], kw["height"], kw["block"])
     for bad in (np.full((by, bx, 3), 1.0, np.float32), np.zeros((bx, by, 3), np.float32)):
         with pytest.raises(ClvolError, match="jitter"):
             kernel_depths(**dict(kw, jitter=bad))
@@ -134,7 +135,7 @@ def test_free_flight_matches_twin(name):
     base = {"jitter_one_knot": "jitter_one_knot", "inside_free": "inside",
             "opaque_free": "opaque"}[name]
     kw = _case(base)
-    bx, by = -(-kw["width"] // kw["block"]), -(-kw["height"] // kw["block"])
+    bx, by = block_grid(kw["width"], kw["height"], kw["block"])
     kw.update(rays=1, k=1)
     if kw["jitter"] is None or kw["jitter"].shape != (by, bx, 3):
         rng = np.random.default_rng(5)
