@@ -63,6 +63,19 @@ def test_furnace_with_a_uniform_map_and_the_map_background(tmp_path):
     assert "environment map along each camera ray" in r.header["simulated"]
 
 
+def test_a_map_scaled_to_zero_scatters_nothing_and_costs_nothing(tmp_path):
+    """A black sky, constant or a map scaled to 0 (the viewer's sky slider at 0), is not
+    simulated: no transmittance sweeps, no field, and the header says it is skipped."""
+    write_exr(tmp_path / "u.exr", {"total": np.ones((8, 16, 3), np.float32)})
+    for light in ({"environment_map": str(tmp_path / "u.exr"), "environment_scale": 0.0},
+                  {"environment": [0.0, 0.0, 0.0]}):
+        r = clvol.Renderer(_scene(light=light), ms="none")
+        res = r.render()
+        assert r.counts["env_transmittance"] == 0 and r.counts["env_field"] == 0
+        assert "environment" in res.header["skipped"]
+        assert res.layers["total"].max() == 0.0
+
+
 def test_map_background_is_the_map_along_each_camera_ray(tmp_path):
     rs = np.random.default_rng(3)
     m = (0.1 + rs.random((8, 16, 3))).astype(np.float32)

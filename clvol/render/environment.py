@@ -60,6 +60,7 @@ import numpy as np
 
 from ..envmap import row_solid_angles, texel_directions
 from ..errors import ClvolError
+from .network import fibonacci_directions
 
 DEFAULT_ENV_DIRECTIONS = 64
 DEFAULT_ENV_RESOLUTION = 32
@@ -72,11 +73,7 @@ def sky_directions(k: int) -> np.ndarray:
     """(k, 3) float64 unit directions of a Fibonacci sphere (near-equal cells)."""
     if not (isinstance(k, (int, np.integer)) and 1 <= k <= 1024):
         raise ClvolError(f"environment directions = {k!r}: must be an integer from 1 to 1024")
-    i = np.arange(k) + 0.5
-    y = 1.0 - 2.0 * i / k
-    r = np.sqrt(np.maximum(0.0, 1.0 - y * y))
-    phi = math.pi * (3.0 - math.sqrt(5.0)) * i
-    return np.stack([r * np.cos(phi), y, r * np.sin(phi)], axis=-1)
+    return fibonacci_directions(k)[:, [0, 2, 1]]      # the same lattice about +y (up)
 
 
 def has_environment(light) -> bool:
@@ -98,9 +95,6 @@ class Sky:
         """(C,) sum_i E_i."""
         return self.irradiance.sum(axis=0)
 
-    @property
-    def dark(self) -> bool:
-        return not (np.any(self.total > 0) and np.any(np.asarray(self.colour) > 0))
 
 
 def sky_key(light, k: int):

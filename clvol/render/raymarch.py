@@ -90,7 +90,8 @@ class Plan:
         lobes = [(lo.g, lo.weight) for lo in phase.lobes]
         from .environment import has_environment
         env_on = has_environment(light)
-        sky_dark = light.environment is not None and not any(v > 0 for v in light.environment)
+        # a black sky (constant, or a map scaled to 0 or black) scatters nothing
+        sky_dark = env_on and not np.any(light.sky_mean() > 0)
         env_scatter = env_on and ((any(a > 0 for a in medium.albedo) and not sky_dark)
                                   or not shortcuts)
         if lit:
@@ -290,7 +291,7 @@ class RayMarcher:
         if self._env_T.ensure(self.medium.density_scale):
             self.count("env_transmittance")
         alb = tuple(float(a) for a in self.medium.albedo)
-        grey = alb[0] == alb[1] == alb[2]
+        grey = self.medium.is_grey
         skey = (E.sky_key(light, self.env_directions), grey)
         if skey != self._env_sky_key:
             self._env_sky = E.make_sky(light, self.env_directions, grey)
