@@ -214,3 +214,13 @@ def build_pyramid(grid: Grid, base_resolution: int = 256, runtime: Runtime | Non
     data = rt.from_device(buf, data.shape)
     rt.finish()
     return Pyramid(base, n_levels(base), cube_min, size, level_offsets(base), data, buf, rt)
+def cached_pyramid(cache: dict, grid, base_resolution: int, runtime=None):
+    """build_pyramid, kept in ``cache`` (a volume's device cache, DeviceMedium.cache) under
+    ("pyramid", base): the light field and the environment's sweeps at one resolution
+    share one pyramid."""
+    key = ("pyramid", int(base_resolution))
+    if key not in cache:
+        cache[key] = build_pyramid(grid, base_resolution, runtime)
+    return cache[key]
+
+

@@ -153,11 +153,8 @@ class EnvTransmittance:
 
     @property
     def pyramid(self):
-        key = ("env_pyramid", self.n)
-        if key not in self.cache:
-            from ..kernels.pyramid import build_pyramid
-            self.cache[key] = build_pyramid(self.grid, self.n, self.rt)
-        return self.cache[key]
+        from ..kernels.pyramid import cached_pyramid
+        return cached_pyramid(self.cache, self.grid, self.n, self.rt)
 
     def ensure(self, density_scale: float) -> bool:
         """Build the fields unless they are those of ``density_scale``; True when built."""

@@ -184,11 +184,8 @@ class RayMarcher:
     @property
     def pyramid(self):
         """Density resampled to the light field's cube (built once, on first use)."""
-        key = ("light_pyramid", self.light_resolution)
-        if key not in self.dm.cache:
-            from ..kernels.pyramid import build_pyramid
-            self.dm.cache[key] = build_pyramid(self.grid, self.light_resolution, self.rt)
-        return self.dm.cache[key]
+        from ..kernels.pyramid import cached_pyramid
+        return cached_pyramid(self.dm.cache, self.grid, self.light_resolution, self.rt)
 
     def set_medium(self, medium) -> None:
         self.medium = medium
