@@ -26,6 +26,8 @@ Not part of CI (it runs the tests once per bug: a few minutes).
 from __future__ import annotations
 
 import argparse
+import os
+import platform
 import re
 import shutil
 import subprocess
@@ -157,11 +159,7 @@ PATCHES = {"mirrored-frame": _mirrored_frame, "lattice-corners": _lattice_corner
            "c-nx-ny": _c_nx_ny, "c-octave-ab": _c_octave_ab,
            "backward-limit": _backward_limit, "backward-albedo": _backward_albedo,
            "coarse-level": _coarse_level_plus_one}
-# test_c_render_matches_python's network cases are left out: on a tree where the Python render
-# fuses gather + MLP and the bundle does not list the fused program, they fail unpatched.
-C_TESTS = ("tests/test_c_host.py::test_c_render_matches_python[cloud.toml-overrides3-True-1-none]",
-           "tests/test_c_host.py::test_c_render_matches_python[smoke.toml-overrides2-True-1-none]",
-           "tests/test_c_host.py::test_c_render_matches_python[smoke.toml-overrides4-True-1-wrenninge]",
+C_TESTS = ("tests/test_c_host.py::test_c_render_matches_python",
            "tests/test_c_host.py::test_c_render_matches_python_on_a_non_cubic_volume_and_image",
            "tests/test_c_host.py::test_c_octaves_with_distinct_parameters_match_python")
 FALLBACK_TESTS = ("tests/test_fallback_rule.py",
@@ -232,6 +230,14 @@ def run_tests(root: Path, tests: list[str]) -> tuple[dict, dict, float, dict]:
     return results, why, seconds, times
 
 
+def _machine() -> str:
+    """The machine and its load (bench/_common.py's line, without importing clvol here)."""
+    load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    return (f"{platform.processor() or platform.machine()}; {os.cpu_count()} logical cores; "
+            f"Python {platform.python_version()}; load average: {load}; "
+            f"{time.strftime('%Y-%m-%d %H:%M')}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     names = [b.name for b in BUGS]
@@ -245,6 +251,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     bugs = [b for b in BUGS if args.bugs is None or b.name in args.bugs]
+    print(_machine())
 
     def tests_of(bug):
         if args.tests is not None:
@@ -296,6 +303,7 @@ def main(argv=None) -> int:
             lines.append(f"| `{bug.name}` | **none** (0 of {n} fail) | - | {seconds:.1f} |")
     print()
     print("\n".join(lines))
+    print(_machine())                                   # the load after the runs
     if args.report:
         Path(args.report).write_text("\n".join(lines) + "\n")
     ok = True
