@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from _common import cpu_model, load_average  # bench/ is on sys.path
+from _common import load_average, machine  # bench/ is on sys.path
 from clvol.kernels.gather import gather
 from clvol.render import network as rnet
 from clvol.runtime import get_runtime
@@ -50,8 +50,7 @@ def main():
     args = ap.parse_args()
     rt = get_runtime()
     cores = rt.device.max_compute_units
-    print(f"machine: {cpu_model()}, {os.cpu_count()} logical cores; device {rt.entry.label} "
-          f"({rt.entry.platform.version.strip()}), {cores} compute units")
+    print(f"{machine(rt)}; {cores} compute units")
     print(f"load average before: {load_average()} (other engineers' jobs share the cores; "
           f"medians over {args.repeats} alternating repeats)")
     grid = generate("cloud", seed=1, resolution=128)

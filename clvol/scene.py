@@ -16,7 +16,7 @@ from __future__ import annotations
 from .scenefile import Scene, dumps_scene, load_scene, scene_from_dict
 from .scenemodel import (HG_G_LIMIT, MAX_IMAGE_SIZE, MAX_VDB_RESOLUTION,
                          MHG_MAX_LOBES, MHG_WEIGHT_TOL, PRESETS, VOLUME_SUFFIXES, Camera, Light,
-                         Lobe, Medium, Phase, VolumeSpec, _device_buffer_limit)
+                         Lobe, Medium, Phase, VolumeSpec)
 
 __all__ = ["Scene", "load_scene", "scene_from_dict", "dumps_scene", "VolumeSpec", "Medium",
            "Phase", "Lobe", "Light", "Camera", "PRESETS", "HG_G_LIMIT", "MHG_MAX_LOBES",

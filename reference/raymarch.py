@@ -179,6 +179,7 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         env = np.asarray(env)
         env_c = env.shape[0] // 2
         env_cell = float(env_size) / env.shape[1]
+        emin = np.asarray(env_min, f64)
         ES = np.zeros((n_rays, env_c))
         EM = np.zeros((n_rays, env_c))
     hit = t0 <= t1
@@ -228,8 +229,8 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
                 M += w[:, None] * view_interp(vd, vv, ts)
         if env is not None:
             for ch in range(env_c):
-                ES[:, ch] += w * _lookup(env[ch], np.asarray(env_min, f64), env_cell, ps)
-                EM[:, ch] += w * _lookup(env[env_c + ch], np.asarray(env_min, f64), env_cell, ps)
+                ES[:, ch] += w * _lookup(env[ch], emin, env_cell, ps)
+                EM[:, ch] += w * _lookup(env[env_c + ch], emin, env_cell, ps)
         A += w
         D += w * ts
         T = T * np.exp(-tau)

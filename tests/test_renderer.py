@@ -323,7 +323,7 @@ def test_per_frame_seed_is_path_tracer_only_and_reproducible():
     assert np.array_equal(a, pt.render(seed=5).total) and not np.array_equal(a, b)
     # The seed option of the constructor is the default of render().
     assert np.array_equal(clvol.Renderer(scene, method="pathtrace", spp=2, seed=5).render().total, a)
-    with pytest.raises(ClvolError, match="deterministic"):
+    with pytest.raises(ClvolError, match="takes its seed as an option"):
         clvol.Renderer(scene).render(seed=1)
     with pytest.raises(ClvolError, match="seed"):
         pt.render(seed=-1)

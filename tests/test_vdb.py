@@ -505,7 +505,7 @@ def test_scene_load_checks_the_device_buffer_limit(vdbdir, tmp_path):
     """VolumeSpec.load refuses a grid above max_bytes, and by default takes the limit from
     the OpenCL device (CL_DEVICE_MAX_MEM_ALLOC_SIZE)."""
     from clvol.runtime import get_runtime
-    from clvol.scene import _device_buffer_limit
+    from clvol.scenemodel import _device_buffer_limit
     assert _device_buffer_limit() == int(get_runtime().device.max_mem_alloc_size)
     grid = read_vdb(vdbdir / "sparse.vdb")
     s = load_scene(_write_scene(tmp_path / "s.toml", f'file = "{vdbdir / "sparse.vdb"}"', grid))

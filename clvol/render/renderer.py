@@ -282,7 +282,9 @@ class Renderer:
         _check_medium(medium)
         if seed is not None:
             if self.method != "pathtrace":
-                raise ClvolError(f"seed: the {self.method} method is deterministic and takes no seed")
+                raise ClvolError(f"seed: render(seed=) chooses the path tracer's pass; the "
+                                 f"{self.method} method takes its seed as an option "
+                                 f"(Renderer(..., seed=N), read by --ms stochastic)")
             if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
                 raise ClvolError(f"seed: {seed!r} must be an integer in [0, 2^32)")
         if self.method == "raymarch":
