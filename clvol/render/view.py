@@ -244,6 +244,7 @@ class StochasticViewMs(ViewMs):
         self.samples, self.seed = int(samples), int(seed)
         self.draws = 0              # draws since construction: the RNG stream's position
         self.history = None
+        self.refining = False       # whether the next frame of this view draws more
 
     @classmethod
     def from_options(cls, o: dict, runtime=None) -> "StochasticViewMs":
@@ -259,7 +260,7 @@ class StochasticViewMs(ViewMs):
                 f"{n} accumulated; weights {Path(str(self.weights_path)).name})")
 
     def skip(self) -> None:
-        self.info = dict(self.info or {}, refining=False)
+        self.refining = False
 
     def _draw(self, frame, rng):
         """One free-flight sample per block: (points (n, 3), dirs (n, 3), depths (n,),
@@ -352,7 +353,7 @@ class StochasticViewMs(ViewMs):
                                           not np.array_equal(np.concatenate(h.camera.basis()),
                                                              np.concatenate(cam.basis())))
         if not moved and h.still >= STILL_SAMPLES:
-            self.info = dict(self.info or {}, refining=False)
+            self.refining = False
             return                                       # converged: nothing to draw
         builds = self.net.graded_builds
         with Stopwatch() as sw:
@@ -381,7 +382,8 @@ class StochasticViewMs(ViewMs):
         h.camera = cam
         h.still += self.samples
         info.update(depths=t_depths, reproject=t_reproject, blocks=int((h.count > 0).sum()),
-                    samples=int(h.count.max()), refining=h.still < STILL_SAMPLES)
+                    samples=int(h.count.max()))
+        self.refining = h.still < STILL_SAMPLES
         self.info = info
         self.table = frame.runtime.upload(h.table())
         if self.net.graded_builds != builds:
@@ -407,6 +409,6 @@ class StochasticViewMs(ViewMs):
         h.update({"raymarch.view_samples": self.samples, "raymarch.seed": self.seed,
                   "raymarch.view_accumulated": info.get("samples", 0),
                   # whether another frame of this view draws more (the viewer's refine rule)
-                  "raymarch.view_refining": bool(info.get("refining", False)),
+                  "raymarch.view_refining": self.refining,
                   "seconds.view_reproject": round(info.get("reproject", 0.0), 4)})
         return h
