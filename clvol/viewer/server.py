@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ClvolError
-from .state import METHODS, ViewerMessageError, ViewState
+from .state import METHODS, ViewerMessageError, ViewState, sky_maps
 
 STATIC_DIR = Path(__file__).with_name("static")
 # Path tracer passes: samples per pixel per pass; small so the first image comes quickly.
@@ -75,6 +75,7 @@ class FrameMaker:
         self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="clvol-render")
         self.lock = threading.Lock()
         self.frames_rendered = 0
+        self.sky_maps = sky_maps(scene)      # the map menu: file name -> path
 
     def renderer(self, method: str):
         if method not in self.renderers:
@@ -99,7 +100,7 @@ class FrameMaker:
         with self.lock:
             t0 = time.perf_counter()
             camera = state.camera(self.scene.camera)
-            light = state.light(self.scene.light, self.scene.camera)
+            light = state.light(self.scene.light, self.scene.camera, self.sky_maps)
             medium = state.medium(self.scene.medium)
             r = self.renderer(state.method)
             accumulate = (state.method == "pathtrace" and previous is not None
@@ -180,7 +181,7 @@ class Connection:
                 raise ViewerMessageError('expected an object with a "type"')
             kind = msg["type"]
             if kind == "state":
-                self.state = self.state.update(msg.get("state"))
+                self.state = self.state.update(msg.get("state"), self.maker.sky_maps)
                 self.wake.set()
             elif kind == "save":
                 await self.save()
@@ -228,7 +229,8 @@ class Connection:
             self.last = frame
             self.frame_id += 1
             # "from the light" uses the frame's own light (the client's sun and sky)
-            light = frame.state.light(self.maker.scene.light, self.maker.scene.camera)
+            light = frame.state.light(self.maker.scene.light, self.maker.scene.camera,
+                                      self.maker.sky_maps)
             data = await loop.run_in_executor(None, encode_frame, frame, self.frame_id,
                                               state.exposure, light)
             try:
@@ -268,7 +270,7 @@ def make_app(scene, save_dir: Path | None = None):
         conn = Connection(ws, maker, initial, save_dir)
         app["connections"].add(conn)
         await conn.send_json({"type": "hello", "state": initial.to_json(),
-                              "methods": list(METHODS),
+                              "methods": list(METHODS), "sky_maps": list(maker.sky_maps),
                               "scene": str(scene.path) if scene.path else None})
         task = asyncio.create_task(conn.render_loop())
         try:
