@@ -1,6 +1,7 @@
 /* libclvol internals shared by the sources in capi/src/ (not installed).
  *
- * Errors: every public entry point sets up a `guard` (GUARD_BEGIN) before any work. Deep code
+ * Errors: every public entry point sets up a `guard` (guard_init, then setjmp on its jump
+ * buffer; renderer.c's ENTER) before any work. Deep code
  * reports a problem with fail(status, ...), which writes the one-line message into the
  * guard's buffer and longjmps back to the entry point, which returns the status. So the
  * 1,500 lines of host code read straight through (no status plumbing on every call), and
@@ -20,6 +21,7 @@
 /* The static library's internal names carry a prefix, so they cannot clash with a program's
  * own (a `fail` or `buffer` of the embedding engine). */
 #define clvol_guard clvol__clvol_guard
+#define thread_error clvol__thread_error
 #define guard_init clvol__guard_init
 #define guard_end clvol__guard_end
 #define fail clvol__fail
@@ -79,14 +81,12 @@ typedef struct guard {
 } guard;
 
 extern _Thread_local guard *clvol_guard;
+/* clvol_last_error(NULL): the message of the last failed clvol_create of this thread (and of
+ * the calls that have no renderer to hold one: r = NULL, clvol_pick_device). */
+extern _Thread_local char thread_error[1024];
 
 void guard_init(guard *g, char *msg, size_t msg_size);
 clvol_status guard_end(guard *g);      /* frees the call's scratch; returns g->status */
-/* The entry point's first statement: a fail() below it returns here with its status. */
-#define GUARD_BEGIN(g, msg, size)                                                           \
-    guard_init(&(g), (msg), (size));                                                        \
-    if (setjmp((g).jump)) return guard_end(&(g))
-
 #if defined(__GNUC__)
 #define CLVOL_PRINTF(a, b) __attribute__((format(printf, a, b)))
 #else

@@ -857,8 +857,6 @@ static void pack_into(clvol_host *h, cl_mem rgba) {
 
 /* -------------------------------------------------------------------------- the API */
 
-/* The message of the last failed clvol_create of this thread (and of calls given r = NULL). */
-static _Thread_local char thread_error[1024];
 
 /* A failure the renderer cannot recover from (its device state may be half made). */
 static clvol_status end_call(clvol_host *h, guard *g) {

@@ -14,6 +14,7 @@
 /* ------------------------------------------------------------------------- errors */
 
 _Thread_local guard *clvol_guard;
+_Thread_local char thread_error[1024];
 
 void guard_init(guard *g, char *msg, size_t msg_size) {
     memset(g, 0, sizeof *g);
@@ -451,15 +452,16 @@ static cl_device_id find_device(const char *spec) {
         }
     }
     if (!best || best_rank == 99)
-        fail(spec ? CLVOL_ERROR_ARGUMENT : CLVOL_ERROR_OPENCL, "no OpenCL device matches %s",
+        fail(spec ? CLVOL_ERROR_ARGUMENT : CLVOL_ERROR_OPENCL, "no OpenCL device matches %s "
+             "(\"gpu\", \"cpu\" or platform:device such as 0:0)",
              spec ? spec : "(any)");
     return best;
 }
 
 clvol_status clvol_pick_device(const char *spec, cl_device_id *out) {
-    char msg[256];
     guard g;
-    GUARD_BEGIN(g, msg, sizeof msg);
+    guard_init(&g, thread_error, sizeof thread_error);   /* no renderer holds this message */
+    if (setjmp(g.jump)) return guard_end(&g);
     if (!out) fail(CLVOL_ERROR_ARGUMENT, "clvol_pick_device: out is NULL");
     *out = find_device(spec);
     return guard_end(&g);
