@@ -110,9 +110,12 @@ static int run_script(const char *bundle, const char *script, int external) {
             size_t count = (size_t)n[0] * n[1] * n[2];
             float *d = malloc(4 * count);
             FILE *df = fopen(path, "rb");
-            if (!d || !df || fread(d, 4, count, df) != count) {
-                printf("cannot read %s\n", path);
+            if (!d || !df || fread(d, 4, count, df) != count || fgetc(df) != EOF) {
+                printf("cannot read %s: %zu float32 expected\n", path, count);
+                if (df) fclose(df);
+                free(d);
                 bad = 1;
+                break;
             } else {
                 st = clvol_set_density(r, d, n[0], n[1], n[2]);
             }
