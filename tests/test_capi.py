@@ -375,3 +375,25 @@ def test_sanitizers_clean_over_the_c_program(capi, bundle, script, tmp_path):
         assert r.returncode == 0, report[-4000:]
         for marker in ("AddressSanitizer", "LeakSanitizer", "runtime error"):
             assert marker not in report, report[-4000:]
+
+
+def test_the_docs_example_compiles_and_runs(capi, bundle, tmp_path):
+    """The ~30-line example of docs/embedding.md, as printed there, against the built library."""
+    import re
+    page = (ROOT / "docs" / "embedding.md").read_text()
+    blocks = [b for b in re.findall(r"```c\n(.*?)```", page, re.S) if "/* example.c" in b]
+    assert len(blocks) == 1
+    assert len(blocks[0].splitlines()) <= 32
+    (tmp_path / "example.c").write_text(blocks[0])
+    cc = shutil.which(os.environ.get("CC", "cc"))
+    r = subprocess.run([cc, "-std=c11", "-Wall", "-Wextra", "-Werror", "-o",
+                        str(tmp_path / "example"), str(tmp_path / "example.c"),
+                        f"-I{capi / 'include'}", str(capi / "libclvol.a"), "-lOpenCL", "-lm"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([str(tmp_path / "example"), str(bundle)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([str(tmp_path / "example"), str(tmp_path / "none")], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 1 and "none/manifest.txt" in r.stderr
