@@ -171,6 +171,7 @@ struct clvol_renderer {
     double step_voxels, step;   /* march step: in voxels (the option) and world units */
     int lit, network, grey, channels, light_res, light_tau, block, skip_empty;
     cl_mem d_density, d_majorant, d_light_pyr, d_light, d_dummy;
+    cl_mem d_light_layout[3], d_graded_layout[3];   /* per sweep axis, made on first use */
     int mx, my, mz;
     /* medium (M) */
     double albedo[3], density_scale;

@@ -157,15 +157,17 @@ static long layout_size(const clvol_host *h, long n) {
 }
 
 /* Padded per-axis copy of levels 0..n_levels-1 of `pyr` (clvol/kernels/transmittance.py
- * sweep_layout); returns the buffer, offsets in s_off. */
+ * sweep_layout): made once per volume and sweep axis, kept in *cached (as the Python host
+ * caches it on its pyramid; the volume stage releases it); offsets in s_off. */
 static cl_mem sweep_layout(clvol_host *h, cl_mem pyr, const long *loff, int base, int n_levels,
-                           int axis, long *s_off) {
+                           int axis, long *s_off, cl_mem *cached) {
     long total = 0;
     for (int l = 0; l < n_levels; ++l) {
         s_off[l] = total;
         total += layout_size(h, base >> l);
     }
-    cl_mem buf = buffer(h, 4 * (size_t)(total + h->sweep_slack), NULL);
+    if (*cached) return *cached;
+    cl_mem buf = *cached = buffer(h, 4 * (size_t)(total + h->sweep_slack), NULL);
     for (int l = 0; l < n_levels; ++l) {
         set_args(h->k_layout, "miiimi", pyr, (int)loff[l], base >> l, axis, buf, (int)s_off[l]);
         launch(h, h->k_layout, padded((size_t)layout_size(h, base >> l), (size_t)h->pad), 0);
@@ -588,6 +590,10 @@ static void volume_stage(clvol_host *h) {
     size_t count = (size_t)h->nx * h->ny * h->nz;
     cl_mem *old[] = {&h->d_density, &h->d_majorant, &h->d_light_pyr, &h->d_light};
     for (size_t i = 0; i < sizeof old / sizeof old[0]; ++i) release_tracked(h, old[i]);
+    for (int a = 0; a < 3; ++a) {   /* the sweep layouts are copies of the old density */
+        release_tracked(h, &h->d_light_layout[a]);
+        release_tracked(h, &h->d_graded_layout[a]);
+    }
     h->d_density = buffer(h, 4 * count, h->density);
     /* majorant grid (clvol/kernels/majorant.py): 3-D launch, first dimension padded */
     h->mx = (h->nx + h->block - 1) / h->block;
@@ -630,22 +636,23 @@ static void volume_stage(clvol_host *h) {
 static void light_stage(clvol_host *h) {
     double t0 = now_seconds();
     const double *l = h->light_dir;
-    int mark = h->n_mems;
     sweep_geom g = sweep_geometry(l);
-    long s_off[MAX_LEVELS];
+    long s_off[MAX_LEVELS], gs_off[MAX_LEVELS];
     long zero = 0;
-    /* light field: lambda = 1 on the light cube's level 0 */
     int n = h->light_res;
-    cl_mem lay = sweep_layout(h, h->d_light_pyr, &zero, n, 1, g.a, s_off);
+    cl_mem lay = sweep_layout(h, h->d_light_pyr, &zero, n, 1, g.a, s_off, &h->d_light_layout[g.a]);
+    cl_mem glay = h->network ? sweep_layout(h, h->d_pyr, h->loff, h->base, h->L, g.a, gs_off,
+                                            &h->d_graded_layout[g.a]) : NULL;
+    int mark = h->n_mems;   /* the sweeps' scratch buffers, released at the end */
+    /* light field: lambda = 1 on the light cube's level 0 */
     sweep_level(h, lay, s_off[0], n, h->density_scale * (h->cube_size / n), l, h->light_tau,
                 h->d_light, 0);
     if (h->network) {
         /* graded transmittance: every level l with lambda^(l+1) */
-        cl_mem glay = sweep_layout(h, h->d_pyr, h->loff, h->base, h->L, g.a, s_off);
         for (int lv = 0; lv < h->L; ++lv) {
             int nl = h->base >> lv;
             double scale = pow(h->lam, lv + 1) * h->density_scale * (h->cube_size / nl);
-            sweep_level(h, glay, s_off[lv], nl, scale, l, 0, h->d_graded, h->loff[lv]);
+            sweep_level(h, glay, gs_off[lv], nl, scale, l, 0, h->d_graded, h->loff[lv]);
         }
         /* taufac as the Python host rounds it: float32 of density_scale * voxel size */
         float taufac[MAX_LEVELS];
