@@ -397,3 +397,24 @@ def test_the_docs_example_compiles_and_runs(capi, bundle, tmp_path):
     r = subprocess.run([str(tmp_path / "example"), str(tmp_path / "none")], capture_output=True,
                        text=True, timeout=60)
     assert r.returncode == 1 and "none/manifest.txt" in r.stderr
+
+
+def test_a_bundle_without_domain_keys_takes_light_changes_only(lib, bundle, tmp_path):
+    """Bundles written before libclvol lack domain.* (and raymarch.step_voxels): they still
+    open and take camera and light changes; a medium change, which needs the domain to know
+    the renderer's source, is refused with a message saying what to do."""
+    old = shutil.copytree(bundle, tmp_path / "old")
+    mf = old / "manifest.txt"
+    mf.write_text("".join(l for l in mf.read_text().splitlines(True)
+                          if not l.startswith(("domain.", "raymarch.step_voxels"))))
+    r = ctypes.c_void_p()
+    assert lib.clvol_create(str(old).encode(), None, None, None, ctypes.byref(r)) == OK, \
+        lib.clvol_last_error(None)
+    try:
+        d, e = _f32((0.2, 0.9, 0.3)), _f32((1.0, 1.0, 1.0))
+        assert lib.clvol_set_light(r, d[0], e[0]) == OK, lib.clvol_last_error(r)
+        a = _f32((0.9, 0.8, 0.7))
+        assert lib.clvol_set_medium(r, a[0], 30.0) == UNSUPPORTED
+        assert "write the bundle again" in lib.clvol_last_error(r).decode()
+    finally:
+        lib.clvol_destroy(r)

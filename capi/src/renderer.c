@@ -936,17 +936,20 @@ static int renderer_source(const clvol_host *h, const double albedo[3], double s
                ? SOURCE_WRENNINGE : SOURCE_NONE;
 }
 
-/* Refuse a medium or volume for which clvol.Renderer would build other programs than the
- * bundle's: another source, lit or unlit, grey or coloured network. */
+/* Refuse a change for which clvol.Renderer would build other programs than the bundle's: lit
+ * or unlit, and for a medium or volume (`medium_or_volume`) another source or a grey or
+ * coloured network. (The source does not depend on the light, so a light change needs no
+ * domain.* keys: bundles written before them take light changes.) */
 static void check_same_programs(const clvol_host *h, const char *fn, const double albedo[3],
-                                const double irr[3], double scale, double unit_thickness) {
+                                const double irr[3], double scale, double unit_thickness,
+                                int medium_or_volume) {
     int lit = 0;
     for (int c = 0; c < 3; ++c) lit |= albedo[c] * irr[c] > 0;
     if (lit != h->lit)
         fail(CLVOL_ERROR_UNSUPPORTED, "%s: the bundle's scene is %s (albedo x irradiance %s 0) "
              "and its programs are built for that; this change makes it %s", fn,
              h->lit ? "lit" : "unlit", h->lit ? ">" : "=", lit ? "lit" : "unlit");
-    if (!lit) return;
+    if (!lit || !medium_or_volume) return;
     need_domain_keys(h, fn);
     int s = renderer_source(h, albedo, scale, unit_thickness);
     if (s != h->source)
@@ -1030,7 +1033,7 @@ clvol_status clvol_set_light(clvol_renderer *r, const float to_light[3], const f
             fail(CLVOL_ERROR_ARGUMENT, "%s: irradiance = (%g, %g, %g): must be >= 0", fn,
                  irr[0], (double)irradiance[1], (double)irradiance[2]);
     }
-    check_same_programs(r, fn, r->albedo, irr, r->density_scale, r->unit_thickness);
+    check_same_programs(r, fn, r->albedo, irr, r->density_scale, r->unit_thickness, 0);
     if (memcmp(d, r->light_dir, sizeof d) != 0) {
         memcpy(r->light_dir, d, sizeof d);
         r->light_dirty = r->lattice_dirty = 1;
@@ -1050,7 +1053,7 @@ clvol_status clvol_set_medium(clvol_renderer *r, const float albedo[3], float de
                  alb[0], alb[1], alb[2]);
     if (!(isfinite(scale) && scale >= 0))
         fail(CLVOL_ERROR_ARGUMENT, "%s: density_scale = %g: must be finite and >= 0", fn, scale);
-    check_same_programs(r, fn, alb, r->irradiance, scale, r->unit_thickness);
+    check_same_programs(r, fn, alb, r->irradiance, scale, r->unit_thickness, 1);
     if (scale != r->density_scale) r->light_dirty = r->lattice_dirty = 1;
     if (memcmp(alb, r->albedo, sizeof alb) != 0) r->lattice_dirty = 1;
     r->density_scale = scale;
@@ -1073,7 +1076,7 @@ clvol_status clvol_set_density(clvol_renderer *r, const float *density, int nx, 
                  "must be finite and >= 0", fn, i, i % (size_t)nx, i / (size_t)nx % (size_t)ny,
                  i / ((size_t)nx * ny), (double)density[i]);
     double tau1 = unit_optical_thickness(density, nx, ny, nz, r->bmin, r->bmax);
-    check_same_programs(r, fn, r->albedo, r->irradiance, r->density_scale, tau1);
+    check_same_programs(r, fn, r->albedo, r->irradiance, r->density_scale, tau1, 1);
     float *copy = xmalloc(4 * count);
     memcpy(copy, density, 4 * count);
     free(r->density);
