@@ -69,9 +69,9 @@ CLVOL_API clvol_status clvol_render(clvol_renderer *r, float *rgba);
  * copy. The work is enqueued on the renderer's queue and has finished when this returns. */
 CLVOL_API clvol_status clvol_render_to_buffer(clvol_renderer *r, cl_mem rgba);
 
-/* One line naming what was wrong in r's last failed call ("" if none). NULL: the last failed
- * clvol_create of this thread. The text lives until the next call on r (or clvol_create on
- * this thread). */
+/* One line naming what was wrong in r's last call ("" if it succeeded). NULL: the last failed
+ * clvol_create of this thread (and of calls given r = NULL). The text lives until the next
+ * call on r (for NULL: the next such failure on this thread). */
 CLVOL_API const char *clvol_last_error(const clvol_renderer *r);
 
 CLVOL_API void clvol_destroy(clvol_renderer *r);   /* NULL is allowed */
