@@ -151,7 +151,8 @@ static int run_goldens(clvol_host *h, const char *root) {
         for (int v = 0; v < 2; ++v) {
             /* build each variant as its own program (program.mlp_y / program.mlp_F) */
             h->prog[P_MLP] = build_program_at(h, h->dir, &h->mf, names[v]);
-            cl_kernel k = kernel(h, P_MLP, "mlp_forward");
+            /* held by h, so host_release frees it if the check stops half-way */
+            cl_kernel k = h->k_mlp = kernel(h, P_MLP, "mlp_forward");
             cl_float4 ca = {{0, 0, 0, 0}};
             if (v == 1)
                 for (int c = 0; c < 3 && c < na; ++c) ca.s[c] = alb[c];
@@ -169,6 +170,7 @@ static int run_goldens(clvol_host *h, const char *root) {
             failures += compare_tol(h, names[v], names[v], got, want, N, v ? 3 : 1, 0, v ? 3 : 1,
                                     want_max);
             xfree(got);
+            h->k_mlp = NULL;
             CL(clReleaseKernel(k));
             CL(clReleaseProgram(h->prog[P_MLP]));
             h->prog[P_MLP] = NULL;
@@ -188,7 +190,7 @@ static int run_goldens(clvol_host *h, const char *root) {
                dpt = npy_buffer(h, "ptab.npy", &n), dp = npy_buffer(h, "points.npy", &n),
                dom = npy_buffer(h, "omegas.npy", &n), dor = npy_buffer(h, "order.npy", &n_order);
         h->prog[P_GATHER] = build_program_at(h, h->dir, &h->mf, "gather");
-        cl_kernel k = kernel(h, P_GATHER, "gather");
+        cl_kernel k = h->k_gather = kernel(h, P_GATHER, "gather");
         int N = (int)n_order, L = (int)n_loff, NP = mf_int(&h->mf, "gather.np");
         double cmin[3], l[3];
         mf_doubles(&h->mf, "arg.cmin", cmin, 3);
@@ -211,6 +213,7 @@ static int run_goldens(clvol_host *h, const char *root) {
                                 NP, NP, 1.0);
         failures += compare_tol(h, "gather phase", "phase", got, want, N, 3 * NP, 2 * NP, NP, 1.0);
         xfree(got); xfree(got_te); xfree(want); xfree(want_te);
+        h->k_gather = NULL;
         CL(clReleaseKernel(k));
         golden_close(h);
     }
