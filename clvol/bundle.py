@@ -19,6 +19,7 @@ point count and the recorded defines against a Python render.
 """
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -94,7 +95,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     from .kernels.majorant import majorant_block
     from .kernels.phase import lobe_vectors, phase_defines
     from .render.network import (NETWORK_CHUNK, NetworkMs, lattice_reach, lattice_reach_mask,
-                                 load_network_weights)
+                                 load_network_weights, outside_domain)
     from .render.raymarch import Plan, auto_light_resolution, is_lit
     from .render.renderer import Renderer
     from .render.sources import GridMs, MsGrid
@@ -269,6 +270,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     # kernel's octaves: raymarch.octave_abc); only the network reads the network.* keys
     m["raymarch.ms_source"] = source.name if plan.lit else "none"
     m["raymarch.step"] = step * float(np.min(grid.cell_size))
+    m["raymarch.step_voxels"] = step          # the option: libclvol's step on a new grid
     m["raymarch.threshold"] = threshold
     m["raymarch.block"] = int(block)
     m["raymarch.skip_empty"] = bool(skip_empty)
@@ -280,6 +282,21 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["raymarch.lobe_w"] = rw.tolist()
     oc = plan.ms.octaves
     m["raymarch.octave_abc"] = [oc.a, oc.b, oc.c]
+
+    m.comment("domain: what clvol.Renderer needs to pick its source for another medium or "
+              "volume (clvol/render/network.py); libclvol refuses a change that would switch it")
+    from .render.network import BACKWARD_ALBEDO, BACKWARD_LIMIT, THIN_OPTICAL_THICKNESS
+    dom = r.domain
+    m["domain.thin_optical_thickness"] = THIN_OPTICAL_THICKNESS
+    m["domain.albedo"] = [float(v) for v in dom.get("albedo", [0.0, 1.0])]
+    ot_range = dom.get("optical_thickness")
+    m["domain.optical_thickness"] = "none" if ot_range is None else [float(v) for v in ot_range]
+    # the phase cannot change in a bundle: whether it lies outside the domain is fixed
+    phase_only = dataclasses.replace(medium, albedo=(1.0, 1.0, 1.0))
+    m["domain.phase_outside"] = bool(outside_domain(
+        {k: v for k, v in dom.items() if k in ("g", "max_lobes")}, phase_only))
+    m["domain.backward"] = bool(medium.phase.mean_cosine < BACKWARD_LIMIT)
+    m["domain.backward_albedo"] = BACKWARD_ALBEDO
 
     m.comment("network: feature contract, lattice, weights (network.bin, float32)")
     c = w.contract

@@ -89,9 +89,9 @@ def _cmd_volume_convert(args) -> int:
 
 
 def _cmd_compare(args) -> int:
-    from .image import read_exr
+    from .image import read_image
     from .metrics import FLIP_MISSING, compare_images, flip_available
-    test, ref = read_exr(args.test), read_exr(args.reference)
+    test, ref = read_image(args.test), read_image(args.reference)
     has_flip = flip_available()
     result = compare_images(test.rgb, ref.rgb, with_flip=has_flip)
     if not has_flip:
@@ -362,8 +362,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=goldens.run)
 
     p = sub.add_parser("compare", help="error metrics of a test image against a reference")
-    p.add_argument("test", help="test .exr")
-    p.add_argument("reference", help="reference .exr")
+    p.add_argument("test", help="test .exr or .pfm (the C demo's output)")
+    p.add_argument("reference", help="reference .exr or .pfm")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_compare)
 

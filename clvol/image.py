@@ -256,6 +256,46 @@ def read_exr(path) -> ExrImage:
     return ExrImage(path=path, layers=layers, header=header)
 
 
+# --------------------------------------------------------------------------- PFM
+
+def read_pfm(path) -> ExrImage:
+    """Read a PFM (Portable Float Map: ``PF`` colour or ``Pf`` grey, float32, rows bottom to
+    top), as the C demo examples/c/clvol-render writes it, into the same shape ``read_exr``
+    returns: layer ``"total"`` (H, W, 3) float32, top row first; a grey map is repeated over
+    R, G, B. Raises ImageError naming the file when it is missing or damaged."""
+    path = Path(path)
+    if not path.is_file():
+        raise ImageError(f"{path}: no such file")
+    data = path.read_bytes()
+    try:
+        kind, dims, scale, body = data.split(b"\n", 3)
+        w, h = (int(v) for v in dims.split())
+        scale = float(scale)
+    except ValueError:
+        raise ImageError(f"{path}: not a PFM file (expected 'PF' or 'Pf', width height, "
+                         f"scale lines)") from None
+    if kind.strip() not in (b"PF", b"Pf") or w < 1 or h < 1 or not math.isfinite(scale) or scale == 0:
+        raise ImageError(f"{path}: not a PFM file (header {kind!r} {dims!r} {scale!r})")
+    channels = 3 if kind.strip() == b"PF" else 1
+    if len(body) != 4 * w * h * channels:
+        raise ImageError(f"{path}: {len(body)} bytes of pixels, expected {4 * w * h * channels} "
+                         f"for {w} x {h} x {channels} float32 (truncated?)")
+    img = np.frombuffer(body, "<f4" if scale < 0 else ">f4").reshape(h, w, channels)[::-1]
+    img = np.ascontiguousarray(np.repeat(img, 3, axis=2) if channels == 1 else img, np.float32)
+    return ExrImage(path=path, layers={"total": img})
+
+
+def read_image(path) -> ExrImage:
+    """An EXR (``read_exr``) or a PFM (``read_pfm``), told apart by their first bytes."""
+    path = Path(path)
+    if path.is_file():
+        with open(path, "rb") as fh:
+            magic = fh.read(2)
+        if magic in (b"PF", b"Pf"):
+            return read_pfm(path)
+    return read_exr(path)
+
+
 # --------------------------------------------------------------------------- PNG
 
 def _png_chunk(kind: bytes, data: bytes) -> bytes:

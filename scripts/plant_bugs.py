@@ -129,14 +129,14 @@ def _shadow_sigma_bias(text: str) -> str:
 
 
 def _c_nx_ny(text: str) -> str:
-    # The C host's ray-march arguments: the density grid's nx and ny swapped (the majorant
+    # libclvol's ray-march arguments: the density grid's nx and ny swapped (the majorant
     # kernel's arguments, which start the same way, are left alone).
     return _exactly_once(text, r"h->d_density, h->nx, h->ny, h->nz, &bmin",
                          "h->d_density, h->ny, h->nx, h->nz, &bmin")
 
 
 def _c_octave_ab(text: str) -> str:
-    # The C host's ray-march arguments: Wrenninge octave parameters a and b swapped.
+    # libclvol's ray-march arguments: Wrenninge octave parameters a and b swapped.
     return _exactly_once(text, r"abc\[0\], abc\[1\], abc\[2\]", "abc[1], abc[0], abc[2]")
 
 
@@ -173,10 +173,10 @@ BUGS = [
         "1% extinction bias on shadow rays (tentative collisions at 1.01 x the majorant rate)"),
     Bug("shadow-bias-ratio", "cl/pathtrace.cl",
         "1% extinction bias on shadow rays written into the ratio (1 - 1.01 sigma/sigma_maj)"),
-    Bug("c-nx-ny", "examples/c/clvol_render.c",
-        "C host: nx and ny swapped in the ray-march kernel's arguments", C_TESTS),
-    Bug("c-octave-ab", "examples/c/clvol_render.c",
-        "C host: Wrenninge octave parameters a and b swapped", C_TESTS),
+    Bug("c-nx-ny", "capi/src/renderer.c",
+        "libclvol: nx and ny swapped in the ray-march kernel's arguments", C_TESTS),
+    Bug("c-octave-ab", "capi/src/renderer.c",
+        "libclvol: Wrenninge octave parameters a and b swapped", C_TESTS),
     Bug("backward-limit", "clvol/render/network.py",
         "network fallback: BACKWARD_LIMIT -0.8 -> -0.7", FALLBACK_TESTS),
     Bug("backward-albedo", "clvol/render/network.py",

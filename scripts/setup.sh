@@ -6,8 +6,9 @@
 #   3. OpenVDB's own writer for the .vdb tests and benchmark: Debian's python3-openvdb (for the
 #      system /usr/bin/python3, not ours) and vdb_tool (libopenvdb-tools); clvol reads .vdb
 #      without them (docs/volumes.md);
-#   4. a C compiler, make and the OpenCL headers + ICD loader for the C host in examples/c/
-#      (tests/test_c_host.py builds it; docs/embedding.md);
+#   4. a C compiler, make and the OpenCL headers + ICD loader for libclvol (`make -C capi`)
+#      and its demo in examples/c/ (tests/test_capi.py and tests/test_c_host.py build them;
+#      docs/embedding.md);
 #   5. Debian's chromium and chromium-driver for the browser test of `clvol view` (browser
 #      downloads by test tools fail on these machines);
 #   6. clvol itself (editable) with its test extra (pytest, selenium), the view extra (aiohttp),

@@ -1,4 +1,4 @@
-"""The C host (examples/c/) against the Python host, its memory check, and the golden vectors.
+"""The C host (examples/c/, the demo of libclvol in capi/) against the Python host, its memory check, and the golden vectors.
 
 - Images: ``clvol bundle`` of two shipped examples (cloud: grey albedo, one lobe; jade:
   chromatic albedo, two lobes) rendered by clvol-render and by ``clvol.Renderer`` with the
@@ -54,11 +54,14 @@ def host(tmp_path_factory):
     why = _have_toolchain()
     if why:
         pytest.skip(why)
-    out = tmp_path_factory.mktemp("c_host")
-    for name in ("clvol_render.c", "Makefile"):
-        shutil.copy(SRC / name, out / name)
-    r = subprocess.run(["make", "-C", str(out), "clvol-render", "clvol-render-asan"],
-                       capture_output=True, text=True)
+    # built in a copy (the demo and the library it links), so the checkout stays clean
+    root = tmp_path_factory.mktemp("c_host")
+    out = root / "c"
+    shutil.copytree(SRC, out, ignore=shutil.ignore_patterns("clvol-render", "clvol-render-asan"))
+    shutil.copytree(ROOT / "capi", root / "capi",
+                    ignore=shutil.ignore_patterns("build", "libclvol.*"))
+    r = subprocess.run(["make", "-C", str(out), "CAPI=../capi", "clvol-render",
+                        "clvol-render-asan"], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "warning" not in r.stderr, r.stderr
     return out

@@ -160,3 +160,28 @@ def test_png_preview_exposure_is_auto_unless_given_and_needs_png(tmp_path, capsy
     code, _, err = run(capsys, "render", scene, "-o", out, "--png", "--exposure", "1.5",
                        "--tone", "linear", "--ms", "none")
     assert code == 0 and "exposure +1.50 stops, given; linear" in err
+
+
+def _write_pfm(path, rgb, big_endian=False):
+    h, w, _ = rgb.shape
+    data = np.ascontiguousarray(rgb[::-1], ">f4" if big_endian else "<f4")   # bottom row first
+    path.write_bytes(f"PF\n{w} {h}\n{1.0 if big_endian else -1.0}\n".encode() + data.tobytes())
+
+
+def test_compare_reads_the_c_demos_pfm(tmp_path, capsys):
+    """examples/c/clvol-render writes PFM: compare reads it against an EXR (rows flipped back
+    to top first, both byte orders) and refuses a truncated one."""
+    ref = np.random.default_rng(1).random((5, 7, 3)).astype(np.float32)
+    write_exr(tmp_path / "ref.exr", {"total": ref})
+    for big in (False, True):
+        _write_pfm(tmp_path / "same.pfm", ref, big)
+        code, out, _ = run(capsys, "compare", tmp_path / "same.pfm", tmp_path / "ref.exr", "--json")
+        assert code == 0 and json.loads(out)["rmse"] == 0.0
+    flipped = ref[::-1].copy()                       # a reader that forgot the flip fails here
+    _write_pfm(tmp_path / "flip.pfm", flipped)
+    code, out, _ = run(capsys, "compare", tmp_path / "flip.pfm", tmp_path / "ref.exr", "--json")
+    assert code == 0 and json.loads(out)["rmse"] > 0.01
+    bad = tmp_path / "cut.pfm"
+    bad.write_bytes((tmp_path / "same.pfm").read_bytes()[:-4])
+    code, _, err = run(capsys, "compare", bad, tmp_path / "ref.exr")
+    assert code == 2 and "cut.pfm" in err and "truncated" in err

@@ -1,0 +1,420 @@
+"""libclvol (capi/, docs/embedding.md): the C API against clvol.Renderer, through ctypes and
+through the C test program capi/tests/test_capi.c, and under the sanitizers.
+
+- One script of changes (camera, light direction, irradiance alone, albedo, density scale,
+  a new non-cubic density grid; then changes the bundle cannot support) runs through ctypes
+  and through the C program (on a context and queue it makes, rendering into its own
+  cl_mem). After each change the image equals ``clvol.Renderer.render`` with the same change:
+  relative RMS difference of the RGB <= 1e-3 (the issue's bar) and alpha within 1e-4 absolute.
+  Both hosts launch the same kernels with the same arguments on one device, so the
+  difference is in practice 0; what may differ is the last bit of float64 host arithmetic
+  (the camera basis, the light's normalisation, the lattice's omegas) before rounding to
+  float32.
+- Only what a change invalidates is recomputed: the library's stage counters after each
+  change.
+- The C program's checks: bad arguments (NULL pointers, zero and negative sizes, a missing and
+  a damaged bundle, NaN in the density), each with a status and a message; the caller's
+  context and queue are used and left alive; render_to_buffer = render; two renderers in two
+  threads give the images of one at a time.
+- AddressSanitizer + LeakSanitizer + UBSan over the whole C program (library compiled in): exit
+  0 and no report. As in tests/test_c_host.py, the first run does not check leaks (PoCL's LLVM
+  leaks when it builds a program; that run fills PoCL's kernel cache), the next ones do.
+Sizes are small (32^2 image, 32^3 volume, 8^3 lattice) to keep this ~1 minute on 2 cores.
+"""
+from __future__ import annotations
+
+import ctypes
+import dataclasses
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clvol.bundle import write_bundle
+from clvol.render.renderer import Renderer
+from clvol.scene import load_scene
+from clvol.volume.grid import Grid
+
+ROOT = Path(__file__).resolve().parents[1]
+MS_RES = 8
+LIGHT_RES = 32       # given to both hosts: the library keeps the bundle's light resolution
+OK, ARGUMENT, BUNDLE, OPENCL, MEMORY, UNSUPPORTED = range(6)
+STAGES = ("volume", "light", "lattice", "march")
+
+
+def _have_toolchain() -> str | None:
+    cc = shutil.which(os.environ.get("CC", "cc"))
+    if cc is None or shutil.which("make") is None:
+        return "no C compiler or make"
+    probe = subprocess.run([cc, "-E", "-x", "c", "-"], input="#include <CL/cl.h>\n",
+                           capture_output=True, text=True)
+    if probe.returncode != 0:
+        return "no OpenCL headers (apt-get install opencl-headers ocl-icd-opencl-dev)"
+    return None
+
+
+def _have_sanitizers(cc: str, work: Path) -> str | None:
+    src = work / "probe.c"
+    src.write_text("int main(void) { return 0; }\n")
+    r = subprocess.run([cc, "-fsanitize=address,undefined", str(src), "-o", str(work / "probe")],
+                       capture_output=True, text=True)
+    return None if r.returncode == 0 else f"the compiler lacks -fsanitize=address,undefined: {r.stderr[-300:]}"
+
+
+@pytest.fixture(scope="module")
+def capi(tmp_path_factory):
+    """`make -C capi` on a copy of the sources (a fresh tree: no build outputs carried in)."""
+    why = _have_toolchain()
+    if why:
+        pytest.skip(why)
+    out = tmp_path_factory.mktemp("capi") / "capi"
+    shutil.copytree(ROOT / "capi", out, ignore=shutil.ignore_patterns("build", "libclvol.*"))
+    r = subprocess.run(["make", "-C", str(out), "all", "test-program"], capture_output=True,
+                       text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "warning" not in r.stderr, r.stderr
+    assert (out / "libclvol.so").is_file() and (out / "libclvol.a").is_file()
+    return out
+
+
+@pytest.fixture(scope="module")
+def lib(capi):
+    lib = ctypes.CDLL(str(capi / "libclvol.so"))
+    f3 = ctypes.POINTER(ctypes.c_float)
+    vp = ctypes.c_void_p
+    lib.clvol_create.argtypes = [ctypes.c_char_p, vp, vp, vp, ctypes.POINTER(vp)]
+    lib.clvol_set_camera.argtypes = [vp, f3, f3, f3, ctypes.c_float, ctypes.c_int, ctypes.c_int]
+    lib.clvol_set_light.argtypes = [vp, f3, f3]
+    lib.clvol_set_medium.argtypes = [vp, f3, ctypes.c_float]
+    lib.clvol_set_density.argtypes = [vp, f3, ctypes.c_int, ctypes.c_int, ctypes.c_int]
+    lib.clvol_render.argtypes = [vp, f3]
+    lib.clvol_last_error.argtypes = [vp]
+    lib.clvol_last_error.restype = ctypes.c_char_p
+    lib.clvol_destroy.argtypes = [vp]
+    lib.clvol_get_size.argtypes = [vp, ctypes.POINTER(ctypes.c_int), ctypes.POINTER(ctypes.c_int)]
+    lib.clvol_stage_count.argtypes = [vp, ctypes.c_int]
+    lib.clvol_stage_count.restype = ctypes.c_long
+    return lib
+
+
+def _scene():
+    # jade: chromatic albedo, two lobes, the network source
+    return load_scene(ROOT / "examples" / "jade.toml").with_overrides(
+        {"volume.resolution": 32, "camera.width": 32, "camera.height": 32})
+
+
+def _new_grid(grid) -> Grid:
+    """A non-cubic grid ((nz, ny, nx) = (20, 14, 24)) in the bundle's box."""
+    from clvol.volume.generators import generate
+    g = generate("cloud", seed=5, resolution=24)
+    return Grid(np.ascontiguousarray(g.density[2:22, 5:19, :]), grid.bbox_min, grid.bbox_max)
+
+
+@pytest.fixture(scope="module")
+def bundle(tmp_path_factory):
+    b = write_bundle(_scene(), tmp_path_factory.mktemp("bundle") / "jade", ms_resolution=MS_RES,
+                     light_resolution=LIGHT_RES)
+    assert "raymarch.ms_source = network" in (b / "manifest.txt").read_text()
+    return b
+
+
+def _steps(tmp):
+    """The script: (kind, values) in order; 'render' steps name their image."""
+    grid = _new_grid(_scene().volume.load())
+    dens_file = tmp / "new_grid.f32"   # not a render's name: those are written beside it
+    grid.density.astype("<f4").tofile(dens_file)
+    nz, ny, nx = grid.density.shape
+    return grid, [
+        ("render", "bundle"),
+        ("camera", ((0.9, 0.5, 2.2), (0.0, 0.05, 0.0), (0.0, 1.0, 0.0), 35.0, 40, 24)),
+        ("render", "camera"),
+        # same position, another field of view and size: the lattice stays
+        ("camera", ((0.9, 0.5, 2.2), (0.1, 0.0, 0.0), (0.0, 1.0, 0.2), 28.0, 32, 20)),
+        ("render", "camera_same_origin"),
+        ("light", ((-0.4, 0.8, 0.45), (2.0, 1.8, 1.5))),
+        ("render", "light"),
+        ("light", ((-0.4, 0.8, 0.45), (1.0, 1.2, 1.4))),
+        ("render", "irradiance"),
+        ("medium", ((0.9, 0.75, 0.55), 40.0)),
+        ("render", "albedo"),
+        ("medium", ((0.9, 0.75, 0.55), 24.0)),
+        ("render", "density_scale"),
+        ("density", (str(dens_file), nx, ny, nz)),
+        ("render", "density"),
+        # refused: the network's channels (grey), unlit (albedo 0), optically thin (--ms none)
+        ("expect", UNSUPPORTED), ("medium", ((0.8, 0.8, 0.8), 24.0)),
+        ("expect", UNSUPPORTED), ("medium", ((0.0, 0.0, 0.0), 24.0)),
+        ("expect", UNSUPPORTED), ("medium", ((0.9, 0.75, 0.55), 0.001)),
+        ("render", "after_refusals"),
+    ]
+
+
+# The stage counters (volume, light, lattice, march) after each render of the script: what
+# each change invalidated, as clvol.Renderer's recompute table (clvol/render/renderer.py).
+COUNTS = {
+    "bundle": (1, 1, 1, 1),
+    "camera": (1, 1, 2, 2),               # position moved: the lattice's omegas
+    "camera_same_origin": (1, 1, 2, 3),   # fov, size, target: the march only
+    "light": (1, 2, 3, 4),                # light field, graded, bake, lattice
+    "irradiance": (1, 2, 3, 5),           # the march's argument only
+    "albedo": (1, 2, 4, 6),               # the lattice (config and channel albedo)
+    "density_scale": (1, 3, 5, 7),        # light field, graded, bake, lattice
+    "density": (2, 4, 6, 8),              # everything
+    "after_refusals": (2, 4, 6, 9),       # refused changes change nothing
+}
+
+
+def _python_images(steps, grid):
+    """What clvol.Renderer gives after each step (the same changes, through its API)."""
+    scene = _scene()
+    opts = dict(ms_resolution=MS_RES, light_resolution=LIGHT_RES)
+    r = Renderer(scene, "raymarch", **opts)
+    cam, light, medium = scene.camera, scene.light, scene.medium
+    out = {}
+    for kind, v in steps:
+        if kind == "camera":
+            cam = dataclasses.replace(cam, origin=v[0], target=v[1], up=v[2], fov_y=v[3],
+                                      width=v[4], height=v[5])
+        elif kind == "light":
+            light = dataclasses.replace(light, direction=v[0], irradiance=v[1])
+        elif kind == "medium" and v[0] != (0.8, 0.8, 0.8) and v[0] != (0.0, 0.0, 0.0) and v[1] > 0.01:
+            medium = dataclasses.replace(medium, albedo=v[0], density_scale=v[1])
+        elif kind == "density":
+            r = Renderer(scene, "raymarch", grid=grid, **opts)
+        elif kind == "render":
+            res = r.render(camera=cam, light=light, medium=medium)
+            assert res.header["raymarch.ms"] == "network"
+            out[v] = (res.layers["total"], res.layers["alpha"])
+    return out
+
+
+def _f32(v):
+    v = np.asarray(v, np.float32).ravel()
+    return v.ctypes.data_as(ctypes.POINTER(ctypes.c_float)), v
+
+
+def _run_ctypes(lib, bundle, steps):
+    r = ctypes.c_void_p()
+    assert lib.clvol_create(str(bundle).encode(), None, None, None, ctypes.byref(r)) == OK, \
+        lib.clvol_last_error(None)
+    images, counts, expect = {}, {}, OK
+    keep = []
+    try:
+        for kind, v in steps:
+            if kind == "expect":
+                expect = v
+                continue
+            if kind == "render":
+                w, h = ctypes.c_int(), ctypes.c_int()
+                lib.clvol_get_size(r, ctypes.byref(w), ctypes.byref(h))
+                img = np.full((h.value, w.value, 4), np.nan, np.float32)
+                st = lib.clvol_render(r, img.ctypes.data_as(ctypes.POINTER(ctypes.c_float)))
+                images[v] = img
+                counts[v] = tuple(lib.clvol_stage_count(r, i) for i in range(4))
+            elif kind == "camera":
+                (o, po), (t, pt), (u, pu) = (_f32(x) for x in v[:3])
+                keep += [po, pt, pu]
+                st = lib.clvol_set_camera(r, o, t, u, v[3], v[4], v[5])
+            elif kind == "light":
+                (d, pd), (e, pe) = _f32(v[0]), _f32(v[1])
+                keep += [pd, pe]
+                st = lib.clvol_set_light(r, d, e)
+            elif kind == "medium":
+                a, pa = _f32(v[0])
+                keep.append(pa)
+                st = lib.clvol_set_medium(r, a, v[1])
+            elif kind == "density":
+                dens = np.fromfile(v[0], "<f4")
+                st = lib.clvol_set_density(r, _f32(dens)[0], *v[1:])
+            msg = lib.clvol_last_error(r).decode()
+            assert st == expect, f"{kind} {v}: status {st}, expected {expect}: {msg}"
+            if expect != OK:
+                assert msg, "a refusal must say why"
+                print(f"{kind} {v} refused: {msg}")
+            expect = OK
+    finally:
+        lib.clvol_destroy(r)
+    return images, counts
+
+
+def _script_file(steps, path):
+    lines = []
+    for kind, v in steps:
+        if kind == "expect":
+            lines.append(f"expect {v}")
+        elif kind == "render":
+            lines.append(f"render_buffer {path.parent / (v + '.f32')}")
+        elif kind == "camera":
+            lines.append("camera " + " ".join(map(repr, [*v[0], *v[1], *v[2], v[3]]))
+                         + f" {v[4]} {v[5]}")
+        elif kind == "light":
+            lines.append("light " + " ".join(map(repr, [*v[0], *v[1]])))
+        elif kind == "medium":
+            lines.append("medium " + " ".join(map(repr, [*v[0], v[1]])))
+        elif kind == "density":
+            lines.append(f"density {v[0]} {v[1]} {v[2]} {v[3]}")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _rel_rms(got, want):
+    return float(np.sqrt(np.mean((got - want) ** 2)) / np.sqrt(np.mean(want ** 2)))
+
+
+def _check_against_python(images, want):
+    for name, (total, alpha) in want.items():
+        got = images[name]
+        assert got.shape[:2] == total.shape[:2], name
+        assert np.all(np.isfinite(got)) and total.max() > 0
+        rel = _rel_rms(got[..., :3], total)
+        print(f"{name}: relative RMS vs clvol.Renderer {rel:.3g}, "
+              f"alpha max |diff| {np.abs(got[..., 3] - alpha).max():.3g}")
+        assert rel <= 1e-3, f"{name}: relative RMS difference {rel:.3g}"
+        assert np.abs(got[..., 3] - alpha).max() <= 1e-4, name
+        assert 0.05 < alpha.max() <= 1.0    # some pixels are (partly) covered: a real check
+
+
+@pytest.fixture(scope="module")
+def script(bundle, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("script")
+    grid, steps = _steps(tmp)
+    want = _python_images(steps, grid)
+    # the changes are not idle: every image differs from the one before it (but the last,
+    # which repeats "density" after the refused changes)
+    names = list(want)
+    for a, b in zip(names[:-2], names[1:-1]):
+        ta, tb = want[a][0], want[b][0]
+        assert ta.shape != tb.shape or np.abs(ta - tb).max() > 1e-3 * ta.max(), (a, b)
+    np.testing.assert_array_equal(want["after_refusals"][0], want["density"][0])
+    return tmp, steps, want
+
+
+def test_ctypes_setters_match_the_python_renderer(lib, bundle, script):
+    tmp, steps, want = script
+    images, counts = _run_ctypes(lib, bundle, steps)
+    _check_against_python(images, want)
+    assert counts == COUNTS
+
+
+def test_c_program_matches_python_on_the_callers_context(capi, bundle, script):
+    """The same script from C, on a context and queue the program makes (checked alive after
+    the renderer is gone), rendering into a cl_mem of its own (clvol_render_to_buffer)."""
+    tmp, steps, want = script
+    _script_file(steps, tmp / "script.txt")
+    r = subprocess.run([str(capi / "build" / "test_capi"), "script", str(bundle),
+                        str(tmp / "script.txt"), "--external"], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "external context alive: yes" in r.stdout, r.stdout
+    images = {}
+    for name, (total, _) in want.items():
+        h, w = total.shape[:2]
+        images[name] = np.fromfile(tmp / f"{name}.f32", "<f4").reshape(h, w, 4)
+    _check_against_python(images, want)
+
+
+def test_c_program_checks(capi, bundle, tmp_path):
+    damaged = shutil.copytree(bundle, tmp_path / "damaged")
+    f = damaged / "density.f32"
+    f.write_bytes(f.read_bytes()[:100])                    # cut short
+    r = subprocess.run([str(capi / "build" / "test_capi"), "checks", str(bundle), str(damaged)],
+                       capture_output=True, text=True, timeout=300)
+    print(r.stdout)
+    assert r.returncode == 0, r.stdout + r.stderr
+    passed = [l for l in r.stdout.splitlines() if l.startswith("ok ")]
+    assert len(passed) >= 30 and "FAIL" not in r.stdout
+
+
+def test_ctypes_bad_arguments_return_a_status_and_a_message(lib, bundle, tmp_path):
+    r = ctypes.c_void_p()
+    assert lib.clvol_create(str(tmp_path / "nothing").encode(), None, None, None,
+                            ctypes.byref(r)) == BUNDLE
+    assert "nothing/manifest.txt" in lib.clvol_last_error(None).decode() and not r.value
+    assert lib.clvol_create(str(bundle).encode(), None, None, None, ctypes.byref(r)) == OK
+    try:
+        dens = np.ones((3, 4, 5), np.float32)
+        dens[1, 2, 3] = np.nan
+        assert lib.clvol_set_density(r, _f32(dens)[0], 5, 4, 3) == ARGUMENT
+        msg = lib.clvol_last_error(r).decode()
+        assert "density[" in msg and "nan" in msg and "(x 3, y 2, z 1)" in msg, msg
+        assert lib.clvol_set_density(r, _f32(dens)[0], 5, 0, 3) == ARGUMENT
+        assert lib.clvol_set_density(r, None, 5, 4, 3) == ARGUMENT
+        assert lib.clvol_render(r, None) == ARGUMENT
+        assert lib.clvol_render(None, None) == ARGUMENT
+        assert "renderer is NULL" in lib.clvol_last_error(None).decode()
+        # nothing above changed the renderer: no stage ran
+        assert [lib.clvol_stage_count(r, i) for i in range(4)] == [1, 1, 0, 0]
+    finally:
+        lib.clvol_destroy(r)
+
+
+def test_sanitizers_clean_over_the_c_program(capi, bundle, script, tmp_path):
+    cc = shutil.which(os.environ.get("CC", "cc"))
+    why = _have_sanitizers(cc, tmp_path)
+    if why:
+        pytest.skip(why)
+    r = subprocess.run(["make", "-C", str(capi), "asan"], capture_output=True, text=True)
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stdout + r.stderr
+    exe = capi / "build" / "test_capi_asan"
+    damaged = shutil.copytree(bundle, tmp_path / "damaged")
+    (damaged / "manifest.txt").write_text((damaged / "manifest.txt").read_text()
+                                          .replace("host.pad = ", "host.pad = 0 # "))
+    tmp, steps, _ = script
+    _script_file(steps, tmp_path / "script.txt")
+    runs = [(0, ["checks", bundle, damaged]), (1, ["checks", bundle, damaged]),
+            (1, ["script", bundle, tmp_path / "script.txt", "--external"]),
+            (1, ["script", bundle, tmp_path / "script.txt"])]
+    for leaks, args in runs:
+        env = dict(os.environ, ASAN_OPTIONS=f"detect_leaks={leaks}:exitcode=23",
+                   UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1")
+        r = subprocess.run([str(exe)] + [str(a) for a in args], capture_output=True, text=True,
+                           env=env, timeout=600)
+        report = r.stdout + r.stderr
+        assert r.returncode == 0, report[-4000:]
+        for marker in ("AddressSanitizer", "LeakSanitizer", "runtime error"):
+            assert marker not in report, report[-4000:]
+
+
+def test_the_docs_example_compiles_and_runs(capi, bundle, tmp_path):
+    """The ~30-line example of docs/embedding.md, as printed there, against the built library."""
+    import re
+    page = (ROOT / "docs" / "embedding.md").read_text()
+    blocks = [b for b in re.findall(r"```c\n(.*?)```", page, re.S) if "/* example.c" in b]
+    assert len(blocks) == 1
+    assert len(blocks[0].splitlines()) <= 32
+    (tmp_path / "example.c").write_text(blocks[0])
+    cc = shutil.which(os.environ.get("CC", "cc"))
+    r = subprocess.run([cc, "-std=c11", "-Wall", "-Wextra", "-Werror", "-o",
+                        str(tmp_path / "example"), str(tmp_path / "example.c"),
+                        f"-I{capi / 'include'}", str(capi / "libclvol.a"), "-lOpenCL", "-lm"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([str(tmp_path / "example"), str(bundle)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run([str(tmp_path / "example"), str(tmp_path / "none")], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 1 and "none/manifest.txt" in r.stderr
+
+
+def test_a_bundle_without_domain_keys_takes_light_changes_only(lib, bundle, tmp_path):
+    """Bundles written before libclvol lack domain.* (and raymarch.step_voxels): they still
+    open and take camera and light changes; a medium change, which needs the domain to know
+    the renderer's source, is refused with a message saying what to do."""
+    old = shutil.copytree(bundle, tmp_path / "old")
+    mf = old / "manifest.txt"
+    mf.write_text("".join(l for l in mf.read_text().splitlines(True)
+                          if not l.startswith(("domain.", "raymarch.step_voxels"))))
+    r = ctypes.c_void_p()
+    assert lib.clvol_create(str(old).encode(), None, None, None, ctypes.byref(r)) == OK, \
+        lib.clvol_last_error(None)
+    try:
+        d, e = _f32((0.2, 0.9, 0.3)), _f32((1.0, 1.0, 1.0))
+        assert lib.clvol_set_light(r, d[0], e[0]) == OK, lib.clvol_last_error(r)
+        a = _f32((0.9, 0.8, 0.7))
+        assert lib.clvol_set_medium(r, a[0], 30.0) == UNSUPPORTED
+        assert "write the bundle again" in lib.clvol_last_error(r).decode()
+    finally:
+        lib.clvol_destroy(r)
