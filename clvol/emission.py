@@ -123,6 +123,7 @@ class EmissionGrid:
     own_box: bool = False       # False: exactly on the density's grid
     kind: str = "radiance"
     name: str = ""
+    device: object = None       # the planes on the device (a DeviceArray), set by the Renderer
 
     @property
     def channels(self) -> int:
