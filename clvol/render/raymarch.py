@@ -219,10 +219,11 @@ class RayMarcher:
     def march(self, camera, light, source: MsSource | str = "wrenninge", *, octaves=None,
               ms_grid=None, step: float = DEFAULT_STEP, threshold: float = DEFAULT_THRESHOLD,
               skip_empty: bool = True, shortcuts: bool = True, read_back: bool = True,
-              stats: bool = False, ms: str | None = None):
+              stats: bool = False, ms: str | None = None, emission=None):
         """Render ``camera`` lit by ``light`` with the multiple-scattering ``source`` (an
         MsSource, already prepared for this frame; or a source name with ``octaves`` /
-        ``ms_grid``). Returns (layers, plan), or with ``read_back=False`` (event, buffers,
+        ``ms_grid``). ``emission``: an EmissionGrid (clvol/emission.py; its ``device`` planes
+        when set). Returns (layers, plan), or with ``read_back=False`` (event, buffers,
         plan)."""
         if ms is not None:
             source = ms
@@ -244,6 +245,11 @@ class RayMarcher:
         cube_size = self.pyramid.cube_size if plan.lit else 1.0
         box = plan.ms.box or (None, None)
         o = plan.ms.octaves
+        if emission is not None:
+            env_kw.update(emission=emission.device if emission.device is not None
+                          else emission.values, em_min=emission.bbox_min,
+                          em_max=emission.bbox_max, em_colour=emission.colour,
+                          em_box=emission.own_box)
         res = launch(
             plan.defines, self.density, g.bbox_min, g.bbox_max, self.medium.density_scale,
             self.majorant, self.block,

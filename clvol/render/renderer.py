@@ -22,6 +22,8 @@ change invalidates it:
     env_field               the same, the albedo or phase, or with an anisotropic phase
                             the camera position (clvol/render/environment.py)
     env_background          a map scene's camera or map changed
+    emission                the scene's [emission] grid read and mapped (with the volume)
+    emission_upload         its planes put on the device (once per volume)
     march                   every call
 
 ``counts`` counts each stage's recomputations (tests check them).
@@ -73,6 +75,7 @@ class Renderer:
         self._grid = grid
         self._marcher = None
         self._device_medium = None
+        self._emission = None
         self._warned: set = set()
         self.source = self.fallback = None
         self._tau1 = self.thin = None
@@ -89,6 +92,21 @@ class Renderer:
             self._grid = self.scene.volume.load()
             self._count("volume")
         return self._grid
+
+    @property
+    def emission(self):
+        """The scene's EmissionGrid with its planes on the device (clvol/emission.py), or None
+        for a scene without ``[emission]`` (read on first use, with the volume)."""
+        spec = getattr(self.scene, "emission", None)
+        if spec is None:
+            return None
+        if self._emission is None:
+            self._emission = spec.load(self.scene.volume, self.grid)
+            self._count("emission")
+        if self._emission.device is None:
+            self._emission.device = self.rt.upload(self._emission.values)
+            self._count("emission_upload")
+        return self._emission
 
     @property
     def device_medium(self):
@@ -211,19 +229,26 @@ class Renderer:
                     if rm.ensure_light(light.direction):
                         self._count("light_field")
                     self.rt.finish()
+            emission = self.emission
             with Stopwatch() as sw_march:
                 layers, plan = rm.march(cam, light, source, step=o["step"],
                                         threshold=o["threshold"], skip_empty=skip_empty,
-                                        shortcuts=shortcuts)
+                                        shortcuts=shortcuts, emission=emission)
             self._count("march")
             if s > 1:
                 layers = downsample(layers, s)
         step = float(o["step"])
+        simulated, skipped = list(plan.simulated), list(plan.skipped)
+        if emission is not None:
+            simulated.append(f"emission ({emission.kind} grid {emission.name!r}: sigma_a Le, "
+                             f"sigma_a = sigma_t (1 - albedo), exact along camera rays)")
+            skipped.append("scattering of emitted light (the path tracer has it; measured in "
+                           "docs/raymarch.md, \"Emission\")")
         header = {
             "method": "raymarch",
             "method.description": f"ray marching: exact single scattering + {source.label}",
-            "simulated": "; ".join(plan.simulated),
-            "skipped": "; ".join(plan.skipped) or "nothing",
+            "simulated": "; ".join(simulated),
+            "skipped": "; ".join(skipped) or "nothing",
             "seconds": round(sw_total.seconds, 4),
             "seconds.load": round(sw_load.seconds, 4),
             "seconds.light_field": round(sw_light.seconds, 4),
@@ -247,7 +272,7 @@ class Renderer:
         if warning:
             header["warning"] = warning
         if self.thin is not None and source is not self.source:
-            header["skipped"] = ("; ".join(s for s in plan.skipped if "--ms none" not in s) +
+            header["skipped"] = ("; ".join(s for s in skipped if "--ms none" not in s) +
                                  f"; multiple scattering (optically thin: largest optical "
                                  f"thickness {self.thin:.3g} < 0.5, where single scattering "
                                  f"alone measured as accurate; docs/raymarch.md)").lstrip("; ")
@@ -262,7 +287,7 @@ class Renderer:
         res = render_pathtrace(scene, spp=o["spp"], seed=o["seed"] if seed is None else seed,
                                max_order=o["max_order"], time_budget=o["time"], runtime=self.rt,
                                majorant_block=o["majorant_block"], grid=self.grid,
-                               device_medium=self.device_medium)
+                               device_medium=self.device_medium, emission=self.emission)
         self._count("pathtrace")
         res.header = {"method": "pathtrace",
                       "method.description": "volumetric path tracing (reference)", **res.header}
