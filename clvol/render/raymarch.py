@@ -190,6 +190,20 @@ class RayMarcher:
     def set_medium(self, medium) -> None:
         self.medium = medium
 
+    def set_volume(self, grid, device_medium: DeviceMedium, light_resolution=None) -> None:
+        """A new density (Renderer.set_density): what depends on it (the light field, the
+        environment's transmittance and source field) is dropped and rebuilt on the next
+        march; the sky cells and the background image, which do not, are kept."""
+        self.grid = grid
+        self.dm = device_medium
+        self.block = self.dm.block
+        self.density, self.majorant = self.dm.density, self.dm.majorant
+        self.light_resolution = light_resolution or auto_light_resolution(grid)
+        self.light_field = None
+        self._light_key = None
+        self._env_T = None
+        self._env_field = self._env_field_key = None
+
     def set_light(self, light_dir) -> None:
         """(Re)compute the exact light field for a light toward ``light_dir``."""
         from ..kernels.transmittance import check_light_dir, light_transmittance

@@ -27,6 +27,17 @@ change invalidates it:
     march                   every call
 
 ``counts`` counts each stage's recomputations (tests check them).
+
+A new density (``set_density(grid, emission)`` or ``render(grid=..., emission=...)``: the next
+frame of a sequence) recomputes what depends on it and nothing else:
+
+    device_medium           the density and its majorant uploaded again
+    light_field, graded_transmittance, ms_lattice (or the view table), env_transmittance,
+    env_field               rebuilt on the next frame (they read the density)
+    network_pyramid         the network's density pyramid (its weights and kernels stay)
+    emission_upload         the new emission planes (when the scene has [emission])
+    kept                    compiled kernels, the network's weights, env_sky,
+                            env_background, the options and the source objects
 """
 from __future__ import annotations
 
@@ -84,6 +95,28 @@ class Renderer:
 
     def _count(self, stage: str) -> None:
         self.counts[stage] += 1
+
+    def set_density(self, grid, emission=None) -> None:
+        """Render a new density from the next frame on (module doc: what it recomputes).
+        ``grid``: a clvol Grid (any shape and box); ``emission``: its EmissionGrid
+        (clvol/emission.py) when the scene has ``[emission]`` (required then: the renderer
+        cannot know which file the new density came from; refused otherwise)."""
+        from ..volume.grid import Grid
+        if not isinstance(grid, Grid):
+            raise ClvolError(f"set_density: expected a clvol.volume.grid.Grid, got "
+                             f"{type(grid).__name__}")
+        has_em = getattr(self.scene, "emission", None) is not None
+        if has_em and emission is None:
+            raise ClvolError("set_density: the scene has [emission]: give the new frame's "
+                             "emission grid too (scene.emission.load(volume, grid))")
+        if emission is not None and not has_em:
+            raise ClvolError("set_density: emission given, but the scene has no [emission]")
+        self._grid = grid
+        self._emission = emission
+        self._device_medium = None
+        self._tau1 = None
+        if self._marcher is not None:
+            self._marcher.set_volume(grid, self.device_medium, self.options["light_resolution"])
 
     @property
     def grid(self):
@@ -294,9 +327,11 @@ class Renderer:
         return res
 
     # ------------------------------------------------------------------ API
-    def render(self, camera=None, light=None, medium=None, seed: int | None = None) -> RenderResult:
+    def render(self, camera=None, light=None, medium=None, seed: int | None = None,
+               grid=None, emission=None) -> RenderResult:
         """Render with the scene's camera, light and medium, or the ones given (instances of
-        clvol.scene.Camera, Light, Medium). Returns a RenderResult.
+        clvol.scene.Camera, Light, Medium). Returns a RenderResult. ``grid`` (and, with
+        ``[emission]``, ``emission``): a new density from this frame on (``set_density``).
 
         ``seed`` (path tracer only) replaces the ``seed`` option for this frame, so the passes
         of a progressive render draw independent samples from one Renderer."""
@@ -305,6 +340,11 @@ class Renderer:
         light = _check_arg(light, Light, "light") or self.scene.light
         medium = _check_arg(medium, Medium, "medium") or self.scene.medium
         _check_medium(medium)
+        if grid is not None:
+            self.set_density(grid, emission)
+        elif emission is not None:
+            raise ClvolError("render(emission=...) goes with grid=...: a new frame's density "
+                             "and its emission grid")
         if seed is not None:
             if self.method != "pathtrace":
                 raise ClvolError(f"seed: render(seed=) chooses the path tracer's pass; the "
