@@ -68,6 +68,25 @@ def check_output_pattern(pattern: str, frames: list[int]) -> None:
                          f"{{frame}} in the name, e.g. out_{{frame:04d}}.exr")
 
 
+def available_frames(volume) -> list[int]:
+    """The frames of a sequence volume whose files exist (sorted); [] for a single file."""
+    if volume.file is None or not volume.is_sequence:
+        return []
+    name = volume.file.name
+    regex = re.compile("^" + re.sub(r"\\\{frame[^}]*\\\}", r"(\\d+)", re.escape(name)) + "$")
+    out = []
+    folder = volume.file.parent
+    if not folder.is_dir():
+        return []
+    for p in folder.iterdir():
+        m = regex.match(p.name)
+        if m and all(g == m.group(1) for g in m.groups()):
+            n = int(m.group(1))
+            if name.format(frame=n) == p.name:
+                out.append(n)
+    return sorted(out)
+
+
 @dataclass
 class LoadedFrame:
     frame: int

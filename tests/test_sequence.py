@@ -144,3 +144,28 @@ def test_bundle_refuses_emission_in_one_line(tmp_path, capsys):
     code = main(["bundle", str(path), str(tmp_path / "b")])
     err = capsys.readouterr().err
     assert code == 2 and "no emission" in err and err.count("\n") == 1, err
+
+
+def test_viewer_plays_a_sequence(tmp_path):
+    """The viewer's frame field switches the volume (clvol/viewer/server.py FrameMaker):
+    frames differ, returning to a frame gives its image again bit for bit (no stale state),
+    a frame not in the sequence is refused by name."""
+    from clvol.viewer.server import FrameMaker
+    from clvol.viewer.state import ViewState
+    sc = load_scene(_frames(tmp_path, 3))
+    maker = FrameMaker(sc)
+    try:
+        assert maker.frames == [1, 2, 3]
+        s = ViewState.from_scene(sc).update({"method": "single", "resolution": 64})
+        assert s.frame == 1
+        a = maker.render(s.update({"frame": 2}), None)
+        b = maker.render(s.update({"frame": 3}), a)
+        c = maker.render(s.update({"frame": 2}), b)
+        np.testing.assert_array_equal(a.layers["total"], c.layers["total"])
+        assert not np.array_equal(a.layers["total"], b.layers["total"])
+        with pytest.raises(ClvolError, match="frame 9: not in the sequence"):
+            maker.render(s.update({"frame": 9}), c)
+        with pytest.raises(Exception, match="frame"):
+            s.update({"frame": "two"})
+    finally:
+        maker.close()
