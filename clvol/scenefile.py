@@ -298,7 +298,7 @@ def _parse_sequence(ctx: "_Ctx", t: dict, p: Path, resolved: Path):
                         "with a {frame} field, e.g. \"fire_{frame:04d}.npz\"")
     try:
         a, b = p.name.format(frame=0), p.name.format(frame=1)
-    except (KeyError, IndexError, ValueError) as e:
+    except Exception as e:      # KeyError, IndexError, ValueError, AttributeError, TypeError
         raise ctx.error("volume.file", f, f"a sequence pattern takes one field, {{frame}} (an "
                         f"integer, e.g. {{frame:04d}}): {type(e).__name__}: {e}") from None
     if a == b:

@@ -55,7 +55,7 @@ def frame_path(pattern: str, frame: int) -> str:
     """``pattern`` with its ``{frame}`` field filled in."""
     try:
         return pattern.format(frame=frame)
-    except (KeyError, IndexError, ValueError) as e:
+    except Exception as e:      # KeyError, IndexError, ValueError, AttributeError, TypeError
         raise ClvolError(f"-o {pattern}: an output pattern takes one field, {{frame}} (e.g. "
                          f"out_{{frame:04d}}.exr): {type(e).__name__}: {e}") from None
 
