@@ -36,8 +36,13 @@ SCENE = {"volume": {"generator": "cloud", "seed": 3, "resolution": 32},
 
 @pytest.fixture(scope="module")
 def scene_path(tmp_path_factory):
+    """The scene, beside a copy of the shipped sky map (the map menu offers it) and a
+    rendered-looking square EXR (which the menu must leave out: not a lat-long map)."""
+    from clvol.image import write_exr
     p = tmp_path_factory.mktemp("view") / "small.toml"
     write_scene(p, **SCENE)
+    shutil.copy(ROOT / "examples" / "sky_64x32.exr", p.parent / "sky.exr")
+    write_exr(p.parent / "render.exr", {"total": np.ones((8, 8, 3), np.float32)})
     return p
 
 
@@ -121,6 +126,39 @@ def test_sky_control_sets_the_environment(scene_path):
     dark = r.render(light=dataclasses.replace(li, irradiance=(0.0, 0.0, 0.0), environment=None))
     lit = r.render(light=dataclasses.replace(li, irradiance=(0.0, 0.0, 0.0)))
     assert dark.layers["single"].max() == 0 and lit.layers["single"].max() > 0
+
+
+def test_sky_map_menu_offers_the_folders_maps_and_lights_with_them(scene_path):
+    """sky_maps lists the valid lat-long EXRs beside the scene (not the square one); a client
+    picks one by name (never a path; other names refused), and the light carries that map
+    scaled by ``sky``; null goes back to the constant sky."""
+    import clvol
+    from clvol.viewer.state import sky_maps
+    scene = load_scene(scene_path)
+    maps = sky_maps(scene)
+    assert list(maps) == ["sky.exr"]
+    s = ViewState.from_scene(scene)
+    assert s.sky_map is None
+    for bad in ("render.exr", "../sky.exr", str(scene_path.parent / "sky.exr"), 3):
+        with pytest.raises(ViewerMessageError, match="sky_map"):
+            s.update({"sky_map": bad}, maps)
+    picked = s.update({"sky_map": "sky.exr", "sky": [0.5, 0.5, 0.5]}, maps)
+    li = picked.light(scene.light, scene.camera, maps)
+    assert li.environment_map == maps["sky.exr"] and li.environment is None
+    assert li.environment_scale == (0.5, 0.5, 0.5)
+    back = picked.update({"sky_map": None}, maps).light(scene.light, scene.camera, maps)
+    assert back.environment_map is None and back.environment == (0.5, 0.5, 0.5)
+    assert picked.accumulation_key() != s.update({"sky": [0.5, 0.5, 0.5]}).accumulation_key()
+    # The map lights the medium with the sun off, and not as the constant sky of its mean
+    # would (the map is brighter overhead: the two images differ by more than rounding).
+    cam = dataclasses.replace(scene.camera, width=12, height=10)
+    r = clvol.Renderer(dataclasses.replace(scene, camera=cam), ms="none")
+    dark = dict(irradiance=(0.0, 0.0, 0.0))
+    by_map = r.render(light=dataclasses.replace(li, **dark)).layers["single"]
+    mean = tuple(float(v) for v in li.sky_mean())
+    by_mean = r.render(light=dataclasses.replace(back, environment=mean, **dark)).layers["single"]
+    assert by_map.max() > 0
+    assert np.abs(by_map - by_mean).max() > 1e-3 * by_map.max()
 
 
 # ------------------------------------------------------------------ the server process
@@ -502,6 +540,18 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
     d.execute_script("const e = document.getElementById('expmode'); e.value = 'image';"
                      "e.dispatchEvent(new Event('change'));")
     _wait(d, lambda: _meta(d)["exposure_from"] == "chosen from the image", "an auto frame")
+
+    # The sky map menu lists the folder's map; picking it sends its name and a frame lit by
+    # it comes back (white at scale 1 when the sky was off).
+    assert d.execute_script("return [...document.getElementById('skymap').options]"
+                            ".map(o => o.value)") == ["", "sky.exr"]
+    d.execute_script("const m = document.getElementById('skymap'); m.value = 'sky.exr';"
+                     "m.dispatchEvent(new Event('change'));")
+    _wait(d, lambda: _meta(d)["state"]["sky_map"] == "sky.exr", "a frame under the map")
+    assert _meta(d)["state"]["sky"] == [1.0, 1.0, 1.0]
+    d.execute_script("const m = document.getElementById('skymap'); m.value = '';"
+                     "m.dispatchEvent(new Event('change'));")
+    _wait(d, lambda: _meta(d)["state"]["sky_map"] is None, "a frame under the constant sky")
 
     # The path tracer accumulates while the view is still: spp grows.
     d.execute_script("const m = document.getElementById('method'); m.value = 'pathtrace';"

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ClvolError
-from .state import METHODS, ViewerMessageError, ViewState
+from .state import METHODS, ViewerMessageError, ViewState, sky_maps
 
 STATIC_DIR = Path(__file__).with_name("static")
 # Path tracer passes: samples per pixel per pass; small so the first image comes quickly.
@@ -75,6 +75,7 @@ class FrameMaker:
         self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="clvol-render")
         self.lock = threading.Lock()
         self.frames_rendered = 0
+        self.sky_maps = sky_maps(scene)      # the map menu: file name -> path
         from ..sequence import available_frames
         self.frames = available_frames(scene.volume)   # a sequence's frames (play control)
         self.loaded: dict[int, object] = {}            # frame -> LoadedFrame (a few, newest)
@@ -122,7 +123,7 @@ class FrameMaker:
         with self.lock:
             t0 = time.perf_counter()
             camera = state.camera(self.scene.camera)
-            light = state.light(self.scene.light, self.scene.camera)
+            light = state.light(self.scene.light, self.scene.camera, self.sky_maps)
             medium = state.medium(self.scene.medium)
             r = self.renderer(state.method)
             volume = self.volume_for(state.method, state.frame)
@@ -206,7 +207,7 @@ class Connection:
                 raise ViewerMessageError('expected an object with a "type"')
             kind = msg["type"]
             if kind == "state":
-                self.state = self.state.update(msg.get("state"))
+                self.state = self.state.update(msg.get("state"), self.maker.sky_maps)
                 self.wake.set()
             elif kind == "save":
                 await self.save()
@@ -254,7 +255,8 @@ class Connection:
             self.last = frame
             self.frame_id += 1
             # "from the light" uses the frame's own light (the client's sun and sky)
-            light = frame.state.light(self.maker.scene.light, self.maker.scene.camera)
+            light = frame.state.light(self.maker.scene.light, self.maker.scene.camera,
+                                      self.maker.sky_maps)
             data = await loop.run_in_executor(None, encode_frame, frame, self.frame_id,
                                               state.exposure, light)
             try:
@@ -294,7 +296,8 @@ def make_app(scene, save_dir: Path | None = None):
         conn = Connection(ws, maker, initial, save_dir)
         app["connections"].add(conn)
         await conn.send_json({"type": "hello", "state": initial.to_json(),
-                              "methods": list(METHODS), "frames": maker.frames,
+                              "methods": list(METHODS), "sky_maps": list(maker.sky_maps),
+                              "frames": maker.frames,
                               "scene": str(scene.path) if scene.path else None})
         task = asyncio.create_task(conn.render_loop())
         try:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -32,6 +33,31 @@ METHODS: dict[str, dict] = {
     "pathtrace": {"method": "pathtrace"},
 }
 RESOLUTIONS = (64, 128, 256, 512)
+MAX_SKY_MAPS = 32          # .exr files looked at in the scene's folder
+
+
+def sky_maps(scene: Scene) -> dict[str, Path]:
+    """The environment maps the viewer's map menu offers, by file name: the scene's own map
+    and every valid lat-long EXR (clvol.envmap.read_map's checks) in the scene file's folder.
+    Rendered images lying there (not 2:1, or without RGB) are left out, silently: the menu
+    lists what can be picked, nothing else. A client names a map; it never sends a path."""
+    from ..envmap import load_map
+    from ..errors import ImageError
+    maps: dict[str, Path] = {}
+    own = scene.light.environment_map
+    if own is not None:
+        maps[Path(own).name] = Path(own)
+    folder = Path(scene.path).parent if getattr(scene, "path", None) else None
+    if folder is not None and folder.is_dir():
+        for p in sorted(folder.glob("*.exr"))[:MAX_SKY_MAPS]:
+            if p.name in maps:
+                continue
+            try:
+                load_map(p)
+            except ImageError:
+                continue
+            maps[p.name] = p.resolve()
+    return maps
 
 # field -> (lo, hi) for numbers; every number must also be finite.
 LIMITS: dict[str, tuple[float, float]] = {
@@ -102,9 +128,11 @@ class ViewState:
     method: str = "network"
     resolution: int = 256
     preset: str | None = None
-    # The sky: a constant environment radiance (RGB; all 0 = no sky), or for a scene with an
-    # environment map the map's scale.
+    # The sky: a constant environment radiance (RGB; all 0 = no sky), or with ``sky_map``
+    # the map's scale.
     sky: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # None: the constant sky above; else the file name of an environment map (sky_maps()).
+    sky_map: str | None = None
     # A volume sequence's frame (the play control); None for a single volume.
     frame: int | None = None
 
@@ -126,14 +154,17 @@ class ViewState:
                    sky=tuple(float(v) for v in (
                        scene.light.environment_scale if scene.light.environment_map is not None
                        else scene.light.environment or (0.0, 0.0, 0.0))),
+                   sky_map=(Path(scene.light.environment_map).name
+                            if scene.light.environment_map is not None else None),
                    frame=_first_frame(scene))
 
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
 
-    def update(self, changes: dict) -> "ViewState":
+    def update(self, changes: dict, maps=()) -> "ViewState":
         """A new state with ``changes`` applied, every field checked; raises
-        ``ViewerMessageError`` naming the first bad field."""
+        ``ViewerMessageError`` naming the first bad field. ``maps``: the names ``sky_map``
+        may take (sky_maps())."""
         if not isinstance(changes, dict):
             raise ViewerMessageError("state: expected a JSON object")
         new = dataclasses.replace(self)
@@ -141,6 +172,13 @@ class ViewState:
         for key, value in changes.items():
             if key not in names:
                 raise ViewerMessageError(f"{key!r}: unknown field; allowed: {', '.join(sorted(names))}")
+            if key == "sky_map":
+                if value is not None and (not isinstance(value, str) or value not in maps):
+                    raise ViewerMessageError(
+                        f"sky_map: {value!r} is not one of the maps offered "
+                        f"({', '.join(maps) or 'none'}); null for a constant sky")
+                new.sky_map = value
+                continue
             setattr(new, key, _check_field(key, value))
         if "preset" in changes and new.preset is not None and not (
                 {"albedo", "g"} & changes.keys()):
@@ -157,13 +195,21 @@ class ViewState:
         return dataclasses.replace(base, origin=tuple(origin.tolist()), width=self.resolution,
                                    height=self.resolution)
 
-    def light(self, base: Light, camera: Camera) -> Light:
+    def light(self, base: Light, camera: Camera, maps=None) -> Light:
+        """The scene's light with the client's sun and sky. ``maps``: sky_maps() of the
+        scene, where ``sky_map`` is looked up (the scene's own map needs none)."""
         d = _direction(orbit_frame(camera), self.sun_azimuth, self.sun_elevation)
-        if base.environment_map is not None:
-            return dataclasses.replace(base, direction=tuple(d.tolist()),
-                                       environment_scale=tuple(self.sky))
+        if self.sky_map is not None:
+            own = base.environment_map
+            path = (Path(own) if own is not None and Path(own).name == self.sky_map
+                    else (maps or {}).get(self.sky_map))
+            if path is None:
+                raise ViewerMessageError(f"sky_map: {self.sky_map!r} is not a known map")
+            return dataclasses.replace(base, direction=tuple(d.tolist()), environment=None,
+                                       environment_map=path, environment_scale=tuple(self.sky))
         sky = tuple(self.sky) if any(v > 0 for v in self.sky) else None
-        return dataclasses.replace(base, direction=tuple(d.tolist()), environment=sky)
+        return dataclasses.replace(base, direction=tuple(d.tolist()), environment=sky,
+                                   environment_map=None)
 
     def medium(self, base: Medium) -> Medium:
         """The scene's medium with the client's albedo, density scale and phase. A preset

@@ -44,9 +44,21 @@ function showSky(sky) {
   $("skycolour").value = "#" + sky.map(hex).join("");
   $("skylevel").value = m;
 }
-function sendSky() {
+function skyValue() {
   const h = $("skycolour").value, m = Number($("skylevel").value);
-  send({ sky: [1, 3, 5].map((i) => (m * parseInt(h.slice(i, i + 2), 16)) / 255) });
+  return [1, 3, 5].map((i) => (m * parseInt(h.slice(i, i + 2), 16)) / 255);
+}
+function sendSky() { send({ sky: skyValue() }); }
+
+// The map menu: the maps the server offers (by file name), after "(constant colour)".
+function showMaps(names) {
+  const sel = $("skymap");
+  while (sel.options.length > 1) sel.remove(1);
+  for (const name of names) {
+    const o = document.createElement("option");
+    o.value = name; o.textContent = name;
+    sel.appendChild(o);
+  }
 }
 
 function showState(s) {
@@ -57,6 +69,7 @@ function showState(s) {
   s.albedo.forEach((a, i) => { $("albedo" + i).value = a; });
   $("g").value = s.g;
   showSky(s.sky);
+  $("skymap").value = s.sky_map || "";
   $("density").value = Math.log10(s.density_scale);
   $("expmode").value = s.exposure === null ? "image" : s.exposure === "scene" ? "scene" : "manual";
   if (typeof s.exposure === "number") $("exposure").value = s.exposure;
@@ -148,7 +161,9 @@ function connect() {
     if (typeof ev.data !== "string") { onFrame(ev.data); return; }
     const msg = JSON.parse(ev.data);
     if (msg.type === "hello") {
-      showState(msg.state); syncedPreset = msg.state.preset;
+      showMaps(msg.sky_maps || []);
+      showState(msg.state);
+      syncedPreset = msg.state.preset;
       setupSequence(msg.frames, msg.state.frame);
     }
     else if (msg.type === "error") log("error: " + msg.message);
@@ -185,6 +200,12 @@ function setup() {
   $("g").oninput = () => send({ g: Number($("g").value) });
   $("skycolour").oninput = sendSky;
   $("skylevel").oninput = sendSky;
+  // a map starts at scale 1 (white, radiance 1); back to a constant sky keeps the colour
+  $("skymap").onchange = () => {
+    const name = $("skymap").value || null;
+    if (name && Math.max(...state.sky) === 0) { showSky([1, 1, 1]); showNumbers(); }
+    send({ sky_map: name, sky: skyValue() });   // one message: one frame
+  };
   $("density").oninput = () => send({ density_scale: Math.pow(10, Number($("density").value)) });
   $("exposure").oninput = () => { $("expmode").value = "manual"; send({ exposure: Number($("exposure").value) }); };
   // auto: chosen from each frame; from the light: clvol.image.scene_exposure (docs/scenes.md)
