@@ -4,6 +4,13 @@ measured error and time of each -- all from this one run.
 
     python bench/gallery.py                  # docs/gallery/*.png and docs/gallery.md
     python bench/gallery.py --quick          # small and noisy, to check it runs
+    python bench/gallery.py --examples fire --update   # re-make some rows, keep the others
+
+``fire`` is examples/fire/fire.toml (frame 6 of the generated sequence: its frames are made
+by examples/fire/make_fire.py when missing); its row's strip adds no emission column: every
+method shows its emission (the ray marcher the unscattered part only, docs/raymarch.md).
+With ``--update`` the rows made in this run replace theirs in the existing gallery.md (or are
+appended), each with the machine line of its own run; the other rows stay as they were.
 
 Each row is one PNG strip (paper | reference | Wrenninge | single | error of the paper's
 method), every image of a row tone-mapped with the same exposure (chosen from the reference)
@@ -26,7 +33,19 @@ import numpy as np
 import _common
 
 ROOT = _common.ROOT
-EXAMPLES = ("cloud", "cloud_silver", "cloud_sky", "cloud_large", "jade", "milk", "wax", "smoke")
+EXAMPLES = ("cloud", "cloud_silver", "cloud_sky", "cloud_large", "jade", "milk", "wax", "smoke",
+            "fire")
+
+
+def example_path(name: str) -> Path:
+    if name == "fire":
+        fire = ROOT / "examples" / "fire"
+        if not (fire / "fire_0006.npz").exists():
+            sys.path.insert(0, str(fire))
+            import make_fire
+            make_fire.main([])
+        return fire / "fire.toml"
+    return ROOT / "examples" / f"{name}.toml"
 ERROR_GAIN = 4.0
 GAP = 4
 # label -> Renderer options (the paper's method is the default: no options)
@@ -70,6 +89,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "docs" / "gallery"), help="folder for the PNGs")
     ap.add_argument("--markdown", default=str(ROOT / "docs" / "gallery.md"))
     ap.add_argument("--quick", action="store_true", help="64 pixels, 16 spp, 1 warm frame")
+    ap.add_argument("--update", action="store_true",
+                    help="replace only this run's rows in the existing markdown")
     args = ap.parse_args(argv)
     if args.quick:
         args.size, args.spp, args.warm_frames = 64, 16, 1
@@ -88,7 +109,7 @@ def main(argv=None) -> int:
     rows = []
     bar = Progress(len(args.examples) * len(METHODS), label="gallery", unit=" images")
     for name in args.examples:
-        scene = _common.square(clvol.load_scene(ROOT / "examples" / f"{name}.toml"), args.size)
+        scene = _common.square(clvol.load_scene(example_path(name)), args.size)
         images, facts = {}, {}
         for label, options in METHODS.items():
             if label == "reference":
@@ -125,13 +146,37 @@ def main(argv=None) -> int:
             f"{k} {v['seconds'] * 1e3:.0f} ms" + (f", MRPNN {v['mrpnn']:.2f}" if "mrpnn" in v else "")
             for k, v in facts.items()))
     bar.close()
-    write_markdown(Path(args.markdown), rows, args, machine)
+    write_markdown(Path(args.markdown), rows, args, machine, update=args.update)
     print(f"wrote {args.markdown} and {len(rows)} images in {out}")
     return 0
 
 
-def write_markdown(path: Path, rows, args, machine: str) -> None:
+def _sections(text: str) -> tuple[str, dict]:
+    """(the text before the first row, {name: that row's section text})."""
+    parts = text.split("\n## ")
+    head, out = parts[0], {}
+    for p in parts[1:]:
+        out[p.split(" ", 1)[0]] = "## " + p
+    return head, out
+
+
+def write_markdown(path: Path, rows, args, machine: str, update: bool = False) -> None:
     rel = lambda p: Path(p).resolve().relative_to(path.parent.resolve()).as_posix()  # noqa: E731
+    if update and path.exists():
+        head, old = _sections(path.read_text())
+        for name, png, facts, ev in rows:
+            where = ("examples/fire/fire.toml, frame 6" if name == "fire"
+                     else f"examples/{name}.toml")
+            lines = [f"## {name} (`{where}`)", "", f"![{name}]({rel(png)})", "",
+                     f"Made by `python bench/gallery.py --examples {' '.join(args.examples)} "
+                     f"--update` ({args.spp} spp reference, {args.size}x{args.size}); machine: "
+                     f"{machine}.", ""]
+            lines += _table(facts)
+            old[name] = "\n".join(lines) + "\n"
+        order = [n for n in EXAMPLES if n in old] + [n for n in old if n not in EXAMPLES]
+        path.write_text(head.rstrip("\n") + "\n\n" + "\n".join(old[n].rstrip("\n") + "\n"
+                                                                  for n in order))
+        return
     lines = [
         "# Gallery",
         "",
@@ -154,17 +199,23 @@ def write_markdown(path: Path, rows, args, machine: str) -> None:
         "",
     ]
     for name, png, facts, ev in rows:
-        lines += [f"## {name} (`examples/{name}.toml`)", "", f"![{name}]({rel(png)})", "",
-                  "| method | time | MRPNN RMSE x100 | relMSE | mean / reference |",
-                  "|---|---|---|---|---|"]
-        for label, f in facts.items():
-            if label == "reference":
-                lines.append(f"| {TITLES[label]} | {f['seconds']:.1f} s | - | - | 1 |")
-            else:
-                lines.append(f"| {TITLES[label]} | {f['seconds'] * 1e3:.1f} ms | {f['mrpnn']:.2f} | "
-                             f"{f['relmse']:.4f} | {f['mean_ratio']:.3f} |")
-        lines.append("")
+        where = "examples/fire/fire.toml, frame 6" if name == "fire" else f"examples/{name}.toml"
+        lines += [f"## {name} (`{where}`)", "", f"![{name}]({rel(png)})", ""]
+        lines += _table(facts)
     path.write_text("\n".join(lines))
+
+
+def _table(facts) -> list[str]:
+    lines = ["| method | time | MRPNN RMSE x100 | relMSE | mean / reference |",
+             "|---|---|---|---|---|"]
+    for label, f in facts.items():
+        if label == "reference":
+            lines.append(f"| {TITLES[label]} | {f['seconds']:.1f} s | - | - | 1 |")
+        else:
+            lines.append(f"| {TITLES[label]} | {f['seconds'] * 1e3:.1f} ms | {f['mrpnn']:.2f} | "
+                         f"{f['relmse']:.4f} | {f['mean_ratio']:.3f} |")
+    lines.append("")
+    return lines
 
 
 if __name__ == "__main__":

@@ -26,6 +26,12 @@
  *     beta /= q (unbiased; with albedo ~1, q ~ albedo, so long paths of clouds survive).
  *   - max_order > 0 stops after the NEE of vertex max_order (0 = unlimited); paths longer
  *     than PT_MAX_VERTICES are cut and counted (reported, never silent).
+ *   - emission (PT_EMISSION; docs/pathtrace.md "Emission"): the medium emits sigma_a Le,
+ *     sigma_a = sigma_t (1 - albedo); at every real collision, before beta *= albedo, the
+ *     path adds beta * (1 - albedo) * Le(x) (the collision estimator: collisions have
+ *     density sigma_t T, so its expectation is int T sigma_a Le dt along each flight). The
+ *     first collision's goes to the row's unscattered emission, later ones' to its scattered
+ *     emission. No random numbers are drawn for it.
  * Point queries start at p as vertex 1 with beta = 1 and w = -omega (omega toward the
  * camera): order 1 gives F_1 = f(dot(-l, omega)) T(p -> sun), orders >= 2 give F_>=2.
  *
@@ -38,7 +44,8 @@
  * u_rr (only if k >= PT_RR_START); phase sample: 3 uniforms (lobe, polar, azimuth).
  * reference/pathtrace.py draws the same.
  *
- * Defines: PHASE_LOBES / PHASE_ISOTROPIC (phase.h); PT_GREY (scalar throughput);
+ * Defines: PT_EMISSION, PT_EMISSION_CHANNELS 1|3 (emission grid planes, below);
+ * PHASE_LOBES / PHASE_ISOTROPIC (phase.h); PT_GREY (scalar throughput);
  * PT_ENV (a constant environment); PT_ENVMAP (a lat-long environment map); PT_NO_SUN (no sun); PT_SINGLE_ONLY (stop after vertex
  * 1); PT_RR_START, PT_MAX_VERTICES; PT_TEST_BIAS (tests only: scales sun NEE by its value);
  * PT_LANES (8 or 16 paths per work-item), PT_BATCH (lanes waiting before the vertex code
@@ -57,10 +64,15 @@
  *   PT_ENVMAP only (clvol/envmap.py Tables): env_rgbl float [h][w][4] (scaled RGB and
  *             luminance), env_marg float [h+1], env_cond float [h][w+1] (CDFs, last 1),
  *             env_w, env_h int, env_rot float (radians about +y), env_inv_total float
+ *   PT_EMISSION only (after those): em float [C][ez][ey][ex] over em_min .. em_max (its
+ *             own box: trilinear between voxel centres, clamped, Le = 0 outside it),
+ *             emx, emy, emz int, em_min, em_max float4, em_colour float4 (Le = em_colour
+ *             times the planes; C = PT_EMISSION_CHANNELS, 1 plane coloured by em_colour)
  * pt_render: cam_o, cam_f, cam_r, cam_u float4, tan_half, width, height; seed ulong;
  *   sample0 uint; spl int (samples per launch; path g: pixel g % npix, sample
  *   sample0 + g / npix); max_order int; out float [spl*npix][PT_OUT]:
- *   (background rgb, order-1 rgb, orders>=2 rgb, vertices, tracking steps, truncated);
+ *   (background rgb, order-1 rgb, orders>=2 rgb, vertices, tracking steps, truncated;
+ *   with PT_EMISSION then: emission seen unscattered rgb, emission scattered >= 1 time rgb);
  *   next uint [1] (5 with PT_STATS), zero at launch: the next path to start.
  * pt_query: points, omegas float [nq][3]; nq; seed; sample0; ppl (paths per launch,
  *   path g: query g % nq, path sample0 + g / nq); max_order; out as pt_render with
@@ -82,7 +94,22 @@
 #endif
 /* Ratio-tracking roulette threshold: below it, T survives with probability T / PT_T_RR. */
 #define PT_T_RR 0.1f
+#ifdef PT_EMISSION
+#define PT_OUT 18
+#define PT_ACC 15     /* background, order 1, orders >= 2, emission unscattered, scattered */
+#ifndef PT_EMISSION_CHANNELS
+#define PT_EMISSION_CHANNELS 1
+#endif
+#if PT_EMISSION_CHANNELS != 1 && PT_EMISSION_CHANNELS != 3
+#error "PT_EMISSION_CHANNELS must be 1 or 3"
+#endif
+#ifdef PT_ORDER_BINS
+#error "PT_ORDER_BINS bins the sun's light per order: point queries have no emission"
+#endif
+#else
 #define PT_OUT 12
+#define PT_ACC 9
+#endif
 
 /* Per-order point queries (-D PT_ORDER_BINS, grey, sun only; docs/pathtrace.md "Labels per
  * scattering order"): every sun NEE of vertex k >= 2 adds its value v to bin b(e) of its
@@ -196,7 +223,7 @@ typedef struct {
     float br[PT_LANES], bg[PT_LANES], bb[PT_LANES];   /* throughput (PT_GREY: br only) */
     float f[PT_LANES];                                /* phase value of the pending NEE */
     int pend[PT_LANES];                               /* pending step (H_*), 0 = none */
-    float acc[9][PT_LANES];                           /* background, order 1, orders >= 2 */
+    float acc[PT_ACC][PT_LANES];                      /* background, order 1, orders >= 2 */
 #ifdef PT_ENVMAP
     float lx[PT_LANES], ly[PT_LANES], lz[PT_LANES];   /* shadow ray direction */
     float ec[3][PT_LANES];      /* env NEE: L f w_env / p_env of the pending shadow ray */
@@ -249,6 +276,11 @@ typedef struct {
     float3 bmin, bmax, bsize;
     float3 inv_cell;   /* n / (bmax - bmin): voxels per unit length */
     float scale;
+#ifdef PT_EMISSION
+    __global const float *em;
+    int emx, emy, emz;
+    float3 em_min, em_max, em_inv_cell, em_colour;
+#endif
 } pt_medium;
 
 /* sigma_t at (px, py, pz) in the lanes of mask (0 elsewhere and outside the box):
@@ -280,6 +312,35 @@ vf pt_sigma_lanes(const pt_medium *m, vf px, vf py, vf pz, vi mask) {
     vf v = mix(mix(c00, c01, fy), mix(c10, c11, fy), fz) * m->scale;
     return select((vf)(0.0f), v, in);
 }
+
+#ifdef PT_EMISSION
+/* Plane `p` of the emission grid at (px, py, pz) in the lanes of mask, trilinear between
+ * voxel centres, clamped; 0 outside the grid's box and outside mask (grid.h's lookup). */
+__attribute__((always_inline))
+vf pt_emission_lanes(const pt_medium *m, int p, vf px, vf py, vf pz, vi mask) {
+    vi in = mask & (px >= m->em_min.x) & (px <= m->em_max.x) & (py >= m->em_min.y) &
+            (py <= m->em_max.y) & (pz >= m->em_min.z) & (pz <= m->em_max.z);
+    vf gx = select((vf)(0.0f), (px - m->em_min.x) * m->em_inv_cell.x - 0.5f, in);
+    vf gy = select((vf)(0.0f), (py - m->em_min.y) * m->em_inv_cell.y - 0.5f, in);
+    vf gz = select((vf)(0.0f), (pz - m->em_min.z) * m->em_inv_cell.z - 0.5f, in);
+    vf x = clamp(gx, (vf)(0.0f), (vf)((float)(m->emx - 1)));
+    vf y = clamp(gy, (vf)(0.0f), (vf)((float)(m->emy - 1)));
+    vf z = clamp(gz, (vf)(0.0f), (vf)((float)(m->emz - 1)));
+    vi x0 = VCONVERT_I(x), y0 = VCONVERT_I(y), z0 = VCONVERT_I(z);
+    vi dx = select((vi)(0), (vi)(1), x0 < m->emx - 1);
+    vi y1 = min(y0 + 1, (vi)(m->emy - 1)), z1 = min(z0 + 1, (vi)(m->emz - 1));
+    vf fx = x - VCONVERT_F(x0), fy = y - VCONVERT_F(y0), fz = z - VCONVERT_F(z0);
+    int sz = m->emx * m->emy;
+    vi r00 = z0 * sz + y0 * m->emx + x0, r01 = z0 * sz + y1 * m->emx + x0;
+    vi r10 = z1 * sz + y0 * m->emx + x0, r11 = z1 * sz + y1 * m->emx + x0;
+    __global const float *d = m->em + (size_t)p * (size_t)(sz * m->emz);
+    vf c00 = mix(VGATHER(d, r00), VGATHER(d, r00 + dx), fx);
+    vf c01 = mix(VGATHER(d, r01), VGATHER(d, r01 + dx), fx);
+    vf c10 = mix(VGATHER(d, r10), VGATHER(d, r10 + dx), fx);
+    vf c11 = mix(VGATHER(d, r11), VGATHER(d, r11 + dx), fx);
+    return select((vf)(0.0f), mix(mix(c00, c01, fy), mix(c10, c11, fy), fz), in);
+}
+#endif
 
 /* ------------------------------------------------------------------ random walk */
 
@@ -551,6 +612,35 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             VSTORE(select(VLOAD(S->oz), VLOAD(S->oz) + t * VLOAD(S->wz), e), S->oz);
             vf br, bg, bb;
             pt_beta_v(S, &br, &bg, &bb);
+#ifdef PT_EMISSION
+            {   /* beta (1 - albedo) Le(x) before the albedo enters beta: slots 9..11 for the
+                 * first collision (k = 0: seen unscattered), 12..14 for later ones */
+                vf px = VLOAD(S->ox), py = VLOAD(S->oy), pz = VLOAD(S->oz);
+                vf l0 = pt_emission_lanes(m, 0, px, py, pz, e);
+#if PT_EMISSION_CHANNELS == 3
+                vf l1 = pt_emission_lanes(m, 1, px, py, pz, e);
+                vf l2 = pt_emission_lanes(m, 2, px, py, pz, e);
+#else
+                vf l1 = l0, l2 = l0;
+#endif
+#ifdef PT_GREY
+                const float ar = 1.0f - L->albedo, ag = ar, ab = ar;
+#else
+                const float ar = 1.0f - L->albedo.r, ag = 1.0f - L->albedo.g,
+                            ab = 1.0f - L->albedo.b;
+#endif
+                vf er = br * (ar * m->em_colour.x) * l0;
+                vf eg = bg * (ag * m->em_colour.y) * l1;
+                vf eb = bb * (ab * m->em_colour.z) * l2;
+                vi first = e & (VLOAD(S->k) == 0), later = e & (VLOAD(S->k) != 0);
+                VSTORE(VLOAD(S->acc[9]) + select((vf)(0.0f), er, first), S->acc[9]);
+                VSTORE(VLOAD(S->acc[10]) + select((vf)(0.0f), eg, first), S->acc[10]);
+                VSTORE(VLOAD(S->acc[11]) + select((vf)(0.0f), eb, first), S->acc[11]);
+                VSTORE(VLOAD(S->acc[12]) + select((vf)(0.0f), er, later), S->acc[12]);
+                VSTORE(VLOAD(S->acc[13]) + select((vf)(0.0f), eg, later), S->acc[13]);
+                VSTORE(VLOAD(S->acc[14]) + select((vf)(0.0f), eb, later), S->acc[14]);
+            }
+#endif
 #ifdef PT_GREY
             pt_set_beta_v(S, e, br * L->albedo, br, br);
 #else
@@ -600,6 +690,9 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
                 o[9] = (float)S->vertices[j];
                 o[10] = (float)S->steps[j];
                 o[11] = (float)S->truncated[j];
+#ifdef PT_EMISSION
+                for (int c = 9; c < PT_ACC; ++c) o[c + 3] = S->acc[c][j];
+#endif
             }
             h = select(h, (vi)(H_START), e);
         }
@@ -641,7 +734,7 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             VSTORE(select(VLOAD(S->shi), (vu)(0u), e), S->shi);
             VSTORE(select(VLOAD(S->block), (vu)(0u), e), S->block);
             VSTORE(select(VLOAD(S->used), (vi)(8), e), S->used);   /* nothing buffered */
-            for (int c = 0; c < 9; ++c) VSTORE(select(VLOAD(S->acc[c]), (vf)(0.0f), e), S->acc[c]);
+            for (int c = 0; c < PT_ACC; ++c) VSTORE(select(VLOAD(S->acc[c]), (vf)(0.0f), e), S->acc[c]);
             VSTORE(select(VLOAD(S->steps), (vi)(0), e), S->steps);
             VSTORE(select(VLOAD(S->vertices), (vi)(0), e), S->vertices);
             VSTORE(select(VLOAD(S->truncated), (vi)(0), e), S->truncated);
@@ -1003,7 +1096,7 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
         const int nz, const int mx, const int my, const int mz, const float4 bmin,       \
         const float4 bmax, const float4 bsize, const float scale, const float4 albedo,   \
         const float4 lobe_g, const float4 lobe_w, const float4 light_dir,                \
-        const float4 sun, const float4 env PT_ENVMAP_ARGS
+        const float4 sun, const float4 env PT_ENVMAP_ARGS PT_EMISSION_ARGS
 
 #ifdef PT_ENVMAP
 #define PT_ENVMAP_ARGS                                                                    \
@@ -1018,6 +1111,19 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
 #define PT_ENVMAP_SETUP
 #endif
 
+#ifdef PT_EMISSION
+#define PT_EMISSION_ARGS                                                                  \
+    , __global const float *em, const int emx, const int emy, const int emz,              \
+        const float4 em_min, const float4 em_max, const float4 em_colour
+#define PT_EMISSION_SETUP                                                                 \
+    m.em = em; m.emx = emx; m.emy = emy; m.emz = emz;                                     \
+    m.em_min = em_min.xyz; m.em_max = em_max.xyz; m.em_colour = em_colour.xyz;            \
+    m.em_inv_cell = (float3)((float)emx, (float)emy, (float)emz) / (em_max.xyz - em_min.xyz);
+#else
+#define PT_EMISSION_ARGS
+#define PT_EMISSION_SETUP
+#endif
+
 #define PT_SETUP                                                                          \
     pt_medium m;                                                                          \
     m.density = density; m.maj = maj;                                                     \
@@ -1028,7 +1134,8 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
     L.dir = light_dir.xyz; L.sun = pt_rgb_of(sun); L.env = pt_rgb_of(env);                \
     L.albedo = SPEC_OF(albedo);                                                           \
     L.lobe_g = lobe_g; L.lobe_w = lobe_w;                                                 \
-    PT_ENVMAP_SETUP
+    PT_ENVMAP_SETUP                                                                       \
+    PT_EMISSION_SETUP
 
 /* Work-items share the launch's paths through *next (zero at launch); any number of
  * work-items gives the same rows. */

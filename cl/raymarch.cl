@@ -39,6 +39,14 @@
  *   ENV_CHANNELS 1|3 planes per part of `env` (1: grey, coloured by env_colour once per ray)
  *   BG_IMAGE 0|1     the background is the per-pixel image `bg_image` (an environment map
  *                    seen along each camera ray) instead of the constant `background`
+ *   EMISSION 0|1     emission (clvol/emission.py): each segment adds T_cam (1 - e^-tau)
+ *                    (1 - albedo) Le(x_ts), the exact integral of T_cam sigma_a Le for an Le
+ *                    constant (or linear) over the segment, sigma_a = sigma_t (1 - albedo)
+ *                    (docs/conventions.md "Emission"). Into the `emission` layer and `total`.
+ *                    Absent (0) the kernel is the one without emission, bit for bit
+ *   EMISSION_CHANNELS 1|3  planes of `em` (1: grey, coloured by em_colour once per ray)
+ *   EMISSION_BOX 0|1 1: `em` has a box of its own (em_min .. em_max), Le = 0 outside it;
+ *                    0: it lies on the density's grid (no test needed, as for the density)
  *
  * Arguments (float4 holds a 3-vector in xyz; world units throughout):
  *   density    float [nz][ny][nx]     raw density over bmin..bmax; sigma_t = density * density_scale
@@ -65,6 +73,9 @@
  *              The pixel gets env_colour (RGB) times their march integrals: into `single`
  *              and `multiple` respectively
  *   bg_image   float [height][width][3] with BG_IMAGE: background radiance per pixel
+ *   em         (after those, only with EMISSION) float [C][ez][ey][ex], C = EMISSION_CHANNELS,
+ *              over em_min .. em_max (voxel centres, trilinear, clamped); Le = em_colour (RGB)
+ *              times the planes; emission_out float [height][width][3] out
  *   oct_a, oct_b, oct_c  Wrenninge extinction, contribution and eccentricity multipliers
  *   step       segment length; threshold: a ray stops once T_cam < threshold (the light it
  *              misses is < threshold * its largest source radiance; reference/raymarch.py)
@@ -114,6 +125,18 @@
 #endif
 #if ENV_CHANNELS != 1 && ENV_CHANNELS != 3
 #error "ENV_CHANNELS must be 1 or 3"
+#endif
+#ifndef EMISSION
+#define EMISSION 0
+#endif
+#ifndef EMISSION_CHANNELS
+#define EMISSION_CHANNELS 1
+#endif
+#ifndef EMISSION_BOX
+#define EMISSION_BOX 0
+#endif
+#if EMISSION_CHANNELS != 1 && EMISSION_CHANNELS != 3
+#error "EMISSION_CHANNELS must be 1 or 3"
 #endif
 
 #if MS_OCTAVES < 1 || MS_OCTAVES > 8
@@ -225,6 +248,11 @@ __kernel void raymarch(
 #endif
 #if BG_IMAGE
     , __global const float *bg_image
+#endif
+#if EMISSION
+    , __global const float *em, const int emx, const int emy, const int emz,
+    const float4 em_min, const float4 em_max, const float4 em_colour,
+    __global float *emission_out
 #endif
     )
 {
@@ -373,6 +401,15 @@ __kernel void raymarch(
 #else
     v16 ES0 = (v16)(0.0f), ES1 = (v16)(0.0f), ES2 = (v16)(0.0f);
     v16 EM0 = (v16)(0.0f), EM1 = (v16)(0.0f), EM2 = (v16)(0.0f);
+#endif
+#endif
+#if EMISSION
+    const float3 emcell = (em_max.xyz - em_min.xyz) / (float3)((float)emx, (float)emy, (float)emz);
+    const int emplane = emx * emy * emz;
+#if EMISSION_CHANNELS == 1
+    v16 EE = (v16)(0.0f);
+#else
+    v16 EE0 = (v16)(0.0f), EE1 = (v16)(0.0f), EE2 = (v16)(0.0f);
 #endif
 #endif
 #if RAYMARCH_STATS
@@ -530,6 +567,29 @@ __kernel void raymarch(
 #endif
         }
 #endif
+#if EMISSION
+        /* Emission at the segment's source point: T_cam (1 - e^-tau) Le(x_ts); (1 - albedo)
+         * and the colour are applied once per ray. */
+        if (any(tau > 0.0f)) {
+            const v16 ux = (rx - em_min.x) / emcell.x - 0.5f;
+            const v16 uy = (ry - em_min.y) / emcell.y - 0.5f;
+            const v16 uz = (rz - em_min.z) / emcell.z - 0.5f;
+#if EMISSION_BOX
+            const i16 in_em = (rx >= em_min.x) & (rx <= em_max.x) & (ry >= em_min.y) &
+                              (ry <= em_max.y) & (rz >= em_min.z) & (rz <= em_max.z);
+            const v16 we = select((v16)(0.0f), w, in_em);
+#else
+            const v16 we = w;
+#endif
+#if EMISSION_CHANNELS == 1
+            EE += we * lookup16(em, emx, emy, emz, ux, uy, uz);
+#else
+            EE0 += we * lookup16(em, emx, emy, emz, ux, uy, uz);
+            EE1 += we * lookup16(em + emplane, emx, emy, emz, ux, uy, uz);
+            EE2 += we * lookup16(em + 2 * emplane, emx, emy, emz, ux, uy, uz);
+#endif
+        }
+#endif
         A += w;
         /* Depth: the same mean position, t_a + frac * len, weighted by this segment's share
          * of the extinction (exact for a constant sigma_t over the segment). */
@@ -579,9 +639,27 @@ __kernel void raymarch(
     store_lanes(multiple, 3, 0, m_r, pix, valid);
     store_lanes(multiple, 3, 1, m_g, pix, valid);
     store_lanes(multiple, 3, 2, m_b, pix, valid);
+#if EMISSION
+    /* sigma_a Le = sigma_t (1 - albedo) em_colour planes: colour once per ray. */
+    const float3 ea = (float3)(1.0f) - albedo.xyz;
+#if EMISSION_CHANNELS == 1
+    const v16 e_r = (ea.x * em_colour.x) * EE, e_g = (ea.y * em_colour.y) * EE,
+              e_b = (ea.z * em_colour.z) * EE;
+#else
+    const v16 e_r = (ea.x * em_colour.x) * EE0, e_g = (ea.y * em_colour.y) * EE1,
+              e_b = (ea.z * em_colour.z) * EE2;
+#endif
+    store_lanes(emission_out, 3, 0, e_r, pix, valid);
+    store_lanes(emission_out, 3, 1, e_g, pix, valid);
+    store_lanes(emission_out, 3, 2, e_b, pix, valid);
+    store_lanes(total, 3, 0, s_r + m_r + e_r + T * bg_r, pix, valid);
+    store_lanes(total, 3, 1, s_g + m_g + e_g + T * bg_g, pix, valid);
+    store_lanes(total, 3, 2, s_b + m_b + e_b + T * bg_b, pix, valid);
+#else
     store_lanes(total, 3, 0, s_r + m_r + T * bg_r, pix, valid);
     store_lanes(total, 3, 1, s_g + m_g + T * bg_g, pix, valid);
     store_lanes(total, 3, 2, s_b + m_b + T * bg_b, pix, valid);
+#endif
     store_lanes(alpha, 1, 0, A, pix, valid);
     store_lanes(depth, 1, 0, select((v16)(0.0f), D / A, A > 0.0f), pix, valid);
 #if RAYMARCH_STATS

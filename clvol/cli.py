@@ -168,6 +168,8 @@ def _cmd_render(args) -> int:
     if over:             # checked like the scene file's own fields (range, type)
         scene = scene.with_overrides(over, source=str(args.scene))
     renderer = Renderer(scene, args.method, **given_options(args, list(METHODS)))
+    if args.frames is not None:
+        return _render_frames(args, scene, renderer, png, exposure, tone)
     result = renderer.render()
     if args.profile:
         print("device time per kernel:\n" + get_runtime().timing_report(), file=sys.stderr)
@@ -185,6 +187,57 @@ def _cmd_render(args) -> int:
     if not args.quiet:
         for key, value in result.header.items():
             print(f"  {key}: {value}", file=sys.stderr)
+    return 0
+
+
+def _cmd_bundle(args) -> int:
+    """``clvol bundle``, after refusing what the C host does not render (emission, a volume
+    sequence), in one line."""
+    from . import bundle
+    from .scene import load_scene
+    scene = load_scene(args.scene)
+    if scene.emission is not None:
+        raise ClvolError(f"{args.scene}: clvol bundle: the C host has no emission; render "
+                         f"[emission] scenes with clvol render (docs/embedding.md)")
+    if scene.volume.is_sequence:
+        raise ClvolError(f"{args.scene}: clvol bundle: the volume is a sequence "
+                         f"({scene.volume.file.name}); bundle one frame's file instead")
+    return bundle.run(args)
+
+
+def _render_frames(args, scene, renderer, png, exposure, tone) -> int:
+    """``--frames``: one EXR (and PNG) per frame of the scene's volume sequence, the next
+    frame read on a second thread while this one renders (clvol/sequence.py)."""
+    from .image import choose_exposure, write_exr, write_png_preview
+    from .progress import Progress
+    from .sequence import check_output_pattern, frame_path, parse_frames, render_sequence
+    frames = parse_frames(args.frames)
+    if not scene.volume.is_sequence:
+        raise ClvolError(f"--frames {args.frames}: the scene's volume is not a sequence; give "
+                         f"[volume] file a {{frame}} field, e.g. \"fire_{{frame:04d}}.npz\"")
+    check_output_pattern(args.output, frames)
+    if png:
+        check_output_pattern(png, frames)
+    written = []
+
+    def on_frame(n, result, loaded):
+        out = frame_path(args.output, n)
+        header = {"scene": str(args.scene), "frame": n, "volume.file": str(loaded.file),
+                  **result.header}
+        if png:
+            stops, how = choose_exposure(exposure, result.layers["total"], scene.light)
+            header.update({"preview.exposure": f"{stops:+.4f}", "preview.exposure_from": how,
+                           "preview.tone": tone})
+        write_exr(out, result.layers, header)
+        written.append(out)
+        if png:
+            write_png_preview(frame_path(png, n), result.layers["total"], exposure=stops,
+                              curve=tone)
+
+    with Progress(len(frames), label="frames", unit=" frames") as bar:
+        stats = render_sequence(scene, renderer, frames, on_frame, progress=bar)
+    print(f"wrote {len(written)} frames: {written[0]} .. {written[-1]} ({stats.wall:.1f} s)",
+          file=sys.stderr)
     return 0
 
 
@@ -335,6 +388,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, default=None, help="override the camera's height")
     p.add_argument("--quiet", action="store_true",
                    help="print only the files written, not the render summary")
+    p.add_argument("--frames", default=None, metavar="LIST",
+                   help="a volume sequence (file = \"x_{frame:04d}.vdb\"): the frames to "
+                        "render, e.g. 1-48 or 1,5,9; -o then names each file with {frame}, "
+                        "e.g. -o out_{frame:04d}.exr (docs/scenes.md, 'Sequences')")
     # Each method's options, bound to it: one the chosen method does not use is refused.
     add_cli_arguments(p, list(available_methods()))
     p.set_defaults(func=_cmd_render)
@@ -355,7 +412,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("bundle", help="write what a C host needs to render a scene "
                                       "(docs/embedding.md)")
     bundle.add_arguments(p)
-    p.set_defaults(func=bundle.run)
+    p.set_defaults(func=_cmd_bundle)
     p = sub.add_parser("goldens", help="write golden inputs and outputs of every kernel "
                                        "(docs/embedding.md)")
     goldens.add_arguments(p)

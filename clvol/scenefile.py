@@ -33,8 +33,8 @@ import numpy as np
 
 from .errors import SceneError, VolumeError
 from .scenemodel import (_ALREADY_UNIT, HG_G_LIMIT, MAX_IMAGE_SIZE, MAX_VDB_RESOLUTION,
-                         MHG_MAX_LOBES, MHG_WEIGHT_TOL, PRESETS, VOLUME_SUFFIXES, Camera, Light,
-                         Lobe, Medium, Phase, VolumeSpec)
+                         MHG_MAX_LOBES, MHG_WEIGHT_TOL, PRESETS, VOLUME_SUFFIXES, Camera,
+                         EmissionSpec, Light, Lobe, Medium, Phase, VolumeSpec, is_frame_pattern)
 
 
 # --------------------------------------------------------------------------- the scene
@@ -56,6 +56,7 @@ class Scene:
     medium: Medium
     light: Light
     camera: Camera
+    emission: EmissionSpec | None = None
 
     def to_dict(self) -> dict:
         """Plain dict that ``scene_from_dict`` turns back into an equal scene.
@@ -71,6 +72,8 @@ class Scene:
                 vol["grid"] = v.grid
             if v.max_resolution is not None:
                 vol["max_resolution"] = v.max_resolution
+            if v.frame is not None:
+                vol["frame"] = v.frame
         else:
             vol["generator"] = v.generator
             vol["seed"] = v.seed
@@ -101,7 +104,13 @@ class Scene:
         c = self.camera
         cam = {"origin": list(c.origin), "target": list(c.target), "up": list(c.up),
                "fov_y": c.fov_y, "width": c.width, "height": c.height}
-        return {"volume": vol, "medium": med, "light": light, "camera": cam}
+        out = {"volume": vol, "medium": med, "light": light, "camera": cam}
+        if self.emission is not None:
+            e = self.emission
+            out["emission"] = {"grid": e.grid, "kind": e.kind, "scale": e.scale}
+            if e.kind == "radiance":
+                out["emission"]["colour"] = list(e.colour)
+        return out
 
     def with_overrides(self, overrides: dict[str, Any], source: str = "<override>") -> "Scene":
         """A validated copy with dotted fields replaced, e.g. ``{"camera.width": 512}``.
@@ -170,7 +179,8 @@ def scene_from_dict(data: dict, source: str = "<scene>", base_dir: Path | None =
     ctx = _Ctx(source)
     if not isinstance(data, dict):
         raise SceneError(f"{source}: a scene must be a table, got {type(data).__name__}")
-    _check_keys(ctx, "", data, ("volume", "medium", "light", "camera"), kind="table")
+    _check_keys(ctx, "", data, ("volume", "medium", "light", "camera", "emission"),
+                kind="table")
     tables = {}
     for name in ("volume", "medium", "light", "camera"):
         if name not in data:
@@ -184,7 +194,36 @@ def scene_from_dict(data: dict, source: str = "<scene>", base_dir: Path | None =
         medium=_parse_medium(ctx, tables["medium"]),
         light=_parse_light(ctx, tables["light"], Path(base_dir) if base_dir else Path.cwd()),
         camera=_parse_camera(ctx, tables["camera"]),
+        emission=_parse_emission(ctx, data["emission"], data["volume"])
+        if "emission" in data else None,
     )
+
+
+def _parse_emission(ctx: "_Ctx", t, volume: dict) -> EmissionSpec:
+    """``[emission]``: grid (a name in the volume file), kind, scale, colour (radiance only)."""
+    if not isinstance(t, dict):
+        raise ctx.error("emission", t, "must be a table")
+    _check_keys(ctx, "emission", t, ("grid", "kind", "scale", "colour"))
+    f = volume.get("file")
+    if not isinstance(f, str) or Path(f).suffix.lower() not in (".vdb", ".npz"):
+        raise ctx.error("emission", None, "needs [volume] file = a .vdb or .npz file that holds "
+                        "the emission grid beside the density")
+    g = t.get("grid")
+    if not isinstance(g, str) or not g:
+        raise ctx.error("emission.grid", g, "missing or empty; the name of a grid in the "
+                        "volume file (e.g. \"temperature\")")
+    kind = t.get("kind")
+    if kind not in ("radiance", "blackbody"):
+        raise ctx.error("emission.kind", kind, 'must be "radiance" (scale * colour * value) or '
+                        '"blackbody" (value in kelvin)')
+    scale = _number(ctx, "emission.scale", t["scale"], lo=0.0) if "scale" in t else 1.0
+    colour = (1.0, 1.0, 1.0)
+    if "colour" in t:
+        if kind != "radiance":
+            raise ctx.error("emission.colour", t["colour"], 'applies to kind = "radiance" only '
+                            "(a blackbody's colour is its temperature's)")
+        colour = _rgb(ctx, "emission.colour", t["colour"])
+    return EmissionSpec(grid=g, kind=kind, scale=scale, colour=colour)
 
 
 def _parse_volume(ctx: "_Ctx", t: dict, base_dir: Path) -> VolumeSpec:
@@ -197,7 +236,8 @@ def _parse_volume(ctx: "_Ctx", t: dict, base_dir: Path) -> VolumeSpec:
                         '.npz) or generator = "<name>"')
     vdb_grid = max_res = None
     if has_file:
-        _check_keys(ctx, "volume", t, ("file", "bbox_min", "bbox_max", "grid", "max_resolution"),
+        _check_keys(ctx, "volume", t, ("file", "bbox_min", "bbox_max", "grid", "max_resolution",
+                                       "frame"),
                     hint="seed, resolution and params go with generator = ..., not file")
         f = t["file"]
         if not isinstance(f, str) or not f:
@@ -218,8 +258,16 @@ def _parse_volume(ctx: "_Ctx", t: dict, base_dir: Path) -> VolumeSpec:
                            MAX_VDB_RESOLUTION)
         p = Path(f).expanduser()
         resolved = (p if p.is_absolute() else base_dir / p).resolve()
-        if not resolved.is_file():
-            raise ctx.error("volume.file", f, f"file not found: {resolved}")
+        frame = None
+        if is_frame_pattern(p.name) or "frame" in t:
+            frame = _parse_sequence(ctx, t, p, resolved)
+        elif "{" in f:
+            raise ctx.error("volume.file", f, "a {frame} field goes in the file name, not in "
+                            "its folder")
+        target = (resolved if not is_frame_pattern(p.name) else None if frame is None
+                  else resolved.with_name(resolved.name.format(frame=frame)))
+        if target is not None and not target.is_file():
+            raise ctx.error("volume.file", f, f"file not found: {target}")
         gen, seed, res, params = None, 0, None, {}
     else:
         resolved = None
@@ -236,7 +284,31 @@ def _parse_volume(ctx: "_Ctx", t: dict, base_dir: Path) -> VolumeSpec:
             raise ctx.error("volume.bbox_max", list(bmax),
                             f"each component must be > bbox_min = {_fmt(list(bmin))}")
     return VolumeSpec(file=resolved, generator=gen, seed=seed, resolution=res, params=params,
-                      bbox_min=bmin, bbox_max=bmax, grid=vdb_grid, max_resolution=max_res)
+                      bbox_min=bmin, bbox_max=bmax, grid=vdb_grid, max_resolution=max_res,
+                      frame=frame if has_file else None)
+
+
+def _parse_sequence(ctx: "_Ctx", t: dict, p: Path, resolved: Path):
+    """A file name with a ``{frame}`` field (e.g. "fire_{frame:04d}.npz"): the pattern must
+    format with an integer frame alone; ``frame`` (optional) picks the frame loaded when no
+    ``--frames`` is given. Returns the frame or None."""
+    f = t["file"]
+    if not is_frame_pattern(p.name):
+        raise ctx.error("volume.frame", t["frame"], "applies to a sequence only: a file name "
+                        "with a {frame} field, e.g. \"fire_{frame:04d}.npz\"")
+    try:
+        a, b = p.name.format(frame=0), p.name.format(frame=1)
+    except Exception as e:      # KeyError, IndexError, ValueError, AttributeError, TypeError
+        raise ctx.error("volume.file", f, f"a sequence pattern takes one field, {{frame}} (an "
+                        f"integer, e.g. {{frame:04d}}): {type(e).__name__}: {e}") from None
+    if a == b:
+        raise ctx.error("volume.file", f, "the pattern gives the same file for every frame")
+    if "{" in str(p.parent):
+        raise ctx.error("volume.file", f, "a {frame} field goes in the file name, not in its "
+                        "folder")
+    if "frame" in t:
+        return _int(ctx, "volume.frame", t["frame"], 0, 10**9)
+    return None
 
 
 _VOLUME_GENERATOR_KEYS = ("generator", "seed", "resolution", "params", "bbox_min", "bbox_max")
@@ -659,7 +731,9 @@ def dumps_scene(scene: Scene, relative_to: Path | None = None) -> str:
         except ValueError:
             pass
     lines = ["# clvol scene (format: docs/scenes.md)"]
-    for table in ("volume", "medium", "light", "camera"):
+    for table in ("volume", "medium", "light", "camera", "emission"):
+        if table not in data:
+            continue
         lines.append("")
         lines.append(f"[{table}]")
         for key, value in data[table].items():

@@ -89,25 +89,46 @@ class VolumeSpec:
     bbox_max: tuple[float, float, float] | None = None
     grid: str | None = None                 # .vdb only: which grid
     max_resolution: int | None = None       # .vdb only: box-filter while reading
+    frame: int | None = None                # a sequence (file with {frame}): the frame to load
+
+    @property
+    def is_sequence(self) -> bool:
+        """The file name is a pattern with a ``{frame}`` field (docs/scenes.md, "Sequences")."""
+        return self.file is not None and is_frame_pattern(self.file.name)
+
+    def frame_file(self, frame: int | None = None) -> Path | None:
+        """The file of ``frame`` (default ``self.frame``); the file itself for a non-sequence."""
+        if not self.is_sequence:
+            return self.file
+        n = self.frame if frame is None else frame
+        if n is None:
+            raise VolumeError(f"{self.file}: the volume is a sequence; pick a frame "
+                              f"(clvol render --frames N, or [volume] frame = N)")
+        return self.file.with_name(self.file.name.format(frame=int(n)))
+
+    def for_frame(self, frame: int) -> "VolumeSpec":
+        """This volume at ``frame`` (a sequence), or itself (a single file)."""
+        return dataclasses.replace(self, frame=int(frame)) if self.is_sequence else self
 
     def load(self, max_bytes: int | None = None):
         """Read the file or run the generator; apply the bbox override. Returns a ``Grid``.
 
         A .vdb grid whose dense array would exceed ``max_bytes`` (default: the OpenCL device's
         largest buffer, when a device is available) is refused with the ``max_resolution`` that
-        would fit, before anything large is allocated.
+        would fit, before anything large is allocated. A sequence loads ``frame``.
         """
         if self.file is not None:
             from .volume.io import read_volume
-            if not self.file.is_file():
-                raise VolumeError(f"{self.file}: volume file not found")
-            if self.file.suffix.lower() == ".vdb":
+            file = self.frame_file()
+            if not file.is_file():
+                raise VolumeError(f"{file}: volume file not found")
+            if file.suffix.lower() == ".vdb":
                 if max_bytes is None:
                     max_bytes = _device_buffer_limit()
-                grid = read_volume(self.file, grid=self.grid, max_resolution=self.max_resolution,
+                grid = read_volume(file, grid=self.grid, max_resolution=self.max_resolution,
                                    max_bytes=max_bytes)
             else:
-                grid = read_volume(self.file)
+                grid = read_volume(file)
         else:
             from .volume.generators import generate
             res = self.resolution if self.resolution is not None else 64
@@ -119,6 +140,30 @@ class VolumeSpec:
         if dataclasses.is_dataclass(grid):
             return dataclasses.replace(grid, bbox_min=bmin, bbox_max=bmax)
         return type(grid)(density=grid.density, bbox_min=bmin, bbox_max=bmax)
+
+
+def is_frame_pattern(name: str) -> bool:
+    """``name`` holds a ``{frame...}`` replacement field (a volume sequence)."""
+    return "{" in name
+
+
+@dataclass(frozen=True)
+class EmissionSpec:
+    """``[emission]``: the grid ``grid`` of the volume file, mapped to emitted radiance by
+    ``kind`` ("radiance": scale * colour * value; "blackbody": scale * rgb(value in kelvin));
+    clvol/emission.py."""
+    grid: str
+    kind: str
+    scale: float = 1.0
+    colour: tuple[float, float, float] = (1.0, 1.0, 1.0)
+
+    def load(self, volume: "VolumeSpec", density_grid, max_bytes: int | None = None):
+        """The EmissionGrid of ``volume``'s file (its frame, for a sequence)."""
+        from .emission import load_emission
+        file = volume.frame_file() if volume.file is not None else None
+        if file is not None and file.suffix.lower() == ".vdb" and max_bytes is None:
+            max_bytes = _device_buffer_limit()
+        return load_emission(self, file, density_grid, volume.max_resolution, max_bytes)
 
 
 def _device_buffer_limit() -> int | None:

@@ -10,6 +10,14 @@ directions) and the draw order; per-path rows use the kernel's layout:
 
     (background rgb, order-1 rgb, orders>=2 rgb, vertices, tracking steps, truncated)
 
+and, with emission (``Params.emission``, kernel define PT_EMISSION), two more RGB triples:
+the emission seen unscattered and the emission scattered at least once. The medium emits
+sigma_a Le, sigma_a = sigma_t (1 - albedo); at every real collision x the path adds
+beta (1 - albedo) Le(x) before beta takes the albedo (a collision estimator: collisions
+have density sigma_t T along a flight, so the expectation is int T sigma_a Le dt). Le is
+em_colour times the planes (C, ez, ey, ex) over em_min .. em_max (trilinear between voxel
+centres, clamped; 0 outside that box).
+
 Environment maps (cl/pathtrace.cl PT_ENVMAP): the twin builds its own sampling tables
 (``EnvMap``, float64) from the texels, scale and rotation, by the convention stated there
 and in docs/conventions.md; nothing of clvol/envmap.py is imported.
@@ -62,6 +70,10 @@ class Params:
     env_map: np.ndarray | None = None
     env_scale: tuple = (1.0, 1.0, 1.0)
     env_rotation: float = 0.0      # degrees about +y
+    emission: np.ndarray | None = None     # (C, ez, ey, ex), C = 1 or 3
+    em_min: tuple = (0.0, 0.0, 0.0)
+    em_max: tuple = (1.0, 1.0, 1.0)
+    em_colour: tuple = (1.0, 1.0, 1.0)
 
     def __post_init__(self):
         self.density = np.asarray(self.density, np.float64)
@@ -74,6 +86,11 @@ class Params:
         self.lobes = [tuple(l) for l in (self.lobes or [])]
         self.env = (None if self.environment is None or max(self.environment) <= 0
                     else np.asarray(self.environment, np.float64))
+        if self.emission is not None:
+            self.emission = np.asarray(self.emission, np.float64)
+            self.em_min = np.asarray(self.em_min, np.float64)
+            self.em_max = np.asarray(self.em_max, np.float64)
+            self.em_colour = np.asarray(self.em_colour, np.float64)
         self.envmap = None
         if self.env_map is not None:
             em = EnvMap(self.env_map, self.env_scale, self.env_rotation)
@@ -166,6 +183,13 @@ def sigma(P: Params, p) -> float:
         * P.density_scale
 
 
+def emitted(P: Params, p) -> np.ndarray:
+    """(1 - albedo) Le(p): what a collision at p with throughput 1 adds (RGB)."""
+    le = np.array([float(grid_density(P.emission[c], P.em_min, P.em_max, np.asarray(p)[None])[0])
+                   for c in range(P.emission.shape[0])])
+    return (1.0 - P.albedo) * P.em_colour * le
+
+
 def tentative_collisions(P: Params, x, w, rs: Stream, c: Counters):
     """The tentative collision points along x + t w at the global majorant's rate (one
     exponential draw each, counted in c.steps), until the ray leaves the box. Delta and ratio
@@ -205,10 +229,11 @@ def transmittance(P: Params, x, w, rs: Stream, c: Counters) -> float:
 
 
 def walk(P: Params, x, w, beta, k: int, rs: Stream, c: Counters, single_only=False,
-         orders=None):
+         orders=None, emit=None):
     """Continue a path at vertex k; returns (order-1 rgb, orders>=2 rgb). ``orders``: an
     array [2][ORDER_BINS] that receives each sun NEE of vertex k >= 2 (channel 0) in bin
-    order_bin(k - 1), and its value times k - 1 in the second row."""
+    order_bin(k - 1), and its value times k - 1 in the second row. ``emit``: an RGB array
+    that receives the emission of the later collisions (with P.emission)."""
     l1, lms = np.zeros(3), np.zeros(3)
     beta = np.asarray(beta, np.float64)
     em = P.envmap
@@ -268,13 +293,16 @@ def walk(P: Params, x, w, beta, k: int, rs: Stream, c: Counters, single_only=Fal
                 add(beta * rgb * (pf * pf / den if den > 0 else 0.0))
             break
         x = hit
+        if emit is not None:
+            emit += beta * emitted(P, x)
         beta = beta * P.albedo
         k += 1
     return l1, lms
 
 
-def _row(bg, l1, lms, c: Counters) -> np.ndarray:
-    return np.concatenate([bg, l1, lms, [c.vertices, c.steps, c.truncated]])
+def _row(bg, l1, lms, c: Counters, emission=None) -> np.ndarray:
+    row = np.concatenate([bg, l1, lms, [c.vertices, c.steps, c.truncated]])
+    return row if emission is None else np.concatenate([row, *emission])
 
 
 def render_paths(P: Params, camera, seed: int, samples, pixels=None) -> np.ndarray:
@@ -285,7 +313,7 @@ def render_paths(P: Params, camera, seed: int, samples, pixels=None) -> np.ndarr
     fwd, right, up = camera.basis()
     tan_half = math.tan(math.radians(camera.fov_y) / 2)
     origin = np.asarray(camera.origin, np.float64)
-    out = np.zeros((len(samples), len(pixels), PT_OUT))
+    out = np.zeros((len(samples), len(pixels), PT_OUT + (6 if P.emission is not None else 0)))
     for si, s in enumerate(samples):
         # The first two uniforms of each pixel's stream jitter its ray (kernel: col + u).
         u = uniform4(seed, np.arange(w_img * h_img, dtype=np.uint64), s, 0).astype(np.float64)
@@ -299,14 +327,18 @@ def render_paths(P: Params, camera, seed: int, samples, pixels=None) -> np.ndarr
             hit = free_flight(P, origin, w, rs, c)
             bg = np.zeros(3)
             l1 = lms = np.zeros(3)
+            em = None if P.emission is None else (np.zeros(3), np.zeros(3))
             if hit is None:
                 if P.env is not None:
                     bg = P.env.copy()
                 if P.envmap is not None:
                     bg = P.envmap.lookup(w)[0].copy()
             else:
-                l1, lms = walk(P, hit, w, P.albedo, 1, rs, c)
-            out[si, pi] = _row(bg, l1, lms, c)
+                if em is not None:
+                    em[0][:] = emitted(P, hit)
+                l1, lms = walk(P, hit, w, P.albedo, 1, rs, c,
+                               emit=None if em is None else em[1])
+            out[si, pi] = _row(bg, l1, lms, c, em)
     return out
 
 

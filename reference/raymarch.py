@@ -81,6 +81,17 @@ march integrals, times ``env_colour`` (RGB; the sky's colour when C = 1), are ad
 (``lit``). ``bg_image`` (H, W, 3), when given, replaces the constant background per pixel
 (kernel define BG_IMAGE: an environment map seen along each camera ray).
 
+Emission (``emission``, kernel define EMISSION; docs/conventions.md "Emission"): planes
+(C, ez, ey, ex), C = 1 or 3, over em_min .. em_max, Le = em_colour * planes, read trilinearly
+(clamped) at every segment's source point t_s; with ``em_box`` Le is 0 outside that box. The
+medium emits sigma_a Le with sigma_a = sigma_t (1 - albedo), so a segment adds exactly
+
+    int T_cam sigma_t (1 - albedo) Le dt = T_cam(t_a) (1 - e^-tau) (1 - albedo) Le(t_s)
+
+(for Le constant or linear along the segment, as for the in-scattering source); the sum goes
+to the ``emission`` layer and into ``total``. Emitted light that scatters is not simulated
+here (the path tracer has it).
+
 Everything runs in float64 on the float32 inputs; the kernel runs in float32 (tolerances in
 tests/test_raymarch.py).
 """
@@ -126,9 +137,10 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
              step=None, threshold=1e-3, skip_empty=True, lit=True,
              light_quantity="transmittance", view_block=4, env=None, env_min=(0, 0, 0),
-             env_size=1.0, env_colour=(1, 1, 1), bg_image=None):
+             env_size=1.0, env_colour=(1, 1, 1), bg_image=None, emission=None,
+             em_min=(0, 0, 0), em_max=(1, 1, 1), em_colour=(1, 1, 1), em_box=False):
     """Render one image. Returns a dict of float64 arrays: total, single, multiple (H, W, 3),
-    alpha, depth (H, W).
+    alpha, depth (H, W); with ``emission``, also emission (H, W, 3).
 
     density      [nz][ny][nx] raw density over bbox_min..bbox_max (sigma_t = density * scale)
     majorant     [mz][my][mx] per-block majorant (majorant.h), block = fine voxels per block
@@ -182,6 +194,12 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         emin = np.asarray(env_min, f64)
         ES = np.zeros((n_rays, env_c))
         EM = np.zeros((n_rays, env_c))
+    if emission is not None:
+        emission = np.asarray(emission)
+        em_c = emission.shape[0]
+        em_lo, em_hi = np.asarray(em_min, f64), np.asarray(em_max, f64)
+        em_cell = (em_hi - em_lo) / np.array(emission.shape[1:][::-1], f64)
+        EE = np.zeros((n_rays, em_c))
     hit = t0 <= t1
     dt = float(step)
 
@@ -231,6 +249,12 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
             for ch in range(env_c):
                 ES[:, ch] += w * _lookup(env[ch], emin, env_cell, ps)
                 EM[:, ch] += w * _lookup(env[env_c + ch], emin, env_cell, ps)
+        if emission is not None:
+            we = w
+            if em_box:
+                we = np.where(np.all((ps >= em_lo) & (ps <= em_hi), axis=1), w, 0.0)
+            for ch in range(em_c):
+                EE[:, ch] += we * _lookup(emission[ch], em_lo, em_cell, ps)
         A += w
         D += w * ts
         T = T * np.exp(-tau)
@@ -246,12 +270,18 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     bg = (np.asarray(background, f64) if bg_image is None else
           np.asarray(bg_image, f64).reshape(-1, 3))
     total = single_rgb + multiple + T[:, None] * bg
+    if emission is not None:
+        emitted = EE * ((1.0 - np.asarray(albedo, f64)) * np.asarray(em_colour, f64))
+        total = total + emitted
     with np.errstate(divide="ignore", invalid="ignore"):
         depth = np.where(A > 0, D / A, 0.0)
     shape = (height, width)
-    return {"total": total.reshape(shape + (3,)), "single": single_rgb.reshape(shape + (3,)),
-            "multiple": multiple.reshape(shape + (3,)), "alpha": A.reshape(shape),
-            "depth": depth.reshape(shape)}
+    out = {"total": total.reshape(shape + (3,)), "single": single_rgb.reshape(shape + (3,)),
+           "multiple": multiple.reshape(shape + (3,)), "alpha": A.reshape(shape),
+           "depth": depth.reshape(shape)}
+    if emission is not None:
+        out["emission"] = emitted.reshape(shape + (3,))
+    return out
 
 
 def view_knots(table, block, width, height):

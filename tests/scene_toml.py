@@ -35,8 +35,11 @@ def toml_value(v) -> str:
     return repr(v)
 
 
-def scene_toml(volume: dict, medium: dict, light: dict, camera: dict) -> str:
+def scene_toml(volume: dict, medium: dict, light: dict, camera: dict,
+               emission: dict | None = None) -> str:
     tables = {"volume": volume, "medium": medium, "light": light, "camera": camera}
+    if emission is not None:
+        tables["emission"] = emission
     return "".join(f"[{name}]\n" + "".join(f"{k} = {toml_value(v)}\n" for k, v in t.items())
                    for name, t in tables.items())
 

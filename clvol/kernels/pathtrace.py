@@ -24,6 +24,9 @@ from .majorant import majorant_block as resolve_block
 ROW_BG, ROW_L1, ROW_LMS = slice(0, 3), slice(3, 6), slice(6, 9)
 ROW_VERTICES, ROW_STEPS, ROW_TRUNCATED = 9, 10, 11
 PT_OUT = 12
+# -D PT_EMISSION rows: 6 more floats, emission seen unscattered, then scattered (RGB each).
+ROW_EM_DIRECT, ROW_EM_SCATTERED = slice(12, 15), slice(15, 18)
+PT_OUT_EMISSION = 18
 RR_START = 8            # cl/pathtrace.cl PT_RR_START default
 MAX_VERTICES = 100_000  # cl/pathtrace.cl PT_MAX_VERTICES default
 # Per-order rows (cl/pathtrace.cl PT_ORDER_BINS): exponents e = 1..ORDER_EXACT-1 one bin
@@ -55,6 +58,8 @@ _QUERY_DTYPES = _MEDIUM_DTYPES + [None, None, np.int32, np.uint64, np.uint32, np
 # -D PT_ENVMAP: the map's buffers and numbers follow the medium arguments.
 _ENVMAP_DTYPES = [None, None, None, np.int32, np.int32, np.float32, np.float32]
 _ENV_TEST_DTYPES = _ENVMAP_DTYPES + [None, np.int32, None]
+# -D PT_EMISSION: em, emx, emy, emz, em_min, em_max, em_colour (after the map's).
+_EMISSION_DTYPES = [None, np.int32, np.int32, np.int32, None, None, None]
 # Paths side by side per work-item (cl/pathtrace.cl PT_LANES), measured best on PoCL/AVX-512
 # (docs/pathtrace.md): 8 for images; 16 for point queries, whose long paths spend more of
 # their time in the per-vertex code that 16 lanes share better.
@@ -81,6 +86,7 @@ class Medium:
     env_map: np.ndarray | None = None
     env_scale: tuple = (1.0, 1.0, 1.0)
     env_rotation: float = 0.0
+    emission: object = None     # an EmissionGrid (clvol/emission.py), or None
 
     def env_tables(self):
         """The map's sampling tables (clvol/envmap.py), or None without a map or for a
@@ -117,6 +123,10 @@ def specialisation(med: Medium, specialise: bool = True) -> tuple[dict, list[str
             defines["PT_SINGLE_ONLY"] = 1
     else:
         defines = {"PHASE_LOBES": 3, "PT_ENV" if tables is None else "PT_ENVMAP": 1}
+    if med.emission is not None:
+        defines.update(PT_EMISSION=1, PT_EMISSION_CHANNELS=med.emission.channels)
+        simulated.append("emission (sigma_a Le, sigma_a = sigma_t (1 - albedo), added at every "
+                         "real collision: seen directly and scattered)")
     defines.update(med.extra_defines)
     simulated.append("sun NEE (ratio tracking)" if sun else "no sun")
     if tables is not None:
@@ -183,6 +193,15 @@ class PathTracer:
             f4(med.light_dir), f4(med.sun), f4(env))
         if "PT_ENVMAP" in self.defines:
             self._medium_args += self.env_args(rt, med.env_tables())
+        self.row = PT_OUT
+        if med.emission is not None:
+            em = med.emission
+            ez, ey, ex = em.shape
+            buf = em.device.buffer if getattr(em, "device", None) is not None else rt.to_device(
+                np.ascontiguousarray(em.values, np.float32).ravel())
+            self._medium_args += (buf, np.int32(ex), np.int32(ey), np.int32(ez),
+                                  f4(em.bbox_min), f4(em.bbox_max), f4(em.colour))
+            self.row = PT_OUT_EMISSION
         self.max_order = int(med.max_order or 0)
 
     @staticmethod
@@ -194,7 +213,8 @@ class PathTracer:
 
     @property
     def _env_dtypes(self) -> list:
-        return _ENVMAP_DTYPES if "PT_ENVMAP" in self.defines else []
+        return ((_ENVMAP_DTYPES if "PT_ENVMAP" in self.defines else [])
+                + (_EMISSION_DTYPES if "PT_EMISSION" in self.defines else []))
 
     def query_program(self):
         """The program for point queries (built on first use: see QUERY_LANES)."""
@@ -220,12 +240,13 @@ class PathTracer:
                           "lanes": lanes, "work_items": items}
 
     def render_batch(self, camera, seed: int, sample0: int, spl: int, wait: bool = True):
-        """Rows (spl, H*W, PT_OUT) for samples sample0..sample0+spl-1 of every pixel."""
+        """Rows (spl, H*W, self.row) for samples sample0..sample0+spl-1 of every pixel
+        (self.row = PT_OUT, or PT_OUT_EMISSION with emission)."""
         rt = self.rt
         fwd, right, up = camera.basis()
         w, h = camera.width, camera.height
         n = w * h * spl
-        out = rt.empty((n, PT_OUT))
+        out = rt.empty((n, self.row))
         k = self.program.kernel("pt_render", _MEDIUM_DTYPES + self._env_dtypes
                                 + _RENDER_DTYPES[len(_MEDIUM_DTYPES):])
         self._launch(k, n, self._medium_args + (
@@ -233,7 +254,7 @@ class PathTracer:
             np.float32(camera.tan_half_fov), np.int32(w), np.int32(h),
             np.uint64(seed), np.uint32(sample0), np.int32(spl), np.int32(self.max_order), out),
             RENDER_LANES)
-        return rt.from_device(out, (spl, w * h, PT_OUT))
+        return rt.from_device(out, (spl, w * h, self.row))
 
     def query_batch(self, points_buf, omegas_buf, nq: int, seed: int, sample0: int, ppl: int,
                     orders: bool = False):
@@ -241,6 +262,9 @@ class PathTracer:
         ``orders``, (ppl, nq, PT_OUT + 2 ORDER_BINS): each row followed by its per-order
         sums and first moments (grey media with a sun and no environment only)."""
         rt = self.rt
+        if "PT_EMISSION" in self.defines:
+            raise ClvolError("point queries are per unit sun: build the PathTracer without "
+                             "emission")
         n = nq * ppl
         width = PT_OUT + (2 * ORDER_BINS if orders else 0)
         if orders:

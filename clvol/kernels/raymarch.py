@@ -66,6 +66,8 @@ _SCALARS = ([None, np.int32, np.int32, np.int32, None, None, np.float32]       #
             + [None] * 6)                                                        # outputs
 _ENV_SCALARS = [None, np.int32, None, np.float32, None]       # env, en, min, size, colour (ENV)
 _BG_SCALARS = [None]                                           # bg_image (BG_IMAGE)
+# em, emx, emy, emz, em_min, em_max, em_colour, emission_out (EMISSION)
+_EM_SCALARS = [None, np.int32, np.int32, np.int32, None, None, None, None]
 
 
 def raymarch(density, bbox_min, bbox_max, density_scale,
@@ -78,7 +80,8 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              step=None, threshold=1e-3, skip_empty=True, lit=True,
              light_quantity="transmittance", runtime=None, read_back=True, stats=False,
              view_block=4, env=None, env_min=(0, 0, 0), env_size=1.0,
-             env_colour=(1, 1, 1), bg_image=None):
+             env_colour=(1, 1, 1), bg_image=None, emission=None, em_min=(0, 0, 0),
+             em_max=(1, 1, 1), em_colour=(1, 1, 1), em_box=False):
     """Launch the ray marcher. Returns {layer: array} (float32; total/single/multiple
     (H, W, 3), alpha/depth (H, W)), or with ``read_back=False`` (event, {layer: buffer}).
 
@@ -89,7 +92,9 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     (1 + C, by, bx, K) of blocks of ``view_block`` pixels (source "view"), else ignored (may
     be None). ``light`` may be None when ``lit`` is False. ``env`` (2 C, n, n, n), C = 1 or 3:
     the environment's source field over the cube env_min .. + env_size (builds with ENV);
-    ``bg_image`` (H, W, 3): per-pixel background (builds with BG_IMAGE). Argument meanings:
+    ``bg_image`` (H, W, 3): per-pixel background (builds with BG_IMAGE). ``emission``
+    (C, ez, ey, ex), C = 1 or 3, over em_min .. em_max (its own box when ``em_box``), Le =
+    em_colour * planes: builds with EMISSION and adds the "emission" layer. Argument meanings:
     see the twin.
     """
     rt = runtime or get_runtime()
@@ -115,7 +120,9 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
                   light_dir, irradiance, albedo, lobes, background, a=a, b=b, c=c, step=step,
                   threshold=threshold, lit=lit, light_quantity=light_quantity, runtime=rt,
                   read_back=read_back, stats=stats, env=env, env_min=env_min,
-                  env_size=env_size, env_colour=env_colour, bg_image=bg_image)
+                  env_size=env_size, env_colour=env_colour, bg_image=bg_image,
+                  emission=emission, em_min=em_min, em_max=em_max, em_colour=em_colour,
+                  em_box=em_box)
 
 
 def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
@@ -124,7 +131,8 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
            light_dir, irradiance, albedo, lobes, background, *, a=0.5, b=0.5, c=0.5,
            step=None, threshold=1e-3, lit=True, light_quantity="transmittance", runtime=None,
            read_back=True, stats=False, env=None, env_min=(0, 0, 0), env_size=1.0,
-           env_colour=(1, 1, 1), bg_image=None):
+           env_colour=(1, 1, 1), bg_image=None, emission=None, em_min=(0, 0, 0),
+           em_max=(1, 1, 1), em_colour=(1, 1, 1), em_box=False):
     """Launch cl/raymarch.cl built with ``defines`` (``raymarch_defines``, or the phase, LIT,
     SKIP_EMPTY and a multiple-scattering source's own). ``ms_grid``: a (C, gz, gy, gx)
     DeviceArray or None. ``env`` / ``bg_image`` (see ``raymarch``) add the ENV / BG_IMAGE
@@ -168,14 +176,24 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
         if tuple(bg_image.shape) != (height, width, 3):
             raise ClvolError(f"bg_image must be ({height}, {width}, 3), got {bg_image.shape}")
         defines["BG_IMAGE"] = 1
+    layers = LAYERS
+    if emission is not None:
+        emission = _device(emission, rt)
+        if len(emission.shape) != 4 or emission.shape[0] not in (1, 3):
+            raise ClvolError(f"emission must be (C, ez, ey, ex) with C = 1 or 3, got "
+                             f"{emission.shape}")
+        defines.update(EMISSION=1, EMISSION_CHANNELS=emission.shape[0],
+                       EMISSION_BOX=int(bool(em_box)))
+        layers = LAYERS + (("emission", 3),)
     if light_quantity not in LIGHT_QUANTITIES:
         raise ClvolError(f"light_quantity {light_quantity!r}: one of {LIGHT_QUANTITIES}")
     defines["LIGHT_TAU"] = int(light_quantity == "optical_depth")
     prog = rt.program("raymarch", defines)
     k = prog.kernel("raymarch", _SCALARS + (_ENV_SCALARS if env is not None else [])
-                    + (_BG_SCALARS if bg_image is not None else []))
+                    + (_BG_SCALARS if bg_image is not None else [])
+                    + (_EM_SCALARS if emission is not None else []))
     g, w = lobe_vectors(lobes)
-    outs = {name: rt.empty((height * width * ch,)) for name, ch in LAYERS}
+    outs = {name: rt.empty((height * width * ch,)) for name, ch in layers}
     n_tiles = -(-width // TILE) * -(-height // TILE)
     outs["stats"] = rt.empty((n_tiles * 4 if stats else 1,), np.uint32)
     args = (dens.buffer, np.int32(nx), np.int32(ny), np.int32(nz), f4(bbox_min), f4(bbox_max),
@@ -194,6 +212,10 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
         args += (env.buffer, np.int32(en), f4(env_min), np.float32(env_size), f4(env_colour))
     if bg_image is not None:
         args += (bg_image.buffer,)
+    if emission is not None:
+        ez, ey, ex = emission.shape[1:]
+        args += (emission.buffer, np.int32(ex), np.int32(ey), np.int32(ez), f4(em_min),
+                 f4(em_max), f4(em_colour), outs["emission"])
     # An explicit local size: with a NULL one, PoCL 3.1 picked work-groups for 512 x 512
     # images (16384 tiles) that crashed it (segfault). 16 and 64 measured alike on PoCL;
     # Oclgrind 21.10 crashes with 64.
@@ -201,7 +223,7 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
     if not read_back:
         return evt, outs
     result = {}
-    for name, ch in LAYERS:
+    for name, ch in layers:
         shape = (height, width, 3) if ch == 3 else (height, width)
         result[name] = rt.from_device(outs[name], shape, wait_for=[evt])
     if stats:

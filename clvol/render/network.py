@@ -204,6 +204,14 @@ class NetworkSource:
         self.graded_builds = 0
         self.fused = FUSED_DEFAULT if fused is None else bool(fused)
 
+    def set_grid(self, grid) -> None:
+        """A new density for the same weights (Renderer.set_density): the pyramid is rebuilt
+        and the graded transmittance dropped; the weights and kernels stay."""
+        from ..kernels.pyramid import build_pyramid
+        self.grid = grid
+        self.pyramid = build_pyramid(grid, self.base, self.rt)
+        self._graded = (None, None)
+
     def graded(self, light_dir, density_scale=None):
         from ..kernels.transmittance import check_light_dir, graded_transmittance
         l = check_light_dir(light_dir)
@@ -343,11 +351,15 @@ class NetworkMs(GridMs):
         self.setup_seconds = 0.0
         if self.net is None or self.net.grid is not frame.grid:
             with Stopwatch() as sw:
-                self.net = NetworkSource(self.weights_path, frame.grid, frame.medium,
-                                         frame.runtime)
+                if self.net is None:
+                    self.net = NetworkSource(self.weights_path, frame.grid, frame.medium,
+                                             frame.runtime)
+                    frame.count("network_setup")
+                else:                    # a new density (Renderer.set_density): same weights
+                    self.net.set_grid(frame.grid)
+                    frame.count("network_pyramid")
                 frame.runtime.finish()
             self.setup_seconds = sw.seconds
-            frame.count("network_setup")
             self._key = None
 
     @classmethod

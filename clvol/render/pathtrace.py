@@ -8,7 +8,9 @@ passes of cl/pathtrace.cl, averaged in float64 on the host. Layers:
                with an environment, environment light after one scattering; with a map,
                its NEE at the first vertex too);
 - ``multiple`` orders >= 2;
-- ``total_se`` standard error of ``total`` per pixel and channel (from the sample variance).
+- ``total_se`` standard error of ``total`` per pixel and channel (from the sample variance);
+- with ``[emission]``: ``emission`` (emitted light seen without scattering) and
+  ``emission_scattered`` (emitted light scattered at least once); both are in ``total``.
 
 The header records spp, seconds, seed, what was simulated and skipped (the kernel is
 specialised with -D defines for what the scene needs), and paths cut at the vertex limit.
@@ -27,8 +29,9 @@ import numpy as np
 
 from ..errors import ClvolError
 from ..kernels.majorant import DEFAULT_BLOCK
-from ..kernels.pathtrace import (ORDER_BINS, PT_OUT, ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS,
-                                 ROW_TRUNCATED, ROW_VERTICES, Medium, PathTracer)
+from ..kernels.pathtrace import (ORDER_BINS, PT_OUT, ROW_BG, ROW_EM_DIRECT, ROW_EM_SCATTERED,
+                                 ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED, ROW_VERTICES, Medium,
+                                 PathTracer)
 from ..progress import Progress
 from ..runtime import get_runtime
 from . import RenderResult
@@ -60,8 +63,10 @@ def _check_int(name: str, value, lo: int, allow_none: bool = True):
     return int(value)
 
 
-def _medium(scene, grid, max_order, sun, environment, env_map: bool = False) -> Medium:
-    """The kernel's Medium; ``env_map``: with the scene's environment map (renders only)."""
+def _medium(scene, grid, max_order, sun, environment, env_map: bool = False,
+            emission=None) -> Medium:
+    """The kernel's Medium; ``env_map``: with the scene's environment map, ``emission``: an
+    EmissionGrid (renders only)."""
     m = scene.medium
     light = scene.light
     lobes = [] if m.phase.is_isotropic else [(l.g, l.weight) for l in m.phase.lobes]
@@ -72,21 +77,23 @@ def _medium(scene, grid, max_order, sun, environment, env_map: bool = False) -> 
                   environment=None if environment is None else tuple(environment),
                   max_order=max_order, env_map=texels,
                   env_scale=tuple(light.environment_scale),
-                  env_rotation=float(light.environment_rotation))
+                  env_rotation=float(light.environment_rotation), emission=emission)
 
 
 def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
                      max_order: int | None = None, time_budget: float | None = None,
                      runtime=None, majorant_block: int = DEFAULT_BLOCK, grid=None,
                      progress: bool = True, specialise: bool = True,
-                     extra_defines: dict | None = None, device_medium=None) -> RenderResult:
+                     extra_defines: dict | None = None, device_medium=None,
+                     emission=None) -> RenderResult:
     """Path-trace ``scene``: ``spp`` samples per pixel (None = until ``time_budget``).
 
     With ``time_budget`` (seconds) the render stops before a sample pass that would end
     after the budget (judged from the passes so far; at least one pass always runs).
     ``grid`` overrides ``scene.volume.load()``; ``device_medium`` is that grid already on the
     device (clvol/kernels/majorant.py, built with ``majorant_block``). Same seed, same device: same image, bit
-    for bit, whatever the budget cut (passes are fixed sample-index ranges).
+    for bit, whatever the budget cut (passes are fixed sample-index ranges). ``emission``: the
+    scene's EmissionGrid (default: loaded from ``scene.emission``, if any).
     """
     spp = _check_int("--spp", spp, 1)
     max_order = _check_int("--max-order", max_order, 1)
@@ -97,8 +104,11 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
         spp = DEFAULT_SPP
     t_start = time.perf_counter()
     grid = grid if grid is not None else scene.volume.load()
+    if emission is None and getattr(scene, "emission", None) is not None:
+        emission = scene.emission.load(scene.volume, grid)
     light = scene.light
-    med = _medium(scene, grid, max_order, light.irradiance, light.environment, env_map=True)
+    med = _medium(scene, grid, max_order, light.irradiance, light.environment, env_map=True,
+                  emission=emission)
     med.extra_defines = dict(extra_defines or {})
     pt = PathTracer(med, majorant_block, specialise=specialise, runtime=runtime,
                     device_medium=device_medium)
@@ -106,7 +116,8 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
     npix = cam.width * cam.height
     spl_max = max(1, PATHS_PER_LAUNCH // npix)
 
-    sums = np.zeros((npix, 9))
+    n_acc = 15 if emission is not None else 9
+    sums = np.zeros((npix, n_acc))
     sq = np.zeros((npix, 3))
     vertices = steps = truncated = 0.0
     done = 0
@@ -128,8 +139,14 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
             rows = pt.render_batch(cam, seed, done, spl)
             launch_seconds.append(time.perf_counter() - t0)
             rows64 = rows.astype(np.float64)
-            sums += rows64[..., :9].sum(axis=0)
-            total = rows64[..., ROW_BG] + rows64[..., ROW_L1] + rows64[..., ROW_LMS]
+            if emission is not None:
+                sums[:, :9] += rows64[..., :9].sum(axis=0)
+                sums[:, 9:] += rows64[..., PT_OUT:PT_OUT + 6].sum(axis=0)
+                total = (rows64[..., ROW_BG] + rows64[..., ROW_L1] + rows64[..., ROW_LMS]
+                         + rows64[..., ROW_EM_DIRECT] + rows64[..., ROW_EM_SCATTERED])
+            else:
+                sums += rows64[..., :9].sum(axis=0)
+                total = rows64[..., ROW_BG] + rows64[..., ROW_L1] + rows64[..., ROW_LMS]
             sq += (total * total).sum(axis=0)
             vertices += rows64[..., ROW_VERTICES].sum()
             steps += rows64[..., ROW_STEPS].sum()
@@ -143,11 +160,16 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
     mean = sums / done
     bg, l1, lms = mean[:, 0:3], mean[:, 3:6], mean[:, 6:9]
     total = bg + l1 + lms
+    if emission is not None:
+        total = total + mean[:, 9:12] + mean[:, 12:15]
     var = np.maximum(sq / done - total * total, 0.0) * (done / max(done - 1, 1))
     layers = {"total": total.reshape(shape).astype(np.float32),
               "single": l1.reshape(shape).astype(np.float32),
               "multiple": lms.reshape(shape).astype(np.float32),
               "total_se": np.sqrt(var / done).reshape(shape).astype(np.float32)}
+    if emission is not None:
+        layers["emission"] = mean[:, 9:12].reshape(shape).astype(np.float32)
+        layers["emission_scattered"] = mean[:, 12:15].reshape(shape).astype(np.float32)
     n_paths = done * npix
     header = {
         "spp": done, "seconds": round(seconds, 4), "seed": seed,

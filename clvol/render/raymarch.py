@@ -190,6 +190,20 @@ class RayMarcher:
     def set_medium(self, medium) -> None:
         self.medium = medium
 
+    def set_volume(self, grid, device_medium: DeviceMedium, light_resolution=None) -> None:
+        """A new density (Renderer.set_density): what depends on it (the light field, the
+        environment's transmittance and source field) is dropped and rebuilt on the next
+        march; the sky cells and the background image, which do not, are kept."""
+        self.grid = grid
+        self.dm = device_medium
+        self.block = self.dm.block
+        self.density, self.majorant = self.dm.density, self.dm.majorant
+        self.light_resolution = light_resolution or auto_light_resolution(grid)
+        self.light_field = None
+        self._light_key = None
+        self._env_T = None
+        self._env_field = self._env_field_key = None
+
     def set_light(self, light_dir) -> None:
         """(Re)compute the exact light field for a light toward ``light_dir``."""
         from ..kernels.transmittance import check_light_dir, light_transmittance
@@ -219,10 +233,11 @@ class RayMarcher:
     def march(self, camera, light, source: MsSource | str = "wrenninge", *, octaves=None,
               ms_grid=None, step: float = DEFAULT_STEP, threshold: float = DEFAULT_THRESHOLD,
               skip_empty: bool = True, shortcuts: bool = True, read_back: bool = True,
-              stats: bool = False, ms: str | None = None):
+              stats: bool = False, ms: str | None = None, emission=None):
         """Render ``camera`` lit by ``light`` with the multiple-scattering ``source`` (an
         MsSource, already prepared for this frame; or a source name with ``octaves`` /
-        ``ms_grid``). Returns (layers, plan), or with ``read_back=False`` (event, buffers,
+        ``ms_grid``). ``emission``: an EmissionGrid (clvol/emission.py; its ``device`` planes
+        when set). Returns (layers, plan), or with ``read_back=False`` (event, buffers,
         plan)."""
         if ms is not None:
             source = ms
@@ -244,6 +259,11 @@ class RayMarcher:
         cube_size = self.pyramid.cube_size if plan.lit else 1.0
         box = plan.ms.box or (None, None)
         o = plan.ms.octaves
+        if emission is not None:
+            env_kw.update(emission=emission.device if emission.device is not None
+                          else emission.values, em_min=emission.bbox_min,
+                          em_max=emission.bbox_max, em_colour=emission.colour,
+                          em_box=emission.own_box)
         res = launch(
             plan.defines, self.density, g.bbox_min, g.bbox_max, self.medium.density_scale,
             self.majorant, self.block,

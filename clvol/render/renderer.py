@@ -22,9 +22,22 @@ change invalidates it:
     env_field               the same, the albedo or phase, or with an anisotropic phase
                             the camera position (clvol/render/environment.py)
     env_background          a map scene's camera or map changed
+    emission                the scene's [emission] grid read and mapped (with the volume)
+    emission_upload         its planes put on the device (once per volume)
     march                   every call
 
 ``counts`` counts each stage's recomputations (tests check them).
+
+A new density (``set_density(grid, emission)`` or ``render(grid=..., emission=...)``: the next
+frame of a sequence) recomputes what depends on it and nothing else:
+
+    device_medium           the density and its majorant uploaded again
+    light_field, graded_transmittance, ms_lattice (or the view table), env_transmittance,
+    env_field               rebuilt on the next frame (they read the density)
+    network_pyramid         the network's density pyramid (its weights and kernels stay)
+    emission_upload         the new emission planes (when the scene has [emission])
+    kept                    compiled kernels, the network's weights, env_sky,
+                            env_background, the options and the source objects
 """
 from __future__ import annotations
 
@@ -73,6 +86,7 @@ class Renderer:
         self._grid = grid
         self._marcher = None
         self._device_medium = None
+        self._emission = None
         self._warned: set = set()
         self.source = self.fallback = None
         self._tau1 = self.thin = None
@@ -82,6 +96,28 @@ class Renderer:
     def _count(self, stage: str) -> None:
         self.counts[stage] += 1
 
+    def set_density(self, grid, emission=None) -> None:
+        """Render a new density from the next frame on (module doc: what it recomputes).
+        ``grid``: a clvol Grid (any shape and box); ``emission``: its EmissionGrid
+        (clvol/emission.py) when the scene has ``[emission]`` (required then: the renderer
+        cannot know which file the new density came from; refused otherwise)."""
+        from ..volume.grid import Grid
+        if not isinstance(grid, Grid):
+            raise ClvolError(f"set_density: expected a clvol.volume.grid.Grid, got "
+                             f"{type(grid).__name__}")
+        has_em = getattr(self.scene, "emission", None) is not None
+        if has_em and emission is None:
+            raise ClvolError("set_density: the scene has [emission]: give the new frame's "
+                             "emission grid too (scene.emission.load(volume, grid))")
+        if emission is not None and not has_em:
+            raise ClvolError("set_density: emission given, but the scene has no [emission]")
+        self._grid = grid
+        self._emission = emission
+        self._device_medium = None
+        self._tau1 = None
+        if self._marcher is not None:
+            self._marcher.set_volume(grid, self.device_medium, self.options["light_resolution"])
+
     @property
     def grid(self):
         """The volume (loaded on first use)."""
@@ -89,6 +125,21 @@ class Renderer:
             self._grid = self.scene.volume.load()
             self._count("volume")
         return self._grid
+
+    @property
+    def emission(self):
+        """The scene's EmissionGrid with its planes on the device (clvol/emission.py), or None
+        for a scene without ``[emission]`` (read on first use, with the volume)."""
+        spec = getattr(self.scene, "emission", None)
+        if spec is None:
+            return None
+        if self._emission is None:
+            self._emission = spec.load(self.scene.volume, self.grid)
+            self._count("emission")
+        if self._emission.device is None:
+            self._emission.device = self.rt.upload(self._emission.values)
+            self._count("emission_upload")
+        return self._emission
 
     @property
     def device_medium(self):
@@ -211,19 +262,26 @@ class Renderer:
                     if rm.ensure_light(light.direction):
                         self._count("light_field")
                     self.rt.finish()
+            emission = self.emission
             with Stopwatch() as sw_march:
                 layers, plan = rm.march(cam, light, source, step=o["step"],
                                         threshold=o["threshold"], skip_empty=skip_empty,
-                                        shortcuts=shortcuts)
+                                        shortcuts=shortcuts, emission=emission)
             self._count("march")
             if s > 1:
                 layers = downsample(layers, s)
         step = float(o["step"])
+        simulated, skipped = list(plan.simulated), list(plan.skipped)
+        if emission is not None:
+            simulated.append(f"emission ({emission.kind} grid {emission.name!r}: sigma_a Le, "
+                             f"sigma_a = sigma_t (1 - albedo), exact along camera rays)")
+            skipped.append("scattering of emitted light (the path tracer has it; measured in "
+                           "docs/raymarch.md, \"Emission\")")
         header = {
             "method": "raymarch",
             "method.description": f"ray marching: exact single scattering + {source.label}",
-            "simulated": "; ".join(plan.simulated),
-            "skipped": "; ".join(plan.skipped) or "nothing",
+            "simulated": "; ".join(simulated),
+            "skipped": "; ".join(skipped) or "nothing",
             "seconds": round(sw_total.seconds, 4),
             "seconds.load": round(sw_load.seconds, 4),
             "seconds.light_field": round(sw_light.seconds, 4),
@@ -247,7 +305,7 @@ class Renderer:
         if warning:
             header["warning"] = warning
         if self.thin is not None and source is not self.source:
-            header["skipped"] = ("; ".join(s for s in plan.skipped if "--ms none" not in s) +
+            header["skipped"] = ("; ".join(s for s in skipped if "--ms none" not in s) +
                                  f"; multiple scattering (optically thin: largest optical "
                                  f"thickness {self.thin:.3g} < 0.5, where single scattering "
                                  f"alone measured as accurate; docs/raymarch.md)").lstrip("; ")
@@ -262,16 +320,18 @@ class Renderer:
         res = render_pathtrace(scene, spp=o["spp"], seed=o["seed"] if seed is None else seed,
                                max_order=o["max_order"], time_budget=o["time"], runtime=self.rt,
                                majorant_block=o["majorant_block"], grid=self.grid,
-                               device_medium=self.device_medium)
+                               device_medium=self.device_medium, emission=self.emission)
         self._count("pathtrace")
         res.header = {"method": "pathtrace",
                       "method.description": "volumetric path tracing (reference)", **res.header}
         return res
 
     # ------------------------------------------------------------------ API
-    def render(self, camera=None, light=None, medium=None, seed: int | None = None) -> RenderResult:
+    def render(self, camera=None, light=None, medium=None, seed: int | None = None,
+               grid=None, emission=None) -> RenderResult:
         """Render with the scene's camera, light and medium, or the ones given (instances of
-        clvol.scene.Camera, Light, Medium). Returns a RenderResult.
+        clvol.scene.Camera, Light, Medium). Returns a RenderResult. ``grid`` (and, with
+        ``[emission]``, ``emission``): a new density from this frame on (``set_density``).
 
         ``seed`` (path tracer only) replaces the ``seed`` option for this frame, so the passes
         of a progressive render draw independent samples from one Renderer."""
@@ -280,6 +340,11 @@ class Renderer:
         light = _check_arg(light, Light, "light") or self.scene.light
         medium = _check_arg(medium, Medium, "medium") or self.scene.medium
         _check_medium(medium)
+        if grid is not None:
+            self.set_density(grid, emission)
+        elif emission is not None:
+            raise ClvolError("render(emission=...) goes with grid=...: a new frame's density "
+                             "and its emission grid")
         if seed is not None:
             if self.method != "pathtrace":
                 raise ClvolError(f"seed: render(seed=) chooses the path tracer's pass; the "

@@ -339,6 +339,9 @@ class StochasticViewMs(ViewMs):
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0,
                              reproject=0.0, points=0)
         self._ensure_network(frame)
+        if getattr(self, "_history_grid", None) is not frame.grid:
+            self.history = None                          # a new density: start again
+            self._history_grid = frame.grid
         cam, m = frame.camera, frame.medium
         grey = frame.shortcuts and m.is_grey
         self.block = (auto_block(cam.width, cam.height) if self.fixed_block is None

@@ -76,6 +76,10 @@ class FrameMaker:
         self.lock = threading.Lock()
         self.frames_rendered = 0
         self.sky_maps = sky_maps(scene)      # the map menu: file name -> path
+        from ..sequence import available_frames
+        self.frames = available_frames(scene.volume)   # a sequence's frames (play control)
+        self.loaded: dict[int, object] = {}            # frame -> LoadedFrame (a few, newest)
+        self.showing: dict[str, int | None] = {}       # method -> the frame its renderer has
 
     def renderer(self, method: str):
         if method not in self.renderers:
@@ -94,6 +98,25 @@ class FrameMaker:
             return True
         return frame.header.get("raymarch.view_refining") is True
 
+    def volume_for(self, method: str, frame: int | None) -> dict:
+        """``render`` keywords that switch ``method``'s renderer to a sequence's ``frame``
+        (read on first use, a few kept), or {} when it already shows it."""
+        if frame is None or self.showing.get(method) == frame:
+            return {}
+        from ..sequence import load_frame
+        if not self.frames:
+            raise ClvolError(f"frame {frame}: the scene's volume is not a sequence (or none of "
+                             f"its files exist)")
+        if frame not in self.loaded:
+            if frame not in self.frames:
+                raise ClvolError(f"frame {frame}: not in the sequence (frames {self.frames[0]}"
+                                 f"..{self.frames[-1]} found)")
+            self.loaded[frame] = load_frame(self.scene, frame)
+            while len(self.loaded) > 4:
+                self.loaded.pop(next(iter(self.loaded)))
+        f = self.loaded[frame]
+        return {"grid": f.grid, "emission": f.emission}
+
     def render(self, state: ViewState, previous: Frame | None) -> Frame:
         """One frame for ``state``; for the path tracer, one more pass averaged into
         ``previous`` when it was made for the same state."""
@@ -103,13 +126,16 @@ class FrameMaker:
             light = state.light(self.scene.light, self.scene.camera, self.sky_maps)
             medium = state.medium(self.scene.medium)
             r = self.renderer(state.method)
+            volume = self.volume_for(state.method, state.frame)
             accumulate = (state.method == "pathtrace" and previous is not None
                           and previous.state.accumulation_key() == state.accumulation_key())
             if state.method == "pathtrace":
                 pass_index = previous.spp // PT_PASS_SPP if accumulate else 0
-                result = r.render(camera=camera, light=light, medium=medium, seed=pass_index)
+                result = r.render(camera=camera, light=light, medium=medium, seed=pass_index,
+                                  **volume)
             else:
-                result = r.render(camera=camera, light=light, medium=medium)
+                result = r.render(camera=camera, light=light, medium=medium, **volume)
+            self.showing[state.method] = state.frame
             layers = {k: np.asarray(v, dtype=np.float32) for k, v in result.layers.items()}
             spp = 0
             if state.method == "pathtrace":
@@ -271,6 +297,7 @@ def make_app(scene, save_dir: Path | None = None):
         app["connections"].add(conn)
         await conn.send_json({"type": "hello", "state": initial.to_json(),
                               "methods": list(METHODS), "sky_maps": list(maker.sky_maps),
+                              "frames": maker.frames,
                               "scene": str(scene.path) if scene.path else None})
         task = asyncio.create_task(conn.render_loop())
         try:

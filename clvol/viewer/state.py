@@ -133,6 +133,8 @@ class ViewState:
     sky: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # None: the constant sky above; else the file name of an environment map (sky_maps()).
     sky_map: str | None = None
+    # A volume sequence's frame (the play control); None for a single volume.
+    frame: int | None = None
 
     @classmethod
     def from_scene(cls, scene: Scene) -> "ViewState":
@@ -153,7 +155,8 @@ class ViewState:
                        scene.light.environment_scale if scene.light.environment_map is not None
                        else scene.light.environment or (0.0, 0.0, 0.0))),
                    sky_map=(Path(scene.light.environment_map).name
-                            if scene.light.environment_map is not None else None))
+                            if scene.light.environment_map is not None else None),
+                   frame=_first_frame(scene))
 
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
@@ -236,6 +239,17 @@ def _number(key: str, value) -> float:
     return float(value)
 
 
+def _first_frame(scene) -> int | None:
+    """A sequence's frame to show first: the scene's ``frame``, else the first file found."""
+    if not scene.volume.is_sequence:
+        return None
+    if scene.volume.frame is not None:
+        return int(scene.volume.frame)
+    from ..sequence import available_frames
+    found = available_frames(scene.volume)
+    return found[0] if found else None
+
+
 def _check_field(key: str, value):
     if key in ("albedo", "sky"):
         if not isinstance(value, (list, tuple)) or len(value) != 3:
@@ -256,6 +270,11 @@ def _check_field(key: str, value):
         if value not in RESOLUTIONS or isinstance(value, bool):
             raise ViewerMessageError(f"resolution: {value!r} is not one of {RESOLUTIONS}")
         return int(value)
+    if key == "frame":
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)
+                                  or not 0 <= value <= 10**9):
+            raise ViewerMessageError(f"frame: {value!r} is not a frame number (an integer >= 0)")
+        return value
     if key == "preset":
         # a str first: a list or dict would raise TypeError in the dict lookup (fuzzing)
         if value is not None and (not isinstance(value, str) or value not in PRESETS):

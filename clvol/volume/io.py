@@ -15,7 +15,9 @@ Formats (docs/volumes.md has the full description):
     48      4*n   float32 data, x fastest, then y, then z (n = xres*yres*zres)
 
 ``.npy``: one 3-D float array indexed [z][y][x]; the box is the default [-0.5, 0.5]^3.
-``.npz``: key ``density`` (as .npy) and optionally both ``bbox_min`` and ``bbox_max`` (3 numbers).
+``.npz``: key ``density`` (as .npy) and optionally both ``bbox_min`` and ``bbox_max`` (3 numbers);
+further 3-D arrays are grids for ``[emission]`` (clvol/emission.py), each optionally with its
+own ``<name>_bbox_min`` and ``<name>_bbox_max``.
 
 Every malformed input raises ``VolumeError`` whose message starts with the file name and
 quotes what was found. Nothing is clipped; float64 data is rounded to float32 only when
@@ -200,9 +202,19 @@ def _read_npz(path: Path) -> Grid:
         with npz:
             keys = set(npz.files)
             unknown = sorted(keys - set(_NPZ_KEYS))
+            if "density" not in keys and unknown:
+                raise VolumeError(
+                    f"{path}: .npz has no 'density' array; unknown key(s) {unknown}; allowed: "
+                    f"{', '.join(_NPZ_KEYS)}, and further grids for [emission] beside a density")
+            # Further grids beside the density (read by [emission], clvol/emission.py): 3-D
+            # arrays, each with an optional box <name>_bbox_min / <name>_bbox_max.
+            grids = {k for k in unknown if npz[k].ndim == 3}
+            boxes = {f"{g}_{b}" for g in grids for b in ("bbox_min", "bbox_max")}
+            unknown = sorted(set(unknown) - grids - boxes)
             if unknown:
                 raise VolumeError(
-                    f"{path}: unknown key(s) {unknown} in .npz; allowed: {', '.join(_NPZ_KEYS)}")
+                    f"{path}: unknown key(s) {unknown} in .npz; allowed: {', '.join(_NPZ_KEYS)}, "
+                    f"further 3-D grids and their <name>_bbox_min / <name>_bbox_max")
             if "density" not in keys:
                 raise VolumeError(f"{path}: .npz has no 'density' array (keys: {sorted(keys)})")
             has_bbox = ("bbox_min" in keys, "bbox_max" in keys)

@@ -119,6 +119,38 @@ function onFrame(buffer) {
   w.textContent = meta.warning || "";
   if ($("expmode").value !== "manual") $("exposure").value = meta.exposure;
   showNumbers();
+  nextFrame(meta);
+}
+
+// ------------------------------------------------------------------ sequence playback
+// A volume sequence (hello's "frames"): a frame slider and a play button. Playing asks for the
+// next frame once the frame asked for has arrived (so it never queues frames faster than the
+// device renders them), at most every PLAY_MS.
+const PLAY_MS = 80;
+const seq = { frames: [], playing: false, last: 0 };
+clvol.seq = seq;
+function showFrameNumber() {
+  $("frameno").textContent = seq.frames.length ? String(seq.frames[Number($("frameidx").value)]) : "";
+}
+function setupSequence(frames, current) {
+  seq.frames = frames || [];
+  $("sequence").hidden = seq.frames.length < 2;
+  $("frameidx").max = String(Math.max(0, seq.frames.length - 1));
+  const i = seq.frames.indexOf(current);
+  $("frameidx").value = String(i >= 0 ? i : 0);
+  showFrameNumber();
+}
+function nextFrame(meta) {
+  if (!seq.playing || !meta.state || meta.state.frame !== state.frame) return;
+  const wait = Math.max(0, PLAY_MS - (performance.now() - seq.last));
+  setTimeout(() => {
+    if (!seq.playing) return;
+    const i = (Number($("frameidx").value) + 1) % seq.frames.length;
+    $("frameidx").value = String(i);
+    showFrameNumber();
+    seq.last = performance.now();
+    send({ frame: seq.frames[i] });
+  }, wait);
 }
 
 function connect() {
@@ -132,6 +164,7 @@ function connect() {
       showMaps(msg.sky_maps || []);
       showState(msg.state);
       syncedPreset = msg.state.preset;
+      setupSequence(msg.frames, msg.state.frame);
     }
     else if (msg.type === "error") log("error: " + msg.message);
     else if (msg.type === "saved") log("saved " + msg.path);
@@ -181,6 +214,12 @@ function setup() {
     send({ exposure: mode === "image" ? null : mode === "scene" ? "scene" : Number($("exposure").value) });
   };
   $("save").onclick = () => clvol.socket.send(JSON.stringify({ type: "save" }));
+  $("frameidx").oninput = () => { showFrameNumber(); send({ frame: seq.frames[Number($("frameidx").value)] }); };
+  $("play").onclick = () => {
+    seq.playing = !seq.playing;
+    $("play").textContent = seq.playing ? "pause" : "play";
+    if (seq.playing) nextFrame({ state: { frame: state.frame } });
+  };
 
   const img = $("frame");
   let drag = null;
