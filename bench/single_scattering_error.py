@@ -2,6 +2,7 @@
 """What the ray marcher's single scattering alone leaves against the path tracer's.
 
     python bench/single_scattering_error.py [--size 96] [--spp 512] [--scenes NAME ...]
+                                            [--steps 1 0.5] [--light-factors 2 4]
 
 For each scene of bench/neural_quality.py (default: cloud, smoke, backscatter): the path
 tracer at ``--max-order 1`` twice (two seeds, --spp each, so that the score removes the
@@ -18,6 +19,7 @@ import sys
 from _common import machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from neural_quality import bench_scene, resolve_scenes, scores  # noqa: E402
 
+from clvol.render.raymarch import DEFAULT_STEP, MAX_LIGHT_RESOLUTION, auto_light_resolution  # noqa: E402
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 
@@ -29,19 +31,36 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=96)
     ap.add_argument("--spp", type=int, default=512, help="per reference half (default 512)")
     ap.add_argument("--scenes", nargs="+", default=["cloud", "smoke", "backscatter"])
+    ap.add_argument("--steps", nargs="*", type=float, default=[],
+                    help="also these march steps in voxels (3 x 3 rays per pixel)")
+    ap.add_argument("--light-factors", nargs="*", type=int, default=[],
+                    help="also light fields at this many times the grid's largest side")
     args = ap.parse_args(argv)
     print(machine(get_runtime()))
     print(f"{args.size}^2, path tracer --max-order 1 at 2 x {args.spp} spp (seeds {SEEDS})")
-    print(f"{'scene':14s} {'rays/pixel':>10s} {'rmse100':>8s} {'mean':>6s}")
+    print(f"defaults: step {DEFAULT_STEP:g} voxels, light field auto_light_resolution "
+          f"(capped at {MAX_LIGHT_RESOLUTION})")
+    print(f"{'scene':14s} {'rays/pixel':>10s} {'step':>5s} {'light':>5s} {'rmse100':>8s} "
+          f"{'mean':>6s}")
     for name, path in resolve_scenes(args.scenes).items():
         sc = bench_scene(path, args.size)
         grid = sc.volume.load()
         halves = [Renderer(sc, "pathtrace", grid=grid, spp=args.spp, seed=s, max_order=1)
                   .render().layers["total"] for s in SEEDS]
-        for ss in (1, 3):
-            img = Renderer(sc, "raymarch", grid=grid, ms="none", supersample=ss).render()
+        n = max(grid.resolution)
+        rows = [(1, DEFAULT_STEP, auto_light_resolution(grid)),
+                (3, DEFAULT_STEP, auto_light_resolution(grid))]
+        for step in args.steps:
+            for f in args.light_factors or [None]:
+                lr = auto_light_resolution(grid) if f is None else min(
+                    1 << max(0, (f * n - 1).bit_length()), MAX_LIGHT_RESOLUTION)
+                rows.append((3, step, lr))
+        for ss, step, lr in rows:
+            img = Renderer(sc, "raymarch", grid=grid, ms="none", supersample=ss, step=step,
+                           light_resolution=lr).render()
             s = scores(img.layers["total"], halves[0], halves[1])
-            print(f"{name:14s} {ss * ss:10d} {s['rmse100']:8.2f} {s['mean']:6.3f}", flush=True)
+            print(f"{name:14s} {ss * ss:10d} {step:5g} {lr:5d} {s['rmse100']:8.2f} "
+                  f"{s['mean']:6.3f}", flush=True)
     print(machine(get_runtime()))
     return 0
 

@@ -378,7 +378,7 @@ def add_arguments(p) -> None:
     p.add_argument("--light-interp", choices=["transmittance", "optical_depth"],
                    default="transmittance",
                    help="what the light field holds and is blended (as clvol render)")
-    p.add_argument("--step", type=float, default=None, help="march step in voxels (default 1)")
+    p.add_argument("--step", type=float, default=None, help="march step in voxels (default: the renderer's, 0.5)")
     p.add_argument("--threshold", type=float, default=None,
                    help="early termination transmittance (default 1e-3)")
     p.add_argument("--width", type=int, default=None, help="override the camera's width")
