@@ -206,6 +206,18 @@ async def _next_frame(ws, timeout=60):
             raise AssertionError(f"socket ended: {msg}")
 
 
+async def _settle(ws, method="network"):
+    """Switch the connection to ``method`` and return its first frame. The viewer's default,
+    the stochastic view, keeps sending frames while it refines; the protocol tests need a
+    method that sends one frame per change (the lattice), and frames of the old method
+    still in flight are skipped."""
+    await ws.send_str(json.dumps({"type": "state", "state": {"method": method}}))
+    while True:
+        meta, png = await _next_frame(ws)
+        if meta["method"] == method:
+            return meta, png
+
+
 def test_server_protocol_errors_frames_and_save(server):
     import aiohttp
     url, save_dir = server
@@ -214,8 +226,8 @@ def test_server_protocol_errors_frames_and_save(server):
         async with aiohttp.ClientSession() as session:
             async with session.ws_connect(url + "ws") as ws:
                 hello = await ws.receive_json()
-                assert hello["type"] == "hello" and hello["state"]["method"] == "network"
-                meta, png = await _next_frame(ws)
+                assert hello["type"] == "hello" and hello["state"]["method"] == "stochastic"
+                meta, png = await _settle(ws)
                 assert png[:8] == b"\x89PNG\r\n\x1a\n" and meta["width"] == 64
                 assert meta["header"], "the frame carries the render header"
                 for bad in ("{not json", json.dumps([1]), json.dumps({"type": "fly"}),
@@ -303,15 +315,23 @@ def test_stochastic_method_refines_while_still_then_idles_and_reprojects_on_move
         async with aiohttp.ClientSession() as session:
             async with session.ws_connect(url + "ws") as ws:
                 await ws.receive_json()
+                await _settle(ws)                          # the lattice: one frame, then idle
+                # back to the stochastic view, turned a little: the source's history (shared
+                # by the connections) is reprojected, then refines up to STILL_SAMPLES
                 await ws.send_str(json.dumps({"type": "state",
-                                              "state": {"method": "stochastic"}}))
-                counts = []
-                while not counts or counts[-1] < STILL_SAMPLES:
+                                              "state": {"method": "stochastic",
+                                                        "azimuth": 2.0}}))
+                counts, refining = [], True
+                while refining:
                     meta, _ = await _next_frame(ws)
                     if meta["method"] == "stochastic":
                         counts.append(meta["spp"])
                         assert "view_depths" in meta["stages_ms"]
-                assert counts == list(range(counts[0], STILL_SAMPLES + 1))
+                        refining = meta["header"]["raymarch.view_refining"]
+                # one more sample per block per frame, STILL_SAMPLES draws after the move,
+                # on top of at most MOVE_HISTORY reprojected ones
+                assert 1 <= counts[0] <= MOVE_HISTORY + 1
+                assert counts == list(range(counts[0], counts[0] + STILL_SAMPLES))
                 with pytest.raises(asyncio.TimeoutError):      # converged: no more frames
                     await _next_frame(ws, timeout=1.5)
                 await ws.send_str(json.dumps({"type": "state", "state": {"azimuth": 4.0}}))
@@ -363,7 +383,7 @@ def test_failed_save_is_a_message_and_the_page_stays_connected(scene_path, tmp_p
         async with aiohttp.ClientSession() as session:
             async with session.ws_connect(url + "ws") as ws:
                 await ws.receive_json()                               # hello
-                meta, _ = await _next_frame(ws)
+                meta, _ = await _settle(ws)
                 save.rmdir()
                 await ws.send_str(json.dumps({"type": "save"}))
                 while True:
@@ -465,6 +485,15 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
     d = browser
     d.get(url)
     _wait(d, lambda: _frames(d) >= 1, "the first frame")
+    # The default method is the stochastic view: its samples per block climb while still.
+    assert d.execute_script("return document.getElementById('method').value") == "stochastic"
+    _wait(d, lambda: _meta(d)["method"] == "stochastic" and _meta(d)["spp"] >= 3,
+          "stochastic frames refining")
+    assert d.find_element(By.ID, "spplabel").text == "samples"
+    # The checks below compare pixels of one still image: the lattice sends one per change.
+    d.execute_script("const m = document.getElementById('method'); m.value = 'network';"
+                     "m.dispatchEvent(new Event('change'));")
+    _wait(d, lambda: _meta(d)["method"] == "network", "a lattice frame")
     _wait(d, lambda: d.execute_script("return document.getElementById('frame').complete"), "decode")
     shot = tmp_path / "page.png"
     d.save_screenshot(str(shot))

@@ -22,12 +22,14 @@ class ViewerMessageError(ClvolError):
     """A client message the viewer refuses (the reply names the field and the allowed range)."""
 
 
-# The viewer's method menu: label -> Renderer keyword options.
+# The viewer's method menu: label -> Renderer keyword options. The first is the default:
+# the paper's network at one free-flight point per pixel block per frame, accumulated while
+# the view is still and reprojected while it moves (clvol/render/view.py). Chosen over the
+# lattice (clvol render's default) because a camera move costs it no refill: measured in
+# docs/accuracy.md ("Defaults").
 METHODS: dict[str, dict] = {
-    "network": {},                                            # the paper's method (default)
-    # the same network at one free-flight point per pixel block per frame: accumulates while
-    # the view is still, reprojects while it moves (clvol/render/view.py)
     "stochastic": {"method": "raymarch", "ms": "stochastic"},
+    "network": {},                                            # the 32^3 network lattice
     "wrenninge": {"method": "raymarch", "ms": "wrenninge"},
     "single": {"method": "raymarch", "ms": "none"},
     "pathtrace": {"method": "pathtrace"},
@@ -125,7 +127,7 @@ class ViewState:
     # None: chosen from the image (clvol.image.auto_exposure); "scene": from the scene's light
     # (clvol.image.scene_exposure); a number: stops.
     exposure: float | str | None = None
-    method: str = "network"
+    method: str = next(iter(METHODS))
     resolution: int = 256
     preset: str | None = None
     # The sky: a constant environment radiance (RGB; all 0 = no sky), or with ``sky_map``
