@@ -38,22 +38,13 @@ from clvol.render.renderer import Renderer
 from clvol.scene import load_scene
 from clvol.volume.grid import Grid
 
+from test_c_host import _have_toolchain   # the same probe: a C compiler, make, CL headers
+
 ROOT = Path(__file__).resolve().parents[1]
 MS_RES = 8
 LIGHT_RES = 32       # given to both hosts: the library keeps the bundle's light resolution
 OK, ARGUMENT, BUNDLE, OPENCL, MEMORY, UNSUPPORTED = range(6)
 STAGES = ("volume", "light", "lattice", "march")
-
-
-def _have_toolchain() -> str | None:
-    cc = shutil.which(os.environ.get("CC", "cc"))
-    if cc is None or shutil.which("make") is None:
-        return "no C compiler or make"
-    probe = subprocess.run([cc, "-E", "-x", "c", "-"], input="#include <CL/cl.h>\n",
-                           capture_output=True, text=True)
-    if probe.returncode != 0:
-        return "no OpenCL headers (apt-get install opencl-headers ocl-icd-opencl-dev)"
-    return None
 
 
 def _have_sanitizers(cc: str, work: Path) -> str | None:
