@@ -67,3 +67,20 @@ def square(scene, size: int):
 def rms(x) -> float:
     """Root mean square: of an image difference (RMSE), or of a standard-error layer."""
     return float(np.sqrt(np.mean(np.square(x))))
+
+
+def cpu_seconds() -> float:
+    """CPU time of this process so far, every thread (PoCL's included): less sensitive to
+    other processes' load than the wall clock on a shared machine."""
+    import resource
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def rot_y(v, deg: float):
+    """``v`` turned by ``deg`` degrees about +y (an orbit step about the world's up axis)."""
+    import math
+    a = math.radians(deg)
+    x, y, z = v
+    return (x * math.cos(a) + z * math.sin(a), y, -x * math.sin(a) + z * math.cos(a))
+

@@ -24,13 +24,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import sys
 import time
 
 import numpy as np
 
-from _common import ROOT, machine  # noqa: E402  (puts the checkout first on sys.path)
+from _common import ROOT, machine, rot_y  # noqa: E402  (puts the checkout first on sys.path)
 
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
@@ -38,11 +37,6 @@ from clvol.scene import load_scene  # noqa: E402
 
 SKY = (0.3, 0.5, 0.9)
 
-
-def _rot_y(v, deg):
-    a = math.radians(deg)
-    x, y, z = v
-    return (x * math.cos(a) + z * math.sin(a), y, -x * math.sin(a) + z * math.cos(a))
 
 
 def scene_with(sky: str, size: int):
@@ -97,7 +91,7 @@ def main(argv=None) -> int:
                     changes = [{}] * args.frames
                 else:
                     changes = [{"camera": dataclasses.replace(
-                        sc.camera, origin=_rot_y(sc.camera.origin, 3 * i))}
+                        sc.camera, origin=rot_y(sc.camera.origin, 3 * i))}
                         for i in range(1, args.frames + 1)]
                 w, c, e = timed(r, changes)
                 if sky == "none":

@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import statistics
 import time
 
 import numpy as np
 
-from _common import cpu_model  # bench/ is on sys.path
+from _common import cpu_model, cpu_seconds  # bench/ is on sys.path
 from clvol.kernels import gather as kg
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
@@ -33,10 +32,6 @@ from clvol.volume.generators import generate
 TARGET_MS = 60.0
 BAKE_TARGET_MS = 100.0   # "well under 100 ms": part of a light change (docs/templates.md)
 
-
-def cpu_seconds() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 class KernelClock:

@@ -21,23 +21,18 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import statistics
 import time
 
 import numpy as np
 
-from _common import load_average, machine  # bench/ is on sys.path
+from _common import cpu_seconds, load_average, machine  # bench/ is on sys.path
 from clvol.kernels.gather import gather
 from clvol.render import network as rnet
 from clvol.runtime import get_runtime
 from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate
 
-
-def cpu_seconds() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 def main():

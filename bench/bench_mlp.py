@@ -20,14 +20,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from _common import machine  # bench/ is on sys.path; puts the checkout (reference/) first
+from _common import cpu_seconds, machine  # bench/ is on sys.path; puts the checkout (reference/) first
 from clvol.kernels.mlp import MlpKernel  # noqa: E402
 from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
@@ -35,10 +34,6 @@ from reference import mlp as ref  # noqa: E402
 
 TARGET_RATIO = 5.0
 
-
-def cpu_seconds() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)   # all threads, PoCL's included
-    return r.ru_utime + r.ru_stime
 
 
 def make_inputs(n: int, rng) -> tuple[np.ndarray, np.ndarray]:

@@ -22,13 +22,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import sys
 import time
 
 import numpy as np
 
-from _common import ROOT, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
+from _common import ROOT, machine, rot_y  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
@@ -46,21 +45,16 @@ def base_scene(volume: str, size: int):
     return dataclasses.replace(sc, camera=dataclasses.replace(sc.camera, width=size, height=size))
 
 
-def _rot_y(v, deg):
-    a = math.radians(deg)
-    x, y, z = v
-    return (x * math.cos(a) + z * math.sin(a), y, -x * math.sin(a) + z * math.cos(a))
-
 
 def frames(scene, motion: str, n: int) -> list[dict]:
     out = []
     for i in range(1, n + 1):
         if motion == "camera":
             out.append({"camera": dataclasses.replace(scene.camera,
-                                                      origin=_rot_y(scene.camera.origin, 3 * i))})
+                                                      origin=rot_y(scene.camera.origin, 3 * i))})
         elif motion == "light":
             out.append({"light": dataclasses.replace(scene.light,
-                                                     direction=_rot_y(scene.light.direction, 5 * i))})
+                                                     direction=rot_y(scene.light.direction, 5 * i))})
         else:
             a = 0.99 if i % 2 else 0.95
             g = 0.8 if i % 2 else 0.857

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import resource
 import sys
 import time
 from dataclasses import replace
@@ -32,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import ROOT, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
+from _common import ROOT, cpu_seconds, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from clvol.kernels.pyramid import build_pyramid  # noqa: E402
 from clvol.render.raymarch import RayMarcher  # noqa: E402
 from clvol.render.renderer import render_raymarch  # noqa: E402
@@ -43,10 +42,6 @@ from clvol.volume.generators import generate  # noqa: E402
 PEAK_LOOKUPS = (0.7e9, 0.8e9)
 TARGET_MS = {256: 30.0, 512: 100.0}
 
-
-def cpu_seconds() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 def bench_frames(args, rt):
