@@ -140,3 +140,19 @@ def test_environment_change_recomputes_only_what_depends_on_it():
     plain = clvol.Renderer(_scene(light={}), ms="none")
     plain.render()
     assert not any(k.startswith("env_") for k in plain.counts)
+
+
+@pytest.mark.parametrize("opts, text", [
+    ({"env_resolution": 3}, "env_resolution = 3"),
+    ({"env_resolution": 512}, "env_resolution = 512"),
+    ({"env_resolution": 0}, "env_resolution = 0"),
+    ({"env_directions": 0}, "environment directions = 0"),
+    ({"env_directions": 2.5}, "environment directions = 2.5"),
+])
+def test_bad_environment_options_are_refused_when_the_renderer_is_made(opts, text):
+    """Refused at Renderer(...), with the option named, even for a scene without a sky (which
+    never reads them): a mistake in a call should not wait for a sky scene to show."""
+    sc = _scene(light={"irradiance": 1.0})
+    from clvol.errors import ClvolError
+    with pytest.raises(ClvolError, match=text.replace(".", r"\.")):
+        clvol.Renderer(sc, ms="none", **opts)

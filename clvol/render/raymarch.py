@@ -39,7 +39,11 @@ MAX_LIGHT_RESOLUTION = 256
 MAX_SUPERSAMPLE = 8
 
 
-def check_march_options(step, threshold, light_resolution, supersample, light_interp):
+def check_march_options(step, threshold, light_resolution, supersample, light_interp,
+                        env_directions=None, env_resolution=None):
+    """Refuse bad ray-marcher options when the Renderer is made, not at its first frame (the
+    environment options included: a scene without a sky never reads them, but a bad value is
+    still a mistake worth one line now)."""
     def bad(name, value, allowed):
         return ClvolError(f"raymarch option {name} = {value!r}: {allowed}")
     if not (isinstance(step, (int, float)) and math.isfinite(step) and 0.01 <= step <= 64):
@@ -54,6 +58,20 @@ def check_march_options(step, threshold, light_resolution, supersample, light_in
         raise bad("supersample", supersample, f"must be an integer from 1 to {MAX_SUPERSAMPLE}")
     if light_interp not in LIGHT_QUANTITIES:
         raise bad("light_interp", light_interp, f"choose one of {list(LIGHT_QUANTITIES)}")
+    check_env_options(env_directions, env_resolution)
+
+
+def check_env_options(env_directions, env_resolution) -> None:
+    """The environment source's sky directions (1..1024) and field resolution (a power of two
+    from 4 to 256); None: the default."""
+    from .environment import sky_directions
+    if env_directions is not None:
+        sky_directions(env_directions)                    # refuses a bad count
+    if env_resolution is not None and not (
+            isinstance(env_resolution, (int, np.integer)) and not isinstance(env_resolution, bool)
+            and is_power_of_two(int(env_resolution)) and 4 <= env_resolution <= 256):
+        raise ClvolError(f"raymarch option env_resolution = {env_resolution!r}: must be a "
+                         f"power of two from 4 to 256")
 
 
 def auto_light_resolution(grid) -> int:
@@ -169,13 +187,10 @@ class RayMarcher:
         self.light_field = None
         self._light_key = None
         self.light_builds = 0
-        from .environment import DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_RESOLUTION, sky_directions
+        from .environment import DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_RESOLUTION
+        check_env_options(env_directions, env_resolution)
         self.env_directions = int(env_directions or DEFAULT_ENV_DIRECTIONS)
-        sky_directions(self.env_directions)                    # refuses a bad count
         self.env_resolution = int(env_resolution or DEFAULT_ENV_RESOLUTION)
-        if not (is_power_of_two(self.env_resolution) and 4 <= self.env_resolution <= 256):
-            raise ClvolError(f"raymarch option env_resolution = {env_resolution!r}: must be a "
-                             f"power of two from 4 to 256")
         self._env_T = None
         self._env_sky = self._env_sky_key = None
         self._env_field = self._env_field_key = None

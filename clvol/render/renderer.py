@@ -179,7 +179,7 @@ class Renderer:
                                  f"{' or '.join(owners)} "
                                  f"(method 'raymarch' with --ms {ms} does not read it)")
         check_march_options(o["step"], o["threshold"], o["light_resolution"], o["supersample"],
-                            o["light_interp"])
+                            o["light_interp"], o["env_directions"], o["env_resolution"])
         self.source = make_source(ms, o, self.rt)
         self.source.count = self._count
         if isinstance(self.source, NetworkMs):
