@@ -70,6 +70,25 @@ _BG_SCALARS = [None]                                           # bg_image (BG_IM
 _EM_SCALARS = [None, np.int32, np.int32, np.int32, None, None, None, None]
 
 
+ENV_PACK = 8     # floats per voxel of an RGB environment field on the device (6 used)
+
+
+def env_device_layout(env) -> np.ndarray:
+    """The kernel's layout of an environment field (2 C, n, n, n): one grey field (C = 1) as
+    given; an RGB one (C = 3) as (n, n, n, ENV_PACK), a voxel's six values side by side and
+    two zeros, so that the kernel fetches a voxel pair's six values with one 64-byte load
+    instead of six lookups (cl/raymarch.cl, ``lookup16_env6``)."""
+    env = np.asarray(env, np.float32)
+    if env.ndim != 4 or env.shape[0] not in (2, 6) or len(set(env.shape[1:])) != 1:
+        raise ClvolError(f"env must be (2 C, n, n, n) with C = 1 or 3, got {env.shape}")
+    if env.shape[0] == 2:
+        return np.ascontiguousarray(env)
+    n = env.shape[1]
+    packed = np.zeros((n, n, n, ENV_PACK), np.float32)
+    packed[..., :6] = np.moveaxis(env, 0, -1)
+    return packed
+
+
 def raymarch(density, bbox_min, bbox_max, density_scale,
              majorant, block,
              light, cube_min, cube_size,
@@ -166,11 +185,18 @@ def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
     if stats:
         defines["RAYMARCH_STATS"] = 1
     if env is not None:
+        if not isinstance(env, DeviceArray):
+            env = env_device_layout(env)
         env = _device(env, rt)
-        if len(env.shape) != 4 or env.shape[0] not in (2, 6) or len(set(env.shape[1:])) != 1:
-            raise ClvolError(f"env must be (2 C, n, n, n) with C = 1 or 3, got {env.shape}")
-        defines.update(ENV=1, ENV_CHANNELS=env.shape[0] // 2)
-        en = env.shape[1]
+        shape = tuple(env.shape)
+        if len(shape) == 4 and shape[0] == 2 and len(set(shape[1:])) == 1:
+            env_channels, en = 1, shape[1]
+        elif len(shape) == 4 and shape[3] == ENV_PACK and len(set(shape[:3])) == 1:
+            env_channels, en = 3, shape[0]
+        else:
+            raise ClvolError(f"env must be (2 C, n, n, n) with C = 1 or 3 (or its device "
+                             f"layout, env_device_layout), got {shape}")
+        defines.update(ENV=1, ENV_CHANNELS=env_channels)
     if bg_image is not None:
         bg_image = _device(bg_image, rt)
         if tuple(bg_image.shape) != (height, width, 3):

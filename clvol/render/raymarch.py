@@ -339,7 +339,8 @@ class RayMarcher:
         if fkey != self._env_field_key:
             field = E.source_field(self._env_T.T, self._env_sky, alb, plan.lobes, pyr.cube_min,
                                    pyr.cube_size, camera.origin)
-            self._env_field = self.rt.upload(field)
+            from ..kernels.raymarch import env_device_layout
+            self._env_field = self.rt.upload(env_device_layout(field))
             self._env_field_key = fkey
             self.count("env_field")
         out.update(env=self._env_field, env_min=pyr.cube_min, env_size=pyr.cube_size,
