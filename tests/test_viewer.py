@@ -490,6 +490,9 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
     _wait(d, lambda: _meta(d)["method"] == "stochastic" and _meta(d)["spp"] >= 3,
           "stochastic frames refining")
     assert d.find_element(By.ID, "spplabel").text == "samples"
+    # No horizontal scrollbar: a long menu label once widened the panel past the window.
+    assert d.execute_script("const e = document.documentElement;"
+                            "return e.scrollWidth <= e.clientWidth")
     # The checks below compare pixels of one still image: the lattice sends one per change.
     d.execute_script("const m = document.getElementById('method'); m.value = 'network';"
                      "m.dispatchEvent(new Event('change'));")
