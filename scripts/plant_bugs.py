@@ -161,7 +161,8 @@ PATCHES = {"mirrored-frame": _mirrored_frame, "lattice-corners": _lattice_corner
            "coarse-level": _coarse_level_plus_one}
 C_TESTS = ("tests/test_c_host.py::test_c_render_matches_python",
            "tests/test_c_host.py::test_c_render_matches_python_on_a_non_cubic_volume_and_image",
-           "tests/test_c_host.py::test_c_octaves_with_distinct_parameters_match_python")
+           "tests/test_c_host.py::test_c_octaves_with_distinct_parameters_match_python",
+           "tests/test_capi.py")
 FALLBACK_TESTS = ("tests/test_fallback_rule.py",
                   "tests/test_renderer.py::test_outside_the_domain_warns_and_uses_the_measured_alternative")
 BUGS = [
