@@ -20,7 +20,7 @@ import pytest
 
 from clvol.errors import ClvolError
 from clvol.kernels.pathtrace import (ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED,
-                                     ROW_VERTICES, Medium, PathTracer)
+                                     ROW_VERTICES, PathMedium, PathTracer)
 from clvol.scene import Camera
 from reference import pathtrace as rpt
 from reference.phase import phase_eval
@@ -50,13 +50,13 @@ def make_medium(density=None, scale=3.0, albedo=(0.9, 0.9, 0.9), lobes=(), light
                 sun=(1.0, 1.0, 1.0), env=None, max_order=None, env_map=None,
                 env_scale=(1.0, 1.0, 1.0), env_rotation=0.0, **extra):
     density = _smooth() if density is None else density
-    return Medium(density=density, bbox_min=BMIN, bbox_max=BMAX, density_scale=scale,
+    return PathMedium(density=density, bbox_min=BMIN, bbox_max=BMAX, density_scale=scale,
                   albedo=tuple(albedo), lobes=list(lobes), light_dir=_unit(light), sun=tuple(sun),
                   environment=env, max_order=max_order, extra_defines=dict(extra),
                   env_map=env_map, env_scale=tuple(env_scale), env_rotation=env_rotation)
 
 
-def twin(med: Medium) -> rpt.Params:
+def twin(med: PathMedium) -> rpt.Params:
     return rpt.Params(density=med.density, bbox_min=med.bbox_min, bbox_max=med.bbox_max,
                       density_scale=med.density_scale, albedo=med.albedo, lobes=med.lobes,
                       light_dir=med.light_dir, sun=med.sun, environment=med.environment,

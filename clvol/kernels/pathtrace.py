@@ -67,8 +67,9 @@ RENDER_LANES, QUERY_LANES = 8, 16
 
 
 @dataclass
-class Medium:
-    """What the kernels simulate. ``lobes``: (g, weight) pairs, empty for isotropic;
+class PathMedium:
+    """What the path-tracing kernels simulate (named apart from the scene's ``Medium``,
+    clvol/scenemodel.py, which holds only the optical properties). ``lobes``: (g, weight) pairs, empty for isotropic;
     ``environment`` None for none; ``max_order`` None for unlimited. ``env_map``: a lat-long
     map (H, W, 3) (clvol/envmap.py; exclusive with ``environment``) times ``env_scale``,
     turned by ``env_rotation`` degrees about +y; None for none."""
@@ -99,7 +100,7 @@ class Medium:
         return t if t.total > 0 else None
 
 
-def specialisation(med: Medium, specialise: bool = True) -> tuple[dict, list[str], list[str]]:
+def specialisation(med: PathMedium, specialise: bool = True) -> tuple[dict, list[str], list[str]]:
     """(-D defines, simulated effects, skipped effects). With ``specialise=False`` the
     general kernel is built (three lobes, RGB, environment and sun code all compiled)."""
     simulated, skipped = [], []
@@ -153,7 +154,7 @@ def specialisation(med: Medium, specialise: bool = True) -> tuple[dict, list[str
 class PathTracer:
     """A medium on the device and the kernels specialised for it."""
 
-    def __init__(self, med: Medium, majorant_block: int | None = None, specialise: bool = True,
+    def __init__(self, med: PathMedium, majorant_block: int | None = None, specialise: bool = True,
                  runtime=None, device_medium=None):
         """``device_medium``: ``med``'s density already on the device with its majorant
         (clvol/kernels/majorant.py), built with ``majorant_block`` (None: its default);

@@ -13,7 +13,9 @@ from ..runtime import DeviceArray, get_runtime
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
 
-SOURCES = {"none": 0, "wrenninge": 1, "grid": 2, "view": 3}
+# The kernel's MS_SOURCE define per source kind (the registry of source classes, a different
+# table, is clvol/render/msregistry.py SOURCES).
+MS_SOURCE_DEFINES = {"none": 0, "wrenninge": 1, "grid": 2, "view": 3}
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
 MAX_OCTAVES = 8
 MAX_VIEW_K = 16  # knots per block of the view-space table (cl/viewdepth.cl's limit)
@@ -31,13 +33,14 @@ def _device(x, rt) -> DeviceArray:
 def ms_defines(source: str, octaves: int = 1, channels: int = 1, view_k: int = 1,
                view_block: int = 4) -> dict:
     """The -D defines of one multiple-scattering source of cl/raymarch.cl (see its header)."""
-    if source not in SOURCES:
-        raise ClvolError(f"unknown multiple-scattering source {source!r}; one of {sorted(SOURCES)}")
+    if source not in MS_SOURCE_DEFINES:
+        raise ClvolError(f"unknown multiple-scattering source {source!r}; one of "
+                         f"{sorted(MS_SOURCE_DEFINES)}")
     if not 1 <= octaves <= MAX_OCTAVES:
         raise ClvolError(f"octaves must be 1..{MAX_OCTAVES}, got {octaves}")
     if channels not in (1, 3):
         raise ClvolError(f"ms grid channels must be 1 or 3, got {channels}")
-    d = {"MS_SOURCE": SOURCES[source],
+    d = {"MS_SOURCE": MS_SOURCE_DEFINES[source],
          "MS_OCTAVES": int(octaves) if source == "wrenninge" else 1,
          "MS_CHANNELS": int(channels) if source in ("grid", "view") else 1}
     if source == "view":

@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import ClvolError
 from ..kernels.majorant import DEFAULT_BLOCK
 from ..kernels.pathtrace import (ORDER_BINS, PT_OUT, ROW_BG, ROW_EM_DIRECT, ROW_EM_SCATTERED,
-                                 ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED, ROW_VERTICES, Medium,
+                                 ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED, ROW_VERTICES, PathMedium,
                                  PathTracer)
 from ..progress import Progress
 from ..runtime import get_runtime
@@ -69,8 +69,8 @@ UNIFORM_MAP.setflags(write=False)
 
 
 def _medium(scene, grid, max_order, sun, environment, env_map: bool = False,
-            emission=None) -> Medium:
-    """The kernel's Medium; ``env_map``: with the scene's environment map, ``emission``: an
+            emission=None) -> PathMedium:
+    """The path tracer's PathMedium (the kernel's inputs); ``env_map``: with the scene's environment map, ``emission``: an
     EmissionGrid (renders only)."""
     m = scene.medium
     light = scene.light
@@ -86,7 +86,7 @@ def _medium(scene, grid, max_order, sun, environment, env_map: bool = False,
         # every vertex, the last one included (cl/pathtrace.cl), and a uniform map renders
         # the constant sky (tests/test_envmap.py).
         texels, scale, rotation, environment = UNIFORM_MAP, environment, 0.0, None
-    return Medium(density=grid.density, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max,
+    return PathMedium(density=grid.density, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max,
                   density_scale=m.density_scale, albedo=tuple(m.albedo), lobes=lobes,
                   light_dir=tuple(light.direction), sun=tuple(sun),
                   environment=environment, max_order=max_order, env_map=texels,

@@ -47,7 +47,7 @@ def is_loopback(host: str) -> bool:
 
 
 @dataclass
-class Frame:
+class ViewFrame:
     """A finished frame: the linear image (kept for re-exposure and saving) and its facts."""
     state: ViewState
     layers: dict
@@ -90,7 +90,7 @@ class FrameMaker:
         return self.renderers[method]
 
     @staticmethod
-    def refines(frame: Frame) -> bool:
+    def refines(frame: ViewFrame) -> bool:
         """Whether rendering the same state again improves ``frame``: the path tracer adds
         a pass; the stochastic source says whether it still draws (its own rule: a still
         view draws STILL_SAMPLES times, then stops; an empty or unlit view never refines)."""
@@ -117,7 +117,7 @@ class FrameMaker:
         f = self.loaded[frame]
         return {"grid": f.grid, "emission": f.emission}
 
-    def render(self, state: ViewState, previous: Frame | None) -> Frame:
+    def render(self, state: ViewState, previous: ViewFrame | None) -> ViewFrame:
         """One frame for ``state``; for the path tracer, one more pass averaged into
         ``previous`` when it was made for the same state."""
         with self.lock:
@@ -150,14 +150,14 @@ class FrameMaker:
                 spp = int(result.header["raymarch.view_accumulated"])   # samples per block
             seconds = time.perf_counter() - t0
             self.frames_rendered += 1
-            return Frame(state=state, layers=layers, header=dict(result.header), spp=spp,
+            return ViewFrame(state=state, layers=layers, header=dict(result.header), spp=spp,
                          seconds=seconds, stage_ms=stage_times(result.header))
 
     def close(self):
         self.executor.shutdown(wait=True, cancel_futures=True)
 
 
-def encode_frame(frame: Frame, frame_id: int, exposure: float | str | None,
+def encode_frame(frame: ViewFrame, frame_id: int, exposure: float | str | None,
                  light=None) -> bytes:
     """``exposure``: stops, None (from the image) or "scene" (from ``light``, the frame's
     light: clvol.image.scene_exposure); the frame's meta says which ("exposure_from")."""
@@ -187,7 +187,7 @@ class Connection:
         self.state = initial
         self.wake = asyncio.Event()
         self.wake.set()                     # the first frame
-        self.last: Frame | None = None
+        self.last: ViewFrame | None = None
         self.frame_id = 0
         self.closed = False
 
