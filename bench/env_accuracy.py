@@ -1,6 +1,6 @@
 """Environment light in the ray marcher against the path tracer: sky-only and sun + sky clouds.
 
-    python bench/env_accuracy.py [--spp 512] [--size 64] [--cases ...] [--env K:N ...]
+    python bench/env_accuracy.py [--spp 512] [--size 64] [--cases ...] [--env K:N ...] [--order1]
 
 Scene: the cloud generator (seed 1) at --volume^3 voxels, HG 0.857, density scale and albedo
 per case, under the constant blue sky (0.3, 0.5, 0.9) with the sun off (irradiance 0) or on
@@ -13,6 +13,11 @@ each K:N (sky directions : field resolution). Printed per case: image means, the
 difference, and rmse100: the metric of bench/neural_quality.py's tables (RMSE x 100 of
 tonemapped luminance, the reference's noise removed; ``neural_quality.scores``), with the
 score before noise removal beside it.
+
+``--order1`` also splits the error: per case, over the pixels the march finds opaque
+(alpha > 0.99), the mean of the march without its multiple-scattering layer (sky and sun
+single scattering + background) against the path tracer at ``--max-order 1`` (two runs of
+--spp), and the share of the full reference that orders >= 2 carry there.
 """
 from __future__ import annotations
 
@@ -53,6 +58,8 @@ def main(argv=None) -> int:
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     ap.add_argument("--env", nargs="+", default=["64:32", "64:64"],
                     help="K:N pairs (sky directions : field resolution)")
+    ap.add_argument("--order1", action="store_true",
+                    help="also compare single scattering alone with the path tracer's order 1")
     args = ap.parse_args(argv)
     rt = get_runtime()
     print(machine(rt))
@@ -73,6 +80,17 @@ def main(argv=None) -> int:
             print(f"{name:14s} {kn:6s} {a.mean():8.4f} {pt.mean():8.4f} "
                   f"{a.mean() / pt.mean() - 1:+7.3f} {s['rmse100']:8.2f} "
                   f"{s['rmse100_raw']:7.2f}", flush=True)
+        if args.order1:
+            march = Renderer(sc).render().layers
+            opaque = march["alpha"].reshape(march["alpha"].shape[:2]) > 0.99
+            o1 = Renderer(sc, "pathtrace", spp=args.spp, max_order=1)
+            pt1 = 0.5 * (o1.render(seed=13).layers["total"] + o1.render(seed=14).layers["total"])
+            single = (march["total"] - march["multiple"])[opaque].mean()
+            print(f"{name:14s} order 1, {int(opaque.sum())} opaque pixels: march "
+                  f"{single:.4f}, path tracer {pt1[opaque].mean():.4f} "
+                  f"({single / pt1[opaque].mean() - 1:+.3f}); orders >= 2 carry "
+                  f"{1 - pt1[opaque].mean() / pt[opaque].mean():.0%} of the reference there",
+                  flush=True)
     print(machine(rt))
     return 0
 

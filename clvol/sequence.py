@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import re
 import time
+from collections import Counter
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,14 +41,9 @@ def parse_frames(text: str) -> list[int]:
         if len(frames) + (b - a + 1) > MAX_FRAMES:
             raise ClvolError(f"--frames {text}: more than {MAX_FRAMES} frames")
         frames.extend(range(a, b + 1))
-    if len(set(frames)) != len(frames):
-        seen, dup = set(), None
-        for f in frames:
-            if f in seen:
-                dup = f
-                break
-            seen.add(f)
-        raise ClvolError(f"--frames {text}: frame {dup} is listed twice")
+    dup = [f for f, n in Counter(frames).items() if n > 1]
+    if dup:
+        raise ClvolError(f"--frames {text}: frame {dup[0]} is listed twice")
     return frames
 
 

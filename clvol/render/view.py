@@ -244,6 +244,7 @@ class StochasticViewMs(ViewMs):
         self.samples, self.seed = int(samples), int(seed)
         self.draws = 0              # draws since construction: the RNG stream's position
         self.history = None
+        self._history_grid = None   # the density the history was gathered on
         self.refining = False       # whether the next frame of this view draws more
 
     @classmethod
@@ -339,7 +340,7 @@ class StochasticViewMs(ViewMs):
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0,
                              reproject=0.0, points=0)
         self._ensure_network(frame)
-        if getattr(self, "_history_grid", None) is not frame.grid:
+        if self._history_grid is not frame.grid:
             self.history = None                          # a new density: start again
             self._history_grid = frame.grid
         cam, m = frame.camera, frame.medium
