@@ -72,6 +72,19 @@ def read_map(path) -> np.ndarray:
     return np.ascontiguousarray(rgb, np.float32)
 
 
+def has_map_shape(path) -> bool:
+    """Whether ``path`` is an EXR whose data window is 2:1, from its header alone (no texels
+    read): a cheap first filter for folders of images (the viewer's map menu), before
+    read_map's full checks."""
+    import OpenEXR
+    try:
+        lo, hi = OpenEXR.File(str(path), header_only=True).header()["dataWindow"]
+    except Exception:          # not an EXR, damaged, no data window: not a candidate
+        return False
+    w, h = int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+    return w == 2 * h and 0 < h <= MAX_ROWS
+
+
 @functools.lru_cache(maxsize=4)
 def _read_cached(path: str, mtime_ns: int, size: int) -> np.ndarray:
     a = read_map(path)

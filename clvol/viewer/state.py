@@ -43,7 +43,7 @@ def sky_maps(scene: Scene) -> dict[str, Path]:
     and every valid lat-long EXR (clvol.envmap.read_map's checks) in the scene file's folder.
     Rendered images lying there (not 2:1, or without RGB) are left out, silently: the menu
     lists what can be picked, nothing else. A client names a map; it never sends a path."""
-    from ..envmap import load_map
+    from ..envmap import has_map_shape, load_map
     from ..errors import ImageError
     maps: dict[str, Path] = {}
     own = scene.light.environment_map
@@ -52,7 +52,7 @@ def sky_maps(scene: Scene) -> dict[str, Path]:
     folder = Path(scene.path).parent if getattr(scene, "path", None) else None
     if folder is not None and folder.is_dir():
         for p in sorted(folder.glob("*.exr"))[:MAX_SKY_MAPS]:
-            if p.name in maps:
+            if p.name in maps or not has_map_shape(p):    # header only: renders are skipped
                 continue
             try:
                 load_map(p)
