@@ -66,6 +66,11 @@ _EMISSION_DTYPES = [None, np.int32, np.int32, np.int32, None, None, None]
 RENDER_LANES, QUERY_LANES = 8, 16
 
 
+# A lat-long map of radiance 1 everywhere (2:1, the smallest with a texel per hemisphere row).
+UNIFORM_MAP = np.ones((2, 4, 3), np.float32)
+UNIFORM_MAP.setflags(write=False)
+
+
 @dataclass
 class PathMedium:
     """What the path-tracing kernels simulate (named apart from the scene's ``Medium``,
@@ -88,6 +93,18 @@ class PathMedium:
     env_scale: tuple = (1.0, 1.0, 1.0)
     env_rotation: float = 0.0
     emission: object = None     # an EmissionGrid (clvol/emission.py), or None
+
+    def __post_init__(self):
+        # A path collects a constant sky only when it escapes after phase sampling, which the
+        # vertex max_order never does: that order's sky light would be lost (an order-1
+        # render showed no sky-lit medium at all). As a uniform map the sky is sampled at
+        # every vertex, the last one included (cl/pathtrace.cl), and a uniform map renders
+        # the constant sky (tests/test_envmap.py). Done here, so that every caller (and the
+        # twin, built from this object) gets it.
+        if (self.max_order is not None and self.env_map is None
+                and self.environment is not None and max(self.environment) > 0):
+            self.env_map, self.env_scale = UNIFORM_MAP, tuple(float(v) for v in self.environment)
+            self.env_rotation, self.environment = 0.0, None
 
     def env_tables(self):
         """The map's sampling tables (clvol/envmap.py), or None without a map or for a

@@ -63,11 +63,6 @@ def _check_int(name: str, value, lo: int, allow_none: bool = True):
     return int(value)
 
 
-# A lat-long map of radiance 1 everywhere (2:1, the smallest with a texel per hemisphere row).
-UNIFORM_MAP = np.ones((2, 4, 3), np.float32)
-UNIFORM_MAP.setflags(write=False)
-
-
 def _medium(scene, grid, max_order, sun, environment, env_map: bool = False,
             emission=None) -> PathMedium:
     """The path tracer's PathMedium (the kernel's inputs); ``env_map``: with the scene's environment map, ``emission``: an
@@ -76,21 +71,13 @@ def _medium(scene, grid, max_order, sun, environment, env_map: bool = False,
     light = scene.light
     lobes = [] if m.phase.is_isotropic else [(l.g, l.weight) for l in m.phase.lobes]
     texels = light.environment_texels() if env_map else None
-    environment = None if environment is None else tuple(float(v) for v in environment)
-    scale, rotation = tuple(light.environment_scale), float(light.environment_rotation)
-    if max_order is not None and texels is None and environment is not None and any(
-            v > 0 for v in environment):
-        # A path collects a constant sky only when it escapes after phase sampling, which
-        # the vertex max_order never does: that order's sky light would be lost (an order-1
-        # render showed no sky-lit medium at all). As a uniform map the sky is sampled at
-        # every vertex, the last one included (cl/pathtrace.cl), and a uniform map renders
-        # the constant sky (tests/test_envmap.py).
-        texels, scale, rotation, environment = UNIFORM_MAP, environment, 0.0, None
     return PathMedium(density=grid.density, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max,
-                  density_scale=m.density_scale, albedo=tuple(m.albedo), lobes=lobes,
-                  light_dir=tuple(light.direction), sun=tuple(sun),
-                  environment=environment, max_order=max_order, env_map=texels,
-                  env_scale=scale, env_rotation=rotation, emission=emission)
+                      density_scale=m.density_scale, albedo=tuple(m.albedo), lobes=lobes,
+                      light_dir=tuple(light.direction), sun=tuple(sun),
+                      environment=None if environment is None else tuple(environment),
+                      max_order=max_order, env_map=texels,
+                      env_scale=tuple(light.environment_scale),
+                      env_rotation=float(light.environment_rotation), emission=emission)
 
 
 def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
