@@ -43,10 +43,10 @@ import numpy as np
 from _common import ROOT, machine, square  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from clvol.image import read_exr, write_exr  # noqa: E402
 from clvol.metrics import compare_images  # noqa: E402
-from clvol.render.network import NetworkSource  # noqa: E402
+from clvol.render.ms.network import NetworkSource  # noqa: E402
 from clvol.render.pathtrace import point_query, render_pathtrace  # noqa: E402
 from clvol.render.raymarch import RayMarcher  # noqa: E402
-from clvol.render.sources import fill_ms_grid  # noqa: E402
+from clvol.render.ms.grid import fill_ms_grid  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 
@@ -174,7 +174,7 @@ def main(argv=None) -> int:
             record("raymarch/network", f"{lattice}^3 lattice", layers, s, light_s + fill_s)
             print(f"{'':21}(light update: light field {light_s:.3f} s, graded T {info['light']:.3f} s, "
                   f"gather {info['gather']:.3f} s, network {info['network']:.3f} s)")
-        # The same network queried where the camera sees (clvol/render/view.py): per block of
+        # The same network queried where the camera sees (clvol/render/ms/view.py): per block of
         # pixels. An unchanged view costs the march; a light (or camera) change costs the light
         # field, the query depths, the gather and the network (from the render's header).
         import dataclasses

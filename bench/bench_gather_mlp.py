@@ -4,7 +4,7 @@
 
     python bench/bench_gather_mlp.py [--rgb] [--repeats 5] [--sizes 16384 65536 262144]
 
-Two paths run as the renderer runs them: ``NetworkSource.evaluate`` (clvol/render/network.py)
+Two paths run as the renderer runs them: ``NetworkSource.evaluate`` (clvol/render/ms/network.py)
 with ``fused=True`` / ``fused=False`` on the shipped network (clvol/data/weights/full_albedo.npz,
 its 64^3 pyramid) and a 128^3 procedural cloud, queries at random occupied voxels (jittered)
 looking in random directions; the unfused pair goes through device memory in chunks of
@@ -28,7 +28,7 @@ import numpy as np
 
 from _common import cpu_seconds, load_average, machine  # bench/ is on sys.path
 from clvol.kernels.gather import gather
-from clvol.render import network as rnet
+from clvol.render.ms import network as rnet
 from clvol.runtime import get_runtime
 from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate

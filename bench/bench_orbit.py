@@ -14,7 +14,7 @@ median frame time of each method and their ratio (wall clock and this process's 
 the default method's median split by stage (light field, graded transmittance, view-space
 query depths, gather, network, interpolation of the view-independent cache, march; a stage the
 change did not invalidate costs 0). ``--ms view`` times the view-space source instead of the
-world lattice (clvol/render/view.py), ``--ms stochastic`` its stochastic mode (one draw per
+world lattice (clvol/render/ms/view.py), ``--ms stochastic`` its stochastic mode (one draw per
 block per frame; the camera motion then includes the reprojection stage). Targets (docs/raymarch.md): camera motion at 256^2 costs <= 1.5x the
 plain march; a light change costs <= 250 ms at 128^3.
 """

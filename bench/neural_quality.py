@@ -80,7 +80,7 @@ from clvol.atomic import atomic_open  # noqa: E402
 from clvol.errors import ClvolError  # noqa: E402
 from clvol.metrics import (LUMA, flip, flip_available, mrpnn_exposure,  # noqa: E402
                            tonemap_srgb)
-from clvol.render.network import shipped_weights  # noqa: E402
+from clvol.render.ms.network import shipped_weights  # noqa: E402
 from clvol.render.pathtrace import DEFAULT_BLOCK, render_pathtrace  # noqa: E402
 from clvol.render.renderer import render_raymarch  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
@@ -354,9 +354,9 @@ def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
         res, s = median_time(stochastic_render, repeats)
         out["stochastic"] = (res.layers["total"], s, None, None)
     if pt_lattice:
-        from clvol.render.network import DEFAULT_NETWORK_RESOLUTION
+        from clvol.render.ms.network import DEFAULT_NETWORK_RESOLUTION
         from clvol.render.pathtrace import point_query
-        from clvol.render.sources import fill_ms_grid
+        from clvol.render.ms.grid import fill_ms_grid
         res = ms_resolution or DEFAULT_NETWORK_RESOLUTION
         ms = fill_ms_grid(scene, res, lambda p, w: point_query(scene, p, w, pt_lattice, seed=11,
                                                                 grid=grid)["Fms"])

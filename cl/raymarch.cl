@@ -18,7 +18,7 @@
  * (albedo and E are constant over the medium).
  *
  * Specialisation (-D defines, decided from the scene by clvol/render/raymarch.py and the
- * multiple-scattering sources of clvol/render/sources.py):
+ * multiple-scattering sources of clvol/render/ms/):
  *   PHASE_ISOTROPIC / PHASE_LOBES   phase.h: constant 1/(4 pi) or 1..3 HG lobes
  *   LIT 0|1          0 when albedo * E = 0: no light lookups, no F_1 and no F_ms
  *   MS_SOURCE 0|1|2|3  0 none; 1 Wrenninge octaves sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i);
@@ -57,7 +57,7 @@
  *   ms_grid    float [C][gz][gy][gx]  F_ms (radiance per unit irradiance) over gmin..gmax;
  *              source 3: float [1 + C][by = gz][bx = gy][VIEW_K = gx], plane 0 the blocks'
  *              query distances along the camera rays (increasing; -1: empty block), planes
- *              1..C F_ms there (clvol/render/view.py). A pixel's knots are the bilinear blend,
+ *              1..C F_ms there (clvol/render/ms/view.py). A pixel's knots are the bilinear blend,
  *              knot by knot, of the four nearest non-empty blocks' knots (weights
  *              renormalised); F_ms along its ray is piecewise linear in t between its knots,
  *              constant beyond the first and last (gmin, gmax unused)

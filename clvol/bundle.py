@@ -94,11 +94,11 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     from .kernels import transmittance as kt
     from .kernels.majorant import majorant_block
     from .kernels.phase import lobe_vectors, phase_defines
-    from .render.network import (NETWORK_CHUNK, NetworkMs, lattice_reach, lattice_reach_mask,
+    from .render.ms.network import (NETWORK_CHUNK, NetworkMs, lattice_reach, lattice_reach_mask,
                                  load_network_weights, outside_domain)
     from .render.raymarch import Plan, auto_light_resolution, is_lit
     from .render.renderer import Renderer
-    from .render.sources import GridMs, MsGrid
+    from .render.ms.grid import GridMs, MsGrid
     from .runtime import DEFAULT_PAD, cl_source_dir, include_dir
 
     given = dict(weights=weights, ms_resolution=ms_resolution, step=step, threshold=threshold,
@@ -131,7 +131,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     lit = is_lit(medium, light)
     source, _ = r.active_source(medium)
     if octaves is not None and source.name == "wrenninge":
-        from .render.sources import OctavesMs
+        from .render.ms.analytic import OctavesMs
         source = OctavesMs(octaves)
     network = isinstance(source, NetworkMs)
     if lit and not network and source.name not in ("none", "wrenninge"):
@@ -284,8 +284,8 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["raymarch.octave_abc"] = [oc.a, oc.b, oc.c]
 
     m.comment("domain: what clvol.Renderer needs to pick its source for another medium or "
-              "volume (clvol/render/network.py); libclvol refuses a change that would switch it")
-    from .render.network import BACKWARD_ALBEDO, BACKWARD_LIMIT, THIN_OPTICAL_THICKNESS
+              "volume (clvol/render/ms/network.py); libclvol refuses a change that would switch it")
+    from .render.ms.network import BACKWARD_ALBEDO, BACKWARD_LIMIT, THIN_OPTICAL_THICKNESS
     dom = r.domain
     m["domain.thin_optical_thickness"] = THIN_OPTICAL_THICKNESS
     m["domain.albedo"] = [float(v) for v in dom.get("albedo", [0.0, 1.0])]
@@ -362,7 +362,7 @@ def _packed_tensors(w, pad8) -> list:
 
 
 def add_arguments(p) -> None:
-    from .render.network import DEFAULT_NETWORK_RESOLUTION
+    from .render.ms.network import DEFAULT_NETWORK_RESOLUTION
     p.add_argument("scene", help="scene .toml file")
     p.add_argument("dir", help="output folder (created)")
     p.add_argument("--weights", metavar="FILE.npz", help="network weights (default: shipped)")

@@ -130,7 +130,7 @@ def write_goldens(out_dir) -> Path:
     from .kernels.phase import lobe_vectors, phase_defines
     from .neural import layout
     from .neural.export import load_weights
-    from .render.network import shipped_weights
+    from .render.ms.network import shipped_weights
     from .runtime import DEFAULT_PAD, cl_source_dir, include_dir
     rgather, rmajorant, rmlp, rpyramid, rtrans = _reference()
     root = Path(out_dir)

@@ -80,7 +80,7 @@ LAYERS = [
 
 
 def layer_of(module: str) -> int:
-    """Index in LAYERS of a clvol module ("clvol.render.network"), by its longest listed prefix."""
+    """Index in LAYERS of a clvol module ("clvol.render.ms.network"), by its longest listed prefix."""
     name = "__init__" if module == "clvol" else module.removeprefix("clvol.")
     best = None
     for i, (_, prefixes) in enumerate(LAYERS):
@@ -112,7 +112,7 @@ def test_every_module_imports_only_its_layer_and_those_before():
 # --------------------------------------------------------------------------- import circles
 
 def module_name(path: Path) -> str:
-    """"clvol.render.network" for clvol/render/network.py, "clvol.render" for its __init__.py."""
+    """"clvol.render.ms.network" for clvol/render/ms/network.py, "clvol.render" for its __init__.py."""
     parts = path.relative_to(ROOT).with_suffix("").parts
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 

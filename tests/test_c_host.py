@@ -90,7 +90,7 @@ def small(name, overrides=None):
 UNLIT = {"medium.albedo": [0.0, 0.0, 0.0], "light.environment": [0.2, 0.3, 0.4]}
 # cloud at density scale 0.5: largest optical thickness 0.4 < 0.5, the renderer's thin-medium
 # shortcut (--ms none); smoke with a strongly backward phase at albedo 0.95: outside the
-# network's domain, the renderer's fallback is Wrenninge octaves (clvol/render/network.py)
+# network's domain, the renderer's fallback is Wrenninge octaves (clvol/render/ms/network.py)
 THIN = {"medium.density_scale": 0.5}
 # beyond the default model's domain (g >= -0.9) and strongly backward: the Wrenninge fallback
 BACKWARD = {"medium.albedo": [0.95, 0.95, 0.95], "medium.phase": {"type": "hg", "g": -0.95}}
@@ -130,7 +130,7 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
     # The C host launches the gather and the network as two kernels; Python's default fuses
     # them (cl/gather_mlp.cl, the same bits: tests/test_gather_mlp.py). The programs are
     # compared with Python's unfused path, the image with both.
-    import clvol.render.network as network
+    import clvol.render.ms.network as network
     monkeypatch.setattr(network, "FUSED_DEFAULT", False)
     res = Renderer(scene, "raymarch", ms_resolution=MS_RES, runtime=rt).render()
     want = res.layers["total"]
@@ -188,7 +188,7 @@ def test_c_render_matches_python_on_a_non_cubic_volume_and_image(host, tmp_path)
 def test_c_octaves_with_distinct_parameters_match_python(host, tmp_path):
     """The Wrenninge fallback with a, b, c all different (and 4 octaves): a swap of any two of
     the C host's octave arguments changes the image (bundles otherwise carry a = b = c)."""
-    from clvol.render.sources import Octaves
+    from clvol.render.ms.base import Octaves
     scene = small("smoke.toml", BACKWARD)
     oc = Octaves(4, 0.7, 0.4, 0.9)
     bundle = write_bundle(scene, tmp_path / "b", ms_resolution=MS_RES, octaves=oc)
@@ -352,7 +352,7 @@ def test_bundle_refuses_the_view_space_sources(tmp_path, capsys, ms):
 def test_bundle_refuses_a_source_the_c_host_lacks(tmp_path, capsys, monkeypatch):
     """A scene the renderer would render with a source the C host does not run (none does
     today: the fallbacks are none and wrenninge) is refused with exit 2, naming it."""
-    from clvol.render.sources import GridMs, MsGrid
+    from clvol.render.ms.grid import GridMs, MsGrid
     grid = GridMs(MsGrid(np.zeros((2, 2, 2), np.float32), (-1, -1, -1), (1, 1, 1)))
     monkeypatch.setattr(Renderer, "active_source", lambda self, medium=None: (grid, None))
     scene = ROOT / "examples" / "cloud.toml"

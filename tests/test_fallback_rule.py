@@ -1,7 +1,7 @@
 """The network's out-of-domain fallback rule as a table, just either side of each threshold
 (docs/raymarch.md, "Validity domain": mean cosine below -0.8 takes Wrenninge octaves at albedo
 >= 0.9 and single scattering below; anything else keeps the network). The expected column is
-written from the docs, not from the constants in clvol/render/network.py, so that moving a
+written from the docs, not from the constants in clvol/render/ms/network.py, so that moving a
 threshold fails here.
 
 Also: the lambda of the graded transmittance agrees across the kernel wrapper, the feature
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from clvol.render.network import fallback_for
+from clvol.render.ms.network import fallback_for
 from clvol.scene import Medium, Phase
 
 ROOT = Path(__file__).resolve().parents[1]

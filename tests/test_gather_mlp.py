@@ -243,11 +243,11 @@ def test_tiny():
 
 @pytest.mark.parametrize("albedo", [0.9, (0.7, 0.95, 0.8)])
 def test_network_source_fused_and_unfused_paths_agree(tmp_path, albedo):
-    """NetworkSource.evaluate (clvol/render/network.py) on its fused default and on the
+    """NetworkSource.evaluate (clvol/render/ms/network.py) on its fused default and on the
     unfused pair (fused=False): the same F_ms (identical bits measured; same tolerance as
     above), and the time split says which path ran."""
     from clvol.neural.export import gather_contract, save_weights
-    from clvol.render import network as rnet
+    from clvol.render.ms import network as rnet
     w = network(5, seed=11)
     path = tmp_path / "net.npz"
     save_weights(path, w.arch, w.params, gather_contract(16, 0.6), training={"note": "test"})

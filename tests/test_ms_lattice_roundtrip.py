@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from clvol.render.renderer import render_raymarch
-from clvol.render.sources import fill_ms_grid
+from clvol.render.ms.grid import fill_ms_grid
 from clvol.scene import Camera, Light, Medium, Phase, Scene, VolumeSpec
 from clvol.volume.grid import Grid
 

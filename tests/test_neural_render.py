@@ -1,4 +1,4 @@
-"""The network as the ray marcher's multiple-scattering source (clvol/render/network.py, ms="network").
+"""The network as the ray marcher's multiple-scattering source (clvol/render/ms/network.py, ms="network").
 
 A tiny random-weight network (the real architecture, He-scaled weights, last layer scaled down so
 y stays O(1)) on a 16^3 cloud with a 16^3 pyramid: training is not the point here, the wiring is
@@ -77,7 +77,7 @@ def test_network_source_renders(weights_file, albedo, lobes):
 
 
 def test_grey_shortcut_equals_three_channels(weights_file):
-    from clvol.render.network import NetworkSource
+    from clvol.render.ms.network import NetworkSource
     from clvol.render.renderer import render_raymarch
     sc = _scene(0.95)
     grid = sc.volume.load()
@@ -104,8 +104,8 @@ def test_lattice_matches_numpy_reference(weights_file):
     import reference.mlp as ref
     from clvol.kernels.gather import gather
     from clvol.neural.export import load_weights
-    from clvol.render.network import NetworkSource
-    from clvol.render.sources import ms_lattice
+    from clvol.render.ms.network import NetworkSource
+    from clvol.render.ms.grid import ms_lattice
     sc = _scene([0.9, 0.95, 0.0], [(0.7, 0.6), (-0.3, 0.4)])
     grid = sc.volume.load()
     src = NetworkSource(weights_file, grid, sc.medium)
@@ -175,7 +175,7 @@ def test_shipped_weights_match_this_gather(name, steps):
     """Every shipped weight file must load against the packaged templates and layout (a
     template or layout change without retraining fails here, not at render time)."""
     from pathlib import Path
-    from clvol.render.network import load_network_weights
+    from clvol.render.ms.network import load_network_weights
     path = Path(__file__).resolve().parents[1] / "clvol" / "data" / "weights" / f"{name}.npz"
     w = load_network_weights(path)
     assert w.contract["base_resolution"] == 64 and w.arch.n_levels == 7
@@ -187,7 +187,7 @@ def test_default_model_is_full_albedo_with_the_whole_domain():
     albedo 0.4 and albedo 1 are inside its recorded domain, so the renderer uses it there
     without a warning; it reads the albedo as -log(1 - a + 1e-4) (docs/network.md)."""
     from clvol.neural.export import weights_domain
-    from clvol.render.network import load_network_weights, shipped_weights
+    from clvol.render.ms.network import load_network_weights, shipped_weights
     assert shipped_weights().name == "full_albedo.npz"
     w = load_network_weights(shipped_weights())
     d = weights_domain(w.meta)
@@ -201,7 +201,7 @@ def test_shipped_domain_model_matches_this_gather_and_records_its_domain():
     its meta["domain"] is the whole-domain data sets' (exactly the keys the renderer reads)."""
     from pathlib import Path
     from clvol.neural.export import DOMAIN_KEYS, weights_domain
-    from clvol.render.network import load_network_weights
+    from clvol.render.ms.network import load_network_weights
     path = Path(__file__).resolve().parents[1] / "clvol" / "data" / "weights" / "domain_small.npz"
     w = load_network_weights(path)
     assert w.contract["base_resolution"] == 64 and w.arch.n_levels == 7
@@ -212,15 +212,15 @@ def test_shipped_domain_model_matches_this_gather_and_records_its_domain():
 
 
 def test_network_source_is_registered_whatever_is_imported_first():
-    """render_raymarch and the CLI's --ms choices read clvol/render/msregistry.py; in a fresh process
-    where nothing imported clvol/render/network.py yet, "network" (and its options, e.g.
+    """render_raymarch and the CLI's --ms choices read clvol/render/ms/__init__.py; in a fresh process
+    where nothing imported clvol/render/ms/network.py yet, "network" (and its options, e.g.
     ms_resolution) must be there all the same (it once was not, and ms_resolution was dropped)."""
     import os
     import subprocess
     import sys
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     code = ("from clvol.render.renderer import render_raymarch\n"
-            "from clvol.render.msregistry import source_classes\n"
+            "from clvol.render.ms import source_classes\n"
             "assert 'ms_resolution' in source_classes()['network'].options\n"
             "from clvol.scene import scene_from_dict\n"
             "sc = scene_from_dict({'volume': {'generator': 'sphere', 'seed': 1, 'resolution': 12},\n"

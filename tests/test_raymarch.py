@@ -22,7 +22,8 @@ from clvol.errors import ClvolError
 from clvol.kernels import raymarch as kraymarch
 from clvol.kernels.majorant import build_majorant
 from clvol.render.renderer import render_raymarch
-from clvol.render.sources import MsGrid, Octaves
+from clvol.render.ms.grid import MsGrid
+from clvol.render.ms.base import Octaves
 from clvol.scene import scene_from_dict
 from clvol.volume.grid import Grid
 from reference import raymarch as rraymarch

@@ -13,7 +13,7 @@ import pytest
 
 from clvol.render.pathtrace import point_query, render_pathtrace
 from clvol.render.renderer import render_raymarch
-from clvol.render.sources import fill_ms_grid
+from clvol.render.ms.grid import fill_ms_grid
 from clvol.scene import scene_from_dict
 
 

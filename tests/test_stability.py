@@ -117,7 +117,7 @@ METHODS = {
 def render_case(method_key, opts, kind):
     import warnings
     from clvol.render.renderer import Renderer
-    from clvol.render.sources import MsGrid
+    from clvol.render.ms.grid import MsGrid
     method, mopts = METHODS[method_key]
     mopts = dict(mopts)
     if mopts.get("ms") == "grid":

@@ -1,4 +1,4 @@
-"""The stochastic view-space source (``--ms stochastic``, clvol/render/view.py): MRPNN's
+"""The stochastic view-space source (``--ms stochastic``, clvol/render/ms/view.py): MRPNN's
 one free-flight point per pixel block per frame, accumulated while the view is still and
 reprojected when the camera moves. Stand-in queries with known images check the estimator;
 counters check what each change recomputes."""
@@ -11,7 +11,7 @@ import pytest
 
 from clvol.errors import ClvolError
 from clvol.render.renderer import Renderer
-from clvol.render.view import MOVE_HISTORY, STILL_SAMPLES
+from clvol.render.ms.view import MOVE_HISTORY, STILL_SAMPLES
 from test_view_source import _scene
 
 S = 0.05
@@ -135,7 +135,7 @@ def test_reprojection_carries_values_to_where_the_points_went():
 
 
 def test_default_block_follows_the_image_size():
-    from clvol.render.view import auto_block
+    from clvol.render.ms.view import auto_block
     assert [auto_block(w, h) for w, h in ((26, 19), (96, 96), (128, 72), (256, 256),
                                           (300, 512))] == [1, 2, 2, 4, 8]
     res = _renderer(_scene(**{"camera.width": 130, "camera.height": 40})).render()

@@ -1,4 +1,4 @@
-"""The view-space F_ms source (``--ms view``, clvol/render/view.py) inside the Renderer:
+"""The view-space F_ms source (``--ms view``, clvol/render/ms/view.py) inside the Renderer:
 plumbing checked with stand-in queries whose image is known, what each change recomputes,
 the shortcuts and the options."""
 from __future__ import annotations

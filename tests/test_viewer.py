@@ -308,7 +308,7 @@ def test_stochastic_method_refines_while_still_then_idles_and_reprojects_on_move
     one more sample per block each frame, until STILL_SAMPLES; then it sends nothing more.
     An orbit step keeps MOVE_HISTORY samples of history plus the new one."""
     import aiohttp
-    from clvol.render.view import MOVE_HISTORY, STILL_SAMPLES
+    from clvol.render.ms.view import MOVE_HISTORY, STILL_SAMPLES
     url, _ = server
 
     async def run():

@@ -520,7 +520,7 @@ static void open_bundle(clvol_host *h) {
                  m->where, h->active[k], k);
 }
 
-/* The lattice points with density within reach (the Python host's clvol/render/network.py
+/* The lattice points with density within reach (the Python host's clvol/render/ms/network.py
  * lattice_reach_mask with lattice_reach: one lattice cell plus one voxel (largest side) plus
  * one step (smallest side)); the others never reach the image. Replaces h->active. */
 static void find_active_points(clvol_host *h) {

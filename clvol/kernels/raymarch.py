@@ -14,7 +14,7 @@ from .grid import f4
 from .phase import lobe_vectors, phase_defines
 
 # The kernel's MS_SOURCE define per source kind (the registry of source classes, a different
-# table, is clvol/render/msregistry.py SOURCES).
+# table, is clvol/render/ms/__init__.py SOURCES).
 MS_SOURCE_DEFINES = {"none": 0, "wrenninge": 1, "grid": 2, "view": 3}
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
 MAX_OCTAVES = 8

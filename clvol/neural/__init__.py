@@ -14,5 +14,5 @@ Training only (``model`` and ``train`` import torch; nothing on the render path 
 - ``model``       the network in torch;
 - ``train``       samples, loss, the checkpointed trainer.
 
-The render-time source that runs the network (gather + cl/mlp.cl) is clvol/render/network.py.
+The render-time source that runs the network (gather + cl/mlp.cl) is clvol/render/ms/network.py.
 """

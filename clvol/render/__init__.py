@@ -2,10 +2,10 @@
 
 Layout: ``renderer`` (the stateful ``Renderer`` applications hold), ``options`` (options
 bound to methods), the two methods ``raymarch`` (the ray marcher and its plan) and
-``pathtrace`` (the reference path tracer and point queries), ``sources`` (multiple-scattering
-sources: none, octaves, grid), ``network`` and ``view`` (the network sources) and
-``msregistry`` (the ``--ms`` names of them all). The volume on the device
-that every method reads (``DeviceMedium``) is clvol/kernels/majorant.py's.
+``pathtrace`` (the reference path tracer and point queries), the package ``ms`` (the
+multiple-scattering sources, one module each, and the ``--ms`` registry in its ``__init__``),
+``environment`` (sky light for the marcher) and ``sphere`` (direction sets). The volume on the
+device that every method reads (``DeviceMedium``) is clvol/kernels/majorant.py's.
 
 Render-method registry shared by the CLI and Python callers.
 

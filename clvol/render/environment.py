@@ -60,7 +60,7 @@ import numpy as np
 
 from ..envmap import row_solid_angles, texel_directions
 from ..errors import ClvolError
-from .network import fibonacci_directions
+from .sphere import fibonacci_directions
 
 DEFAULT_ENV_DIRECTIONS = 64
 DEFAULT_ENV_RESOLUTION = 32

@@ -375,5 +375,5 @@ def mitsuba_scene_dict(scene, grid, spp: int, seed: int = 0, max_depth: int = -1
     return d
 
 
-__all__ = ["add_arguments", "render", "render_pathtrace", "point_query", "mitsuba_scene_dict",
+__all__ = ["add_arguments", "render_pathtrace", "point_query", "mitsuba_scene_dict",
            "PT_OUT"]

@@ -5,7 +5,7 @@
 ``RayMarcher`` keeps a volume on the device for many frames (``DeviceMedium``: density and
 majorant) and the exact light field toward the light (``set_light``: the light-change cost);
 ``march(camera, light, source)`` renders a camera with a multiple-scattering source from
-clvol/render/sources.py. ``Plan`` decides what the kernel simulates for a medium and a light,
+clvol/render/ms/. ``Plan`` decides what the kernel simulates for a medium and a light,
 and which shortcuts it takes (with reasons, for the header). The stateful ``Renderer``
 (clvol/render/renderer.py) drives all of it; its ``render_raymarch`` is the one-call form.
 
@@ -27,7 +27,8 @@ from ..kernels.pyramid import MAX_BASE_RESOLUTION
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..neural.layout import is_power_of_two
 from ..runtime import DeviceArray, get_runtime
-from .sources import MsPlan, MsSource, NoMs
+from .ms.base import MsPlan, MsSource
+from .ms.analytic import NoMs
 
 # Segment length in voxels of the density grid. Half a voxel, because at one voxel the
 # single scattering alone left RMSE x100 0.54-0.85 against the path tracer on dense scenes
@@ -351,7 +352,7 @@ class RayMarcher:
 def make_source(ms: str, options: dict | None = None, runtime=None) -> MsSource:
     """The source named ``ms`` (``--ms``), built from render ``options`` by the source itself
     (``MsSource.from_options``)."""
-    from .msregistry import source_class
+    from .ms import source_class
     return source_class(ms).from_options(options or {}, runtime)
 
 
@@ -372,9 +373,9 @@ def downsample(layers: dict, s: int) -> dict:
 # --------------------------------------------------------------------------- CLI options
 
 def add_arguments(group) -> None:
-    from .network import DEFAULT_NETWORK_RESOLUTION
-    from .msregistry import source_classes
-    from .view import (DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS, DEFAULT_VIEW_SAMPLES,
+    from .ms.network import DEFAULT_NETWORK_RESOLUTION
+    from .ms import source_classes
+    from .ms.view import (DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS, DEFAULT_VIEW_SAMPLES,
                        STILL_SAMPLES, STOCHASTIC_BLOCKS_ACROSS)
     group.add_argument("--ms", choices=sorted(source_classes()), default="network",
                        help="multiple-scattering source: network (the trained network on "

@@ -154,9 +154,9 @@ class Renderer:
 
     # ------------------------------------------------------------------ raymarch
     def _setup_raymarch(self) -> None:
-        from .network import NetworkMs
+        from .ms.network import NetworkMs
         from .raymarch import check_march_options, make_source
-        from .msregistry import source_class, source_classes
+        from .ms import source_class, source_classes
         o, given = self.options, self.given
         mo = o["max_order"]
         if mo is not None:
@@ -188,7 +188,7 @@ class Renderer:
     def _active_source(self, medium, grid):
         """The configured source, or the measured alternative when the medium lies outside
         the network's training domain (one warning per distinct reason)."""
-        from .network import THIN_OPTICAL_THICKNESS, NetworkMs, fallback_for, outside_domain
+        from .ms.network import THIN_OPTICAL_THICKNESS, NetworkMs, fallback_for, outside_domain
         if not isinstance(self.source, NetworkMs):
             return self.source, None
         if self._tau1 is None:                 # optical thickness at density scale 1
@@ -230,7 +230,7 @@ class Renderer:
 
     def _render_raymarch(self, cam, light, medium) -> RenderResult:
         from .raymarch import RayMarcher, downsample, is_lit
-        from .sources import Frame
+        from .ms.base import Frame
         o = self.options
         shortcuts, skip_empty, s = not o["no_shortcuts"], not o["no_skip_empty"], o["supersample"]
         with Stopwatch() as sw_total:
@@ -249,7 +249,7 @@ class Renderer:
                 cam = dataclasses.replace(cam, width=cam.width * s, height=cam.height * s)
             source, warning = self._active_source(medium, grid)
             if is_lit(medium, light) or not shortcuts:
-                from .network import lattice_reach
+                from .ms.network import lattice_reach
                 reach = lattice_reach(grid, o["step"])
                 source.prepare(Frame(grid, cam, light, medium, self.rt, shortcuts, self._count,
                                      reach, rm.dm.cache, rm.density,
@@ -380,10 +380,10 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
     lattice of ``ms_resolution`` points per side for this camera and light, used even outside
     the weights' training domain unless ``domain_fallback`` (the Renderer's default).
     ms="view": the same network queried at ``view_knots`` depths per ``view_block`` x
-    ``view_block`` pixels of the camera's view (clvol/render/view.py); ms="stochastic":
+    ``view_block`` pixels of the camera's view (clvol/render/ms/view.py); ms="stochastic":
     ``view_samples`` free-flight samples per block from the stream of ``seed``.
     """
-    from .msregistry import source_classes
+    from .ms import source_classes
     opts = dict(ms=ms, step=step, threshold=threshold, no_skip_empty=not skip_empty,
                 majorant_block=block, light_resolution=light_resolution,
                 light_interp=light_interp, supersample=supersample, no_shortcuts=not shortcuts)

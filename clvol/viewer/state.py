@@ -24,7 +24,7 @@ class ViewerMessageError(ClvolError):
 
 # The viewer's method menu: label -> Renderer keyword options. The first is the default:
 # the paper's network at one free-flight point per pixel block per frame, accumulated while
-# the view is still and reprojected while it moves (clvol/render/view.py). Chosen over the
+# the view is still and reprojected while it moves (clvol/render/ms/view.py). Chosen over the
 # lattice (clvol render's default) because a camera move costs it no refill: measured in
 # docs/accuracy.md ("Defaults").
 METHODS: dict[str, dict] = {

@@ -37,7 +37,7 @@ def golden_scene(name: str):
 def golden_ms_grid(scene):
     """A deterministic, view-independent F_ms grid (an analytic field, no estimator): the
     "grid" source's golden needs an input that does not depend on any other code path."""
-    from clvol.render.sources import MsGrid
+    from clvol.render.ms.grid import MsGrid
     g = scene.volume.load()
     n = 8
     ax = (np.arange(n) + 0.5) / n

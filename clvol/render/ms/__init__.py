@@ -1,15 +1,17 @@
-"""The ``--ms`` names of the ray marcher's multiple-scattering sources, and their classes.
+"""Multiple-scattering sources of the ray marcher, one module each, and the ``--ms`` registry.
 
 An explicit table: every source module is imported here and listed once, so reading the registry
-never depends on which module happened to be imported first. The interface and the analytic
-sources are clvol/render/sources.py's; the network sources are clvol/render/network.py's and
-clvol/render/view.py's. This module sits above all three (they never import it).
+never depends on which module happened to be imported first (no registration by import side
+effect). The interface is base.py's; the sources are analytic.py's (none, wrenninge), grid.py's
+(grid), network.py's (network: the paper's world lattice) and view.py's (view, stochastic: the
+network where the camera sees). This module sits above them all (they never import it).
 """
 from __future__ import annotations
 
-from ..errors import ClvolError
+from ...errors import ClvolError
 from .network import NetworkMs
-from .sources import GridMs, NoMs, OctavesMs
+from .grid import GridMs
+from .analytic import NoMs, OctavesMs
 from .view import StochasticViewMs, ViewMs
 
 SOURCES: dict[str, type] = {cls.name: cls for cls in

@@ -13,15 +13,15 @@ The weight file states the domain it was trained on (clvol/neural/export.py's
 """
 from __future__ import annotations
 
-import functools
-import math
 
 import numpy as np
 
-from ..errors import ClvolError, WeightsError
-from ..neural.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
-from ..runtime import Stopwatch, get_runtime
-from .sources import GridMs, MsGrid, MsPlan, check_ms_grid, ms_lattice
+from ...errors import ClvolError, WeightsError
+from ...neural.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
+from ...runtime import Stopwatch, get_runtime
+from ..sphere import fibonacci_directions, spherical_barycentric
+from .grid import GridMs, MsGrid, check_ms_grid, ms_lattice
+from .base import MsPlan
 
 DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
 NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
@@ -65,7 +65,7 @@ def load_network_weights(path):
     """A weight file checked against the contract of the gather that will feed it: this
     code's layout and packaged templates (hash, level map) at the file's base resolution and
     lambda (the pyramid is built to match those). Raises WeightsError naming the field."""
-    from ..neural.export import MlpWeights, gather_contract, load_weights, read_meta
+    from ...neural.export import MlpWeights, gather_contract, load_weights, read_meta
     if isinstance(path, MlpWeights):
         path = path.path
     c = read_meta(path)["contract"]
@@ -113,33 +113,6 @@ def outside_domain(domain: dict, medium, optical_thickness: float | None = None)
 
 
 # --------------------------------------------------------------------------- the lattice
-
-def spherical_barycentric(dirs: np.ndarray, omegas: np.ndarray):
-    """For each unit vector in ``omegas`` (N, 3): the three ``dirs`` of the triangle of their
-    convex hull that it passes through, and barycentric weights (N, 3) summing to 1 (exact at
-    the directions, linear in between on the triangle's plane)."""
-    tri = _hull(np.ascontiguousarray(dirs, np.float64).tobytes(), len(dirs))
-    inv = np.linalg.inv(np.transpose(dirs[tri], (0, 2, 1)))  # b = inv @ omega per triangle
-    b = (omegas @ inv.reshape(-1, 3).T).reshape(len(omegas), -1, 3)
-    t = np.argmax(b.min(axis=2), axis=1)
-    w = np.maximum(b[np.arange(len(omegas)), t], 0.0)
-    return tri[t], w / w.sum(axis=1, keepdims=True)
-
-
-@functools.lru_cache(maxsize=8)
-def _hull(key: bytes, n: int) -> np.ndarray:
-    from scipy.spatial import ConvexHull
-    return ConvexHull(np.frombuffer(key).reshape(n, 3)).simplices
-
-
-def fibonacci_directions(n: int) -> np.ndarray:
-    """(n, 3) unit vectors spread evenly over the sphere (a Fibonacci lattice)."""
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-    phi = math.pi * (3.0 - math.sqrt(5.0)) * i
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
 
 def lattice_reach(grid, step_voxels: float) -> float:
     """The ``reach`` of ``lattice_reach_mask`` for a march of ``step_voxels`` (the ray
@@ -191,8 +164,8 @@ class NetworkSource:
     """
 
     def __init__(self, weights, grid, medium, runtime=None, fused: bool | None = None):
-        from ..kernels.mlp import MlpKernel
-        from ..kernels.pyramid import build_pyramid
+        from ...kernels.mlp import MlpKernel
+        from ...kernels.pyramid import build_pyramid
         self.rt = runtime or get_runtime()
         self.weights = load_network_weights(weights)
         self.grid, self.medium = grid, medium
@@ -207,13 +180,13 @@ class NetworkSource:
     def set_grid(self, grid) -> None:
         """A new density for the same weights (Renderer.set_density): the pyramid is rebuilt
         and the graded transmittance dropped; the weights and kernels stay."""
-        from ..kernels.pyramid import build_pyramid
+        from ...kernels.pyramid import build_pyramid
         self.grid = grid
         self.pyramid = build_pyramid(grid, self.base, self.rt)
         self._graded = (None, None)
 
     def graded(self, light_dir, density_scale=None):
-        from ..kernels.transmittance import check_light_dir, graded_transmittance
+        from ...kernels.transmittance import check_light_dir, graded_transmittance
         l = check_light_dir(light_dir)
         s = float(self.medium.density_scale if density_scale is None else density_scale)
         key = (tuple(l), s)
@@ -257,9 +230,9 @@ class NetworkSource:
         else (N, 3); >= 0 (the network's rare negative outputs are clipped). info: seconds
         "light", "gather", "network", "evaluations" (per point) and "points"; on the fused
         path (``self.fused``) "network" holds the gather's time too and "gather" is 0."""
-        from ..kernels.gather import gather
-        from ..kernels.gather_mlp import gather_mlp
-        from ..kernels.transmittance import check_light_dir
+        from ...kernels.gather import gather
+        from ...kernels.gather_mlp import gather_mlp
+        from ...kernels.transmittance import check_light_dir
         rt = self.rt
         medium = self.medium if medium is None else medium
         pts = np.asarray(pts, np.float64).reshape(-1, 3)
@@ -371,7 +344,7 @@ class NetworkMs(GridMs):
     def training_domain(self) -> dict:
         """The validity domain the weight file records (clvol/neural/export.py); loading it
         also checks the file against this gather's contract."""
-        from ..neural.export import weights_domain
+        from ...neural.export import weights_domain
         return weights_domain(load_network_weights(self.weights_path).meta)
 
     def prepare(self, frame) -> None:

@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ClvolError
-from ..kernels.raymarch import ms_defines
-from ..runtime import Stopwatch
+from ...errors import ClvolError
+from ...kernels.raymarch import ms_defines
+from ...runtime import Stopwatch
 from .network import NetworkMs
-from .sources import MsPlan
+from .base import MsPlan
 
 DEFAULT_VIEW_BLOCK = 4     # pixels per block side
 DEFAULT_VIEW_KNOTS = 4     # query depths per block
@@ -39,7 +39,7 @@ def _is_int(v) -> bool:
 
 
 def check_view_options(block, knots):
-    from ..kernels.viewdepth import MAX_VIEW_K
+    from ...kernels.viewdepth import MAX_VIEW_K
     if not (_is_int(block) and 1 <= block <= MAX_VIEW_BLOCK):
         raise ClvolError(f"raymarch option view_block = {block!r}: an integer from 1 to "
                          f"{MAX_VIEW_BLOCK} (pixels per block side)")
@@ -80,7 +80,7 @@ class ViewMs(NetworkMs):
                 f"{self.block}x{self.block} pixels; weights {Path(str(self.weights_path)).name})")
 
     def prepare(self, frame) -> None:
-        from ..kernels.viewdepth import block_grid, view_depths
+        from ...kernels.viewdepth import block_grid, view_depths
         if self.info:
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0)
         self._ensure_network(frame)
@@ -270,7 +270,7 @@ class StochasticViewMs(ViewMs):
         draws nothing this frame, and the collisions are distributed as the in-scattering
         weight, so the block's mean over them is still the estimator's (only thin blocks
         collect samples more slowly)."""
-        from ..kernels.viewdepth import block_grid, view_depths
+        from ...kernels.viewdepth import block_grid, view_depths
         cam, m = frame.camera, frame.medium
         bx, by = block_grid(cam.width, cam.height, self.block)
         jitter = rng.random((by, bx, 3), dtype=np.float32)
@@ -335,7 +335,7 @@ class StochasticViewMs(ViewMs):
         h.still = 0
 
     def prepare(self, frame) -> None:
-        from ..kernels.viewdepth import block_grid
+        from ...kernels.viewdepth import block_grid
         if self.info:
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0,
                              reproject=0.0, points=0)

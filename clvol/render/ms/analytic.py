@@ -1,0 +1,39 @@
+"""Analytic multiple-scattering sources: none (single scattering only) and Wrenninge's
+octaves, evaluated in the kernel from the light field (no data of their own)."""
+from __future__ import annotations
+
+from ...kernels.raymarch import ms_defines
+from .base import MsPlan, MsSource, Octaves
+
+
+class NoMs(MsSource):
+    """Single scattering only."""
+
+
+class OctavesMs(MsSource):
+    """Wrenninge octaves evaluated in the kernel from the light field: no data of its own."""
+    name = "wrenninge"
+    label = "Wrenninge octaves (analytic multiple scattering)"
+    options = ("octaves", "ms_a", "ms_b", "ms_c")
+
+    def __init__(self, octaves: Octaves = Octaves()):
+        self.octaves = octaves.check()
+
+    @classmethod
+    def from_options(cls, o: dict, runtime=None) -> "OctavesMs":
+        return cls(Octaves.from_options(o))
+
+    def plan(self, medium, shortcuts: bool) -> MsPlan:
+        o = self.octaves
+        p = MsPlan(ms_defines("wrenninge", o.n), octaves=o)
+        if o.n > 1:
+            p.simulated.append(f"multiple scattering (Wrenninge octaves n={o.n} a={o.a:g} "
+                               f"b={o.b:g} c={o.c:g})")
+        else:
+            p.skipped.append("multiple scattering (Wrenninge with 1 octave: single only)")
+        return p
+
+    def header(self) -> dict:
+        o = self.octaves
+        return {"raymarch.octaves": o.n, "raymarch.ms_a": o.a, "raymarch.ms_b": o.b,
+                "raymarch.ms_c": o.c, "raymarch.energy_condition_b_le_a": o.energy_conserving}

@@ -1,0 +1,153 @@
+"""A precomputed F_ms lattice (``MsGrid``) and the source that marches one (``GridMs``, ``--ms
+grid``); the network's source (network.py) is a GridMs whose lattice the network fills."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...errors import ClvolError
+from ...kernels.raymarch import ms_defines
+from .base import MsPlan, MsSource
+
+
+@dataclass(frozen=True)
+class MsGrid:
+    """Precomputed F_ms (radiance per unit irradiance, orders >= 2) on a grid over a box.
+
+    ``values``: float32 (gz, gy, gx, 3) RGB or (gz, gy, gx) grey, voxel centres at
+    bbox_min + (i + 0.5) * cell like every clvol grid, read trilinearly (clamped). F_ms
+    depends on the view direction: a grid made for one camera holds F_ms(x, omega(x)) with
+    omega(x) = normalize(camera.origin - x) (``fill_ms_grid`` does this).
+    """
+    values: np.ndarray
+    bbox_min: tuple
+    bbox_max: tuple
+
+    def planes(self) -> np.ndarray:
+        """(C, gz, gy, gx) float32, C = 1 (grey) or 3: the kernel's layout."""
+        v = np.asarray(self.values, np.float32)
+        if v.ndim == 3:
+            return v[None]
+        return np.ascontiguousarray(np.moveaxis(v, -1, 0))
+
+
+def check_ms_grid(g) -> MsGrid:
+    if not isinstance(g, MsGrid):
+        raise ClvolError(f"ms grid: expected a clvol.render.ms.grid.MsGrid, got {type(g).__name__}")
+    v = np.asarray(g.values)
+    if not (v.ndim == 3 or (v.ndim == 4 and v.shape[3] == 3)) or min(v.shape[:3]) < 1:
+        raise ClvolError(f"ms grid: values of shape {v.shape}; expected (gz, gy, gx, 3) or (gz, gy, gx)")
+    if not np.isfinite(v).all() or (v < 0).any():
+        raise ClvolError("ms grid: values must be finite and >= 0 (F_ms is a radiance)")
+    lo, hi = np.asarray(g.bbox_min, np.float64), np.asarray(g.bbox_max, np.float64)
+    if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
+        raise ClvolError(f"ms grid: bbox_min {lo.tolist()} must be below bbox_max {hi.tolist()} on every axis")
+    return g
+
+
+def load_ms_grid(path) -> MsGrid:
+    """An ``.npz`` with arrays ``values`` ((gz, gy, gx, 3) or (gz, gy, gx)), ``bbox_min``, ``bbox_max``."""
+    try:
+        with np.load(path) as z:
+            missing = [k for k in ("values", "bbox_min", "bbox_max") if k not in z]
+            if missing:
+                raise ClvolError(f"{path}: ms grid file lacks array(s) {missing}; needs values, "
+                                 f"bbox_min, bbox_max")
+            return check_ms_grid(MsGrid(z["values"].astype(np.float32),
+                                        tuple(z["bbox_min"]), tuple(z["bbox_max"])))
+    except (OSError, ValueError) as exc:
+        raise ClvolError(f"{path}: cannot read ms grid ({exc})") from None
+
+
+def ms_lattice(scene, resolution, bbox_min=None, bbox_max=None, origin=None):
+    """(res (gx, gy, gz), lo, hi, points (N, 3), omegas (N, 3)) of an F_ms lattice: voxel
+    centres over the box (default: the volume's), [z][y][x] order, omega toward the camera
+    (``origin``, default the scene camera's)."""
+    res = (resolution,) * 3 if np.isscalar(resolution) else tuple(resolution)
+    if len(res) != 3 or min(res) < 1:
+        raise ClvolError(f"ms grid resolution {resolution!r}: give n or (gx, gy, gz), each >= 1")
+    if bbox_min is None or bbox_max is None:
+        g = scene.volume.load()
+        bbox_min, bbox_max = g.bbox_min, g.bbox_max
+    lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
+    axes = [lo[a] + (np.arange(res[a]) + 0.5) * (hi[a] - lo[a]) / res[a] for a in range(3)]
+    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    pts = np.stack([x, y, z], axis=-1).reshape(-1, 3)
+    om = np.asarray(scene.camera.origin if origin is None else origin, np.float64) - pts
+    norm = np.linalg.norm(om, axis=1, keepdims=True)
+    # A point at the camera has no direction toward it: any unit vector will do (+z).
+    om = np.where(norm > 0, om / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
+    return res, lo, hi, pts, om
+
+
+def fill_ms_grid(scene, resolution, query, bbox_min=None, bbox_max=None) -> MsGrid:
+    """Fill an MsGrid for the scene's camera from a point estimator of F_ms.
+
+    ``query(points (N, 3), omegas (N, 3)) -> (N, 3)`` returns F_ms for a light of irradiance 1
+    (e.g. ``lambda p, w: point_query(scene, p, w, n_paths)["Fms"]``, or the network).
+    The lattice is ``resolution`` (int or (gx, gy, gz)) voxel centres over the box
+    (default: the volume's box); omega at each point is toward the camera.
+    """
+    res, lo, hi, pts, om = ms_lattice(scene, resolution, bbox_min, bbox_max)
+    vals = np.asarray(query(pts, om), np.float64).reshape(res[2], res[1], res[0], 3)
+    return check_ms_grid(MsGrid(np.maximum(vals, 0.0).astype(np.float32), tuple(lo), tuple(hi)))
+
+
+class GridMs(MsSource):
+    """An F_ms lattice read trilinearly by the kernel. Subclasses set ``self.ms_grid`` in
+    ``prepare``; the lattice goes to the device once per grid and colour layout."""
+    name = "grid"
+    label = "precomputed F_ms grid"
+    options = ("ms_grid",)
+    what = "precomputed F_ms grid"
+
+    def __init__(self, ms_grid: MsGrid | None = None, runtime=None):
+        self.ms_grid = None if ms_grid is None else check_ms_grid(ms_grid)
+        self.runtime = runtime
+        self._uploaded = None        # (ms_grid, grey?, DeviceArray)
+        self.count = None
+
+    @classmethod
+    def from_options(cls, o: dict, runtime=None) -> "GridMs":
+        g = o.get("ms_grid")
+        if g is None:
+            raise _no_grid()
+        return cls(g if hasattr(g, "values") else load_ms_grid(g), runtime)
+
+    def planes_for(self, medium, shortcuts: bool):
+        """((C, gz, gy, gx) planes on the device, grey shortcut taken?)."""
+        planes = self.ms_grid.planes()
+        grey_grid = planes.shape[0] == 1 or (np.array_equal(planes[0], planes[1])
+                                             and np.array_equal(planes[0], planes[2]))
+        grey = bool(shortcuts and grey_grid and medium.is_grey)
+        up = self._uploaded
+        if up is None or up[0] is not self.ms_grid or up[1] != grey:
+            if grey:
+                planes = np.ascontiguousarray(planes[:1])
+            elif planes.shape[0] == 1:
+                planes = np.ascontiguousarray(np.repeat(planes, 3, axis=0))
+            from ...runtime import get_runtime
+            rt = self.runtime or get_runtime()
+            if self.count:
+                self.count("ms_upload")
+            self._uploaded = up = (self.ms_grid, grey, rt.upload(planes))
+        return up[2], grey
+
+    def plan(self, medium, shortcuts: bool) -> MsPlan:
+        if self.ms_grid is None:
+            raise _no_grid()
+        planes, grey = self.planes_for(medium, shortcuts)
+        gz, gy, gx = planes.shape[1:]
+        p = MsPlan(ms_defines("grid", channels=planes.shape[0]), planes=planes,
+                   box=(tuple(self.ms_grid.bbox_min), tuple(self.ms_grid.bbox_max)))
+        if grey:
+            p.skipped.append("colour channels 2 and 3 of the F_ms grid (grey albedo, grey grid)")
+        p.simulated.append(f"multiple scattering ({self.what} {gx}x{gy}x{gz}, "
+                           f"{planes.shape[0]} channel(s))")
+        return p
+
+
+def _no_grid() -> ClvolError:
+    return ClvolError("raymarch option ms = 'grid' needs an ms grid (--ms-grid FILE.npz, "
+                      "or ms_grid=MsGrid(...) in Python)")
