@@ -144,16 +144,16 @@ def main(argv=None) -> int:
     cam = scene.camera
     for ms in ("none", "wrenninge"):
         for step in (2.0, 1.0, 0.5):
-            rm.march(cam, scene.light, ms=ms, step=step)  # compile this variant, untimed
-            (layers, _), s = median_of(3, lambda: rm.march(cam, scene.light, ms=ms, step=step))
+            rm.march_with(cam, scene.light, ms, step=step)  # compile this variant, untimed
+            (layers, _), s = median_of(3, lambda: rm.march_with(cam, scene.light, ms, step=step))
             record(f"raymarch/{ms}", f"step {step:g} voxel", layers, s, light_s)
     for lattice in ((8,) if args.quick else (8, 16)):
         def query(points, omegas):
             return point_query(scene, points, omegas, n_paths=64, seed=2, grid=grid)["Fms"]
         msg, fill_s = timed(lambda: fill_ms_grid(scene, lattice, query, grid.bbox_min,
                                                  grid.bbox_max))
-        rm.march(cam, scene.light, ms="grid", ms_grid=msg)
-        (layers, _), s = median_of(3, lambda: rm.march(cam, scene.light, ms="grid", ms_grid=msg))
+        rm.march_with(cam, scene.light, "grid", ms_grid=msg)
+        (layers, _), s = median_of(3, lambda: rm.march_with(cam, scene.light, "grid", ms_grid=msg))
         record("raymarch/grid", f"{lattice}^3 lattice, 64 paths", layers, s, light_s + fill_s)
 
     if args.weights and Path(args.weights).exists():
@@ -169,8 +169,8 @@ def main(argv=None) -> int:
                 return msg, {k: (a[k] + b[k]) / 2 for k in ("light", "gather", "network")}
             (msg, info), _ = median_of(3, network_change)
             fill_s = info["light"] + info["gather"] + info["network"]
-            rm.march(cam, scene.light, ms="grid", ms_grid=msg)
-            (layers, _), s = median_of(3, lambda: rm.march(cam, scene.light, ms="grid", ms_grid=msg))
+            rm.march_with(cam, scene.light, "grid", ms_grid=msg)
+            (layers, _), s = median_of(3, lambda: rm.march_with(cam, scene.light, "grid", ms_grid=msg))
             record("raymarch/network", f"{lattice}^3 lattice", layers, s, light_s + fill_s)
             print(f"{'':21}(light update: light field {light_s:.3f} s, graded T {info['light']:.3f} s, "
                   f"gather {info['gather']:.3f} s, network {info['network']:.3f} s)")

@@ -79,13 +79,13 @@ def bench_frames(args, rt):
         for size in args.sizes:
             cam = replace(scene.camera, width=size, height=size)
             for ms in ("none", "wrenninge"):
-                res_ = rm.march(cam, scene.light, ms=ms, step=args.step, stats=True)[0]
+                res_ = rm.march_with(cam, scene.light, ms, step=args.step, stats=True)[0]
                 st = res_["stats"].astype(np.int64).sum(axis=0)
                 lane_lookups = 16 * (int(st[0]) + int(st[1]))
                 k_times, c_times, r_times = [], [], []
                 for _ in range(args.repeat + 1):
                     c0 = cpu_seconds()
-                    evt, bufs, _plan = rm.march(cam, scene.light, ms=ms, step=args.step,
+                    evt, bufs, _plan = rm.march_with(cam, scene.light, ms, step=args.step,
                                                 read_back=False)
                     evt.wait()
                     c1 = cpu_seconds()

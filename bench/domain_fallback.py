@@ -46,7 +46,7 @@ def main(argv=None) -> int:
         se = rms(ref.layers["total_se"])
         err = {}
         for ms in ("none", "wrenninge", "network"):
-            kw = {"no_domain_fallback": True} if ms == "network" else {}
+            kw = {"domain_fallback": False} if ms == "network" else {}
             img = Renderer(sc, ms=ms, grid=grid, **kw).render()
             err[ms] = rms(img.total - ref.total)
         lobes = ",".join(f"{l.g:g}x{l.weight:g}" for l in phase.lobes)

@@ -9,9 +9,10 @@ reads it is examples/c/.
 
 DIR/manifest.txt is ``key = value`` lines (``#`` starts a comment; lists are space-separated;
 strings have no spaces). Every binary file is raw little-endian float32 or int32, C order.
-The options, the source, the ``-D`` defines and the lattice points the network evaluates come
-from a ``clvol.Renderer`` and the functions it calls (``Renderer.active_source``,
-``Plan.make``, ``lattice_reach_mask``, ``mlp.kernel_defines``, ``phase_defines``,
+The bundle serialises the renderer's plan of the scene's frame (clvol/render/plan.py
+``plan_frame``, through ``Renderer.plan``): the source it chose, the ray marcher's ``-D``
+defines, the network's active-point rule (``lattice_reach_mask``); the network's programs'
+defines come from the kernels' own functions (``mlp.kernel_defines``, ``phase_defines``,
 ``coarse_level``), formatted by the runtime's own ``_define_flags``; the host constants
 (padding, tile and chunk sizes) are read from the Python modules that launch the kernels, so
 the C host hard-codes none. tests/test_c_host.py checks the image, the source, the network's
@@ -94,21 +95,28 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     from .kernels import transmittance as kt
     from .kernels.majorant import majorant_block
     from .kernels.phase import lobe_vectors, phase_defines
-    from .render.ms.network import (NETWORK_CHUNK, NetworkMs, lattice_reach, lattice_reach_mask,
-                                 load_network_weights, outside_domain)
-    from .render.raymarch import Plan, auto_light_resolution, is_lit
+    from .render.ms.network import (NETWORK_CHUNK, lattice_reach_mask,
+                                    load_network_weights, outside_domain)
+    from .render.raymarch import auto_light_resolution
     from .render.renderer import Renderer
-    from .render.ms.grid import GridMs, MsGrid
     from .runtime import DEFAULT_PAD, cl_source_dir, include_dir
 
     given = dict(weights=weights, ms_resolution=ms_resolution, step=step, threshold=threshold,
                  majorant_block=block, light_resolution=light_resolution,
-                 light_interp=light_interp, no_skip_empty=not skip_empty)
+                 light_interp=light_interp, skip_empty=skip_empty,
+                 **(octaves.as_options() if octaves is not None else {}))
     grid = scene.volume.load()
-    # The renderer validates and completes the options exactly as `clvol render` does.
+    # The renderer validates and completes the options exactly as `clvol render` does, and
+    # its plan (clvol/render/plan.py) is what this bundle serialises: the source it chose,
+    # the kernel defines, the active lattice points, the light field's resolution.
     r = Renderer(scene, "raymarch", grid=grid, runtime=runtime, ms="network",
-                 **{k: v for k, v in given.items() if v is not None})
+                 **{k: v for k, v in given.items() if v is not None and k not in
+                    ("octaves", "ms_a", "ms_b", "ms_c")})
     o = r.options
+    if octaves is not None:        # the Wrenninge fallback's octaves, used where it runs
+        for k, v in octaves.as_options().items():
+            o.set(k, v)
+    plan = r.plan()
     res = ((o["ms_resolution"],) * 3 if np.isscalar(o["ms_resolution"])
            else tuple(int(v) for v in o["ms_resolution"]))
     if int(np.prod(res)) > NETWORK_CHUNK:
@@ -116,46 +124,30 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
         raise ClvolError(f"bundle option ms_resolution = {o['ms_resolution']!r}: at most "
                          f"{NETWORK_CHUNK} lattice points (32^3) in a bundle")
     medium, light, cam = scene.medium, scene.light, scene.camera
-    step, threshold = float(o["step"]), float(o["threshold"])
-    skip_empty, light_interp = not o["no_skip_empty"], o["light_interp"]
+    if plan.supersample != 1:
+        raise ClvolError("bundle: supersampling is not in the bundle format")
+    step, threshold = plan.step_voxels, plan.threshold
+    skip_empty, light_interp = plan.skip_empty, plan.light_interp
     block = majorant_block(o["majorant_block"], grid.density.shape)
     w = load_network_weights(r.source.weights_path)
-    light_res = o["light_resolution"] or auto_light_resolution(grid)
+    light_res = plan.light_resolution or auto_light_resolution(grid)
     base = int(w.contract["base_resolution"])
     lam = float(w.contract["lambda"])
     L = kp.n_levels(base)
 
-    # The source the renderer uses for this medium: the network, or its fallback (none,
-    # wrenninge) outside the network's domain or in an optically thin medium. The C host
-    # runs the network, none and wrenninge; another source is refused by name.
-    lit = is_lit(medium, light)
-    source, _ = r.active_source(medium)
-    if octaves is not None and source.name == "wrenninge":
-        from .render.ms.analytic import OctavesMs
-        source = OctavesMs(octaves)
-    network = isinstance(source, NetworkMs)
-    if lit and not network and source.name not in ("none", "wrenninge"):
-        raise ClvolError(f"{scene.path or 'scene'}: the renderer would use --ms {source.name} "
+    # The C host runs the network, none and wrenninge; another source is refused by name.
+    if plan.lit and plan.source not in ("network", "none", "wrenninge"):
+        raise ClvolError(f"{scene.path or 'scene'}: the renderer would use --ms {plan.source} "
                          f"for this medium, which the C host (examples/c/) does not implement")
-    if network:
-        # The network source's plan for a lattice of the colour layout it fills (grey: one
-        # plane; else three), as a stand-in grid of that layout (the plan reads only that).
-        grey_fill = medium.is_grey         # NetworkSource.fill with shortcuts on
-        stand_in = MsGrid(np.zeros((1, 1, 1) if grey_fill else (1, 1, 1, 3), np.float32),
-                          tuple(grid.bbox_min), tuple(grid.bbox_max))
-        plan = Plan.make(medium, light, GridMs(stand_in, r.rt), True, skip_empty)
-        # Lattice points the network evaluates (the others hold F_ms = 0): the renderer's
-        # mask for this volume and step.
-        active = np.flatnonzero(lattice_reach_mask(grid, res, lattice_reach(grid, step)))
-    else:
-        plan = Plan.make(medium, light, source, True, skip_empty)
-        active = None
     if plan.env_scatter or plan.env_background == "map":
         raise ClvolError(f"{scene.path or 'scene'}: the renderer lights this medium with the "
                          f"sky (or shows a map behind it), which the C host (examples/c/) "
                          f"does not implement; a bundle renders the sun and a constant "
                          f"background only (docs/embedding.md)")
-    network = network and plan.lit
+    network = plan.lit and plan.source == "network"
+    # Lattice points the network evaluates (the others hold F_ms = 0): the plan's rule.
+    active = (np.flatnonzero(lattice_reach_mask(grid, res, plan.lattice_reach))
+              if network else None)
     channels = plan.channels if plan.lit else 1
     grey = medium.is_grey
     med_lobes = kg._lobes(medium)
@@ -268,7 +260,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["raymarch.lit"] = plan.lit
     # the multiple-scattering source: network (the lattice below), none or wrenninge (the
     # kernel's octaves: raymarch.octave_abc); only the network reads the network.* keys
-    m["raymarch.ms_source"] = source.name if plan.lit else "none"
+    m["raymarch.ms_source"] = plan.source if plan.lit else "none"
     m["raymarch.step"] = step * float(np.min(grid.cell_size))
     m["raymarch.step_voxels"] = step          # the option: libclvol's step on a new grid
     m["raymarch.threshold"] = threshold

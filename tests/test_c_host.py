@@ -352,13 +352,13 @@ def test_bundle_refuses_the_view_space_sources(tmp_path, capsys, ms):
 def test_bundle_refuses_a_source_the_c_host_lacks(tmp_path, capsys, monkeypatch):
     """A scene the renderer would render with a source the C host does not run (none does
     today: the fallbacks are none and wrenninge) is refused with exit 2, naming it."""
-    from clvol.render.ms.grid import GridMs, MsGrid
-    grid = GridMs(MsGrid(np.zeros((2, 2, 2), np.float32), (-1, -1, -1), (1, 1, 1)))
-    monkeypatch.setattr(Renderer, "active_source", lambda self, medium=None: (grid, None))
+    import clvol.render.plan as plan
+    # the plan's choice is the one the bundle reads: make it choose the view-space source
+    monkeypatch.setattr(plan, "choose_source", lambda *a, **k: plan.SourceChoice("view"))
     scene = ROOT / "examples" / "cloud.toml"
     assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms-resolution", "4"]) == 2
     err = capsys.readouterr().err
-    assert "cloud.toml" in err and "--ms grid" in err and "does not implement" in err
+    assert "cloud.toml" in err and "--ms view" in err and "does not implement" in err
     assert not (tmp_path / "b").exists()
 
 

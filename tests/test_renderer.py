@@ -235,7 +235,7 @@ def test_outside_the_domain_warns_and_uses_the_measured_alternative(capsys):
         np.testing.assert_array_equal(res.total, clvol.Renderer(sc, ms=alt).render().total)
         np.testing.assert_array_equal(res.total, res2.total)
         assert "network_setup" not in r.counts
-        kept = clvol.Renderer(sc, ms_resolution=8, no_domain_fallback=True).render()
+        kept = clvol.Renderer(sc, ms_resolution=8, domain_fallback=False).render()
         assert kept.header["raymarch.ms"] == "network" and "warning" in kept.header
         capsys.readouterr()
     inside = clvol.Renderer(small_scene(), ms_resolution=8).render()
@@ -248,7 +248,7 @@ def test_albedo_zero_runs_no_network_and_equals_the_general_path():
     r = clvol.Renderer(sc, ms_resolution=8)
     fast = r.render()
     assert "network_setup" not in r.counts and "light_field" not in r.counts
-    general = clvol.Renderer(sc, ms_resolution=8, no_shortcuts=True).render()
+    general = clvol.Renderer(sc, ms_resolution=8, shortcuts=False).render()
     np.testing.assert_array_equal(fast.total, general.total)
     assert fast.alpha.max() > 0.5 and fast.single.max() == 0 and fast.multiple.max() == 0
 
@@ -305,7 +305,7 @@ def test_optically_thin_media_skip_the_network():
     res = r.render()
     assert "network_setup" not in r.counts and "optically thin" in res.header["skipped"]
     np.testing.assert_array_equal(res.total, clvol.Renderer(thin, ms="none").render().total)
-    general = clvol.Renderer(thin, ms_resolution=8, no_shortcuts=True)
+    general = clvol.Renderer(thin, ms_resolution=8, shortcuts=False)
     assert general.render().multiple.max() > 0 and general.counts["network_setup"] == 1
     thick = clvol.Renderer(small_scene(density_scale=0.6 / tau1), ms_resolution=8)
     thick.render()

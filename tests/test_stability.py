@@ -105,11 +105,11 @@ METHODS = {
     "raymarch-wrenninge": ("raymarch", dict(ms="wrenninge")),
     "raymarch-grid": ("raymarch", dict(ms="grid")),
     "raymarch-network": ("raymarch", dict(ms="network", ms_resolution=8,
-                                          no_domain_fallback=True)),
+                                          domain_fallback=False)),
     "raymarch-view": ("raymarch", dict(ms="view", view_block=2, view_knots=3,
-                                       no_domain_fallback=True)),
+                                       domain_fallback=False)),
     "raymarch-stochastic": ("raymarch", dict(ms="stochastic", view_block=2, view_samples=2,
-                                             no_domain_fallback=True)),
+                                             domain_fallback=False)),
     "pathtrace": ("pathtrace", dict(spp=1, seed=3)),
 }
 

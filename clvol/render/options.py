@@ -1,14 +1,21 @@
-"""Render options bound to the methods (and multiple-scattering sources) that use them.
+"""Render options: one table per method, one ``Options`` object per Renderer.
 
-Each render method declares its options in ``add_arguments(group)`` (argparse); this module
-records them per method, so the CLI and ``Renderer`` share one table:
-``method_options(method)`` gives {name: default}, and ``bind(method, given)`` returns the
-full option set or refuses, naming the option and the method, an option the method does not
-use (as pbrt-v4's ReportUnused does). Names are the CLI's with dashes as underscores.
+Each render method declares its options once, in ``add_arguments(group)`` (argparse: names,
+types, defaults, help); this module records them per method, so the CLI and ``Renderer``
+share that one table and the same defaults: ``method_options(method)`` gives {name:
+default}, and ``bind(method, given)`` returns an ``Options``. Python names are positive
+(``shortcuts=False``); the CLI's flag for a default-on switch is its negation
+(``--no-shortcuts``, argparse ``dest="shortcuts"``, ``store_false``).
+
+An option unknown to the method is refused at once. An option the method knows but never
+reads for this configuration (``weights`` with ``--ms none``) is found Mitsuba's way: the
+``Options`` records what was read, and the Renderer refuses what the method and its source
+never read (``Options.unused``), not by a second declared table.
 """
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 from functools import lru_cache
 
 from ..errors import ClvolError
@@ -22,7 +29,21 @@ DEFAULT_METHOD = "raymarch"
 
 
 def flag(name: str) -> str:
-    return "--" + name.replace("_", "-")
+    """The CLI spelling of an option (a default-on switch is given as its negation)."""
+    flags = _flags_of(name)
+    return flags[0] if flags else "--" + name.replace("_", "-")
+
+
+def _flags_of(name: str) -> tuple:
+    from . import METHODS
+    for method in METHODS:
+        try:
+            decl = _declared(method)
+        except ClvolError:
+            continue
+        if name in decl:
+            return tuple(f for f in decl[name][0] if f.startswith("--"))
+    return SHARED[name][0] if name in SHARED else ()
 
 
 def option_label(name: str) -> str:
@@ -58,6 +79,8 @@ def _declared(method: str) -> dict:
 def _default(kw: dict):
     if kw.get("action") == "store_true":
         return False
+    if kw.get("action") == "store_false":
+        return True
     return kw.get("default")
 
 
@@ -66,8 +89,53 @@ def method_options(method: str) -> dict:
     return {k: _default(kw) for k, (_, kw) in _declared(method).items()}
 
 
-def bind(method: str, given: dict) -> dict:
-    """The method's options with ``given`` applied; ClvolError for an option it does not use."""
+class Options(Mapping):
+    """A method's options: its declared defaults with the caller's values, and a record of
+    which were read. Read like a dict (``o["step"]``, ``o.get("seed")``) or by attribute
+    (``o.step``); ``unused()`` lists the given options nothing read."""
+
+    def __init__(self, method: str, values: dict, given):
+        self.method = method
+        self._values = dict(values)
+        self.given = frozenset(given)
+        self.read: set = set()
+
+    def __getitem__(self, name):
+        value = self._values[name]
+        self.read.add(name)
+        return value
+
+    def __getattr__(self, name):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        try:
+            return self[name]
+        except KeyError:
+            raise AttributeError(f"{self.method} has no option {name!r}") from None
+
+    def __iter__(self):
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def set(self, name: str, value) -> None:
+        """Replace a value (the Renderer normalises one: a grid file read, max_order's ms)."""
+        if name not in self._values:
+            raise KeyError(name)
+        self._values[name] = value
+
+    def unused(self) -> list[str]:
+        """The options the caller gave that nothing has read."""
+        return sorted(self.given - self.read)
+
+    def __repr__(self) -> str:
+        return f"Options({self.method!r}, {self._values!r})"
+
+
+def bind(method: str, given: dict) -> Options:
+    """The method's options with ``given`` applied; ClvolError for an option it does not
+    know (unused ones are refused after the method read what it needs: ``Options.unused``)."""
     from . import METHODS
     known = method_options(method)
     for name in given:
@@ -83,7 +151,7 @@ def bind(method: str, given: dict) -> dict:
                              f"{', '.join(sorted(known))})")
     out = dict(known)
     out.update(given)
-    return out
+    return Options(method, out, given)
 
 
 def add_cli_arguments(parser, methods) -> None:

@@ -16,19 +16,16 @@ method, its accuracy and its speed are described in docs/raymarch.md.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import ClvolError
 from ..kernels.majorant import DEFAULT_BLOCK, DeviceMedium
-from ..kernels.phase import phase_defines
 from ..kernels.pyramid import MAX_BASE_RESOLUTION
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..neural.layout import is_power_of_two
 from ..runtime import DeviceArray, get_runtime
-from .ms.base import MsPlan, MsSource
-from .ms.analytic import NoMs
+from .ms.base import MsSource
 
 # Segment length in voxels of the density grid. Half a voxel, because at one voxel the
 # single scattering alone left RMSE x100 0.54-0.85 against the path tracer on dense scenes
@@ -76,89 +73,9 @@ def check_env_options(env_directions, env_resolution) -> None:
 
 
 def auto_light_resolution(grid) -> int:
-    """The light field's default resolution: four times the grid's largest side rounded up
-    to a power of two, at most MAX_LIGHT_RESOLUTION. The voxelised light field is the ray
-    marcher's main bias against exact single scattering (docs/raymarch.md measures it at
-    1x, 2x and 4x): a 64^3 grid gets 256^3, grids from 96^3 up the cap."""
-    n = 4 * max(grid.resolution)
-    return min(1 << max(0, (n - 1).bit_length()), MAX_LIGHT_RESOLUTION)
-
-
-def is_lit(medium, light) -> bool:
-    """Anything scatters light toward the camera: some channel has albedo * irradiance > 0."""
-    return bool(np.any(np.asarray(medium.albedo) * np.asarray(light.irradiance) > 0))
-
-
-@dataclass(frozen=True)
-class Plan:
-    """What the kernel simulates for a medium, a light and a source, and which shortcuts it
-    takes (with reasons)."""
-    lit: bool
-    defines: dict
-    lobes: list
-    ms: MsPlan
-    background: tuple
-    simulated: tuple
-    skipped: tuple
-    channels: int = 1
-    env_scatter: bool = False      # the environment's in-scattering (clvol/render/environment.py)
-    env_background: str = "none"   # "none", "constant" (``background``) or "map" (per pixel)
-
-    @classmethod
-    def make(cls, medium, light, source: MsSource, shortcuts: bool = True,
-             skip_empty: bool = True, env_directions: int = 0, env_resolution: int = 0) -> "Plan":
-        sim, skip = [], []
-        lit = is_lit(medium, light) or not shortcuts
-        phase = medium.phase
-        lobes = [(lo.g, lo.weight) for lo in phase.lobes]
-        from .environment import has_environment
-        env_on = has_environment(light)
-        # a black sky (constant, or a map scaled to 0 or black) scatters nothing
-        sky_dark = env_on and not np.any(light.sky_mean() > 0)
-        env_scatter = env_on and ((any(a > 0 for a in medium.albedo) and not sky_dark)
-                                  or not shortcuts)
-        if lit:
-            sim.append("single scattering" + (" of the sun light" if env_on else ""))
-        else:
-            skip.append(("sun light scattering" if env_on else "single and multiple scattering")
-                        + " (albedo * irradiance = 0: no light field, no source)")
-        if shortcuts and phase.is_isotropic:
-            lobes = []
-            skip.append("phase evaluation (isotropic: constant 1/(4 pi))")
-        ms = source.plan(medium, shortcuts) if lit else NoMs().plan(medium, shortcuts)
-        if lit:
-            sim += ms.simulated
-            skip += ms.skipped
-        channels = ms.channels or 1
-        if ms.channels is None and lit:
-            skip.append("per-channel marching (albedo and irradiance are constant over the "
-                        "medium: one colour-free march, colour applied once per ray)")
-        env = light.environment
-        env_map = getattr(light, "environment_map", None) is not None
-        if env_scatter:
-            what = "the map's" if env_map else "the sky's"
-            sim.append(f"environment single scattering ({what} light from {env_directions} "
-                       f"directions, each cell's irradiance with the transmittance toward it "
-                       f"({env_resolution}^3 fields from the density pyramid) and the phase "
-                       f"function along each camera ray)")
-            sim.append("environment multiple scattering (approximation: the sky light "
-                       "blocked toward each direction arrives scattered, scaled by an escape "
-                       "model's (albedo t / (1 - albedo (1 - t)))^2; exact in a white furnace; "
-                       "measured error in docs/raymarch.md)")
-        elif env_on:
-            skip.append("environment in-scattering (" + ("a black sky" if sky_dark else
-                        "albedo 0: nothing scatters") + ")")
-        if env is not None:
-            sim.append("background (environment radiance behind the medium)")
-        if env_map:
-            sim.append("background (the environment map along each camera ray)")
-        background = tuple(env) if env is not None else (0.0, 0.0, 0.0)
-        sim.append("extinction along camera rays")
-        defines = dict(phase_defines(lobes))
-        defines.update(LIT=int(lit), SKIP_EMPTY=int(bool(skip_empty)))
-        defines.update(ms.defines)
-        return cls(lit, defines, lobes, ms, background, tuple(sim), tuple(skip), channels,
-                   env_scatter, "map" if env_map else "constant" if env is not None else "none")
+    """The light field's default resolution for ``grid`` (clvol/render/plan.py decides it)."""
+    from .plan import auto_light_resolution as rule
+    return rule(grid.resolution, MAX_LIGHT_RESOLUTION)
 
 
 class RayMarcher:
@@ -250,22 +167,13 @@ class RayMarcher:
         self.set_light(light_dir)
         return True
 
-    def march(self, camera, light, source: MsSource | str = "wrenninge", *, octaves=None,
-              ms_grid=None, step: float = DEFAULT_STEP, threshold: float = DEFAULT_THRESHOLD,
-              skip_empty: bool = True, shortcuts: bool = True, read_back: bool = True,
-              stats: bool = False, ms: str | None = None, emission=None):
-        """Render ``camera`` lit by ``light`` with the multiple-scattering ``source`` (an
-        MsSource, already prepared for this frame; or a source name with ``octaves`` /
-        ``ms_grid``). ``emission``: an EmissionGrid (clvol/emission.py; its ``device`` planes
-        when set). Returns (layers, plan), or with ``read_back=False`` (event, buffers,
-        plan)."""
-        if ms is not None:
-            source = ms
-        if isinstance(source, str):
-            opts = {"ms_grid": ms_grid, **(octaves.as_options() if octaves is not None else {})}
-            source = make_source(source, opts, self.rt)
-        plan = Plan.make(self.medium, light, source, shortcuts, skip_empty,
-                         self.env_directions, self.env_resolution)
+    def march(self, camera, light, plan, source: MsSource, *, read_back: bool = True,
+              stats: bool = False, emission=None):
+        """Render ``camera`` (the plan's marched camera) lit by ``light`` as ``plan`` (a
+        FramePlan, clvol/render/plan.py) says, reading the data of ``source`` (the plan's
+        source, prepared for this frame). ``emission``: an EmissionGrid (clvol/emission.py;
+        its ``device`` planes when set). Returns (layers, plan), or with ``read_back=False``
+        (event, buffers, plan)."""
         if plan.lit:
             self.ensure_light(light.direction)
         from ..runtime import Stopwatch
@@ -277,7 +185,8 @@ class RayMarcher:
         fwd, right, up = camera.basis()
         cube_min = self.pyramid.cube_min if plan.lit else np.zeros(3)
         cube_size = self.pyramid.cube_size if plan.lit else 1.0
-        box = plan.ms.box or (None, None)
+        planes, box = (source.device_data(self.medium, plan.shortcuts)
+                       if plan.lit and plan.ms.channels is not None else (None, (None, None)))
         o = plan.ms.octaves
         if emission is not None:
             env_kw.update(emission=emission.device if emission.device is not None
@@ -288,17 +197,30 @@ class RayMarcher:
             plan.defines, self.density, g.bbox_min, g.bbox_max, self.medium.density_scale,
             self.majorant, self.block,
             self.light_field if plan.lit else None, cube_min, cube_size,
-            plan.ms.planes, *box,
+            planes, *box,
             camera.origin, fwd, right, up, camera.tan_half_fov,
             camera.width, camera.height,
-            light.direction, light.irradiance, self.medium.albedo, plan.lobes,
-            plan.background, a=o.a, b=o.b, c=o.c, step=step * float(np.min(g.cell_size)),
-            threshold=threshold, lit=plan.lit, light_quantity=self.light_interp,
+            light.direction, light.irradiance, self.medium.albedo, list(plan.lobes),
+            plan.background, a=o.a, b=o.b, c=o.c, step=plan.step,
+            threshold=plan.threshold, lit=plan.lit, light_quantity=self.light_interp,
             runtime=self.rt, read_back=read_back, stats=stats, **env_kw)
         if read_back:
             return res, plan
         return res + (plan,)
 
+    def march_with(self, camera, light, ms: str = "wrenninge", *, read_back: bool = True,
+                   stats: bool = False, **options):
+        """One frame with a source that needs no preparation (none, wrenninge, grid), planned
+        from raymarch ``options`` (``ms_grid=``, ``octaves=``, ``step=`` ...; the others
+        default): the benchmarks' and tests' short form of plan_frame + march."""
+        from ..scene import Scene
+        from .options import bind
+        from .plan import plan_frame
+        o = bind("raymarch", dict(options, ms=ms))
+        scene = Scene(path=None, volume=None, medium=self.medium, light=light, camera=camera)
+        plan = plan_frame(scene, o)
+        source = make_source(ms, o, self.rt)
+        return self.march(plan.camera, light, plan, source, read_back=read_back, stats=stats)
 
     # ------------------------------------------------------------------ environment
     def environment(self, camera, light, plan) -> dict:
@@ -412,7 +334,7 @@ def add_arguments(group) -> None:
                        help="network: when only the camera moves, refill 1/K of the lattice per "
                             "frame (interleaved; the rest keeps earlier positions' values until "
                             "its turn; default 1 = all of it)")
-    group.add_argument("--no-domain-fallback", action="store_true",
+    group.add_argument("--no-domain-fallback", dest="domain_fallback", action="store_false",
                        help="use the network even for a scene outside the domain its weight "
                             "file was trained on (default: warn and use the measured fallback, "
                             "docs/raymarch.md)")
@@ -448,9 +370,9 @@ def add_arguments(group) -> None:
                             "transmittance field (power of two; default 32)")
     group.add_argument("--supersample", type=int, default=1,
                        help="S x S rays per pixel (default 1)")
-    group.add_argument("--no-skip-empty", action="store_true",
+    group.add_argument("--no-skip-empty", dest="skip_empty", action="store_false",
                        help="march through empty majorant blocks too (same image, slower)")
-    group.add_argument("--no-shortcuts", action="store_true",
+    group.add_argument("--no-shortcuts", dest="shortcuts", action="store_false",
                        help="run the general kernel even where the scene allows a shortcut "
                             "(same image, slower; for testing)")
 

@@ -88,8 +88,10 @@ class Renderer:
         self._device_medium = None
         self._emission = None
         self._warned: set = set()
-        self.source = self.fallback = None
-        self._tau1 = self.thin = None
+        self.source = None
+        self._sources: dict = {}
+        self.domain = None
+        self._facts = self._facts_grid = None
         if self.method == "raymarch":
             self._setup_raymarch()
 
@@ -114,7 +116,6 @@ class Renderer:
         self._grid = grid
         self._emission = emission
         self._device_medium = None
-        self._tau1 = None
         if self._marcher is not None:
             self._marcher.set_volume(grid, self.device_medium, self.options["light_resolution"])
 
@@ -154,9 +155,11 @@ class Renderer:
 
     # ------------------------------------------------------------------ raymarch
     def _setup_raymarch(self) -> None:
+        """Validate the options, build the configured source (it reads its options), and
+        refuse what nothing read (clvol/render/options.py)."""
+        from .ms import source_class
         from .ms.network import NetworkMs
         from .raymarch import check_march_options, make_source
-        from .ms import source_class, source_classes
         o, given = self.options, self.given
         mo = o["max_order"]
         if mo is not None:
@@ -169,70 +172,59 @@ class Renderer:
             if given.get("ms", "none") != "none":
                 raise ClvolError(f"option --max-order 1 asks for single scattering, but --ms "
                                  f"{given['ms']} adds multiple scattering; drop one of them")
-            o["ms"] = "none"
-        ms = o["ms"]
-        source_class(ms)                          # an unknown name is refused here
-        for name in given:
-            owners = [n for n, cls in source_classes().items() if name in cls.options]
-            if owners and ms not in owners:
-                raise ClvolError(f"option {option_label(name)} is used only with --ms "
-                                 f"{' or '.join(owners)} "
-                                 f"(method 'raymarch' with --ms {ms} does not read it)")
+        source_class(o["ms"])                     # an unknown name is refused here
         check_march_options(o["step"], o["threshold"], o["light_resolution"], o["supersample"],
                             o["light_interp"], o["env_directions"], o["env_resolution"])
-        self.source = make_source(ms, o, self.rt)
+        for always in ("shortcuts", "skip_empty", "majorant_block"):   # read by every frame
+            o[always]
+        self.source = make_source(o["ms"], o, self.rt)
         self.source.count = self._count
-        if isinstance(self.source, NetworkMs):
-            self.domain = self.source.training_domain()
+        if "ms_grid" in o.read:      # a grid source read its file: the plans take the MsGrid
+            o.set("ms_grid", self.source.ms_grid)
+        self._sources = {self.source.name: self.source}
+        self.domain = (self.source.training_domain() if isinstance(self.source, NetworkMs)
+                       else None)
+        unused = o.unused()
+        if unused:
+            raise ClvolError(_unused_message(unused[0], o["ms"]))
 
-    def _active_source(self, medium, grid):
-        """The configured source, or the measured alternative when the medium lies outside
-        the network's training domain (one warning per distinct reason)."""
-        from .ms.network import THIN_OPTICAL_THICKNESS, NetworkMs, fallback_for, outside_domain
-        if not isinstance(self.source, NetworkMs):
-            return self.source, None
-        if self._tau1 is None:                 # optical thickness at density scale 1
-            from ..volume.stats import volume_stats
-            self._tau1 = volume_stats(grid, 1.0)["max_optical_thickness"]
-        ot = self._tau1 * medium.density_scale
-        if ot < THIN_OPTICAL_THICKNESS and not self.options["no_shortcuts"]:
-            self.thin = ot
-            return self._other("none"), None
-        self.thin = None
-        out = outside_domain(self.domain, medium, ot)
-        if not out:
-            return self.source, None
-        alt = None if self.options["no_domain_fallback"] else fallback_for(medium)
-        what = ("the network is used all the same (--no-domain-fallback)"
-                if self.options["no_domain_fallback"] else
-                "the network is used all the same (measured better than the analytic sources "
-                "there)" if alt is None else f"multiple scattering from --ms {alt} instead")
-        msg = (f"scene outside the network's training domain ({'; '.join(out)}): {what} "
-               f"(docs/raymarch.md)")
-        if msg not in self._warned:
-            print(f"clvol: warning: {msg}", file=sys.stderr)
-            self._warned.add(msg)
-        if alt is None:
-            return self.source, msg
-        return self._other(alt), msg
+    def plan(self, camera=None, light=None, medium=None):
+        """The FramePlan of a frame (clvol/render/plan.py ``plan_frame``) with the scene's
+        camera, light and medium or those given; a domain warning is printed once per
+        distinct reason."""
+        from .plan import plan_frame
+        scene = dataclasses.replace(self.scene, camera=camera or self.scene.camera,
+                                    light=light or self.scene.light,
+                                    medium=medium or self.scene.medium)
+        if self._facts is None or self._facts_grid is not self.grid:
+            from .plan import VolumeFacts
+            self._facts, self._facts_grid = VolumeFacts(self.grid), self.grid
+        plan = plan_frame(scene, self.options, self._facts, self.domain)
+        if plan.warning and plan.warning not in self._warned:
+            print(f"clvol: warning: {plan.warning}", file=sys.stderr)
+            self._warned.add(plan.warning)
+        return plan
 
     def active_source(self, medium=None):
         """(source, warning): the multiple-scattering source a render of ``medium`` (default
-        the scene's) uses -- the configured one, or the alternative for a medium outside the
-        network's domain or optically thin -- and the domain warning, if any."""
-        return self._active_source(medium or self.scene.medium, self.grid)
+        the scene's) uses -- the configured one, or the alternative the plan chose for a
+        medium outside the network's domain or optically thin -- and the domain warning."""
+        plan = self.plan(medium=medium)
+        return self._source(plan.source), plan.warning
 
-    def _other(self, name):
-        from .raymarch import make_source
-        if self.fallback is None or self.fallback.name != name:
-            self.fallback = make_source(name, runtime=self.rt)
-        return self.fallback
+    def _source(self, name):
+        """The source object that executes the plan's source (the configured one, or a
+        fallback built with its defaults and kept)."""
+        if name not in self._sources:
+            from .raymarch import make_source
+            self._sources[name] = make_source(name, runtime=self.rt)
+            self._sources[name].count = self._count
+        return self._sources[name]
 
     def _render_raymarch(self, cam, light, medium) -> RenderResult:
-        from .raymarch import RayMarcher, downsample, is_lit
         from .ms.base import Frame
+        from .raymarch import RayMarcher, downsample
         o = self.options
-        shortcuts, skip_empty, s = not o["no_shortcuts"], not o["no_skip_empty"], o["supersample"]
         with Stopwatch() as sw_total:
             with Stopwatch() as sw_load:
                 grid = self.grid
@@ -245,70 +237,34 @@ class Renderer:
                 self._marcher.count = self._count
             rm = self._marcher
             rm.set_medium(medium)
-            if s > 1:
-                cam = dataclasses.replace(cam, width=cam.width * s, height=cam.height * s)
-            source, warning = self._active_source(medium, grid)
-            if is_lit(medium, light) or not shortcuts:
-                from .ms.network import lattice_reach
-                reach = lattice_reach(grid, o["step"])
-                source.prepare(Frame(grid, cam, light, medium, self.rt, shortcuts, self._count,
-                                     reach, rm.dm.cache, rm.density,
-                                     o["step"] * float(np.min(grid.cell_size)),
-                                     o["threshold"]))
+            plan = self.plan(cam, light, medium)
+            source = self._source(plan.source)
+            if plan.lit:
+                source.prepare(Frame(grid, plan.camera, light, medium, self.rt, plan.shortcuts,
+                                     self._count, plan.lattice_reach, rm.dm.cache, rm.density,
+                                     plan.step, plan.threshold))
             else:
                 source.skip()
             with Stopwatch() as sw_light:
-                if is_lit(medium, light) or not shortcuts:
-                    if rm.ensure_light(light.direction):
-                        self._count("light_field")
-                    self.rt.finish()
+                if plan.lit and rm.ensure_light(light.direction):
+                    self._count("light_field")
+                self.rt.finish()
             emission = self.emission
             with Stopwatch() as sw_march:
-                layers, plan = rm.march(cam, light, source, step=o["step"],
-                                        threshold=o["threshold"], skip_empty=skip_empty,
-                                        shortcuts=shortcuts, emission=emission)
+                layers, _ = rm.march(plan.camera, light, plan, source, emission=emission)
             self._count("march")
-            if s > 1:
-                layers = downsample(layers, s)
-        step = float(o["step"])
-        simulated, skipped = list(plan.simulated), list(plan.skipped)
-        if emission is not None:
-            simulated.append(f"emission ({emission.kind} grid {emission.name!r}: sigma_a Le, "
-                             f"sigma_a = sigma_t (1 - albedo), exact along camera rays)")
-            skipped.append("scattering of emitted light (the path tracer has it; measured in "
-                           "docs/raymarch.md, \"Emission\")")
-        header = {
-            "method": "raymarch",
-            "method.description": f"ray marching: exact single scattering + {source.label}",
-            "simulated": "; ".join(simulated),
-            "skipped": "; ".join(skipped) or "nothing",
+            if plan.supersample > 1:
+                layers = downsample(layers, plan.supersample)
+        header = plan.header(source.label)
+        header.update({
             "seconds": round(sw_total.seconds, 4),
             "seconds.load": round(sw_load.seconds, 4),
             "seconds.light_field": round(sw_light.seconds, 4),
             "seconds.march": round(sw_march.seconds, 4),
-            **({"seconds.environment": round(rm.env_seconds, 4),
-                "raymarch.env_directions": rm.env_directions,
-                "raymarch.env_resolution": rm.env_resolution} if plan.env_scatter else {}),
-            "raymarch.ms": source.name,
-            "raymarch.step_voxels": step,
-            "raymarch.step": step * float(np.min(grid.cell_size)),
-            "raymarch.threshold": float(o["threshold"]),
-            "raymarch.skip_empty": bool(skip_empty),
+            **({"seconds.environment": round(rm.env_seconds, 4)} if plan.env_scatter else {}),
             "raymarch.block": int(rm.block),
-            "raymarch.light_resolution": int(rm.light_resolution) if plan.lit else 0,
-            "raymarch.light_interp": o["light_interp"],
-            "raymarch.supersample": int(s),
-            "raymarch.channels_marched": plan.channels,
-            "raymarch.shortcuts": bool(shortcuts),
             "device": self.rt.entry.label,
-        }
-        if warning:
-            header["warning"] = warning
-        if self.thin is not None and source is not self.source:
-            header["skipped"] = ("; ".join(s for s in skipped if "--ms none" not in s) +
-                                 f"; multiple scattering (optically thin: largest optical "
-                                 f"thickness {self.thin:.3g} < 0.5, where single scattering "
-                                 f"alone measured as accurate; docs/raymarch.md)").lstrip("; ")
+        })
         header.update(source.header())
         return RenderResult(layers, header)
 
@@ -384,14 +340,38 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
     ``view_samples`` free-flight samples per block from the stream of ``seed``.
     """
     from .ms import source_classes
-    opts = dict(ms=ms, step=step, threshold=threshold, no_skip_empty=not skip_empty,
+    opts = dict(ms=ms, step=step, threshold=threshold, skip_empty=skip_empty,
                 majorant_block=block, light_resolution=light_resolution,
-                light_interp=light_interp, supersample=supersample, no_shortcuts=not shortcuts)
+                light_interp=light_interp, supersample=supersample, shortcuts=shortcuts)
     per_source = dict(octaves=octaves, ms_a=a, ms_b=b, ms_c=c, ms_grid=ms_grid, weights=weights,
-                      ms_resolution=ms_resolution, no_domain_fallback=not domain_fallback,
+                      ms_resolution=ms_resolution, domain_fallback=domain_fallback,
                       view_block=view_block, view_knots=view_knots,
                       view_samples=view_samples, seed=seed)
-    read = getattr(source_classes().get(ms), "options", ())     # those of the source asked for
+    read = source_reads(ms) if ms in source_classes() else set()   # the source asked for
     opts.update({k: v for k, v in per_source.items() if k in read})
     opts = {k: v for k, v in opts.items() if v is not None}
     return Renderer(scene, "raymarch", grid=grid, runtime=runtime, **opts).render()
+
+
+def source_reads(ms: str) -> set:
+    """The options the source ``ms`` reads, found by letting it build itself from the
+    defaults and recording what it read (a grid source without a grid still reads
+    ``ms_grid`` before it refuses)."""
+    from .ms import source_class
+    from .options import bind
+    probe = bind("raymarch", {})
+    try:
+        source_class(ms).from_options(probe, None)
+    except ClvolError:
+        pass
+    return set(probe.read)
+
+
+def _unused_message(name: str, ms: str) -> str:
+    """Why a raymarch option is refused: the sources that would read it."""
+    from .ms import source_classes
+    owners = [n for n in source_classes() if name in source_reads(n)]
+    if owners:
+        return (f"option {option_label(name)} is used only with --ms {' or '.join(owners)} "
+                f"(method 'raymarch' with --ms {ms} does not read it)")
+    return f"option {option_label(name)} is not read by method 'raymarch' with --ms {ms}"

@@ -55,7 +55,7 @@ def render_raymarch_golden(name: str, ms: str) -> dict:
     kw = {"none": {}, "wrenninge": {}, "grid": {"ms_grid": golden_ms_grid(sc)},
           # a fixed weight file, not the shipped default: these goldens hold the pipeline,
           # and a better default model must not change them
-          "network": {"no_domain_fallback": True, "weights": GOLDEN_WEIGHTS}}[ms]
+          "network": {"domain_fallback": False, "weights": GOLDEN_WEIGHTS}}[ms]
     res = Renderer(sc, "raymarch", ms=ms, **kw).render()
     return {k: res.layers[k] for k in LAYERS}
 

@@ -14,7 +14,6 @@ class OctavesMs(MsSource):
     """Wrenninge octaves evaluated in the kernel from the light field: no data of its own."""
     name = "wrenninge"
     label = "Wrenninge octaves (analytic multiple scattering)"
-    options = ("octaves", "ms_a", "ms_b", "ms_c")
 
     def __init__(self, octaves: Octaves = Octaves()):
         self.octaves = octaves.check()
@@ -23,8 +22,9 @@ class OctavesMs(MsSource):
     def from_options(cls, o: dict, runtime=None) -> "OctavesMs":
         return cls(Octaves.from_options(o))
 
-    def plan(self, medium, shortcuts: bool) -> MsPlan:
-        o = self.octaves
+    @classmethod
+    def plan_for(cls, medium, camera, shortcuts: bool, options) -> MsPlan:
+        o = Octaves.from_options(options).check()
         p = MsPlan(ms_defines("wrenninge", o.n), octaves=o)
         if o.n > 1:
             p.simulated.append(f"multiple scattering (Wrenninge octaves n={o.n} a={o.a:g} "

@@ -24,8 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...errors import ClvolError
-from ...kernels.raymarch import MAX_OCTAVES, ms_defines
-from ...runtime import DeviceArray
+from ...kernels.raymarch import MAX_OCTAVES, MS_SOURCE_DEFINES, ms_defines
 
 
 # --------------------------------------------------------------------------- data
@@ -78,10 +77,10 @@ class Octaves:
 
 @dataclass
 class MsPlan:
-    """What one source asks of the kernel for one medium."""
+    """What one source asks of the kernel for one medium and camera: decided from the options
+    alone (``MsSource.plan_for``), before any data exists; the data it reads comes from the
+    prepared source (``MsSource.device_data``)."""
     defines: dict
-    planes: DeviceArray | None = None       # (C, gz, gy, gx) F_ms lattice, or None
-    box: tuple | None = None                # (bbox_min, bbox_max) of the lattice
     octaves: Octaves = Octaves()            # oct_a, oct_b, oct_c kernel arguments
     simulated: list = field(default_factory=list)
     skipped: list = field(default_factory=list)
@@ -89,7 +88,9 @@ class MsPlan:
     @property
     def channels(self) -> int | None:
         """Colour planes marched for F_ms, or None when the source has no lattice or table."""
-        return None if self.planes is None else int(self.defines["MS_CHANNELS"])
+        reads_table = self.defines["MS_SOURCE"] in (MS_SOURCE_DEFINES["grid"],
+                                                    MS_SOURCE_DEFINES["view"])
+        return int(self.defines["MS_CHANNELS"]) if reads_table else None
 
 
 @dataclass
@@ -103,7 +104,7 @@ class Frame:
     runtime: object
     shortcuts: bool = True
     count: object = None
-    reach: float = 0.0        # world distance from a density sample to the F_ms read, + 1 voxel
+    reach: float | None = None  # the plan's active-point reach (None: every lattice point)
     cache: dict | None = None  # the DeviceMedium's cache (data that lives as long as the volume)
     density: object = None    # the density already on the device (DeviceArray), if any
     step: float = 0.0         # the march's segment length (world units) ...
@@ -111,16 +112,25 @@ class Frame:
 
 
 class MsSource:
-    """Base class: no multiple scattering. Subclasses override what they need."""
+    """Base class: no multiple scattering. Subclasses override what they need.
+
+    A source's class decides (``plan_for``: pure, from the options; called by
+    clvol/render/plan.py ``plan_frame``); an instance executes (``prepare`` fills its data
+    for a frame, ``device_data`` hands it to the marcher, ``header`` reports it)."""
     name = "none"
     label = "no multiple scattering"
-    options: tuple[str, ...] = ()      # the Renderer options this source reads
 
     @classmethod
-    def from_options(cls, o: dict, runtime=None) -> "MsSource":
-        """The source built from render options (it reads those in ``options``; a missing
-        one takes its default)."""
+    def from_options(cls, o, runtime=None) -> "MsSource":
+        """The source built from render options (a missing one takes its default); the
+        options it reads count as used (clvol/render/options.py)."""
         return cls()
+
+    @classmethod
+    def plan_for(cls, medium, camera, shortcuts: bool, o) -> MsPlan:
+        """The kernel defines, octaves and effects of this source for ``medium`` seen by
+        ``camera`` (the marched camera) with render options ``o``."""
+        return MsPlan(ms_defines("none"), skipped=[f"multiple scattering (--ms {cls.name})"])
 
     def prepare(self, frame: Frame) -> None:
         """Fill this source's data for the frame (nothing to do for an analytic source)."""
@@ -129,8 +139,10 @@ class MsSource:
         """This frame does not read the source (nothing is lit): forget per-frame state that
         its header would otherwise report as this frame's."""
 
-    def plan(self, medium, shortcuts: bool) -> MsPlan:
-        return MsPlan(ms_defines("none"), skipped=[f"multiple scattering (--ms {self.name})"])
+    def device_data(self, medium, shortcuts: bool):
+        """(planes, (box_min, box_max)): the F_ms lattice or table on the device (a
+        DeviceArray) and its box, or (None, (None, None)) for a source without data."""
+        return None, (None, None)
 
     def header(self) -> dict:
         return {}

@@ -99,7 +99,6 @@ class GridMs(MsSource):
     ``prepare``; the lattice goes to the device once per grid and colour layout."""
     name = "grid"
     label = "precomputed F_ms grid"
-    options = ("ms_grid",)
     what = "precomputed F_ms grid"
 
     def __init__(self, ms_grid: MsGrid | None = None, runtime=None):
@@ -109,18 +108,39 @@ class GridMs(MsSource):
         self.count = None
 
     @classmethod
-    def from_options(cls, o: dict, runtime=None) -> "GridMs":
-        g = o.get("ms_grid")
-        if g is None:
-            raise _no_grid()
-        return cls(g if hasattr(g, "values") else load_ms_grid(g), runtime)
+    def from_options(cls, o, runtime=None) -> "GridMs":
+        return cls(options_grid(o), runtime)
 
-    def planes_for(self, medium, shortcuts: bool):
-        """((C, gz, gy, gx) planes on the device, grey shortcut taken?)."""
-        planes = self.ms_grid.planes()
+    @staticmethod
+    def _grey(planes, medium, shortcuts: bool) -> bool:
+        """The grey shortcut: one plane marched for a grey medium and a grey grid."""
         grey_grid = planes.shape[0] == 1 or (np.array_equal(planes[0], planes[1])
                                              and np.array_equal(planes[0], planes[2]))
-        grey = bool(shortcuts and grey_grid and medium.is_grey)
+        return bool(shortcuts and grey_grid and medium.is_grey)
+
+    @classmethod
+    def plan_for(cls, medium, camera, shortcuts: bool, options) -> MsPlan:
+        planes = options_grid(options).planes()
+        return cls._grid_plan(cls._grey(planes, medium, shortcuts), planes.shape[1:])
+
+    @classmethod
+    def _grid_plan(cls, grey: bool, shape) -> MsPlan:
+        gz, gy, gx = shape
+        channels = 1 if grey else 3
+        p = MsPlan(ms_defines("grid", channels=channels))
+        if grey:
+            p.skipped.append("colour channels 2 and 3 of the F_ms grid (grey albedo, grey grid)")
+        p.simulated.append(f"multiple scattering ({cls.what} {gx}x{gy}x{gz}, "
+                           f"{channels} channel(s))")
+        return p
+
+    def device_data(self, medium, shortcuts: bool):
+        """The lattice's planes on the device in the plan's colour layout (uploaded once per
+        grid and layout) and its box."""
+        if self.ms_grid is None:
+            raise _no_grid()
+        planes = self.ms_grid.planes()
+        grey = self._grey(planes, medium, shortcuts)
         up = self._uploaded
         if up is None or up[0] is not self.ms_grid or up[1] != grey:
             if grey:
@@ -132,20 +152,15 @@ class GridMs(MsSource):
             if self.count:
                 self.count("ms_upload")
             self._uploaded = up = (self.ms_grid, grey, rt.upload(planes))
-        return up[2], grey
+        return up[2], (tuple(self.ms_grid.bbox_min), tuple(self.ms_grid.bbox_max))
 
-    def plan(self, medium, shortcuts: bool) -> MsPlan:
-        if self.ms_grid is None:
-            raise _no_grid()
-        planes, grey = self.planes_for(medium, shortcuts)
-        gz, gy, gx = planes.shape[1:]
-        p = MsPlan(ms_defines("grid", channels=planes.shape[0]), planes=planes,
-                   box=(tuple(self.ms_grid.bbox_min), tuple(self.ms_grid.bbox_max)))
-        if grey:
-            p.skipped.append("colour channels 2 and 3 of the F_ms grid (grey albedo, grey grid)")
-        p.simulated.append(f"multiple scattering ({self.what} {gx}x{gy}x{gz}, "
-                           f"{planes.shape[0]} channel(s))")
-        return p
+
+def options_grid(o) -> MsGrid:
+    """The ``ms_grid`` option as an MsGrid (a given MsGrid, or read from its .npz file)."""
+    g = o.get("ms_grid")
+    if g is None:
+        raise _no_grid()
+    return g if isinstance(g, MsGrid) else load_ms_grid(g)
 
 
 def _no_grid() -> ClvolError:

@@ -284,7 +284,6 @@ class NetworkMs(GridMs):
     camera position (omega toward it), the light direction and the medium; ``prepare``
     refills it only when one of those changed."""
     name = "network"
-    options = ("weights", "ms_resolution", "no_domain_fallback", "ms_directions", "ms_refresh")
 
     @property
     def label(self) -> str:
@@ -336,8 +335,9 @@ class NetworkMs(GridMs):
             self._key = None
 
     @classmethod
-    def from_options(cls, o: dict, runtime=None) -> "NetworkMs":
+    def from_options(cls, o, runtime=None) -> "NetworkMs":
         r = o.get("ms_resolution")
+        o.get("domain_fallback")        # read by plan_frame for every network source
         return cls(o.get("weights"), DEFAULT_NETWORK_RESOLUTION if r is None else r, runtime,
                    o.get("ms_directions", 0), o.get("ms_refresh", 1))
 
@@ -360,7 +360,7 @@ class NetworkMs(GridMs):
         if key == self._key and not self._todo:
             return
         active = None
-        if frame.shortcuts:
+        if frame.reach is not None:     # the plan's active-point rule (shortcuts on)
             mkey = ("network_active", self.resolution, frame.reach)
             cache = frame.cache if frame.cache is not None else {}
             if mkey not in cache:
@@ -441,8 +441,13 @@ class NetworkMs(GridMs):
         self.info["interpolate"] = sw.seconds
         frame.count("ms_lattice")
 
-    def plan(self, medium, shortcuts: bool) -> MsPlan:
-        p = super().plan(medium, shortcuts)
+    @classmethod
+    def plan_for(cls, medium, camera, shortcuts: bool, options) -> MsPlan:
+        """The lattice the network fills: one plane for a grey medium with shortcuts (one
+        evaluation per point), else three."""
+        res = check_ms_resolution(options.get("ms_resolution") or DEFAULT_NETWORK_RESOLUTION)
+        res = (res,) * 3 if np.isscalar(res) else tuple(res)
+        p = cls._grid_plan(bool(shortcuts and medium.is_grey), res[::-1])
         if medium.is_grey and shortcuts:
             p.skipped.append("network evaluations for colour channels 2 and 3 (grey albedo: "
                              "one per lattice point)")

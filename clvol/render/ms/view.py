@@ -51,7 +51,6 @@ def check_view_options(block, knots):
 class ViewMs(NetworkMs):
     """The network at ``knots`` depths per ``block`` x ``block`` pixels of the camera's view."""
     name = "view"
-    options = ("weights", "view_block", "view_knots", "no_domain_fallback")
     what = "view-space F_ms table"
 
     def __init__(self, weights=None, block: int = DEFAULT_VIEW_BLOCK,
@@ -68,8 +67,9 @@ class ViewMs(NetworkMs):
         self.query = None
 
     @classmethod
-    def from_options(cls, o: dict, runtime=None) -> "ViewMs":
+    def from_options(cls, o, runtime=None) -> "ViewMs":
         block = o.get("view_block")
+        o.get("domain_fallback")        # read by plan_frame for every network source
         return cls(o.get("weights"), DEFAULT_VIEW_BLOCK if block is None else block,
                    o.get("view_knots", DEFAULT_VIEW_KNOTS), runtime)
 
@@ -144,23 +144,40 @@ class ViewMs(NetworkMs):
         vals, info = self.net.evaluate(pts, -dirs, frame.light.direction, m, frame.shortcuts)
         return vals.reshape(len(vals), -1), info
 
-    def plan(self, medium, shortcuts: bool) -> MsPlan:
-        if self.table is None:
-            raise ClvolError("--ms view: the source was not prepared for a frame")
-        channels = self.table.shape[0] - 1
-        p = MsPlan(ms_defines("view", channels=channels, view_k=self.knots,
-                              view_block=self.block),
-                   planes=self.table, box=((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)))
-        by, bx = self.table.shape[1:3]
-        p.simulated.append(f"multiple scattering (network at the camera's view: {self.knots} "
-                           f"queries per {self.block}x{self.block}-pixel block, {bx}x{by} "
-                           f"blocks, {channels} channel(s))")
-        if medium.is_grey and shortcuts:
+    @classmethod
+    def _block_knots(cls, camera, o) -> tuple[int, int]:
+        block = o.get("view_block")
+        return (DEFAULT_VIEW_BLOCK if block is None else block,
+                o.get("view_knots", DEFAULT_VIEW_KNOTS))
+
+    @classmethod
+    def plan_for(cls, medium, camera, shortcuts: bool, options) -> MsPlan:
+        from ...kernels.viewdepth import block_grid
+        block, knots = cls._block_knots(camera, options)
+        grey = bool(shortcuts and medium.is_grey)
+        channels = 1 if grey else 3
+        p = MsPlan(ms_defines("view", channels=channels, view_k=knots, view_block=block))
+        bx, by = block_grid(camera.width, camera.height, block)
+        p.simulated.append(cls._simulated(block, knots, bx, by, channels))
+        if grey:
             p.skipped.append("network evaluations for colour channels 2 and 3 (grey albedo: "
                              "one per query)")
-        p.skipped.append("network evaluations for pixel blocks where no sample ray meets the "
-                         "medium")
+        p.skipped.append(cls._skipped_blocks)
         return p
+
+    @staticmethod
+    def _simulated(block, knots, bx, by, channels) -> str:
+        return (f"multiple scattering (network at the camera's view: {knots} queries per "
+                f"{block}x{block}-pixel block, {bx}x{by} blocks, {channels} channel(s))")
+
+    _skipped_blocks = "network evaluations for pixel blocks where no sample ray meets the medium"
+
+    def device_data(self, medium, shortcuts: bool):
+        """The view table (1 + C, by, bx, K) on the device; the kernel reads it by pixel
+        block, so its box is the unit box."""
+        if self.table is None:
+            raise ClvolError(f"--ms {self.name}: the source was not prepared for a frame")
+        return self.table, ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
 
     def header(self) -> dict:
         info = self.info or {}
@@ -233,7 +250,6 @@ class StochasticViewMs(ViewMs):
     when the camera moves. The marcher reads the block means as a one-knot view table
     (MS_SOURCE 3, VIEW_K 1): F_ms constant along each ray, blended across blocks."""
     name = "stochastic"
-    options = ("weights", "view_block", "view_samples", "seed", "no_domain_fallback")
     what = "stochastic view-space F_ms table"
 
     def __init__(self, weights=None, block: int | None = None,
@@ -248,7 +264,8 @@ class StochasticViewMs(ViewMs):
         self.refining = False       # whether the next frame of this view draws more
 
     @classmethod
-    def from_options(cls, o: dict, runtime=None) -> "StochasticViewMs":
+    def from_options(cls, o, runtime=None) -> "StochasticViewMs":
+        o.get("domain_fallback")        # read by plan_frame for every network source
         return cls(o.get("weights"), o.get("view_block"),
                    o.get("view_samples", DEFAULT_VIEW_SAMPLES), o.get("seed", 0), runtime)
 
@@ -394,17 +411,18 @@ class StochasticViewMs(ViewMs):
             frame.count("graded_transmittance")
         frame.count("ms_view_table")
 
-    def plan(self, medium, shortcuts: bool) -> MsPlan:
-        p = super().plan(medium, shortcuts)
-        h = self.history
-        n = (int(h.count[h.count > 0].min()), int(h.count.max())) if (
-            h is not None and (h.count > 0).any()) else (0, 0)
-        p.simulated[-1] = (f"multiple scattering (network at the camera's view, stochastic: "
-                           f"one free-flight sample per {self.block}x{self.block}-pixel block "
-                           f"per frame, {n[0]}-{n[1]} accumulated per block)")
-        p.skipped[-1] = ("network evaluations for pixel blocks whose sample ray misses the "
-                         "medium")
-        return p
+    @classmethod
+    def _block_knots(cls, camera, o) -> tuple[int, int]:
+        block = o.get("view_block")
+        return (auto_block(camera.width, camera.height) if block is None else block), 1
+
+    @staticmethod
+    def _simulated(block, knots, bx, by, channels) -> str:
+        return (f"multiple scattering (network at the camera's view, stochastic: one "
+                f"free-flight sample per {block}x{block}-pixel block per frame, {bx}x{by} "
+                f"blocks, {channels} channel(s), accumulated while the view is still)")
+
+    _skipped_blocks = "network evaluations for pixel blocks whose sample ray misses the medium"
 
     def header(self) -> dict:
         h = super().header()

@@ -1,0 +1,267 @@
+"""``plan_frame``: the one place that decides what a ray-marched frame simulates, and how.
+
+    plan = plan_frame(scene, options, volume=VolumeFacts.of(grid), domain=weights_domain)
+
+A ``FramePlan`` holds every decision of a frame: the multiple-scattering source that runs
+(the configured one, or the measured alternative for a medium outside the network's training
+domain or optically thin; ``--max-order 1`` means none), whether anything is lit, the phase
+lobes the kernel evaluates, the colour planes it marches, the environment's share, the
+network's active-point rule, the kernel's ``-D`` defines and the effects simulated or skipped,
+each with its reason. Deciding is cheap and has no side effects (no device, no file read
+beyond a precomputed grid named by path); everything that runs reads the plan:
+
+- ``Renderer`` (renderer.py) executes it: it prepares the plan's source and marches with
+  the plan's defines; its caches key on what the plan says the stage depends on;
+- ``clvol bundle`` (clvol/bundle.py) serialises it for the C library;
+- the EXR header is written from it (``FramePlan.header``) plus the stages' timings.
+
+Where a decision comes from a measurement, the constant says where the measurement is
+(clvol/render/ms/network.py: the domain fallback and the thin-medium shortcut).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..kernels.phase import phase_defines
+from .ms import source_class
+from .ms.analytic import NoMs
+from .ms.base import MsPlan
+from .ms.network import (NetworkMs, THIN_OPTICAL_THICKNESS, fallback_for, lattice_reach,
+                         outside_domain)
+
+
+class VolumeFacts:
+    """What the plan needs to know of the volume, once per density: its resolution and
+    cells, and (computed on first use: only the network sources ask) its largest optical
+    thickness along an axis at density scale 1."""
+
+    def __init__(self, grid):
+        self.resolution = tuple(int(n) for n in grid.resolution)
+        self.cell = float(np.min(grid.cell_size))        # the smallest voxel side
+        self._grid = grid
+        self._ot = None
+
+    @property
+    def max_optical_thickness(self) -> float:
+        if self._ot is None:
+            from ..volume.stats import volume_stats
+            self._ot = float(volume_stats(self._grid, 1.0)["max_optical_thickness"])
+        return self._ot
+
+    def lattice_reach(self, step_voxels: float) -> float:
+        """The network's active-point reach for this step (``lattice_reach``)."""
+        return lattice_reach(self._grid, step_voxels)
+
+
+def is_lit(medium, light) -> bool:
+    """Anything scatters the sun toward the camera: some channel has albedo * irradiance > 0."""
+    return bool(np.any(np.asarray(medium.albedo) * np.asarray(light.irradiance) > 0))
+
+
+@dataclass(frozen=True)
+class SourceChoice:
+    """The source that runs and why it is not the configured one (None when it is)."""
+    name: str
+    warning: str | None = None      # outside the network's training domain
+    thin: float | None = None       # the largest optical thickness, when thinness chose none
+
+
+def choose_source(configured: str, medium, options, volume: VolumeFacts | None,
+                  domain: dict | None) -> SourceChoice:
+    """The multiple-scattering source for ``medium``: the configured one; none for
+    ``--max-order 1``; for the network sources, single scattering alone in an optically thin
+    medium (THIN_OPTICAL_THICKNESS, unless shortcuts are off) and the measured fallback
+    outside the weights' training domain (``fallback_for``, unless ``domain_fallback`` is
+    off)."""
+    if options["max_order"] == 1:
+        return SourceChoice("none")
+    if not issubclass(source_class(configured), NetworkMs):
+        return SourceChoice(configured)
+    use_fallback = options["domain_fallback"]
+    if volume is None or domain is None:
+        return SourceChoice(configured)
+    ot = volume.max_optical_thickness * medium.density_scale
+    if ot < THIN_OPTICAL_THICKNESS and options["shortcuts"]:
+        return SourceChoice("none", thin=ot)
+    out = outside_domain(domain, medium, ot)
+    if not out:
+        return SourceChoice(configured)
+    alt = fallback_for(medium) if use_fallback else None
+    what = ("the network is used all the same (--no-domain-fallback)" if not use_fallback else
+            "the network is used all the same (measured better than the analytic sources "
+            "there)" if alt is None else f"multiple scattering from --ms {alt} instead")
+    msg = (f"scene outside the network's training domain ({'; '.join(out)}): {what} "
+           f"(docs/raymarch.md)")
+    return SourceChoice(alt or configured, warning=msg)
+
+
+@dataclass(frozen=True)
+class FramePlan:
+    """Every decision of one ray-marched frame (``plan_frame``)."""
+    configured_source: str          # the --ms option
+    source: str                     # the source that runs (``choose_source``)
+    warning: str | None             # outside the training domain, if so
+    thin: float | None              # optically thin: the largest optical thickness
+    lit: bool                       # the sun's light field and the source are used
+    shortcuts: bool
+    skip_empty: bool
+    camera: object                  # the marched camera (supersampled: S x the pixels)
+    lobes: tuple                    # (g, weight) per lobe the kernel evaluates (none: isotropic)
+    ms: MsPlan                      # the source's kernel defines, octaves, effects
+    defines: dict                   # cl/raymarch.cl's -D defines
+    channels: int                   # colour planes marched for F_ms
+    background: tuple               # constant radiance behind the medium
+    env_scatter: bool               # the environment lights the medium
+    env_background: str             # "none", "constant" or "map"
+    env_directions: int
+    env_resolution: int
+    step_voxels: float
+    step: float                     # world units
+    threshold: float
+    light_resolution: int           # 0 when unlit
+    light_interp: str
+    supersample: int
+    lattice_reach: float | None     # the network's active-point rule (None: every point)
+    emission: bool
+    simulated: tuple
+    skipped: tuple
+
+    def header(self, label: str) -> dict:
+        """The header entries that state this plan (``label``: the source's description)."""
+        return {
+            "method": "raymarch",
+            "method.description": f"ray marching: exact single scattering + {label}",
+            "simulated": "; ".join(self.simulated),
+            "skipped": "; ".join(self.skipped) or "nothing",
+            **({"raymarch.env_directions": self.env_directions,
+                "raymarch.env_resolution": self.env_resolution} if self.env_scatter else {}),
+            "raymarch.ms": self.source,
+            "raymarch.step_voxels": self.step_voxels,
+            "raymarch.step": self.step,
+            "raymarch.threshold": self.threshold,
+            "raymarch.skip_empty": self.skip_empty,
+            "raymarch.light_resolution": self.light_resolution,
+            "raymarch.light_interp": self.light_interp,
+            "raymarch.supersample": self.supersample,
+            "raymarch.channels_marched": self.channels,
+            "raymarch.shortcuts": self.shortcuts,
+            **({"warning": self.warning} if self.warning else {}),
+        }
+
+
+def auto_light_resolution(resolution, cap: int) -> int:
+    """The light field's default resolution: four times the grid's largest side rounded up
+    to a power of two, at most ``cap``. The voxelised light field is the ray marcher's main
+    bias against exact single scattering (docs/raymarch.md measures it at 1x, 2x and 4x): a
+    64^3 grid gets 256^3, grids from 96^3 up the cap."""
+    n = 4 * max(resolution)
+    return min(1 << max(0, (n - 1).bit_length()), cap)
+
+
+def plan_frame(scene, options, volume: VolumeFacts | None = None,
+               domain: dict | None = None) -> FramePlan:
+    """The plan of one ray-marched frame of ``scene`` (its camera, light and medium) with the
+    method's ``options`` (a mapping with the raymarch options, clvol/render/options.py).
+    ``volume``: the density's facts (None: thinness and the domain are not judged, as for a
+    source that never reads them); ``domain``: the network's training domain from its weight
+    file (None for other sources)."""
+    from .environment import DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_RESOLUTION, has_environment
+    from .raymarch import MAX_LIGHT_RESOLUTION
+    o = options
+    medium, light, camera = scene.medium, scene.light, scene.camera
+    shortcuts, skip_empty, s = bool(o["shortcuts"]), bool(o["skip_empty"]), int(o["supersample"])
+    if s > 1:
+        camera = dataclasses.replace(camera, width=camera.width * s, height=camera.height * s)
+    choice = choose_source(o["ms"], medium, o, volume, domain)
+    lit = is_lit(medium, light) or not shortcuts
+    sim, skip = [], []
+
+    # the sun
+    env_on = has_environment(light)
+    if lit:
+        sim.append("single scattering" + (" of the sun light" if env_on else ""))
+    else:
+        skip.append(("sun light scattering" if env_on else "single and multiple scattering")
+                    + " (albedo * irradiance = 0: no light field, no source)")
+    phase = medium.phase
+    lobes = tuple((lo.g, lo.weight) for lo in phase.lobes)
+    if shortcuts and phase.is_isotropic:
+        lobes = ()
+        skip.append("phase evaluation (isotropic: constant 1/(4 pi))")
+
+    # multiple scattering
+    cls = source_class(choice.name) if lit else NoMs
+    ms = cls.plan_for(medium, camera, shortcuts, o)
+    if lit:
+        sim += ms.simulated
+        skip += [x for x in ms.skipped if not (choice.thin is not None and "--ms none" in x)]
+        if choice.thin is not None:
+            skip.append(f"multiple scattering (optically thin: largest optical thickness "
+                        f"{choice.thin:.3g} < {THIN_OPTICAL_THICKNESS:g}, where single "
+                        f"scattering alone measured as accurate; docs/raymarch.md)")
+    channels = ms.channels or 1
+    if ms.channels is None and lit:
+        skip.append("per-channel marching (albedo and irradiance are constant over the "
+                    "medium: one colour-free march, colour applied once per ray)")
+
+    # the environment
+    env_dirs = int(o["env_directions"] or DEFAULT_ENV_DIRECTIONS)
+    env_res = int(o["env_resolution"] or DEFAULT_ENV_RESOLUTION)
+    env_map = getattr(light, "environment_map", None) is not None
+    sky_dark = env_on and not np.any(light.sky_mean() > 0)    # a black constant or map
+    env_scatter = env_on and ((any(a > 0 for a in medium.albedo) and not sky_dark)
+                              or not shortcuts)
+    if env_scatter:
+        what = "the map's" if env_map else "the sky's"
+        sim.append(f"environment single scattering ({what} light from {env_dirs} "
+                   f"directions, each cell's irradiance with the transmittance toward it "
+                   f"({env_res}^3 fields from the density pyramid) and the phase "
+                   f"function along each camera ray)")
+        sim.append("environment multiple scattering (approximation: the sky light "
+                   "blocked toward each direction arrives scattered, scaled by an escape "
+                   "model's (albedo t / (1 - albedo (1 - t)))^2; exact in a white furnace; "
+                   "measured error in docs/raymarch.md)")
+    elif env_on:
+        skip.append("environment in-scattering (" + ("a black sky" if sky_dark else
+                    "albedo 0: nothing scatters") + ")")
+    if light.environment is not None:
+        sim.append("background (environment radiance behind the medium)")
+    if env_map:
+        sim.append("background (the environment map along each camera ray)")
+    background = tuple(light.environment) if light.environment is not None else (0.0, 0.0, 0.0)
+    sim.append("extinction along camera rays")
+
+    # emission
+    emission = getattr(scene, "emission", None)
+    if emission is not None:
+        sim.append(f"emission ({emission.kind} grid {emission.grid!r}: sigma_a Le, sigma_a = "
+                   f"sigma_t (1 - albedo), exact along camera rays)")
+        skip.append("scattering of emitted light (the path tracer has it; measured in "
+                    "docs/raymarch.md, \"Emission\")")
+
+    defines = dict(phase_defines(list(lobes)))
+    defines.update(LIT=int(lit), SKIP_EMPTY=int(skip_empty))
+    defines.update(ms.defines)
+    cell = volume.cell if volume is not None else 1.0
+    light_res = 0
+    if lit and volume is not None:
+        light_res = int(o["light_resolution"] or auto_light_resolution(volume.resolution,
+                                                                         MAX_LIGHT_RESOLUTION))
+    network_lattice = lit and issubclass(cls, NetworkMs) and cls.name == "network"
+    reach = (volume.lattice_reach(o["step"])
+             if network_lattice and shortcuts and volume is not None else None)
+    return FramePlan(
+        configured_source=o["ms"], source=choice.name, warning=choice.warning,
+        thin=choice.thin, lit=lit, shortcuts=shortcuts, skip_empty=skip_empty, camera=camera,
+        lobes=lobes, ms=ms, defines=defines, channels=channels, background=background,
+        env_scatter=env_scatter,
+        env_background="map" if env_map else "constant" if light.environment is not None
+        else "none",
+        env_directions=env_dirs, env_resolution=env_res, step_voxels=float(o["step"]),
+        step=float(o["step"]) * cell, threshold=float(o["threshold"]),
+        light_resolution=light_res, light_interp=o["light_interp"], supersample=s,
+        lattice_reach=reach, emission=emission is not None, simulated=tuple(sim),
+        skipped=tuple(skip))
