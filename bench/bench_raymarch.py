@@ -34,7 +34,7 @@ import numpy as np
 from _common import ROOT, cpu_seconds, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from clvol.kernels.pyramid import build_pyramid  # noqa: E402
 from clvol.render.raymarch import RayMarcher  # noqa: E402
-from clvol.render.renderer import render_raymarch  # noqa: E402
+from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 from clvol.volume.generators import generate  # noqa: E402
@@ -141,7 +141,7 @@ def bench_errors(args):
         ref, se, secs = _pt_reference(scene, args.spp, Path(args.cache), path.stem, args.err_size)
         noise = float(se.mean() / max(ref.mean(), 1e-30))
         for ms, label in (("none", "(a) single"), ("wrenninge", "(b) wrenninge")):
-            img = render_raymarch(scene, ms=ms, step=args.step).layers["total"]
+            img = Renderer(scene, "raymarch", ms=ms, step=args.step).render().layers["total"]
             m = compare_images(img, ref)
             print(f"  {path.stem:<8} {label:<14} {m['rmse']:>10.3g} {m['relmse']:>10.3g} "
                   f"{m['psnr']:>7.2f} {m['mrpnn']:>7.2f} {img.mean() / ref.mean():>10.3f} "

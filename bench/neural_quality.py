@@ -82,7 +82,7 @@ from clvol.metrics import (LUMA, flip, flip_available, mrpnn_exposure,  # noqa: 
                            tonemap_srgb)
 from clvol.render.ms.network import shipped_weights  # noqa: E402
 from clvol.render.pathtrace import DEFAULT_BLOCK, render_pathtrace  # noqa: E402
-from clvol.render.renderer import render_raymarch  # noqa: E402
+from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 
 SCENES = {
@@ -297,6 +297,12 @@ def reference(name, scene, grid, spp_half, cache: Path, rebuild: bool = False,
 
 # --------------------------------------------------------------------------- test renders
 
+def render_raymarch(scene, ms: str, grid, **options):
+    """One ray-marched frame with ``options`` (None: the renderer's default)."""
+    given = {k: v for k, v in options.items() if v is not None}
+    return Renderer(scene, "raymarch", grid=grid, ms=ms, **given).render()
+
+
 def median_time(fn, n: int = 3):
     """(last result, median seconds of n runs): the machine is shared, the median is robust."""
     times, out = [], None
@@ -366,6 +372,8 @@ def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
                        ("single", "none")):
         kw = ({"weights": weights, "ms_resolution": ms_resolution} if ms == "network" else
               {"weights": weights, **vkw} if ms == "view" else {})
+        if ms in ("network", "view"):     # the network at every scene, even outside its domain
+            kw["domain_fallback"] = False
         render_raymarch(scene, ms=ms, grid=grid, **kw)              # build kernels, tables
         res, s = median_time(lambda: render_raymarch(scene, ms=ms, grid=grid, **kw), repeats)
         out[method] = (res.layers["total"], s, None, None)

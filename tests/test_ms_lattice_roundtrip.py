@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from clvol.render.renderer import render_raymarch
+from render_helpers import render_raymarch
 from clvol.render.ms.grid import fill_ms_grid
 from clvol.scene import Camera, Light, Medium, Phase, Scene, VolumeSpec
 from clvol.volume.grid import Grid

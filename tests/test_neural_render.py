@@ -60,7 +60,7 @@ def _scene(albedo=0.95, lobes=None):
 
 @pytest.mark.parametrize("albedo,lobes", [(0.95, None), ([0.9, 0.95, 0.99], [(0.7, 0.6), (-0.3, 0.4)])])
 def test_network_source_renders(weights_file, albedo, lobes):
-    from clvol.render.renderer import render_raymarch
+    from render_helpers import render_raymarch
     res = render_raymarch(_scene(albedo, lobes), ms="network", weights=str(weights_file),
                           ms_resolution=8)
     for name in ("total", "single", "multiple"):
@@ -78,7 +78,7 @@ def test_network_source_renders(weights_file, albedo, lobes):
 
 def test_grey_shortcut_equals_three_channels(weights_file):
     from clvol.render.ms.network import NetworkSource
-    from clvol.render.renderer import render_raymarch
+    from render_helpers import render_raymarch
     sc = _scene(0.95)
     grid = sc.volume.load()
     src = NetworkSource(weights_file, grid, sc.medium)
@@ -129,7 +129,7 @@ def test_lattice_matches_numpy_reference(weights_file):
 
 
 def test_mismatched_weights_refused(weights_file, tmp_path):
-    from clvol.render.renderer import render_raymarch
+    from render_helpers import render_raymarch
     arch, p = _params()
     bad = gather_contract(BASE, 0.6)
     bad["template_hash"] = "0" * 64
@@ -212,14 +212,14 @@ def test_shipped_domain_model_matches_this_gather_and_records_its_domain():
 
 
 def test_network_source_is_registered_whatever_is_imported_first():
-    """render_raymarch and the CLI's --ms choices read clvol/render/ms/__init__.py; in a fresh process
+    """The Renderer and the CLI's --ms choices read clvol/render/ms/__init__.py; in a fresh process
     where nothing imported clvol/render/ms/network.py yet, "network" (and its options, e.g.
     ms_resolution) must be there all the same (it once was not, and ms_resolution was dropped)."""
     import os
     import subprocess
     import sys
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    code = ("from clvol.render.renderer import render_raymarch\n"
+    code = ("from clvol.render.renderer import Renderer\n"
             "from clvol.render.ms import source_classes\n"
             "assert 'network' in source_classes()\n"
             "from clvol.scene import scene_from_dict\n"
@@ -228,7 +228,7 @@ def test_network_source_is_registered_whatever_is_imported_first():
             "    'light': {'direction': [0.5, 0.8, 0.3], 'irradiance': [1, 1, 1]},\n"
             "    'camera': {'origin': [0, 0, 2.5], 'target': [0, 0, 0], 'up': [0, 1, 0],\n"
             "               'fov_y': 30.0, 'width': 8, 'height': 8}}, '<t>')\n"
-            "h = render_raymarch(sc, ms='network', ms_resolution=6).header\n"
+            "h = Renderer(sc, ms='network', ms_resolution=6).render().header\n"
             "assert 'lattice 6x6x6' in h['simulated'], h['simulated']\n")
     p = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True,
                        env=dict(os.environ, PYTHONPATH=root))

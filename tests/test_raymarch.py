@@ -21,7 +21,7 @@ import pytest
 from clvol.errors import ClvolError
 from clvol.kernels import raymarch as kraymarch
 from clvol.kernels.majorant import build_majorant
-from clvol.render.renderer import render_raymarch
+from render_helpers import render_raymarch
 from clvol.render.ms.grid import MsGrid
 from clvol.render.ms.base import Octaves
 from clvol.scene import scene_from_dict

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from clvol.render.pathtrace import point_query, render_pathtrace
-from clvol.render.renderer import render_raymarch
+from render_helpers import render_raymarch
 from clvol.render.ms.grid import fill_ms_grid
 from clvol.scene import scene_from_dict
 

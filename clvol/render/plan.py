@@ -168,7 +168,6 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
     ``volume``: the density's facts (None: thinness and the domain are not judged, as for a
     source that never reads them); ``domain``: the network's training domain from its weight
     file (None for other sources)."""
-    from .environment import DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_RESOLUTION, has_environment
     from .raymarch import MAX_LIGHT_RESOLUTION
     o = options
     medium, light, camera = scene.medium, scene.light, scene.camera
@@ -178,47 +177,78 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
     choice = choose_source(o["ms"], medium, o, volume, domain)
     lit = is_lit(medium, light) or not shortcuts
     sim, skip = [], []
+    lobes = _sun_and_phase(medium, light, lit, shortcuts, sim, skip)
+    cls = source_class(choice.name) if lit else NoMs
+    ms = cls.plan_for(medium, camera, shortcuts, o)
+    if lit:
+        _ms_effects(ms, choice, sim, skip)
+    env = _environment(medium, light, o, shortcuts, sim, skip)
+    _emission_effects(getattr(scene, "emission", None), sim, skip)
 
-    # the sun
+    defines = dict(phase_defines(list(lobes)))
+    defines.update(LIT=int(lit), SKIP_EMPTY=int(skip_empty))
+    defines.update(ms.defines)
+    light_res = 0
+    if lit and volume is not None:
+        light_res = int(o["light_resolution"] or auto_light_resolution(volume.resolution,
+                                                                         MAX_LIGHT_RESOLUTION))
+    # the network's lattice skips points no density sample reads (shortcuts on)
+    reach = (volume.lattice_reach(o["step"]) if lit and shortcuts and volume is not None
+             and cls.name == "network" else None)
+    return FramePlan(
+        configured_source=o["ms"], source=choice.name, warning=choice.warning,
+        thin=choice.thin, lit=lit, shortcuts=shortcuts, skip_empty=skip_empty, camera=camera,
+        lobes=lobes, ms=ms, defines=defines, channels=ms.channels or 1, **env,
+        step_voxels=float(o["step"]),
+        step=float(o["step"]) * (volume.cell if volume is not None else 1.0),
+        threshold=float(o["threshold"]), light_resolution=light_res,
+        light_interp=o["light_interp"], supersample=s, lattice_reach=reach,
+        emission=getattr(scene, "emission", None) is not None, simulated=tuple(sim),
+        skipped=tuple(skip))
+
+
+def _sun_and_phase(medium, light, lit, shortcuts, sim, skip) -> tuple:
+    """The sun's effects, and the phase lobes the kernel evaluates (none: isotropic)."""
+    from .environment import has_environment
     env_on = has_environment(light)
     if lit:
         sim.append("single scattering" + (" of the sun light" if env_on else ""))
     else:
         skip.append(("sun light scattering" if env_on else "single and multiple scattering")
                     + " (albedo * irradiance = 0: no light field, no source)")
-    phase = medium.phase
-    lobes = tuple((lo.g, lo.weight) for lo in phase.lobes)
-    if shortcuts and phase.is_isotropic:
-        lobes = ()
+    if shortcuts and medium.phase.is_isotropic:
         skip.append("phase evaluation (isotropic: constant 1/(4 pi))")
+        return ()
+    return tuple((lo.g, lo.weight) for lo in medium.phase.lobes)
 
-    # multiple scattering
-    cls = source_class(choice.name) if lit else NoMs
-    ms = cls.plan_for(medium, camera, shortcuts, o)
-    if lit:
-        sim += ms.simulated
-        skip += [x for x in ms.skipped if not (choice.thin is not None and "--ms none" in x)]
-        if choice.thin is not None:
-            skip.append(f"multiple scattering (optically thin: largest optical thickness "
-                        f"{choice.thin:.3g} < {THIN_OPTICAL_THICKNESS:g}, where single "
-                        f"scattering alone measured as accurate; docs/raymarch.md)")
-    channels = ms.channels or 1
-    if ms.channels is None and lit:
+
+def _ms_effects(ms: MsPlan, choice: SourceChoice, sim, skip) -> None:
+    """The source's effects; an optically thin medium says why it has none."""
+    sim += ms.simulated
+    skip += [x for x in ms.skipped if not (choice.thin is not None and "--ms none" in x)]
+    if choice.thin is not None:
+        skip.append(f"multiple scattering (optically thin: largest optical thickness "
+                    f"{choice.thin:.3g} < {THIN_OPTICAL_THICKNESS:g}, where single "
+                    f"scattering alone measured as accurate; docs/raymarch.md)")
+    if ms.channels is None:
         skip.append("per-channel marching (albedo and irradiance are constant over the "
                     "medium: one colour-free march, colour applied once per ray)")
 
-    # the environment
-    env_dirs = int(o["env_directions"] or DEFAULT_ENV_DIRECTIONS)
-    env_res = int(o["env_resolution"] or DEFAULT_ENV_RESOLUTION)
+
+def _environment(medium, light, o, shortcuts, sim, skip) -> dict:
+    """The sky's share of the frame: whether it lights the medium, what is behind it."""
+    from .environment import DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_RESOLUTION, has_environment
+    env_on = has_environment(light)
+    dirs = int(o["env_directions"] or DEFAULT_ENV_DIRECTIONS)
+    res = int(o["env_resolution"] or DEFAULT_ENV_RESOLUTION)
     env_map = getattr(light, "environment_map", None) is not None
     sky_dark = env_on and not np.any(light.sky_mean() > 0)    # a black constant or map
-    env_scatter = env_on and ((any(a > 0 for a in medium.albedo) and not sky_dark)
-                              or not shortcuts)
-    if env_scatter:
+    scatter = env_on and ((any(a > 0 for a in medium.albedo) and not sky_dark) or not shortcuts)
+    if scatter:
         what = "the map's" if env_map else "the sky's"
-        sim.append(f"environment single scattering ({what} light from {env_dirs} "
+        sim.append(f"environment single scattering ({what} light from {dirs} "
                    f"directions, each cell's irradiance with the transmittance toward it "
-                   f"({env_res}^3 fields from the density pyramid) and the phase "
+                   f"({res}^3 fields from the density pyramid) and the phase "
                    f"function along each camera ray)")
         sim.append("environment multiple scattering (approximation: the sky light "
                    "blocked toward each direction arrives scattered, scaled by an escape "
@@ -231,37 +261,19 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
         sim.append("background (environment radiance behind the medium)")
     if env_map:
         sim.append("background (the environment map along each camera ray)")
-    background = tuple(light.environment) if light.environment is not None else (0.0, 0.0, 0.0)
     sim.append("extinction along camera rays")
-
-    # emission
-    emission = getattr(scene, "emission", None)
-    if emission is not None:
-        sim.append(f"emission ({emission.kind} grid {emission.grid!r}: sigma_a Le, sigma_a = "
-                   f"sigma_t (1 - albedo), exact along camera rays)")
-        skip.append("scattering of emitted light (the path tracer has it; measured in "
-                    "docs/raymarch.md, \"Emission\")")
-
-    defines = dict(phase_defines(list(lobes)))
-    defines.update(LIT=int(lit), SKIP_EMPTY=int(skip_empty))
-    defines.update(ms.defines)
-    cell = volume.cell if volume is not None else 1.0
-    light_res = 0
-    if lit and volume is not None:
-        light_res = int(o["light_resolution"] or auto_light_resolution(volume.resolution,
-                                                                         MAX_LIGHT_RESOLUTION))
-    network_lattice = lit and issubclass(cls, NetworkMs) and cls.name == "network"
-    reach = (volume.lattice_reach(o["step"])
-             if network_lattice and shortcuts and volume is not None else None)
-    return FramePlan(
-        configured_source=o["ms"], source=choice.name, warning=choice.warning,
-        thin=choice.thin, lit=lit, shortcuts=shortcuts, skip_empty=skip_empty, camera=camera,
-        lobes=lobes, ms=ms, defines=defines, channels=channels, background=background,
-        env_scatter=env_scatter,
+    return dict(
+        background=tuple(light.environment) if light.environment is not None else (0.0,) * 3,
+        env_scatter=scatter,
         env_background="map" if env_map else "constant" if light.environment is not None
         else "none",
-        env_directions=env_dirs, env_resolution=env_res, step_voxels=float(o["step"]),
-        step=float(o["step"]) * cell, threshold=float(o["threshold"]),
-        light_resolution=light_res, light_interp=o["light_interp"], supersample=s,
-        lattice_reach=reach, emission=emission is not None, simulated=tuple(sim),
-        skipped=tuple(skip))
+        env_directions=dirs, env_resolution=res)
+
+
+def _emission_effects(emission, sim, skip) -> None:
+    if emission is None:
+        return
+    sim.append(f"emission ({emission.kind} grid {emission.grid!r}: sigma_a Le, sigma_a = "
+               f"sigma_t (1 - albedo), exact along camera rays)")
+    skip.append("scattering of emitted light (the path tracer has it; measured in "
+                "docs/raymarch.md, \"Emission\")")

@@ -295,6 +295,12 @@ def downsample(layers: dict, s: int) -> dict:
 # --------------------------------------------------------------------------- CLI options
 
 def add_arguments(group) -> None:
+    """The ray marcher's options: its multiple-scattering source's, then the march's."""
+    _source_arguments(group)
+    _march_arguments(group)
+
+
+def _source_arguments(group) -> None:
     from .ms.network import DEFAULT_NETWORK_RESOLUTION
     from .ms import source_classes
     from .ms.view import (DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS, DEFAULT_VIEW_SAMPLES,
@@ -345,6 +351,9 @@ def add_arguments(group) -> None:
                        help="octave contribution multiplier b (default 0.5; keep b <= a)")
     group.add_argument("--ms-c", type=float, default=0.5,
                        help="octave eccentricity multiplier c (default 0.5)")
+
+
+def _march_arguments(group) -> None:
     group.add_argument("--max-order", type=int, default=None, metavar="K",
                        help="highest scattering order: 1 = single scattering only (the ray "
                             "marcher then uses --ms none); the ray marcher has no other limit")

@@ -49,11 +49,10 @@ from collections import Counter
 import numpy as np
 
 from ..errors import ClvolError
-from ..kernels.majorant import DEFAULT_BLOCK
 from ..runtime import Stopwatch, get_runtime
 from . import RenderResult
 from .options import DEFAULT_METHOD, bind, option_label
-from .raymarch import DEFAULT_STEP, DEFAULT_THRESHOLD
+
 
 
 def _check_arg(value, cls, name):
@@ -222,7 +221,7 @@ class Renderer:
         return self._sources[name]
 
     def _render_raymarch(self, cam, light, medium) -> RenderResult:
-        from .ms.base import Frame
+        from .ms.base import SourceFrame
         from .raymarch import RayMarcher, downsample
         o = self.options
         with Stopwatch() as sw_total:
@@ -240,7 +239,7 @@ class Renderer:
             plan = self.plan(cam, light, medium)
             source = self._source(plan.source)
             if plan.lit:
-                source.prepare(Frame(grid, plan.camera, light, medium, self.rt, plan.shortcuts,
+                source.prepare(SourceFrame(grid, plan.camera, light, medium, self.rt, plan.shortcuts,
                                      self._count, plan.lattice_reach, rm.dm.cache, rm.density,
                                      plan.step, plan.threshold))
             else:
@@ -313,44 +312,6 @@ class Renderer:
         if self.method == "pathtrace":
             return self._render_pathtrace(cam, light, medium, seed)
         raise ClvolError(f"render method {self.method!r} has no Renderer support")
-
-
-def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float = 0.5,
-                    b: float = 0.5, c: float = 0.5, ms_grid=None,
-                    step: float = DEFAULT_STEP, threshold: float = DEFAULT_THRESHOLD,
-                    skip_empty: bool = True, block: int = DEFAULT_BLOCK,
-                    light_resolution: int | None = None, light_interp: str = "transmittance",
-                    supersample: int = 1, shortcuts: bool = True, grid=None,
-                    runtime=None, weights=None, ms_resolution=None,
-                    domain_fallback: bool = False, view_block=None, view_knots=None,
-                    view_samples=None, seed=None):
-    """Render ``scene`` with the ray marcher in one call (a ``Renderer`` kept for one frame).
-    Returns a RenderResult with layers total, single, multiple (H, W, 3), alpha and depth
-    (H, W), and the header.
-
-    step: segment length in voxels of the density grid (smallest cell side);
-    threshold: early termination transmittance (error < threshold x the largest source
-    radiance along the ray); supersample: S x S rays per pixel on a regular sub-grid, box
-    filtered (1 = pixel centres); grid: the loaded volume (else ``scene.volume.load()``).
-    ms="network": ``weights`` (a weight file; default the shipped model) fills an F_ms
-    lattice of ``ms_resolution`` points per side for this camera and light, used even outside
-    the weights' training domain unless ``domain_fallback`` (the Renderer's default).
-    ms="view": the same network queried at ``view_knots`` depths per ``view_block`` x
-    ``view_block`` pixels of the camera's view (clvol/render/ms/view.py); ms="stochastic":
-    ``view_samples`` free-flight samples per block from the stream of ``seed``.
-    """
-    from .ms import source_classes
-    opts = dict(ms=ms, step=step, threshold=threshold, skip_empty=skip_empty,
-                majorant_block=block, light_resolution=light_resolution,
-                light_interp=light_interp, supersample=supersample, shortcuts=shortcuts)
-    per_source = dict(octaves=octaves, ms_a=a, ms_b=b, ms_c=c, ms_grid=ms_grid, weights=weights,
-                      ms_resolution=ms_resolution, domain_fallback=domain_fallback,
-                      view_block=view_block, view_knots=view_knots,
-                      view_samples=view_samples, seed=seed)
-    read = source_reads(ms) if ms in source_classes() else set()   # the source asked for
-    opts.update({k: v for k, v in per_source.items() if k in read})
-    opts = {k: v for k, v in opts.items() if v is not None}
-    return Renderer(scene, "raymarch", grid=grid, runtime=runtime, **opts).render()
 
 
 def source_reads(ms: str) -> set:

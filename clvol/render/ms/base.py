@@ -94,7 +94,7 @@ class MsPlan:
 
 
 @dataclass
-class Frame:
+class SourceFrame:
     """What a source may read to fill its data: the volume, the frame's camera, light and
     medium, the runtime, the shortcut switch, and ``count(stage)`` (recomputation counters)."""
     grid: object
@@ -132,7 +132,7 @@ class MsSource:
         ``camera`` (the marched camera) with render options ``o``."""
         return MsPlan(ms_defines("none"), skipped=[f"multiple scattering (--ms {cls.name})"])
 
-    def prepare(self, frame: Frame) -> None:
+    def prepare(self, frame: "SourceFrame") -> None:
         """Fill this source's data for the frame (nothing to do for an analytic source)."""
 
     def skip(self) -> None:
