@@ -152,7 +152,10 @@ class FramePlan:
         }
 
 
-def auto_light_resolution(resolution, cap: int) -> int:
+MAX_LIGHT_RESOLUTION = 256    # the light field's largest side (its pyramid's base)
+
+
+def auto_light_resolution(resolution, cap: int = MAX_LIGHT_RESOLUTION) -> int:
     """The light field's default resolution: four times the grid's largest side rounded up
     to a power of two, at most ``cap``. The voxelised light field is the ray marcher's main
     bias against exact single scattering (docs/raymarch.md measures it at 1x, 2x and 4x): a
@@ -168,7 +171,6 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
     ``volume``: the density's facts (None: thinness and the domain are not judged, as for a
     source that never reads them); ``domain``: the network's training domain from its weight
     file (None for other sources)."""
-    from .raymarch import MAX_LIGHT_RESOLUTION
     o = options
     medium, light, camera = scene.medium, scene.light, scene.camera
     shortcuts, skip_empty, s = bool(o["shortcuts"]), bool(o["skip_empty"]), int(o["supersample"])
@@ -190,8 +192,7 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
     defines.update(ms.defines)
     light_res = 0
     if lit and volume is not None:
-        light_res = int(o["light_resolution"] or auto_light_resolution(volume.resolution,
-                                                                         MAX_LIGHT_RESOLUTION))
+        light_res = int(o["light_resolution"] or auto_light_resolution(volume.resolution))
     # the network's lattice skips points no density sample reads (shortcuts on)
     reach = (volume.lattice_reach(o["step"]) if lit and shortcuts and volume is not None
              and cls.name == "network" else None)

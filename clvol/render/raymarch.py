@@ -26,6 +26,8 @@ from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..neural.layout import is_power_of_two
 from ..runtime import DeviceArray, get_runtime
 from .ms.base import MsSource
+from .plan import MAX_LIGHT_RESOLUTION, plan_frame
+from .plan import auto_light_resolution as plan_light_resolution
 
 # Segment length in voxels of the density grid. Half a voxel, because at one voxel the
 # single scattering alone left RMSE x100 0.54-0.85 against the path tracer on dense scenes
@@ -33,7 +35,6 @@ from .ms.base import MsSource
 # with the 4x light field below (docs/raymarch.md, "Step and light field").
 DEFAULT_STEP = 0.5
 DEFAULT_THRESHOLD = 1e-3   # early termination when T_cam falls below this
-MAX_LIGHT_RESOLUTION = 256
 MAX_SUPERSAMPLE = 8
 
 
@@ -74,8 +75,7 @@ def check_env_options(env_directions, env_resolution) -> None:
 
 def auto_light_resolution(grid) -> int:
     """The light field's default resolution for ``grid`` (clvol/render/plan.py decides it)."""
-    from .plan import auto_light_resolution as rule
-    return rule(grid.resolution, MAX_LIGHT_RESOLUTION)
+    return plan_light_resolution(grid.resolution)
 
 
 class RayMarcher:
@@ -215,7 +215,6 @@ class RayMarcher:
         default): the benchmarks' and tests' short form of plan_frame + march."""
         from ..scene import Scene
         from .options import bind
-        from .plan import plan_frame
         o = bind("raymarch", dict(options, ms=ms))
         scene = Scene(path=None, volume=None, medium=self.medium, light=light, camera=camera)
         plan = plan_frame(scene, o)
