@@ -165,9 +165,7 @@ __kernel void bake_xpass(__global const float *tlev, const int src_off, const in
 /* One level with n >= 16: a work-item bakes span = min(n, BAKE_SPAN) consecutive x of row
  * (y, z) as span / 16 float16 chunks, so the per-level row set-up is shared by up to four
  * chunks. xoff[m]: offset of X_m in xbuf (m > lvl). */
-#ifndef BAKE_SPAN
-#define BAKE_SPAN 64
-#endif
+#include "constants.h"   /* BAKE_SPAN */
 __kernel void bake_rows(__global const float *dens, __global const float *tlev,
                         __global const float *xbuf, __global const int *loff,
                         __global const int *xoff, const int L, const int n0, const int lvl,

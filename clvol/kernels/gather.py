@@ -30,6 +30,7 @@ from ..errors import ClvolError
 from ..neural import layout
 from ..neural.phasetable import N_ALPHA, phase_feature_table, volume_phase
 from ..neural.templates import load_templates
+from .constants import kernel_constant
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
 from .pyramid import Pyramid
@@ -103,7 +104,7 @@ class BakedGrid:
 
 GATHER_LOCAL = 64         # work-items per group of the gather on CPU devices (see its launch)
 MIN_ROW_LEVEL = 16        # levels at least this wide are baked by rows of 16 (bake_rows)
-BAKE_SPAN = 64            # voxels of a row per bake_rows work-item (cl/gather.cl BAKE_SPAN)
+BAKE_SPAN = kernel_constant("BAKE_SPAN")   # voxels of a row per bake_rows work-item
 MAX_RENDER_FLOATS = 2**31 - 1   # the render kernel indexes the (tau, C) pairs with int
 BAKE_PAD = 8
 

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
+from .constants import kernel_constant
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
 
@@ -17,9 +18,9 @@ from .phase import lobe_vectors, phase_defines
 # table, is clvol/render/ms/__init__.py SOURCES).
 MS_SOURCE_DEFINES = {"none": 0, "wrenninge": 1, "grid": 2, "view": 3}
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
-MAX_OCTAVES = 8
-MAX_VIEW_K = 16  # knots per block of the view-space table (cl/viewdepth.cl's limit)
-TILE = 4  # pixels per side of the tile one work-item marches (16 float16 lanes)
+MAX_OCTAVES = kernel_constant("MS_MAX_OCTAVES")
+MAX_VIEW_K = kernel_constant("VIEW_MAX_K")  # knots per block of the view-space table
+TILE = kernel_constant("TILE")  # pixels per side of the tile one work-item marches (16 lanes)
 LOCAL_SIZE = 16  # tiles per work-group
 LAYERS = (("total", 3), ("single", 3), ("multiple", 3), ("alpha", 1), ("depth", 1))
 
