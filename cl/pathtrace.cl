@@ -182,7 +182,7 @@ typedef pt_rgb spec_t;
  * reads its own Philox stream in the documented order and writes its own output row:
  * which lane or work-item ran it changes nothing. */
 #ifndef PT_LANES
-#define PT_LANES 8
+#error "pathtrace.cl needs -D PT_LANES (clvol/kernels/pathtrace.py RENDER_LANES, QUERY_LANES)"
 #endif
 #if PT_LANES != 8 && PT_LANES != 16
 #error "PT_LANES must be 8 or 16"

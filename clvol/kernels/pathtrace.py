@@ -313,7 +313,8 @@ def env_sample_test(tables, u, runtime=None) -> np.ndarray:
     rt = runtime or get_runtime()
     u = np.ascontiguousarray(u, np.float32).reshape(-1, 2)
     n = len(u)
-    program = rt.program("pathtrace", {"PT_ENVMAP": 1, **kphase.phase_defines([])})
+    program = rt.program("pathtrace", {"PT_LANES": RENDER_LANES, "PT_ENVMAP": 1,
+                                       **kphase.phase_defines([])})
     out = rt.empty((max(n, 1), 8))
     k = program.kernel("pt_env_sample_test", _ENV_TEST_DTYPES)
     rt.launch(k, max(n, 1), PathTracer.env_args(rt, tables) + (rt.to_device(u), np.int32(n), out))
