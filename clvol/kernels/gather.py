@@ -251,16 +251,17 @@ def config_vectors(medium, channel_albedo, omegas, light_dir) -> np.ndarray:
     """[N][CONFIG_DIM] per clvol.neural.layout.CONFIG_FIELDS."""
     n = len(omegas)
     lobes = _lobes(medium)
+    at = layout.CONFIG_FIELDS.index
     cfg = np.zeros((n, layout.CONFIG_DIM), np.float32)
     for k, (g, w) in enumerate(lobes):
-        cfg[:, k], cfg[:, 3 + k] = g, w
-    cfg[:, 6] = sum(g * w for g, w in lobes)
+        cfg[:, at(f"g{k}")], cfg[:, at(f"w{k}")] = g, w
+    cfg[:, at("g_mean")] = sum(g * w for g, w in lobes)
     alb = np.broadcast_to(np.asarray(channel_albedo, np.float64), (n,))
     if not (np.all(np.isfinite(alb)) and np.all(alb >= 0) and np.all(alb <= 1)):
         raise GatherError(f"channel_albedo must be in [0, 1], got {np.asarray(channel_albedo)!r}")
-    cfg[:, 7] = alb
+    cfg[:, at("albedo")] = alb
     mu = np.clip(-(np.asarray(omegas, np.float64) @ np.asarray(light_dir, np.float64)), -1.0, 1.0)
-    cfg[:, 8] = np.arccos(mu)
+    cfg[:, at("alpha")] = np.arccos(mu)
     return cfg
 
 
