@@ -94,6 +94,10 @@
 #ifndef LIT
 #define LIT 1
 #endif
+/* MS_SOURCE selects code inside the one march rather than separate kernels: the sources
+ * differ in the F_ms lookup at a segment's source point (and its set-up per ray), while the
+ * march around it (quadrature, single scattering, skipping, environment, emission, outputs)
+ * is the same for all; entry points per source would repeat that loop four times. */
 #ifndef MS_SOURCE
 #define MS_SOURCE 1
 #endif
