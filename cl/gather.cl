@@ -55,6 +55,61 @@
  */
 #include "gather_core.h"   /* the device functions, shared with cl/gather_mlp.cl */
 
+#ifndef GATHER_RENDER
+/* Train mode, one chunk of template points: the density feature at the points' level
+ * (transmittance feature 0: the model combines the levels) and every graded level m sampled
+ * at that level's voxel centres around the points, with the density's trilinear weights. */
+__attribute__((always_inline))
+void gather_train_chunk(__global const float *dens, __global const float *tlev,
+                        __global const float *taufac, __global const int *loff, const int L,
+                        const int n0, const int c, const i16 lvl, const i16 n, const i16 off,
+                        const i16 inside, const v16 gx, const v16 gy, const v16 gz,
+                        __global float *o, __global float *lv) {
+    const i16 nm1 = n - (i16)(1);
+    const i16 x0 = convert_int16(gx), y0 = convert_int16(gy), z0 = convert_int16(gz);
+    const i16 x1 = min(x0 + (i16)(1), nm1), y1 = min(y0 + (i16)(1), nm1);
+    const i16 z1 = min(z0 + (i16)(1), nm1);
+    const v16 wx = gx - convert_float16(x0), wy = gy - convert_float16(y0);
+    const v16 wz = gz - convert_float16(z0);
+    {
+        const i16 r00 = off + (z0 * n + y0) * n, r01 = off + (z0 * n + y1) * n;
+        const i16 r10 = off + (z1 * n + y0) * n, r11 = off + (z1 * n + y1) * n;
+        const v16 d00 = mix(gather16(dens, r00 + x0), gather16(dens, r00 + x1), wx);
+        const v16 d01 = mix(gather16(dens, r01 + x0), gather16(dens, r01 + x1), wx);
+        const v16 d10 = mix(gather16(dens, r10 + x0), gather16(dens, r10 + x1), wx);
+        const v16 d11 = mix(gather16(dens, r11 + x0), gather16(dens, r11 + x1), wx);
+        const v16 rho = mix(mix(d00, d01, wy), mix(d10, d11, wy), wz);
+        const v16 tau = rho * gather16(taufac, lvl);
+        store_chunk(o, c, log1p(select((v16)(0.0f), tau, inside)));
+        store_chunk(o + NP, c, (v16)(0.0f));
+    }
+    /* Every graded level m, sampled at level lvl's centres around s (trilinear weights).
+     * Level-lvl centre i sits at level-m coordinate (i + 0.5) nm / n - 0.5 (exact ratio). */
+    const v16 cx0 = convert_float16(x0) + 0.5f, cx1 = convert_float16(x1) + 0.5f;
+    const v16 cy0 = convert_float16(y0) + 0.5f, cy1 = convert_float16(y1) + 0.5f;
+    const v16 cz0 = convert_float16(z0) + 0.5f, cz1 = convert_float16(z1) + 0.5f;
+    const v16 nf = convert_float16(n);
+    for (int m = 0; m < L; ++m) {
+        const int nmi = n0 >> m;
+        __global const float *tm = tlev + loff[m];
+        const v16 r = (float)nmi / nf;
+        const v16 ax0 = cx0 * r - 0.5f, ax1 = cx1 * r - 0.5f;
+        const v16 ay0 = cy0 * r - 0.5f, ay1 = cy1 * r - 0.5f;
+        const v16 az0 = cz0 * r - 0.5f, az1 = cz1 * r - 0.5f;
+        const v16 e00 = mix(lookup16(tm, nmi, ax0, ay0, az0), lookup16(tm, nmi, ax1, ay0, az0), wx);
+        const v16 e01 = mix(lookup16(tm, nmi, ax0, ay1, az0), lookup16(tm, nmi, ax1, ay1, az0), wx);
+        const v16 e10 = mix(lookup16(tm, nmi, ax0, ay0, az1), lookup16(tm, nmi, ax1, ay0, az1), wx);
+        const v16 e11 = mix(lookup16(tm, nmi, ax0, ay1, az1), lookup16(tm, nmi, ax1, ay1, az1), wx);
+        const v16 val = mix(mix(e00, e01, wy), mix(e10, e11, wy), wz);
+        store_chunk(lv + (size_t)m * NP, c, select((v16)(1.0f), val, inside));
+    }
+}
+#endif
+
+/* One entry point for both modes (-D GATHER_RENDER: render): they share the query set-up,
+ * the template points, the phase and t_enter, and differ in one step per chunk (the baked
+ * grid's lookup or the train chunk above); the hosts (Python, the C host, the goldens) launch
+ * both with the same arguments. */
 __kernel void gather(__global const float *dens, __global const float *tlev,
                      __global const float *baked, __global const int *loff, const int L,
                      const int n0, const float4 cmin4, const float csize,
@@ -91,44 +146,8 @@ __kernel void gather(__global const float *dens, __global const float *tlev,
         store_chunk(o, c, fd);
         store_chunk(o + NP, c, ft);
 #else
-        const i16 nm1 = n - (i16)(1);
-        const i16 x0 = convert_int16(gx), y0 = convert_int16(gy), z0 = convert_int16(gz);
-        const i16 x1 = min(x0 + (i16)(1), nm1), y1 = min(y0 + (i16)(1), nm1);
-        const i16 z1 = min(z0 + (i16)(1), nm1);
-        const v16 wx = gx - convert_float16(x0), wy = gy - convert_float16(y0);
-        const v16 wz = gz - convert_float16(z0);
-        {
-            const i16 r00 = off + (z0 * n + y0) * n, r01 = off + (z0 * n + y1) * n;
-            const i16 r10 = off + (z1 * n + y0) * n, r11 = off + (z1 * n + y1) * n;
-            const v16 d00 = mix(gather16(dens, r00 + x0), gather16(dens, r00 + x1), wx);
-            const v16 d01 = mix(gather16(dens, r01 + x0), gather16(dens, r01 + x1), wx);
-            const v16 d10 = mix(gather16(dens, r10 + x0), gather16(dens, r10 + x1), wx);
-            const v16 d11 = mix(gather16(dens, r11 + x0), gather16(dens, r11 + x1), wx);
-            const v16 rho = mix(mix(d00, d01, wy), mix(d10, d11, wy), wz);
-            const v16 tau = rho * gather16(taufac, lvl);
-            store_chunk(o, c, log1p(select((v16)(0.0f), tau, inside)));
-            store_chunk(o + NP, c, (v16)(0.0f));
-        }
-        /* Every graded level m, sampled at level lvl's centres around s (trilinear weights).
-         * Level-lvl centre i sits at level-m coordinate (i + 0.5) nm / n - 0.5 (exact ratio). */
-        const v16 cx0 = convert_float16(x0) + 0.5f, cx1 = convert_float16(x1) + 0.5f;
-        const v16 cy0 = convert_float16(y0) + 0.5f, cy1 = convert_float16(y1) + 0.5f;
-        const v16 cz0 = convert_float16(z0) + 0.5f, cz1 = convert_float16(z1) + 0.5f;
-        const v16 nf = convert_float16(n);
-        for (int m = 0; m < L; ++m) {
-            const int nmi = n0 >> m;
-            __global const float *tm = tlev + loff[m];
-            const v16 r = (float)nmi / nf;
-            const v16 ax0 = cx0 * r - 0.5f, ax1 = cx1 * r - 0.5f;
-            const v16 ay0 = cy0 * r - 0.5f, ay1 = cy1 * r - 0.5f;
-            const v16 az0 = cz0 * r - 0.5f, az1 = cz1 * r - 0.5f;
-            const v16 e00 = mix(lookup16(tm, nmi, ax0, ay0, az0), lookup16(tm, nmi, ax1, ay0, az0), wx);
-            const v16 e01 = mix(lookup16(tm, nmi, ax0, ay1, az0), lookup16(tm, nmi, ax1, ay1, az0), wx);
-            const v16 e10 = mix(lookup16(tm, nmi, ax0, ay0, az1), lookup16(tm, nmi, ax1, ay0, az1), wx);
-            const v16 e11 = mix(lookup16(tm, nmi, ax0, ay1, az1), lookup16(tm, nmi, ax1, ay1, az1), wx);
-            const v16 val = mix(mix(e00, e01, wy), mix(e10, e11, wy), wz);
-            store_chunk(lv + (size_t)m * NP, c, select((v16)(1.0f), val, inside));
-        }
+        gather_train_chunk(dens, tlev, taufac, loff, L, n0, c, lvl, n, off, inside, gx, gy, gz,
+                           o, lv);
 #endif
         store_chunk(o + 2 * NP, c, gather_phase_chunk(&s, c, ptab));
     }
@@ -165,9 +184,7 @@ __kernel void bake_xpass(__global const float *tlev, const int src_off, const in
 /* One level with n >= 16: a work-item bakes span = min(n, BAKE_SPAN) consecutive x of row
  * (y, z) as span / 16 float16 chunks, so the per-level row set-up is shared by up to four
  * chunks. xoff[m]: offset of X_m in xbuf (m > lvl). */
-#ifndef BAKE_SPAN
-#define BAKE_SPAN 64
-#endif
+#include "constants.h"   /* BAKE_SPAN */
 __kernel void bake_rows(__global const float *dens, __global const float *tlev,
                         __global const float *xbuf, __global const int *loff,
                         __global const int *xoff, const int L, const int n0, const int lvl,

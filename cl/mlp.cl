@@ -25,7 +25,9 @@
  *
  * Defines (set by the wrapper from the Architecture): N_LAYERS, N_DIFFUSE, LAYER_COUNTS (comma
  * list), N_POINTS, SE_HIDDEN, MODULE_WIDTH, HEAD_DEPTH, HEAD_WIDTHS (comma list), MAXW (largest
- * padded width), MLP_CHANNELS (1 or 3), MLP_DECODE (0/1). gamma is 4 (the weight format's).
+ * padded width), MLP_CHANNELS (1 or 3), MLP_DECODE (0/1); and the contract's numbers that
+ * cl/include/mlp_core.h lists (CONFIG_DIM, CFG_*, N_TYPES, SQUEEZE, MLP_GAMMA = 4, the weight
+ * format's, and MLP_ALBEDO_EPS).
  * Optional (the host sets both on PoCL): MLP_TRANSPOSE16 (feature rows read contiguously and
  * transposed in registers instead of per-lane loads; Clang), MLP_PREFETCH (software prefetch of
  * the rows; Clang).
@@ -41,11 +43,11 @@
 __kernel void mlp_forward(__global const float *features, __global const float *config,
                           __global const float *params, const float4 channel_albedo,
                           const int n, __global float *out) {
-    const int q0 = get_global_id(0) * 16;
+    const int q0 = get_global_id(0) * MLP_QUERIES_PER_ITEM;
     if (q0 >= n) return;
 
-    int foff[16], coff[16], dst[16];
-    for (int j = 0; j < 16; ++j) {
+    int foff[MLP_QUERIES_PER_ITEM], coff[MLP_QUERIES_PER_ITEM], dst[MLP_QUERIES_PER_ITEM];
+    for (int j = 0; j < MLP_QUERIES_PER_ITEM; ++j) {
         const int q = min(q0 + j, n - 1);  // tail lanes recompute the last query, never stored
         foff[j] = q * (N_TYPES * N_POINTS);
         coff[j] = q * CONFIG_DIM;
@@ -55,5 +57,5 @@ __kernel void mlp_forward(__global const float *features, __global const float *
     mlp_config(config, coff, params, cfg, &albedo_cfg);
     V x[N_TYPES * N_POINTS];
     load_features(features, foff, x);
-    mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, min(16, n - q0));
+    mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, min(MLP_QUERIES_PER_ITEM, n - q0));
 }

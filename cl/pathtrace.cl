@@ -85,6 +85,7 @@
 #include "phase.h"
 #include "majorant.h"
 #include "lanes.h"
+#include "constants.h"   /* PT_OUT_*, PT_ORDER_* */
 
 #ifndef PT_RR_START
 #define PT_RR_START 8
@@ -94,9 +95,11 @@
 #endif
 /* Ratio-tracking roulette threshold: below it, T survives with probability T / PT_T_RR. */
 #define PT_T_RR 0.1f
+/* The row: PT_OUT floats (constants.h), of which the first PT_ACC are accumulated (all but
+ * vertices, steps, truncated): background, order 1, orders >= 2 (then emission unscattered,
+ * scattered). */
 #ifdef PT_EMISSION
-#define PT_OUT 18
-#define PT_ACC 15     /* background, order 1, orders >= 2, emission unscattered, scattered */
+#define PT_OUT PT_OUT_EMISSION
 #ifndef PT_EMISSION_CHANNELS
 #define PT_EMISSION_CHANNELS 1
 #endif
@@ -107,9 +110,9 @@
 #error "PT_ORDER_BINS bins the sun's light per order: point queries have no emission"
 #endif
 #else
-#define PT_OUT 12
-#define PT_ACC 9
+#define PT_OUT PT_OUT_NO_EMISSION
 #endif
+#define PT_ACC (PT_OUT - 3)
 
 /* Per-order point queries (-D PT_ORDER_BINS, grey, sun only; docs/pathtrace.md "Labels per
  * scattering order"): every sun NEE of vertex k >= 2 adds its value v to bin b(e) of its
@@ -119,11 +122,11 @@
  * (integer arithmetic, so the host and the twin compute the same bins). Row: PT_OUT floats,
  * then PT_ORDER_BINS sums, then PT_ORDER_BINS first moments. */
 #ifdef PT_ORDER_BINS
-#define PT_ORDER_EXACT 32     /* a power of two: exponents 1..31 exact */
-#define PT_ORDER_EXACT_LOG2 5
-#define PT_ORDER_SUB 8
-#if PT_ORDER_BINS != (PT_ORDER_EXACT - 1 + (17 - PT_ORDER_EXACT_LOG2) * PT_ORDER_SUB)
-#error "PT_ORDER_BINS must cover exponents up to 2^17 - 1 > PT_MAX_VERTICES"
+#if PT_ORDER_EXACT != (1 << PT_ORDER_EXACT_LOG2)
+#error "PT_ORDER_EXACT must be 2^PT_ORDER_EXACT_LOG2"
+#endif
+#if PT_ORDER_BINS != (PT_ORDER_EXACT - 1 + (PT_ORDER_END_LOG2 - PT_ORDER_EXACT_LOG2) * PT_ORDER_SUB)
+#error "PT_ORDER_BINS must cover exponents up to 2^PT_ORDER_END_LOG2 - 1 > PT_MAX_VERTICES"
 #endif
 #if defined(PT_ENV) || defined(PT_ENVMAP)
 #error "PT_ORDER_BINS bins the sun's contributions only: no environment (labels are per unit sun)"
@@ -179,7 +182,7 @@ typedef pt_rgb spec_t;
  * reads its own Philox stream in the documented order and writes its own output row:
  * which lane or work-item ran it changes nothing. */
 #ifndef PT_LANES
-#define PT_LANES 8
+#error "pathtrace.cl needs -D PT_LANES (clvol/kernels/pathtrace.py RENDER_LANES, QUERY_LANES)"
 #endif
 #if PT_LANES != 8 && PT_LANES != 16
 #error "PT_LANES must be 8 or 16"

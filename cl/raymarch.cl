@@ -24,7 +24,7 @@
  *   MS_SOURCE 0|1|2|3  0 none; 1 Wrenninge octaves sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i);
  *                    2 trilinear lookup in a precomputed grid of F_ms; 3 the view-space table
  *                    (F_ms at VIEW_K depths per block of VIEW_BLOCK^2 pixels, see below)
- *   MS_OCTAVES N     octaves of source 1 (N = 1: none beyond F_1); at most 8
+ *   MS_OCTAVES N     octaves of source 1 (N = 1: none beyond F_1); at most MS_MAX_OCTAVES (constants.h)
  *   MS_CHANNELS 1|3  planes of F_ms in the source-2 grid or source-3 table (1 when albedo is
  *                    grey: F_ms is then grey)
  *   VIEW_K, VIEW_BLOCK  source 3: knots per block, block side in pixels
@@ -94,6 +94,10 @@
 #ifndef LIT
 #define LIT 1
 #endif
+/* MS_SOURCE selects code inside the one march rather than separate kernels: the sources
+ * differ in the F_ms lookup at a segment's source point (and its set-up per ray), while the
+ * march around it (quadrature, single scattering, skipping, environment, emission, outputs)
+ * is the same for all; entry points per source would repeat that loop four times. */
 #ifndef MS_SOURCE
 #define MS_SOURCE 1
 #endif
@@ -140,11 +144,14 @@
 #error "EMISSION_CHANNELS must be 1 or 3"
 #endif
 
-#if MS_OCTAVES < 1 || MS_OCTAVES > 8
-#error "MS_OCTAVES must be 1..8"
+#include "constants.h"   /* TILE, MS_MAX_OCTAVES */
+#if MS_OCTAVES < 1 || MS_OCTAVES > MS_MAX_OCTAVES
+#error "MS_OCTAVES must be 1..MS_MAX_OCTAVES"
 #endif
 
-#define TILE 4
+#if TILE != 4
+#error "the lane pattern of raymarch() (px, py) is written for 4 x 4 tiles"
+#endif
 #ifndef SKIP_PASSES
 #define SKIP_PASSES 4
 #endif

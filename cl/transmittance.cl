@@ -129,12 +129,9 @@ typedef int veci;
  * rows are contiguous along u whatever the light's axis. The column work-items of a block
  * reach up to 16 voxels beyond the level laterally (15 steps of drift) plus their 15 extra
  * lanes on the u side: hence the padding. */
-#define SWEEP_PAD 17
+#include "constants.h"                     /* SWEEP_PAD, SWEEP_BLOCK (sweep steps per launch) */
 #define SWEEP_RS(n) ((n) + 3 * SWEEP_PAD)      /* row length (u) */
 #define SWEEP_RV(n) ((n) + 2 * SWEEP_PAD + 1)  /* rows per plane (v) */
-#ifndef SWEEP_BLOCK
-#define SWEEP_BLOCK 16                         /* sweep steps per launch */
-#endif
 
 __kernel void sweep_layout(__global const float *pyr, const int off, const int n, const int a,
                            __global float *S, const int s_off) {

@@ -28,22 +28,24 @@
  * Global size: bx * by work-items (guarded), bx = ceil(width / VIEW_BLOCK).
  */
 #include "grid.h"
+#include "constants.h"   /* VIEW_MAX_K, VIEW_MAX_RAYS */
 
+/* The host passes them (clvol/kernels/viewdepth.py, from the source's options). */
 #ifndef VIEW_K
-#define VIEW_K 4
+#error "viewdepth.cl needs -D VIEW_K (clvol/kernels/viewdepth.py)"
 #endif
 #ifndef VIEW_BLOCK
-#define VIEW_BLOCK 4
+#error "viewdepth.cl needs -D VIEW_BLOCK (clvol/kernels/viewdepth.py)"
 #endif
 #ifndef VIEW_RAYS
-#define VIEW_RAYS 2
+#error "viewdepth.cl needs -D VIEW_RAYS (clvol/kernels/viewdepth.py)"
 #endif
 #define VIEW_R2 (VIEW_RAYS * VIEW_RAYS)
 #define VIEW_EMPTY_WEIGHT 1e-5f
 #define VIEW_MIN_LEVEL 1e-6f
 
-#if VIEW_K < 1 || VIEW_K > 16 || VIEW_RAYS < 1 || VIEW_RAYS > 4
-#error "VIEW_K must be 1..16 and VIEW_RAYS 1..4"
+#if VIEW_K < 1 || VIEW_K > VIEW_MAX_K || VIEW_RAYS < 1 || VIEW_RAYS > VIEW_MAX_RAYS
+#error "VIEW_K must be 1..VIEW_MAX_K and VIEW_RAYS 1..VIEW_MAX_RAYS"
 #endif
 #if defined(VIEW_FREE_FLIGHT) && (VIEW_K != 1 || VIEW_RAYS != 1 || !defined(VIEW_JITTER))
 #error "VIEW_FREE_FLIGHT draws one depth on one jittered ray: VIEW_K 1, VIEW_RAYS 1, VIEW_JITTER"

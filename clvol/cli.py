@@ -327,17 +327,25 @@ def add_dataset_make_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .render import METHODS, available_methods
-    from .render.options import add_cli_arguments
+    """The ``clvol`` command line: one sub-command per task, each added by its own function
+    (in the order ``clvol --help`` lists them)."""
     parser = argparse.ArgumentParser(
         prog="clvol",
         description="Render participating media with multiple scattering on any OpenCL device.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add in (_add_info, _add_volume, _add_render, _add_view, _add_bundle_and_goldens,
+                _add_compare, _add_dataset):
+        add(sub)
+    return parser
 
+
+def _add_info(sub) -> None:
     p = sub.add_parser("info", help="list OpenCL platforms and devices, and which one is chosen")
     p.add_argument("--device", help="device spec to try: P:D, gpu, cpu or a name substring")
     p.set_defaults(func=_cmd_info)
 
+
+def _add_volume(sub) -> None:
     pv = sub.add_parser("volume", help="inspect, generate and convert density grids")
     vsub = pv.add_subparsers(dest="volume_command", required=True, metavar="ACTION")
     p = vsub.add_parser("info", help="resolution, bbox, density range, occupancy, optical thickness")
@@ -365,6 +373,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=".vdb input: box-filter while reading to at most N voxels per axis")
     p.set_defaults(func=_cmd_volume_convert)
 
+
+def _add_render(sub) -> None:
+    from .render import METHODS, available_methods
+    from .render.options import add_cli_arguments
     methods = "; ".join(f"{k}: {v[1]}" for k, v in METHODS.items())
     p = sub.add_parser("render", help="render a scene to EXR", description=f"Methods: {methods}.")
     p.add_argument("scene", help="scene .toml file")
@@ -372,16 +384,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="render method (default: raymarch, with the network's multiple "
                         "scattering: the paper's method)")
     p.add_argument("-o", "--output", required=True, help="output .exr")
-    p.add_argument("--png", nargs="?", const="", default=None, metavar="FILE",
-                   help="also write a tonemapped PNG preview (default: next to the EXR)")
-    p.add_argument("--exposure", default=None, metavar="STOPS|image|scene",
-                   help="preview exposure: a number of stops; 'image' (the default: chosen from "
-                        "the image so its bright parts sit below white); or 'scene' (from the "
-                        "light only, so a dark medium looks dark: docs/scenes.md, 'Previews'). "
-                        "The EXR's pixels are never changed")
-    p.add_argument("--tone", choices=["filmic", "linear"], default=None,
-                   help="preview tone curve: filmic (default; highlights roll off) or linear "
-                        "(clamp to [0, 1], then sRGB)")
+    _add_preview_arguments(p)
     p.add_argument("--device", help="OpenCL device: P:D, gpu, cpu or a name substring")
     p.add_argument("--profile", action="store_true", help="print per-kernel device times")
     p.add_argument("--width", type=int, default=None, help="override the camera's width")
@@ -396,6 +399,22 @@ def build_parser() -> argparse.ArgumentParser:
     add_cli_arguments(p, list(available_methods()))
     p.set_defaults(func=_cmd_render)
 
+
+def _add_preview_arguments(p) -> None:
+    """The PNG preview's options of ``clvol render`` (the EXR is never changed by them)."""
+    p.add_argument("--png", nargs="?", const="", default=None, metavar="FILE",
+                   help="also write a tonemapped PNG preview (default: next to the EXR)")
+    p.add_argument("--exposure", default=None, metavar="STOPS|image|scene",
+                   help="preview exposure: a number of stops; 'image' (the default: chosen from "
+                        "the image so its bright parts sit below white); or 'scene' (from the "
+                        "light only, so a dark medium looks dark: docs/scenes.md, 'Previews'). "
+                        "The EXR's pixels are never changed")
+    p.add_argument("--tone", choices=["filmic", "linear"], default=None,
+                   help="preview tone curve: filmic (default; highlights roll off) or linear "
+                        "(clamp to [0, 1], then sRGB)")
+
+
+def _add_view(sub) -> None:
     p = sub.add_parser("view", help="interactive viewer in the browser (served on 127.0.0.1)")
     p.add_argument("scene", help="scene .toml file")
     p.add_argument("--port", type=int, default=8765, help="port (default 8765; 0 = any free port)")
@@ -408,6 +427,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_view)
 
 
+def _add_bundle_and_goldens(sub) -> None:
+    """The two commands for hosts in other languages (docs/embedding.md)."""
     from . import bundle, goldens
     p = sub.add_parser("bundle", help="write what a C host needs to render a scene "
                                       "(docs/embedding.md)")
@@ -418,12 +439,16 @@ def build_parser() -> argparse.ArgumentParser:
     goldens.add_arguments(p)
     p.set_defaults(func=goldens.run)
 
+
+def _add_compare(sub) -> None:
     p = sub.add_parser("compare", help="error metrics of a test image against a reference")
     p.add_argument("test", help="test .exr or .pfm (the C demo's output)")
     p.add_argument("reference", help="reference .exr or .pfm")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_compare)
 
+
+def _add_dataset(sub) -> None:
     pd = sub.add_parser("dataset", help="training data for the network")
     dsub = pd.add_subparsers(dest="dataset_command", required=True, metavar="ACTION")
     p = dsub.add_parser(
@@ -433,7 +458,6 @@ def build_parser() -> argparse.ArgumentParser:
                     "spec.json must match the options.")
     add_dataset_make_arguments(p)
     p.set_defaults(func=_cmd_dataset_make)
-    return parser
 
 
 def main(argv: list[str] | None = None) -> int:

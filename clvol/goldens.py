@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -125,23 +126,39 @@ class _Levels:
 
 
 def write_goldens(out_dir) -> Path:
-    from .kernels import gather as kg
-    from .kernels import mlp as km
-    from .kernels.phase import lobe_vectors, phase_defines
-    from .neural import layout
-    from .neural.export import load_weights
-    from .render.ms.network import shipped_weights
-    from .runtime import DEFAULT_PAD, cl_source_dir, include_dir
+    """Write the golden folder of every kernel (module docstring) under ``out_dir``, and a copy
+    of the kernel sources. All inputs come from one seeded generator, drawn kernel by kernel
+    in this order, so every run writes the same files."""
     rgather, rmajorant, rmlp, rpyramid, rtrans = _reference()
     root = Path(out_dir)
+    _copy_sources(root)
+    rng = np.random.default_rng(20261123)
+    _mlp_golden(root, rng, rmlp)
+    case = _GatherCase.draw(rng, rgather, rpyramid)
+    _gather_golden(root, case, rgather)
+    _bake_golden(root, case)
+    _pyramid_golden(root, rng, rpyramid)
+    _majorant_golden(root, rng, rmajorant)
+    _transmittance_golden(root, rng, rtrans)
+    return root
+
+
+def _copy_sources(root: Path) -> None:
+    """DIR/cl/: the kernel sources and headers the goldens' programs build."""
+    from .runtime import cl_source_dir, include_dir
     (root / "cl" / "include").mkdir(parents=True, exist_ok=True)
     for p in cl_source_dir().glob("*.cl"):
         shutil.copyfile(p, root / "cl" / p.name)
     for p in include_dir().glob("*.h"):
         shutil.copyfile(p, root / "cl" / "include" / p.name)
-    rng = np.random.default_rng(20261123)
 
-    # ---- mlp: the shipped network on 37 queries (two full work-items and a tail of 5)
+
+def _mlp_golden(root: Path, rng, rmlp) -> None:
+    """The shipped network on 37 queries (two full work-items and a tail of 5)."""
+    from .kernels import mlp as km
+    from .neural import layout
+    from .neural.export import load_weights
+    from .render.ms.network import shipped_weights
     w = load_weights(shipped_weights())
     arch = w.arch
     k = _Kernel(root, "mlp", "mlp", "mlp_forward",
@@ -175,44 +192,71 @@ def write_goldens(out_dir) -> Path:
                 "(tests/test_mlp.py)")
     k.write()
 
-    # ---- gather (render mode) and its bake, on a 64^3 pyramid (the shipped weights' base, so
-    # the programs are the ones a bundle builds) with an empty slab
-    base = 64
-    d0 = _density(rng, (base, base, base), 1.5, np.s_[:, :, :24])
-    cube_min, cube_size = np.array([-0.5, -0.4, -0.6]), 1.2
-    pyr = _Levels(d0, cube_min, cube_size, rpyramid)
-    L = pyr.n_levels
-    graded = rng.uniform(0.05, 1.0, pyr.data.size).astype(np.float32)   # any T field will do
-    lw = rng.uniform(-0.3, 0.6, L).astype(np.float32)
-    bias = np.float32(0.05)
-    scale = 7.0
-    light = _unit([0.3, 0.8, -0.5])
-    lobes = ((0.6, 0.8), (-0.2, 0.2))
-    n = 29
-    pts = rng.uniform(-0.8, 0.8, (n, 3)).astype(np.float32)              # some outside the cube
-    om = _unit(rng.normal(size=(n, 3)))
-    om[0] = -light                                    # omega antiparallel to l: frame fallback
-    om[1] = light
-    om = om.astype(np.float32)
-    baked_levels = rgather.baked_grid(pyr, graded, scale, lw.astype(np.float64), float(bias))
-    baked = np.concatenate([np.stack([t, cc], -1).ravel() for t, cc in baked_levels]
-                           + [np.zeros(kg.BAKE_PAD)]).astype(np.float32)
-    want = rgather.gather(pyr, graded, pts, om, light, lobes, scale, mode="render",
-                          level_weights=lw.astype(np.float64), bias=float(bias))
-    tpl, pinfo, hl = kg.template_arrays(base)
-    ptab = kg._phase_table_padded(lobes)
-    g4, w4 = lobe_vectors(lobes)
+
+@dataclass
+class _GatherCase:
+    """The inputs the gather and bake goldens share: a 64^3 pyramid (the shipped weights'
+    base, so the programs are the ones a bundle builds) with an empty slab, any T field, level
+    weights and bias, the medium, and 29 queries (some outside the cube, two with omega along
+    +-l: the frame's fallback), with the twin's baked grid."""
+    base: int
+    pyr: _Levels
+    graded: np.ndarray
+    lw: np.ndarray
+    bias: np.float32
+    scale: float
+    light: np.ndarray
+    lobes: tuple
+    pts: np.ndarray
+    om: np.ndarray
+    baked: np.ndarray
+
+    @classmethod
+    def draw(cls, rng, rgather, rpyramid) -> "_GatherCase":
+        from .kernels import gather as kg
+        base = 64
+        d0 = _density(rng, (base, base, base), 1.5, np.s_[:, :, :24])
+        pyr = _Levels(d0, np.array([-0.5, -0.4, -0.6]), 1.2, rpyramid)
+        graded = rng.uniform(0.05, 1.0, pyr.data.size).astype(np.float32)  # any T field will do
+        lw = rng.uniform(-0.3, 0.6, pyr.n_levels).astype(np.float32)
+        bias, scale = np.float32(0.05), 7.0
+        light = _unit([0.3, 0.8, -0.5])
+        n = 29
+        pts = rng.uniform(-0.8, 0.8, (n, 3)).astype(np.float32)          # some outside the cube
+        om = _unit(rng.normal(size=(n, 3)))
+        om[0] = -light                                # omega antiparallel to l: frame fallback
+        om[1] = light
+        baked_levels = rgather.baked_grid(pyr, graded, scale, lw.astype(np.float64), float(bias))
+        baked = np.concatenate([np.stack([t, cc], -1).ravel() for t, cc in baked_levels]
+                               + [np.zeros(kg.BAKE_PAD)]).astype(np.float32)
+        return cls(base, pyr, graded, lw, bias, scale, light, ((0.6, 0.8), (-0.2, 0.2)), pts,
+                   om.astype(np.float32), baked)
+
+
+def _gather_golden(root: Path, case: _GatherCase, rgather) -> None:
+    """The gather in render mode (the C host's), argument by argument."""
+    from .kernels import gather as kg
+    from .kernels.phase import lobe_vectors, phase_defines
+    from .neural import layout
+    from .runtime import DEFAULT_PAD
+    pyr, n = case.pyr, len(case.pts)
+    want = rgather.gather(pyr, case.graded, case.pts, case.om, case.light, case.lobes,
+                          case.scale, mode="render", level_weights=case.lw.astype(np.float64),
+                          bias=float(case.bias))
+    tpl, pinfo, hl = kg.template_arrays(case.base)
+    ptab = kg._phase_table_padded(case.lobes)
+    g4, w4 = lobe_vectors(case.lobes)
     k = _Kernel(root, "gather", "gather", "gather",
                 "template gather, render mode: features of N queries from the baked grid",
                 f"N work-items (padded to a multiple of {DEFAULT_PAD}; guarded)")
     k.array("dens", pyr.data, np.float32, "pyramid levels concatenated (read for t_enter)")
     k.info["args"].append({"name": "tlev", "same_as": "dens", "doc": "train mode only"})
-    k.array("baked", baked, np.float32, "float2 (tau, C) per voxel of every level + BAKE_PAD zeros")
+    k.array("baked", case.baked, np.float32, "float2 (tau, C) per voxel of every level + BAKE_PAD zeros")
     k.array("loff", pyr.level_offsets, np.int32, "level offsets (elements)")
-    k.scalar("L", L, "int", "levels")
-    k.scalar("n0", base, "int", "base resolution")
-    k.scalar("cmin", list(cube_min), "float4", "cube corner (world)")
-    k.scalar("csize", cube_size, "float", "cube edge (world)")
+    k.scalar("L", pyr.n_levels, "int", "levels")
+    k.scalar("n0", case.base, "int", "base resolution")
+    k.scalar("cmin", list(pyr.cube_min), "float4", "cube corner (world)")
+    k.scalar("csize", pyr.cube_size, "float", "cube edge (world)")
     k.info["args"].append({"name": "taufac", "type": "buffer",
                            "doc": "train mode only (any 4 bytes)"})
     k.array("tpl", tpl, np.float32, "template points [3][NPAD], x, y, z rows")
@@ -220,52 +264,60 @@ def write_goldens(out_dir) -> Path:
     k.array("hl_spacing", hl, np.float32, "highlight spacing per unit t_enter")
     k.array("ptab", ptab, np.float32, "phase features [NA][NPAD] over alpha = linspace(0, pi, NA)")
     k.scalar("NA", ptab.shape[0], "int", "rows of ptab")
-    k.array("points", pts, np.float32, "[N][3] world")
-    k.array("omegas", om, np.float32, "[N][3] unit, toward the camera")
-    k.scalar("light", list(light), "float4", "unit, toward the light")
+    k.array("points", case.pts, np.float32, "[N][3] world")
+    k.array("omegas", case.om, np.float32, "[N][3] unit, toward the camera")
+    k.scalar("light", list(case.light), "float4", "unit, toward the light")
     k.scalar("lobe_g", list(g4), "float4", "HG g per lobe")
     k.scalar("lobe_w", list(w4), "float4", "lobe weights")
-    c_out = float(np.float32(lw.astype(np.float64).sum() + float(bias)))
+    c_out = float(np.float32(case.lw.astype(np.float64).sum() + float(case.bias)))
     k.scalar("c_out", c_out, "float", "C outside the cube: sum w + b")
     k.array("order", np.arange(n), np.int32, "processing order (a permutation)")
     k.scalar("N", n, "int", "queries")
     k.info["args"] += [{"name": "out", "doc": "[N][3][NP] features (output)"},
                        {"name": "levels", "doc": "train mode only (any 4 bytes)"},
                        {"name": "tenter", "doc": "[N] (output)"}]
-    feats = np.asarray(want["features"], np.float32)
-    k.array("features", feats, np.float32, "[N][3][NP]", output=True)
+    k.array("features", np.asarray(want["features"], np.float32), np.float32, "[N][3][NP]",
+            output=True)
     k.array("t_enter", want["t_enter"], np.float32, "[N]", output=True)
     k.kv["gather.np"] = layout.N_POINTS
-    k.program(dict(phase_defines(lobes), NP=layout.N_POINTS, COARSE_LEVEL=kg.coarse_level(base),
-                   GATHER_RENDER=1), {"GATHER_SHUFFLE": 1} if kg.USE_SHUFFLE else {}, "gather")
-    k.tolerance("t_enter", 0.0, 1e-5 * cube_size, "float32 DDA vs float64 slab tests")
+    k.program(dict(phase_defines(case.lobes), NP=layout.N_POINTS,
+                   COARSE_LEVEL=kg.coarse_level(case.base), GATHER_RENDER=1),
+              {"GATHER_SHUFFLE": 1} if kg.USE_SHUFFLE else {}, "gather")
+    k.tolerance("t_enter", 0.0, 1e-5 * pyr.cube_size, "float32 DDA vs float64 slab tests")
     k.tolerance("density", 0.0, 2e-5, "log1p(tau): float32 trilinear lookups vs float64")
     k.tolerance("transmittance", 0.0, 2e-5, "baked C read trilinearly vs the twin's per-level sum")
     k.tolerance("phase", 0.0, 2e-3, "the kernel interpolates its alpha table linearly, the twin "
                 "evaluates the exact alpha (tests/test_phasetable.py bound)")
     k.write()
 
+
+def _bake_golden(root: Path, case: _GatherCase) -> None:
+    """bake_small over every level of the gather's pyramid."""
+    pyr, L = case.pyr, case.pyr.n_levels
     k = _Kernel(root, "bake", "gather", "bake_small",
                 "render-time (tau, C) grid, one voxel per work-item (bake_rows/bake_xpass for "
                 "levels >= 16 give the same values to rounding)",
                 "total voxels of levels first.. (padded; guarded)")
     k.array("dens", pyr.data, np.float32, "pyramid")
-    k.array("tlev", graded, np.float32, "graded T, same layout")
+    k.array("tlev", case.graded, np.float32, "graded T, same layout")
     k.array("loff", pyr.level_offsets, np.int32, "level offsets")
     k.scalar("L", L, "int", "levels")
-    k.scalar("n0", base, "int", "base resolution")
+    k.scalar("n0", case.base, "int", "base resolution")
     k.scalar("first", 0, "int", "first level baked (all)")
-    taufac = np.array([scale * cube_size / (base >> l) for l in range(L)], np.float32)
+    taufac = np.array([case.scale * pyr.cube_size / (case.base >> l) for l in range(L)],
+                      np.float32)
     k.array("taufac", taufac, np.float32, "density_scale x voxel size per level")
-    k.array("weights", lw, np.float32, "level weights")
-    k.scalar("bias", float(bias), "float", "level bias")
-    k.array("baked", baked, np.float32, "(tau, C) pairs + BAKE_PAD zeros", output=True)
+    k.array("weights", case.lw, np.float32, "level weights")
+    k.scalar("bias", float(case.bias), "float", "level bias")
+    k.array("baked", case.baked, np.float32, "(tau, C) pairs + BAKE_PAD zeros", output=True)
     k.program({})
     k.tolerance("tau", 1e-6, 0.0, "one float32 product")
     k.tolerance("C", 0.0, 2e-6, "float32 sum of L weighted lerps (tests/test_gather.py)")
     k.write()
 
-    # ---- pyramid: mip_reduce on an 8^3 level
+
+def _pyramid_golden(root: Path, rng, rpyramid) -> None:
+    """mip_reduce on an 8^3 level."""
     lv0 = _density(rng, (8, 8, 8), 2.0)
     k = _Kernel(root, "pyramid", "pyramid", "mip_reduce", "one 2x2x2 mean step of the mip chain",
                 "n_dst^3 per launch (padded; guarded)")
@@ -279,7 +331,9 @@ def write_goldens(out_dir) -> Path:
     k.tolerance("data", 0.0, 0.0, "the twin adds in the kernel's order: identical bits")
     k.write()
 
-    # ---- majorant: 11 x 9 x 7 grid, block 4 (partial blocks on every axis)
+
+def _majorant_golden(root: Path, rng, rmajorant) -> None:
+    """An 11 x 9 x 7 grid, block 4 (partial blocks on every axis)."""
     dens = _density(rng, (7, 9, 11), 1.0, np.s_[:, :, :4])
     k = _Kernel(root, "majorant", "majorant", "majorant_build",
                 "per-block max density incl. the one-voxel trilinear apron",
@@ -295,7 +349,9 @@ def write_goldens(out_dir) -> Path:
     k.tolerance("maj", 0.0, 0.0, "a max: identical bits")
     k.write()
 
-    # ---- transmittance: one level's optical depth by the sweep (oblique light)
+
+def _transmittance_golden(root: Path, rng, rtrans) -> None:
+    """One level's optical depth by the sweep (oblique light)."""
     lv = _density(rng, (16, 16, 16), 1.0, np.s_[4:9])
     ldir = _unit([0.35, -0.2, 0.9])
     tscale = 0.3
@@ -311,7 +367,6 @@ def write_goldens(out_dir) -> Path:
     k.tolerance("tau", 0.0, 2e-5, "atol x max tau: the twin runs the same sweep in float64 "
                 "(tests/test_transmittance.py KERNEL_TWIN_RTOL)")
     k.write()
-    return root
 
 
 def add_arguments(p) -> None:

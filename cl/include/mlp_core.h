@@ -5,19 +5,56 @@
 #ifndef CLVOL_MLP_CORE_H
 #define CLVOL_MLP_CORE_H
 
-#define CONFIG_DIM 9
-#define CFG_GMEAN 6
-#define CFG_ALBEDO 7
-/* The albedo as the network reads it (-D MLP_ALBEDO_LOG1M: -log(1 - a + 1e-4), which
+#include "constants.h"   /* MLP_QUERIES_PER_ITEM */
+
+/* The feature contract's and the weight format's numbers, written once on the host
+ * (clvol/neural/layout.py, clvol/neural/export.py) and passed by clvol/kernels/mlp.py
+ * (contract_defines): CONFIG_DIM config fields, of which g_mean, albedo and alpha are read
+ * at CFG_GMEAN, CFG_ALBEDO, CFG_ALPHA; N_TYPES feature types; SQUEEZE squeeze inputs;
+ * MLP_GAMMA the albedo exponent of the output encoding; MLP_ALBEDO_EPS the log1m input's
+ * epsilon. */
+#ifndef CONFIG_DIM
+#error "mlp_core.h needs -D CONFIG_DIM (clvol/kernels/mlp.py contract_defines)"
+#endif
+#ifndef CFG_GMEAN
+#error "mlp_core.h needs -D CFG_GMEAN (clvol/kernels/mlp.py contract_defines)"
+#endif
+#ifndef CFG_ALBEDO
+#error "mlp_core.h needs -D CFG_ALBEDO (clvol/kernels/mlp.py contract_defines)"
+#endif
+#ifndef CFG_ALPHA
+#error "mlp_core.h needs -D CFG_ALPHA (clvol/kernels/mlp.py contract_defines)"
+#endif
+#ifndef N_TYPES
+#error "mlp_core.h needs -D N_TYPES (clvol/kernels/mlp.py contract_defines)"
+#endif
+#ifndef SQUEEZE
+#error "mlp_core.h needs -D SQUEEZE (clvol/kernels/mlp.py contract_defines)"
+#endif
+#ifndef MLP_GAMMA
+#error "mlp_core.h needs -D MLP_GAMMA (clvol/kernels/mlp.py contract_defines)"
+#endif
+#ifndef MLP_ALBEDO_EPS
+#error "mlp_core.h needs -D MLP_ALBEDO_EPS (clvol/kernels/mlp.py contract_defines)"
+#endif
+/* What the code below is written for: */
+#if SQUEEZE != 2 * N_TYPES + 2
+#error "the squeeze vector is the mean and max of every type, then g_mean and alpha"
+#endif
+#if MLP_GAMMA != 4
+#error "the decode computes albedo^MLP_GAMMA as (a^2)^2"
+#endif
+#if MLP_QUERIES_PER_ITEM != 16
+#error "one query per lane of V (float16)"
+#endif
+
+/* The albedo as the network reads it (-D MLP_ALBEDO_LOG1M: -log(1 - a + eps), which
  * resolves 0.99 .. 1; docs/network.md), before the config normalisation. */
 #ifdef MLP_ALBEDO_LOG1M
-#define ALBEDO_INPUT(a) (-log1p(1e-4f - (a)))
+#define ALBEDO_INPUT(a) (-log1p(MLP_ALBEDO_EPS - (a)))
 #else
 #define ALBEDO_INPUT(a) (a)
 #endif
-#define CFG_ALPHA 8
-#define N_TYPES 3
-#define SQUEEZE 8
 #define PAD8(x) (((x) + 7) & ~7)
 
 typedef float16 V;
@@ -154,7 +191,7 @@ static inline void load_features(__global const float *features, const int *off,
 __attribute__((always_inline))
 static inline void mlp_config(__global const float *config, const int *coff,
                               __global const float *params, V *cfg, V *albedo_cfg) {
-    __global const float *cshift = params + 6, *cscale = params + 6 + CONFIG_DIM;
+    __global const float *cshift = params + 2 * N_TYPES, *cscale = cshift + CONFIG_DIM;
     for (int i = 0; i < CONFIG_DIM; ++i)
         cfg[i] = (lanes(config, coff, i) - cshift[i]) * cscale[i];
     *albedo_cfg = lanes(config, coff, CFG_ALBEDO);
@@ -169,9 +206,11 @@ __attribute__((always_inline))
 static inline void mlp_run(V *x, V *cfg, const V albedo_cfg, __global const float *params,
                            const float4 channel_albedo, __global float *out, const int *rows,
                            const int count) {
-    __global const float *fshift = params, *fscale = params + 3;
-    __global const float *cshift = params + 6, *cscale = params + 6 + CONFIG_DIM;
-    __global const float *layers = params + 6 + 2 * CONFIG_DIM;
+    /* pack_params (clvol/kernels/mlp.py): feature shift and scale per type, config shift
+     * and scale per field, then the layers */
+    __global const float *fshift = params, *fscale = params + N_TYPES;
+    __global const float *cshift = params + 2 * N_TYPES, *cscale = cshift + CONFIG_DIM;
+    __global const float *layers = cscale + CONFIG_DIM;
     /* Features, normalised in the same pass that pools them into the squeeze vectors of all
      * layers (channel independent). */
     V v[N_LAYERS][SQUEEZE];
@@ -194,8 +233,8 @@ static inline void mlp_run(V *x, V *cfg, const V albedo_cfg, __global const floa
                 v[k][t] = s / (float)cnt;
                 v[k][N_TYPES + t] = m;
             }
-            v[k][6] = cfg[CFG_GMEAN];
-            v[k][7] = cfg[CFG_ALPHA];
+            v[k][2 * N_TYPES] = cfg[CFG_GMEAN];
+            v[k][2 * N_TYPES + 1] = cfg[CFG_ALPHA];
             start += cnt;
         }
     }
@@ -274,7 +313,7 @@ static inline void mlp_run(V *x, V *cfg, const V albedo_cfg, __global const floa
         const V alb = albedo_cfg;
 #endif
         const V a2 = alb * alb;
-        y = (a2 * a2) * fmax(expm1(y), 0.0f);   /* albedo^4: gamma = 4 */
+        y = (a2 * a2) * fmax(expm1(y), 0.0f);   /* albedo^MLP_GAMMA, MLP_GAMMA = 4 */
 #endif
         float r[16];
         vstore16(y, 0, r);

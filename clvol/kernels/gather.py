@@ -30,6 +30,7 @@ from ..errors import ClvolError
 from ..neural import layout
 from ..neural.phasetable import N_ALPHA, phase_feature_table, volume_phase
 from ..neural.templates import load_templates
+from .constants import kernel_constant
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
 from .pyramid import Pyramid
@@ -103,7 +104,7 @@ class BakedGrid:
 
 GATHER_LOCAL = 64         # work-items per group of the gather on CPU devices (see its launch)
 MIN_ROW_LEVEL = 16        # levels at least this wide are baked by rows of 16 (bake_rows)
-BAKE_SPAN = 64            # voxels of a row per bake_rows work-item (cl/gather.cl BAKE_SPAN)
+BAKE_SPAN = kernel_constant("BAKE_SPAN")   # voxels of a row per bake_rows work-item
 MAX_RENDER_FLOATS = 2**31 - 1   # the render kernel indexes the (tau, C) pairs with int
 BAKE_PAD = 8
 
@@ -250,16 +251,17 @@ def config_vectors(medium, channel_albedo, omegas, light_dir) -> np.ndarray:
     """[N][CONFIG_DIM] per clvol.neural.layout.CONFIG_FIELDS."""
     n = len(omegas)
     lobes = _lobes(medium)
+    at = layout.CONFIG_FIELDS.index
     cfg = np.zeros((n, layout.CONFIG_DIM), np.float32)
     for k, (g, w) in enumerate(lobes):
-        cfg[:, k], cfg[:, 3 + k] = g, w
-    cfg[:, 6] = sum(g * w for g, w in lobes)
+        cfg[:, at(f"g{k}")], cfg[:, at(f"w{k}")] = g, w
+    cfg[:, at("g_mean")] = sum(g * w for g, w in lobes)
     alb = np.broadcast_to(np.asarray(channel_albedo, np.float64), (n,))
     if not (np.all(np.isfinite(alb)) and np.all(alb >= 0) and np.all(alb <= 1)):
         raise GatherError(f"channel_albedo must be in [0, 1], got {np.asarray(channel_albedo)!r}")
-    cfg[:, 7] = alb
+    cfg[:, at("albedo")] = alb
     mu = np.clip(-(np.asarray(omegas, np.float64) @ np.asarray(light_dir, np.float64)), -1.0, 1.0)
-    cfg[:, 8] = np.arccos(mu)
+    cfg[:, at("alpha")] = np.arccos(mu)
     return cfg
 
 
@@ -324,63 +326,104 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
     and in the caller's order; only speed changes). ``sort=False`` visits them as given, for
     callers whose queries are already coherent."""
     pts, om, l = _check_inputs(pyramid, graded, points, omegas, light_dir, medium, mode)
-    rt = pyramid.runtime
-    n, L, NP = len(pts), pyramid.n_levels, layout.N_POINTS
-    if L != graded.n_levels:
-        raise GatherError("graded fields and pyramid disagree on the number of levels")
     render = mode == "render"
+    _check_mode(pyramid, graded, render, level_weights, as_buffers)
+    n = len(pts)
+    cfg = config_vectors(medium, channel_albedo, om, l)
+    grids = _mode_inputs(pyramid, graded, medium, level_weights, bias, render, n)
+    feats, tenter = _feature_buffers(pyramid, n, as_buffers, reuse)
+    if n:
+        order = query_order(pyramid, pts) if sort else np.arange(n, dtype=np.int32)
+        _launch(pyramid, graded, _lobes(medium), render, pts, om, l, order, grids, feats, tenter)
+    if as_buffers:
+        return {"features": feats, "config": pyramid.runtime.to_device(cfg), "t_enter": tenter,
+                "n": n}
+    out = _read_features(pyramid, feats, grids, n, render, level_weights, bias)
+    out["config"] = cfg
+    if return_t_enter:
+        out["t_enter"] = pyramid.runtime.from_device(tenter, (n,))
+    return out
+
+
+def _check_mode(pyramid, graded, render: bool, level_weights, as_buffers: bool) -> None:
+    if pyramid.n_levels != graded.n_levels:
+        raise GatherError("graded fields and pyramid disagree on the number of levels")
     if render and level_weights is None:
         raise GatherError("mode='render' needs level_weights (one per graded level) and bias")
     if as_buffers and not render:
         raise GatherError("as_buffers=True is for mode='render' (training reads host arrays)")
-    lobes = _lobes(medium)
-    cfg = config_vectors(medium, channel_albedo, om, l)
-    prog = rt.program("gather", defines=gather_defines(pyramid, lobes, render))
-    k = prog.kernel("gather", [None, None, None, None, np.int32, np.int32, None, np.float32,
-                               None, None, None, None, None, np.int32, None, None, None, None,
-                               None, np.float32, None, np.int32, None, None, None])
+
+
+@dataclass
+class _ModeInputs:
+    """The kernel arguments that differ by mode: render reads the baked grid (and C outside
+    the cube); train reads the raw levels with their tau factors and writes every level."""
+    baked: object
+    c_out: float
+    taufac: object
+    levels: object
+
+
+def _mode_inputs(pyramid, graded, medium, level_weights, bias, render: bool, n: int) -> _ModeInputs:
+    rt = pyramid.runtime
+    if render:
+        baked = bake_render_grid(pyramid, graded, medium.density_scale, level_weights, bias)
+        unused = rt.empty(1)
+        return _ModeInputs(baked.buffer, baked.c_out, taufac=unused, levels=unused)
+    # levels: not kept on the pyramid (9x the features, and training is compute-bound)
+    return _ModeInputs(rt.empty(1), 0.0, rt.to_device(_taufac(pyramid, medium.density_scale)),
+                       rt.empty(n * pyramid.n_levels * layout.N_POINTS))
+
+
+def _feature_buffers(pyramid, n: int, as_buffers: bool, reuse: dict | None):
+    """(features, t_enter) buffers: the caller's previous ones when they fit (``reuse``,
+    as_buffers), new ones for the caller, or the pyramid's own (read back, then reused by the
+    next call)."""
+    rt, size = pyramid.runtime, n * 3 * layout.N_POINTS
+    if not as_buffers:
+        return (_reused(pyramid, "gather_features", size),
+                _reused(pyramid, "gather_t_enter", n))
+    old_f, old_t = (reuse or {}).get("features"), (reuse or {}).get("t_enter")
+    fits = (isinstance(old_f, cl.Buffer) and isinstance(old_t, cl.Buffer)
+            and old_f.size >= 4 * max(size, 1) and old_t.size >= 4 * max(n, 1))
+    return (old_f, old_t) if fits else (rt.empty(size), rt.empty(n))
+
+
+_GATHER_ARGS = [None, None, None, None, np.int32, np.int32, None, np.float32, None, None, None,
+                None, None, np.int32, None, None, None, None, None, np.float32, None, np.int32,
+                None, None, None]
+
+
+def _launch(pyramid, graded, lobes, render: bool, pts, om, l, order, grids: _ModeInputs,
+            feats, tenter) -> None:
+    rt = pyramid.runtime
+    k = rt.program("gather", defines=gather_defines(pyramid, lobes, render)).kernel(
+        "gather", _GATHER_ARGS)
     st = _static(pyramid)
     ptab = _phase_table_padded(lobes)
     lg, lw = lobe_vectors(lobes)
-    c_out = 0.0
-    if render:
-        baked = bake_render_grid(pyramid, graded, medium.density_scale, level_weights, bias)
-        baked_buf, c_out = baked.buffer, baked.c_out
-        levels = taufac = rt.empty(1)
-    else:
-        baked_buf = rt.empty(1)
-        levels = rt.empty(n * L * NP)    # (not kept: 9x the features, and training is compute-bound)
-        taufac = rt.to_device(_taufac(pyramid, medium.density_scale))
-    if as_buffers:
-        old_f, old_t = (reuse or {}).get("features"), (reuse or {}).get("t_enter")
-        fits = (isinstance(old_f, cl.Buffer) and isinstance(old_t, cl.Buffer)
-                and old_f.size >= 4 * max(n * 3 * NP, 1) and old_t.size >= 4 * max(n, 1))
-        feats = old_f if fits else rt.empty(n * 3 * NP)
-        tenter = old_t if fits else rt.empty(n)
-    else:                # read back below: the buffers stay with the pyramid for the next call
-        feats = _reused(pyramid, "gather_features", n * 3 * NP)
-        tenter = _reused(pyramid, "gather_t_enter", n)
-    if n:
-        # A fixed local size: with a NULL one PoCL picks a group size from the global size
-        # and compiles the kernel anew for each size it picks (~0.4 s each on the 2-core CPU),
-        # which a query count that changes every frame (the view-space source) hit each frame.
-        args = (pyramid.buffer, graded.buffer, baked_buf, st["loff"], np.int32(L),
-                np.int32(pyramid.base_resolution), f4(pyramid.cube_min),
-                np.float32(pyramid.cube_size), taufac, st["tpl"], st["pinfo"], st["hl"],
-                rt.to_device(ptab), np.int32(ptab.shape[0]), rt.to_device(pts),
-                rt.to_device(om), f4(l), lg, lw, np.float32(c_out),
-                rt.to_device(query_order(pyramid, pts) if sort else
-                             np.arange(n, dtype=np.int32)), np.int32(n), feats, levels, tenter)
-        rt.launch(k, n, args, local_size=(GATHER_LOCAL,) if rt.entry.kind == "cpu" else None,
-                  pad=GATHER_LOCAL)
-    if as_buffers:
-        return {"features": feats, "config": rt.to_device(cfg), "t_enter": tenter, "n": n}
-    out = {"features": rt.from_device(feats, (n, 3, NP)), "config": cfg}
+    args = (pyramid.buffer, graded.buffer, grids.baked, st["loff"], np.int32(pyramid.n_levels),
+            np.int32(pyramid.base_resolution), f4(pyramid.cube_min),
+            np.float32(pyramid.cube_size), grids.taufac, st["tpl"], st["pinfo"], st["hl"],
+            rt.to_device(ptab), np.int32(ptab.shape[0]), rt.to_device(pts), rt.to_device(om),
+            f4(l), lg, lw, np.float32(grids.c_out), rt.to_device(order), np.int32(len(pts)),
+            feats, grids.levels, tenter)
+    # A fixed local size: with a NULL one PoCL picks a group size from the global size and
+    # compiles the kernel anew for each size it picks (~0.4 s each on the 2-core CPU), which a
+    # query count that changes every frame (the view-space source) hit each frame.
+    rt.launch(k, len(pts), args, local_size=(GATHER_LOCAL,) if rt.entry.kind == "cpu" else None,
+              pad=GATHER_LOCAL)
+
+
+def _read_features(pyramid, feats, grids: _ModeInputs, n: int, render: bool, level_weights,
+                   bias) -> dict:
+    """The features (and, in train mode, the levels, combined into the transmittance
+    feature when ``level_weights`` is given) as host arrays."""
+    rt, L, NP = pyramid.runtime, pyramid.n_levels, layout.N_POINTS
+    out = {"features": rt.from_device(feats, (n, 3, NP))}
     if not render:
-        out["levels"] = rt.from_device(levels, (n, L, NP))
+        out["levels"] = rt.from_device(grids.levels, (n, L, NP))
         if level_weights is not None:
             w, b = _check_weights(level_weights, bias, L)
             out["features"][:, 1, :] = (np.einsum("l,nlj->nj", w, out["levels"]) + b).astype(np.float32)
-    if return_t_enter:
-        out["t_enter"] = rt.from_device(tenter, (n,))
     return out

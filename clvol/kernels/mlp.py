@@ -17,11 +17,12 @@ import numpy as np
 import pyopencl as cl
 
 from ..errors import NetworkInputError
-from ..neural.export import GAMMA, TYPES, MlpWeights
+from ..neural.export import ALBEDO_EPS, GAMMA, SQUEEZE_DIM, TYPES, MlpWeights
 from ..neural.layout import CONFIG_DIM, CONFIG_FIELDS
 from ..runtime import get_runtime
+from .constants import kernel_constant
 
-QUERIES_PER_ITEM = 16   # float16 lanes of one work-item
+QUERIES_PER_ITEM = kernel_constant("MLP_QUERIES_PER_ITEM")   # float16 lanes of one work-item
 
 
 def _pad8(x: int) -> int:
@@ -42,9 +43,23 @@ def pack_params(weights: MlpWeights) -> np.ndarray:
     return np.concatenate([np.asarray(a, np.float32).ravel() for a in parts])
 
 
+def contract_defines() -> dict:
+    """The -D options that carry the feature contract's and the weight format's numbers
+    (clvol/neural/layout.py, clvol/neural/export.py) into cl/include/mlp_core.h, which
+    refuses to build without them."""
+    if GAMMA != int(GAMMA):
+        raise RuntimeError(f"bug: GAMMA = {GAMMA!r}; the kernels decode integer powers only")
+    return {"CONFIG_DIM": CONFIG_DIM, "CFG_GMEAN": CONFIG_FIELDS.index("g_mean"),
+            "CFG_ALBEDO": CONFIG_FIELDS.index("albedo"), "CFG_ALPHA": CONFIG_FIELDS.index("alpha"),
+            "N_TYPES": len(TYPES), "SQUEEZE": SQUEEZE_DIM, "MLP_GAMMA": int(GAMMA),
+            "MLP_ALBEDO_EPS": float(ALBEDO_EPS)}
+
+
 def kernel_defines(arch, channels: int, decode: bool) -> dict:
+    """The -D options of cl/mlp.cl (and of cl/gather_mlp.cl's network) for ``arch``."""
     maxw = max(max(_pad8(i), _pad8(o)) for _, i, o in arch.linear_layers())
     return {
+        **contract_defines(),
         "N_LAYERS": len(arch.layer_counts), "N_DIFFUSE": arch.n_diffuse_layers,
         "LAYER_COUNTS": ",".join(str(c) for c in arch.layer_counts),
         "N_POINTS": arch.n_points, "SE_HIDDEN": arch.se_hidden,
@@ -61,8 +76,6 @@ class MlpKernel:
     def __init__(self, weights: MlpWeights, runtime=None, defines: dict | None = None):
         """``defines``: extra -D options, overriding the defaults (a value of None removes
         one: tests use {"MLP_TRANSPOSE16": None} for the per-lane load path)."""
-        if GAMMA != 4.0:  # the kernel's decode hard-codes albedo^4
-            raise RuntimeError("bug: clvol/neural/export.py's GAMMA is not the 4 cl/mlp.cl decodes with")
         self.weights = weights
         self.arch = weights.arch
         self.rt = runtime or get_runtime()

@@ -16,23 +16,24 @@ from .. import envmap as envmap_mod
 from ..errors import ClvolError
 from ..runtime import get_runtime
 from . import phase as kphase
+from .constants import kernel_constant
 from .grid import f4
 from .majorant import DEFAULT_BLOCK, DeviceMedium, majorant_args
 from .majorant import majorant_block as resolve_block
 
-# Per-path output row of the kernels (PT_OUT floats).
+# Per-path output row of the kernels (PT_OUT floats; the widths are cl/include/constants.h's).
 ROW_BG, ROW_L1, ROW_LMS = slice(0, 3), slice(3, 6), slice(6, 9)
 ROW_VERTICES, ROW_STEPS, ROW_TRUNCATED = 9, 10, 11
-PT_OUT = 12
+PT_OUT = kernel_constant("PT_OUT_NO_EMISSION")
 # -D PT_EMISSION rows: 6 more floats, emission seen unscattered, then scattered (RGB each).
-ROW_EM_DIRECT, ROW_EM_SCATTERED = slice(12, 15), slice(15, 18)
-PT_OUT_EMISSION = 18
-RR_START = 8            # cl/pathtrace.cl PT_RR_START default
-MAX_VERTICES = 100_000  # cl/pathtrace.cl PT_MAX_VERTICES default
-# Per-order rows (cl/pathtrace.cl PT_ORDER_BINS): exponents e = 1..ORDER_EXACT-1 one bin
-# each, then ORDER_SUB bins per octave up to 2^17 - 1 (> MAX_VERTICES).
-ORDER_EXACT, ORDER_EXACT_LOG2, ORDER_SUB = 32, 5, 8
-ORDER_BINS = ORDER_EXACT - 1 + (17 - ORDER_EXACT_LOG2) * ORDER_SUB
+PT_OUT_EMISSION = kernel_constant("PT_OUT_EMISSION")
+ROW_EM_DIRECT, ROW_EM_SCATTERED = slice(PT_OUT, PT_OUT + 3), slice(PT_OUT + 3, PT_OUT_EMISSION)
+# Per-order rows (cl/pathtrace.cl -D PT_ORDER_BINS): exponents e = 1..ORDER_EXACT-1 one bin
+# each, then ORDER_SUB bins per octave up to 2^ORDER_END_LOG2 - 1 (> the kernel's
+# PT_MAX_VERTICES).
+ORDER_EXACT, ORDER_EXACT_LOG2, ORDER_SUB, ORDER_END_LOG2 = (
+    kernel_constant(f"PT_ORDER_{n}") for n in ("EXACT", "EXACT_LOG2", "SUB", "END_LOG2"))
+ORDER_BINS = ORDER_EXACT - 1 + (ORDER_END_LOG2 - ORDER_EXACT_LOG2) * ORDER_SUB
 
 
 def order_bin_ranges() -> np.ndarray:
@@ -42,7 +43,7 @@ def order_bin_ranges() -> np.ndarray:
     for e in range(1, ORDER_EXACT):
         lo.append(e)
         hi.append(e)
-    for o in range(ORDER_EXACT_LOG2, 17):
+    for o in range(ORDER_EXACT_LOG2, ORDER_END_LOG2):
         width = (1 << o) // ORDER_SUB
         for s in range(ORDER_SUB):
             lo.append((1 << o) + s * width)
@@ -312,7 +313,8 @@ def env_sample_test(tables, u, runtime=None) -> np.ndarray:
     rt = runtime or get_runtime()
     u = np.ascontiguousarray(u, np.float32).reshape(-1, 2)
     n = len(u)
-    program = rt.program("pathtrace", {"PT_ENVMAP": 1, **kphase.phase_defines([])})
+    program = rt.program("pathtrace", {"PT_LANES": RENDER_LANES, "PT_ENVMAP": 1,
+                                       **kphase.phase_defines([])})
     out = rt.empty((max(n, 1), 8))
     k = program.kernel("pt_env_sample_test", _ENV_TEST_DTYPES)
     rt.launch(k, max(n, 1), PathTracer.env_args(rt, tables) + (rt.to_device(u), np.int32(n), out))

@@ -6,10 +6,13 @@ to the device on each call: tests) or ``DeviceArray`` handles of buffers already
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, fields
+
 import numpy as np
 
 from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
+from .constants import kernel_constant
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
 
@@ -17,9 +20,9 @@ from .phase import lobe_vectors, phase_defines
 # table, is clvol/render/ms/__init__.py SOURCES).
 MS_SOURCE_DEFINES = {"none": 0, "wrenninge": 1, "grid": 2, "view": 3}
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
-MAX_OCTAVES = 8
-MAX_VIEW_K = 16  # knots per block of the view-space table (cl/viewdepth.cl's limit)
-TILE = 4  # pixels per side of the tile one work-item marches (16 float16 lanes)
+MAX_OCTAVES = kernel_constant("MS_MAX_OCTAVES")
+MAX_VIEW_K = kernel_constant("VIEW_MAX_K")  # knots per block of the view-space table
+TILE = kernel_constant("TILE")  # pixels per side of the tile one work-item marches (16 lanes)
 LOCAL_SIZE = 16  # tiles per work-group
 LAYERS = (("total", 3), ("single", 3), ("multiple", 3), ("alpha", 1), ("depth", 1))
 
@@ -117,7 +120,7 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     ``bg_image`` (H, W, 3): per-pixel background (builds with BG_IMAGE). ``emission``
     (C, ez, ey, ex), C = 1 or 3, over em_min .. em_max (its own box when ``em_box``), Le =
     em_colour * planes: builds with EMISSION and adds the "emission" layer. Argument meanings:
-    see the twin.
+    see the twin (this function's keywords are the twin's; ``launch`` takes them grouped).
     """
     rt = runtime or get_runtime()
     if source == "grid":
@@ -136,125 +139,266 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         ms, channels, view_k = None, 1, 1
     defines = raymarch_defines(lobes, lit, source, octaves, channels, skip_empty, view_k,
                                view_block)
-    return launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
-                  light, cube_min, cube_size, ms, ms_bbox_min, ms_bbox_max,
-                  origin, forward, right, up, tan_half, width, height,
-                  light_dir, irradiance, albedo, lobes, background, a=a, b=b, c=c, step=step,
-                  threshold=threshold, lit=lit, light_quantity=light_quantity, runtime=rt,
-                  read_back=read_back, stats=stats, env=env, env_min=env_min,
-                  env_size=env_size, env_colour=env_colour, bg_image=bg_image,
-                  emission=emission, em_min=em_min, em_max=em_max, em_colour=em_colour,
-                  em_box=em_box)
+    return launch(
+        defines=defines,
+        volume=MarchVolume(density, bbox_min, bbox_max, density_scale, majorant, block),
+        camera=MarchCamera(origin, forward, right, up, tan_half, width, height),
+        light=MarchLight(light_dir, irradiance, albedo, lobes, background,
+                         field=light if lit else None, cube_min=cube_min, cube_size=cube_size,
+                         quantity=light_quantity),
+        ms=MarchMs(ms, ms_bbox_min, ms_bbox_max, a, b, c),
+        environment=MarchEnvironment(env, env_min, env_size, env_colour, bg_image),
+        emission=None if emission is None else MarchEmission(emission, em_min, em_max,
+                                                             em_colour, em_box),
+        step=step, threshold=threshold, runtime=rt, read_back=read_back, stats=stats)
 
 
-def launch(defines, density, bbox_min, bbox_max, density_scale, majorant, block,
-           light, cube_min, cube_size, ms_grid, ms_bbox_min, ms_bbox_max,
-           origin, forward, right, up, tan_half, width, height,
-           light_dir, irradiance, albedo, lobes, background, *, a=0.5, b=0.5, c=0.5,
-           step=None, threshold=1e-3, lit=True, light_quantity="transmittance", runtime=None,
-           read_back=True, stats=False, env=None, env_min=(0, 0, 0), env_size=1.0,
-           env_colour=(1, 1, 1), bg_image=None, emission=None, em_min=(0, 0, 0),
-           em_max=(1, 1, 1), em_colour=(1, 1, 1), em_box=False):
+# ----------------------------------------------------------------------------- launch
+# launch() takes the kernel's arguments in these groups (arrays may be NumPy arrays, copied to
+# the device on each call, or DeviceArrays already there). The environment's and the
+# emission's field names are ``raymarch``'s keywords, so a dict of those keywords splits into
+# them with ``pick``.
+
+@dataclass(frozen=True)
+class MarchVolume:
+    """The medium's density [nz][ny][nx] over bbox_min .. bbox_max (sigma_t = density *
+    density_scale) and its majorant grid of ``block``-voxel cells (clvol/kernels/majorant.py)."""
+    density: object
+    bbox_min: tuple
+    bbox_max: tuple
+    density_scale: float
+    majorant: object
+    block: int
+
+
+@dataclass(frozen=True)
+class MarchCamera:
+    """A pinhole camera: origin, orthonormal basis, tan(fov_y / 2), image size in pixels."""
+    origin: tuple
+    forward: tuple
+    right: tuple
+    up: tuple
+    tan_half: float
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
+class MarchLight:
+    """The sun (``direction`` toward it, RGB ``irradiance``), the medium's albedo and phase
+    lobes, the background radiance, and the light field: T_light (or its optical depth, by
+    ``quantity``) over the cube cube_min .. + cube_size; None for an unlit build (LIT 0)."""
+    direction: tuple
+    irradiance: tuple
+    albedo: tuple
+    lobes: tuple
+    background: tuple
+    field: object = None
+    cube_min: tuple = (0, 0, 0)
+    cube_size: float = 1.0
+    quantity: str = "transmittance"
+
+
+@dataclass(frozen=True)
+class MarchMs:
+    """The multiple-scattering source's data: its device planes (a (C, gz, gy, gx) grid over
+    bbox_min .. bbox_max, or the view table) or None, and the Wrenninge octaves' a, b, c."""
+    planes: object = None
+    bbox_min: tuple | None = None
+    bbox_max: tuple | None = None
+    a: float = 0.5
+    b: float = 0.5
+    c: float = 0.5
+
+
+@dataclass(frozen=True)
+class MarchEnvironment:
+    """The sky's source field (ENV; ``env`` as ``raymarch`` takes it, or its device layout)
+    over the cube env_min .. + env_size, coloured by env_colour, and the per-pixel background
+    (BG_IMAGE); None for either leaves its code out of the program."""
+    env: object = None
+    env_min: tuple = (0, 0, 0)
+    env_size: float = 1.0
+    env_colour: tuple = (1, 1, 1)
+    bg_image: object = None
+
+    @classmethod
+    def pick(cls, keywords: dict) -> "MarchEnvironment":
+        """The environment's part of a dict of ``raymarch`` keywords."""
+        return cls(**{f.name: keywords[f.name] for f in fields(cls) if f.name in keywords})
+
+
+@dataclass(frozen=True)
+class MarchEmission:
+    """Emission planes (C, ez, ey, ex), C = 1 or 3, over em_min .. em_max (their own box when
+    ``em_box``, else the density's), Le = em_colour * planes (EMISSION)."""
+    emission: object
+    em_min: tuple = (0, 0, 0)
+    em_max: tuple = (1, 1, 1)
+    em_colour: tuple = (1, 1, 1)
+    em_box: bool = False
+
+    @classmethod
+    def pick(cls, keywords: dict) -> "MarchEmission | None":
+        """The emission's part of a dict of ``raymarch`` keywords (None without "emission")."""
+        if keywords.get("emission") is None:
+            return None
+        return cls(**{f.name: keywords[f.name] for f in fields(cls) if f.name in keywords})
+
+
+def launch(*, defines: dict, volume: MarchVolume, camera: MarchCamera, light: MarchLight,
+           ms: MarchMs, environment: MarchEnvironment = MarchEnvironment(),
+           emission: MarchEmission | None = None, step: float, threshold: float = 1e-3,
+           runtime=None, read_back: bool = True, stats: bool = False):
     """Launch cl/raymarch.cl built with ``defines`` (``raymarch_defines``, or the phase, LIT,
-    SKIP_EMPTY and a multiple-scattering source's own). ``ms_grid``: a (C, gz, gy, gx)
-    DeviceArray or None. ``env`` / ``bg_image`` (see ``raymarch``) add the ENV / BG_IMAGE
-    defines; without them the defines (and the program) are those of a scene without an
-    environment. Returns what ``raymarch`` returns."""
+    SKIP_EMPTY and a multiple-scattering source's own) plus those its inputs add (ENV,
+    BG_IMAGE, EMISSION, LIGHT_TAU, RAYMARCH_STATS): without an environment or emission the
+    program is that of a scene without them. ``step`` in world units. Returns what
+    ``raymarch`` returns."""
     rt = runtime or get_runtime()
     if step is None or not step > 0:
         raise ClvolError(f"step must be > 0 (world units), got {step}")
-    dens = _device(density, rt)
-    maj = _device(majorant, rt)
-    nz, ny, nx = dens.shape
-    mz, my, mx = maj.shape
-    dummy = None
-    if lit:
-        light = _device(light, rt)
-        ln = light.shape[0]
-        if light.shape != (ln, ln, ln):
-            raise ClvolError(f"light must be a cube [n][n][n], got {light.shape}")
-    else:
-        dummy = dummy or rt.empty(1)
-        light, ln = DeviceArray(dummy, (1, 1, 1)), 1
-    if ms_grid is not None:
-        ms = ms_grid
-        gz, gy, gx = ms.shape[1:]
-        gmin, gmax = ms_bbox_min, ms_bbox_max
-    else:
-        dummy = dummy or rt.empty(1)
-        ms, (gz, gy, gx) = DeviceArray(dummy, (1, 1, 1, 1)), (1, 1, 1)
-        gmin, gmax = (0, 0, 0), (1, 1, 1)
-    defines = dict(defines)
+    if light.quantity not in LIGHT_QUANTITIES:
+        raise ClvolError(f"light_quantity {light.quantity!r}: one of {LIGHT_QUANTITIES}")
+    if defines.get("LIT") and light.field is None:
+        raise ClvolError("a lit march (LIT 1) needs the light field")
+    defines = dict(defines, LIGHT_TAU=int(light.quantity == "optical_depth"))
     if stats:
         defines["RAYMARCH_STATS"] = 1
-    if env is not None:
-        if not isinstance(env, DeviceArray):
-            env = env_device_layout(env)
-        env = _device(env, rt)
-        shape = tuple(env.shape)
-        if len(shape) == 4 and shape[0] == 2 and len(set(shape[1:])) == 1:
-            env_channels, en = 1, shape[1]
-        elif len(shape) == 4 and shape[3] == ENV_PACK and len(set(shape[:3])) == 1:
-            env_channels, en = 3, shape[0]
-        else:
-            raise ClvolError(f"env must be (2 C, n, n, n) with C = 1 or 3 (or its device "
-                             f"layout, env_device_layout), got {shape}")
-        defines.update(ENV=1, ENV_CHANNELS=env_channels)
-    if bg_image is not None:
-        bg_image = _device(bg_image, rt)
-        if tuple(bg_image.shape) != (height, width, 3):
-            raise ClvolError(f"bg_image must be ({height}, {width}, 3), got {bg_image.shape}")
-        defines["BG_IMAGE"] = 1
-    layers = LAYERS
+    dummy = _Dummy(rt)     # one 1-float buffer for whichever input is absent
+    args = (_volume_args(volume, rt) + _light_field_args(light, rt, dummy)
+            + _ms_args(ms, dummy) + _camera_args(camera) + _light_args(light, ms)
+            + (np.float32(step), np.float32(threshold)))
+    scalars = list(_SCALARS)
+    extra, layers = (), LAYERS
+    if environment.env is not None:
+        extra += _env_args(environment, rt, defines)
+        scalars += _ENV_SCALARS
+    if environment.bg_image is not None:
+        extra += _bg_args(environment, camera, rt, defines)
+        scalars += _BG_SCALARS
     if emission is not None:
-        emission = _device(emission, rt)
-        if len(emission.shape) != 4 or emission.shape[0] not in (1, 3):
-            raise ClvolError(f"emission must be (C, ez, ey, ex) with C = 1 or 3, got "
-                             f"{emission.shape}")
-        defines.update(EMISSION=1, EMISSION_CHANNELS=emission.shape[0],
-                       EMISSION_BOX=int(bool(em_box)))
+        extra += _emission_args(emission, rt, defines)
+        scalars += _EM_SCALARS
         layers = LAYERS + (("emission", 3),)
-    if light_quantity not in LIGHT_QUANTITIES:
-        raise ClvolError(f"light_quantity {light_quantity!r}: one of {LIGHT_QUANTITIES}")
-    defines["LIGHT_TAU"] = int(light_quantity == "optical_depth")
-    prog = rt.program("raymarch", defines)
-    k = prog.kernel("raymarch", _SCALARS + (_ENV_SCALARS if env is not None else [])
-                    + (_BG_SCALARS if bg_image is not None else [])
-                    + (_EM_SCALARS if emission is not None else []))
-    g, w = lobe_vectors(lobes)
-    outs = {name: rt.empty((height * width * ch,)) for name, ch in layers}
-    n_tiles = -(-width // TILE) * -(-height // TILE)
-    outs["stats"] = rt.empty((n_tiles * 4 if stats else 1,), np.uint32)
-    args = (dens.buffer, np.int32(nx), np.int32(ny), np.int32(nz), f4(bbox_min), f4(bbox_max),
-            np.float32(density_scale),
-            maj.buffer, np.int32(mx), np.int32(my), np.int32(mz), np.int32(block),
-            light.buffer, np.int32(ln), f4(cube_min), np.float32(cube_size),
-            ms.buffer, np.int32(gx), np.int32(gy), np.int32(gz), f4(gmin), f4(gmax),
-            f4(origin), f4(forward), f4(right), f4(up), np.float32(tan_half),
-            np.int32(width), np.int32(height),
-            f4(light_dir), f4(irradiance), f4(albedo), g, w, f4(background),
-            np.float32(a), np.float32(b), np.float32(c), np.float32(step),
-            np.float32(threshold),
-            outs["total"], outs["single"], outs["multiple"], outs["alpha"], outs["depth"],
-            outs["stats"])
-    if env is not None:
-        args += (env.buffer, np.int32(en), f4(env_min), np.float32(env_size), f4(env_colour))
-    if bg_image is not None:
-        args += (bg_image.buffer,)
+    k = rt.program("raymarch", defines).kernel("raymarch", scalars)
+    outs, n_tiles = _outputs(camera, layers, stats, rt)
+    args += tuple(outs[name] for name, _ in LAYERS) + (outs["stats"],) + extra
     if emission is not None:
-        ez, ey, ex = emission.shape[1:]
-        args += (emission.buffer, np.int32(ex), np.int32(ey), np.int32(ez), f4(em_min),
-                 f4(em_max), f4(em_colour), outs["emission"])
+        args += (outs["emission"],)
     # An explicit local size: with a NULL one, PoCL 3.1 picked work-groups for 512 x 512
     # images (16384 tiles) that crashed it (segfault). 16 and 64 measured alike on PoCL;
     # Oclgrind 21.10 crashes with 64.
     evt = rt.launch(k, n_tiles, args, pad=LOCAL_SIZE, local_size=(LOCAL_SIZE,))
     if not read_back:
         return evt, outs
+    return _read_layers(outs, layers, camera, n_tiles if stats else 0, evt, rt)
+
+
+class _Dummy:
+    """A 1-float device buffer made on first use (stands in for an absent input)."""
+
+    def __init__(self, rt):
+        self.rt, self._buffer = rt, None
+
+    @property
+    def buffer(self):
+        if self._buffer is None:
+            self._buffer = self.rt.empty(1)
+        return self._buffer
+
+
+def _volume_args(v: MarchVolume, rt) -> tuple:
+    dens, maj = _device(v.density, rt), _device(v.majorant, rt)
+    (nz, ny, nx), (mz, my, mx) = dens.shape, maj.shape
+    return (dens.buffer, np.int32(nx), np.int32(ny), np.int32(nz), f4(v.bbox_min),
+            f4(v.bbox_max), np.float32(v.density_scale),
+            maj.buffer, np.int32(mx), np.int32(my), np.int32(mz), np.int32(v.block))
+
+
+def _light_field_args(light: MarchLight, rt, dummy: _Dummy) -> tuple:
+    if light.field is None:
+        buffer, n = dummy.buffer, 1
+    else:
+        field = _device(light.field, rt)
+        n = field.shape[0]
+        if field.shape != (n, n, n):
+            raise ClvolError(f"light must be a cube [n][n][n], got {field.shape}")
+        buffer = field.buffer
+    return buffer, np.int32(n), f4(light.cube_min), np.float32(light.cube_size)
+
+
+def _ms_args(ms: MarchMs, dummy: _Dummy) -> tuple:
+    if ms.planes is None:   # the kernel reads no planes: any box will do
+        buffer, (gz, gy, gx), gmin, gmax = dummy.buffer, (1, 1, 1), (0, 0, 0), (1, 1, 1)
+    else:
+        buffer, (gz, gy, gx) = ms.planes.buffer, ms.planes.shape[1:]
+        gmin, gmax = ms.bbox_min, ms.bbox_max
+    return buffer, np.int32(gx), np.int32(gy), np.int32(gz), f4(gmin), f4(gmax)
+
+
+def _camera_args(c: MarchCamera) -> tuple:
+    return (f4(c.origin), f4(c.forward), f4(c.right), f4(c.up), np.float32(c.tan_half),
+            np.int32(c.width), np.int32(c.height))
+
+
+def _light_args(light: MarchLight, ms: MarchMs) -> tuple:
+    g, w = lobe_vectors(light.lobes)
+    return (f4(light.direction), f4(light.irradiance), f4(light.albedo), g, w,
+            f4(light.background), np.float32(ms.a), np.float32(ms.b), np.float32(ms.c))
+
+
+def _env_args(e: MarchEnvironment, rt, defines: dict) -> tuple:
+    """The ENV arguments; adds ENV and ENV_CHANNELS (1: grey planes as given, 3: the packed
+    device layout) to ``defines``."""
+    env = e.env if isinstance(e.env, DeviceArray) else env_device_layout(e.env)
+    env = _device(env, rt)
+    shape = tuple(env.shape)
+    if len(shape) == 4 and shape[0] == 2 and len(set(shape[1:])) == 1:
+        channels, n = 1, shape[1]
+    elif len(shape) == 4 and shape[3] == ENV_PACK and len(set(shape[:3])) == 1:
+        channels, n = 3, shape[0]
+    else:
+        raise ClvolError(f"env must be (2 C, n, n, n) with C = 1 or 3 (or its device "
+                         f"layout, env_device_layout), got {shape}")
+    defines.update(ENV=1, ENV_CHANNELS=channels)
+    return env.buffer, np.int32(n), f4(e.env_min), np.float32(e.env_size), f4(e.env_colour)
+
+
+def _bg_args(e: MarchEnvironment, camera: MarchCamera, rt, defines: dict) -> tuple:
+    bg = _device(e.bg_image, rt)
+    if tuple(bg.shape) != (camera.height, camera.width, 3):
+        raise ClvolError(f"bg_image must be ({camera.height}, {camera.width}, 3), got {bg.shape}")
+    defines["BG_IMAGE"] = 1
+    return (bg.buffer,)
+
+
+def _emission_args(e: MarchEmission, rt, defines: dict) -> tuple:
+    """The EMISSION arguments but the output layer (launch appends it)."""
+    em = _device(e.emission, rt)
+    if len(em.shape) != 4 or em.shape[0] not in (1, 3):
+        raise ClvolError(f"emission must be (C, ez, ey, ex) with C = 1 or 3, got {em.shape}")
+    defines.update(EMISSION=1, EMISSION_CHANNELS=em.shape[0], EMISSION_BOX=int(bool(e.em_box)))
+    ez, ey, ex = em.shape[1:]
+    return (em.buffer, np.int32(ex), np.int32(ey), np.int32(ez), f4(e.em_min), f4(e.em_max),
+            f4(e.em_colour))
+
+
+def _outputs(camera: MarchCamera, layers, stats: bool, rt) -> tuple[dict, int]:
+    """The output buffers of every layer and the stats (4 counts per tile with ``stats``,
+    else one unused word), and the number of tiles (work-items)."""
+    w, h = camera.width, camera.height
+    outs = {name: rt.empty((h * w * ch,)) for name, ch in layers}
+    n_tiles = -(-w // TILE) * -(-h // TILE)
+    outs["stats"] = rt.empty((n_tiles * 4 if stats else 1,), np.uint32)
+    return outs, n_tiles
+
+
+def _read_layers(outs: dict, layers, camera: MarchCamera, stat_tiles: int, evt, rt) -> dict:
     result = {}
     for name, ch in layers:
-        shape = (height, width, 3) if ch == 3 else (height, width)
+        shape = (camera.height, camera.width, 3) if ch == 3 else (camera.height, camera.width)
         result[name] = rt.from_device(outs[name], shape, wait_for=[evt])
-    if stats:
-        result["stats"] = rt.from_device(outs["stats"], (n_tiles, 4), np.uint32)
+    if stat_tiles:
+        result["stats"] = rt.from_device(outs["stats"], (stat_tiles, 4), np.uint32)
     return result

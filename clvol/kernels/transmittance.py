@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import ClvolError
 from ..runtime import Runtime, padded
+from .constants import kernel_constant
 from .grid import f4
 from .pyramid import Pyramid
 
@@ -144,8 +145,8 @@ def sweep_geometry(light_dir: np.ndarray) -> tuple[int, int, float, float, float
     return a, (1 if l[a] > 0 else -1), l[lat[0]] / la, l[lat[1]] / la, 1.0 / la
 
 
-SWEEP_PAD = 17    # cl/transmittance.cl: padding of the sweep layout
-SWEEP_BLOCK = 16  # sweep steps per launch
+SWEEP_PAD = kernel_constant("SWEEP_PAD")      # padding of the sweep layout
+SWEEP_BLOCK = kernel_constant("SWEEP_BLOCK")  # sweep steps per launch
 SWEEP_SLACK = 64  # floats after the last level (lanes of the last work-items run past it)
 SWEEP_GROUP = 64  # work-group size (column groups step together, see the kernel)
 VECTOR_MIN_N = 16  # levels with n >= 16 use the float16 kernel, smaller ones the scalar one

@@ -6,10 +6,11 @@ import numpy as np
 
 from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
+from .constants import kernel_constant
 from .grid import f4
 
-MAX_VIEW_K = 16
-MAX_VIEW_RAYS = 4
+MAX_VIEW_K = kernel_constant("VIEW_MAX_K")
+MAX_VIEW_RAYS = kernel_constant("VIEW_MAX_RAYS")
 
 
 def block_grid(width: int, height: int, block: int) -> tuple[int, int]:

@@ -95,13 +95,7 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
     for bit, whatever the budget cut (passes are fixed sample-index ranges). ``emission``: the
     scene's EmissionGrid (default: loaded from ``scene.emission``, if any).
     """
-    spp = _check_int("--spp", spp, 1)
-    max_order = _check_int("--max-order", max_order, 1)
-    seed = _check_int("--seed", seed, 0, allow_none=False)
-    if time_budget is not None and not (time_budget > 0):
-        raise ClvolError(f"--time = {time_budget!r}: must be > 0 seconds")
-    if spp is None and time_budget is None:
-        spp = DEFAULT_SPP
+    spp, max_order, seed = _check_render_options(spp, max_order, seed, time_budget)
     t_start = time.perf_counter()
     grid = grid if grid is not None else scene.volume.load()
     if emission is None and getattr(scene, "emission", None) is not None:
@@ -112,79 +106,124 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
     med.extra_defines = dict(extra_defines or {})
     pt = PathTracer(med, majorant_block, specialise=specialise, runtime=runtime,
                     device_medium=device_medium)
-    cam = scene.camera
-    npix = cam.width * cam.height
-    spl_max = max(1, PATHS_PER_LAUNCH // npix)
-
-    n_acc = 15 if emission is not None else 9
-    sums = np.zeros((npix, n_acc))
-    sq = np.zeros((npix, 3))
-    vertices = steps = truncated = 0.0
-    done = 0
-    t_sampling = time.perf_counter()
-    launch_seconds = []
-    with Progress(spp if spp is not None else time_budget, label="pathtrace",
-                  unit=" spp" if spp is not None else " s") as bar:
-        bar.enabled = bar.enabled and progress
-        while spp is None or done < spp:
-            spl = spl_max if spp is None else min(spl_max, spp - done)
-            if time_budget is not None and done > 0:
-                per_sample = (time.perf_counter() - t_sampling) / done
-                if time.perf_counter() - t_start + per_sample * spl > time_budget:
-                    # Shrink the last launch to what fits; stop if not even one pass does.
-                    spl = int((time_budget - (time.perf_counter() - t_start)) / per_sample)
-                    if spl < 1:
-                        break
-            t0 = time.perf_counter()
-            rows = pt.render_batch(cam, seed, done, spl)
-            launch_seconds.append(time.perf_counter() - t0)
-            rows64 = rows.astype(np.float64)
-            if emission is not None:
-                sums[:, :9] += rows64[..., :9].sum(axis=0)
-                sums[:, 9:] += rows64[..., PT_OUT:PT_OUT + 6].sum(axis=0)
-                total = (rows64[..., ROW_BG] + rows64[..., ROW_L1] + rows64[..., ROW_LMS]
-                         + rows64[..., ROW_EM_DIRECT] + rows64[..., ROW_EM_SCATTERED])
-            else:
-                sums += rows64[..., :9].sum(axis=0)
-                total = rows64[..., ROW_BG] + rows64[..., ROW_L1] + rows64[..., ROW_LMS]
-            sq += (total * total).sum(axis=0)
-            vertices += rows64[..., ROW_VERTICES].sum()
-            steps += rows64[..., ROW_STEPS].sum()
-            truncated += rows64[..., ROW_TRUNCATED].sum()
-            done += spl
-            bar.update(done=done if spp is not None else time.perf_counter() - t_start)
-    seconds = time.perf_counter() - t_start
-    sampling_seconds = time.perf_counter() - t_sampling
-
-    shape = (cam.height, cam.width, 3)
-    mean = sums / done
-    bg, l1, lms = mean[:, 0:3], mean[:, 3:6], mean[:, 6:9]
-    total = bg + l1 + lms
-    if emission is not None:
-        total = total + mean[:, 9:12] + mean[:, 12:15]
-    var = np.maximum(sq / done - total * total, 0.0) * (done / max(done - 1, 1))
-    layers = {"total": total.reshape(shape).astype(np.float32),
-              "single": l1.reshape(shape).astype(np.float32),
-              "multiple": lms.reshape(shape).astype(np.float32),
-              "total_se": np.sqrt(var / done).reshape(shape).astype(np.float32)}
-    if emission is not None:
-        layers["emission"] = mean[:, 9:12].reshape(shape).astype(np.float32)
-        layers["emission_scattered"] = mean[:, 12:15].reshape(shape).astype(np.float32)
-    n_paths = done * npix
+    tally = _PixelTally(scene.camera, emission is not None)
+    sampling_seconds = _sample(pt, scene.camera, seed, spp, time_budget, t_start, progress,
+                               tally)
+    n_paths = tally.done * scene.camera.width * scene.camera.height
     header = {
-        "spp": done, "seconds": round(seconds, 4), "seed": seed,
+        "spp": tally.done, "seconds": round(time.perf_counter() - t_start, 4), "seed": seed,
         "max_order": max_order if max_order else "all",
         "simulated": "; ".join(pt.simulated), "skipped": "; ".join(pt.skipped),
         "majorant_block": pt.block if majorant_block else "global",
         "defines": " ".join(f"{k}={v}" for k, v in sorted(pt.defines.items())),
         "samples_per_second": round(n_paths / max(sampling_seconds, 1e-9), 1),
-        "mean_vertices": round(vertices / n_paths, 3),
-        "mean_tracking_steps": round(steps / n_paths, 3),
-        "paths_truncated": int(truncated),
+        "mean_vertices": round(tally.vertices / n_paths, 3),
+        "mean_tracking_steps": round(tally.steps / n_paths, 3),
+        "paths_truncated": int(tally.truncated),
     }
     if time_budget is not None:
         header["time_budget"] = time_budget
-    return RenderResult(layers=layers, header=header)
+    return RenderResult(layers=tally.layers(), header=header)
+
+
+def _check_render_options(spp, max_order, seed, time_budget):
+    """(spp, max_order, seed) checked; spp is DEFAULT_SPP when neither it nor a time budget
+    is given."""
+    spp = _check_int("--spp", spp, 1)
+    max_order = _check_int("--max-order", max_order, 1)
+    seed = _check_int("--seed", seed, 0, allow_none=False)
+    if time_budget is not None and not (time_budget > 0):
+        raise ClvolError(f"--time = {time_budget!r}: must be > 0 seconds")
+    if spp is None and time_budget is None:
+        spp = DEFAULT_SPP
+    return spp, max_order, seed
+
+
+# The tally's columns: the row's accumulated sun part (background, order 1, orders >= 2), then
+# with emission its two parts (seen unscattered, scattered), as the row orders them.
+_SUN = ROW_LMS.stop
+_EM_DIRECT = slice(_SUN, _SUN + 3)
+_EM_SCATTERED = slice(_SUN + 3, _SUN + 6)
+
+
+class _PixelTally:
+    """Per-pixel float64 sums over the sample passes: the row's accumulated parts, the square
+    of each path's total (for the standard error), and the paths' vertex, step and truncation
+    counts."""
+
+    def __init__(self, camera, emission: bool):
+        self.shape = (camera.height, camera.width, 3)
+        self.emission = emission
+        npix = camera.width * camera.height
+        self.sums = np.zeros((npix, _EM_SCATTERED.stop if emission else _SUN))
+        self.sq = np.zeros((npix, 3))
+        self.vertices = self.steps = self.truncated = 0.0
+        self.done = 0
+
+    def add(self, rows: np.ndarray, spl: int) -> None:
+        """Rows (spl, npix, row) of ``spl`` samples per pixel."""
+        rows64 = rows.astype(np.float64)
+        total = rows64[..., ROW_BG] + rows64[..., ROW_L1] + rows64[..., ROW_LMS]
+        if self.emission:
+            self.sums[:, :_SUN] += rows64[..., :_SUN].sum(axis=0)
+            self.sums[:, _SUN:] += rows64[..., ROW_EM_DIRECT.start:ROW_EM_SCATTERED.stop].sum(axis=0)
+            total = total + rows64[..., ROW_EM_DIRECT] + rows64[..., ROW_EM_SCATTERED]
+        else:
+            self.sums += rows64[..., :_SUN].sum(axis=0)
+        self.sq += (total * total).sum(axis=0)
+        self.vertices += rows64[..., ROW_VERTICES].sum()
+        self.steps += rows64[..., ROW_STEPS].sum()
+        self.truncated += rows64[..., ROW_TRUNCATED].sum()
+        self.done += spl
+
+    def layers(self) -> dict:
+        """The image layers (module docstring) from the means, float32 (H, W, 3)."""
+        done, shape = self.done, self.shape
+        mean = self.sums / done
+        bg, l1, lms = mean[:, ROW_BG], mean[:, ROW_L1], mean[:, ROW_LMS]
+        total = bg + l1 + lms
+        if self.emission:
+            total = total + mean[:, _EM_DIRECT] + mean[:, _EM_SCATTERED]
+        var = np.maximum(self.sq / done - total * total, 0.0) * (done / max(done - 1, 1))
+        layers = {"total": total.reshape(shape).astype(np.float32),
+                  "single": l1.reshape(shape).astype(np.float32),
+                  "multiple": lms.reshape(shape).astype(np.float32),
+                  "total_se": np.sqrt(var / done).reshape(shape).astype(np.float32)}
+        if self.emission:
+            layers["emission"] = mean[:, _EM_DIRECT].reshape(shape).astype(np.float32)
+            layers["emission_scattered"] = mean[:, _EM_SCATTERED].reshape(shape).astype(np.float32)
+        return layers
+
+
+def _sample(pt, cam, seed: int, spp, time_budget, t_start: float, progress: bool,
+            tally: _PixelTally) -> float:
+    """Sample passes into ``tally`` until ``spp`` samples per pixel (None: no limit) or the
+    time budget; returns the seconds spent sampling. A pass is a fixed range of sample
+    indices, so where the budget cuts changes nothing in the samples before it."""
+    spl_max = max(1, PATHS_PER_LAUNCH // (cam.width * cam.height))
+    t_sampling = time.perf_counter()
+    with Progress(spp if spp is not None else time_budget, label="pathtrace",
+                  unit=" spp" if spp is not None else " s") as bar:
+        bar.enabled = bar.enabled and progress
+        while spp is None or tally.done < spp:
+            spl = spl_max if spp is None else min(spl_max, spp - tally.done)
+            if time_budget is not None and tally.done > 0:
+                spl = _within_budget(spl, tally.done, time_budget, t_start, t_sampling)
+                if spl < 1:
+                    break
+            tally.add(pt.render_batch(cam, seed, tally.done, spl), spl)
+            bar.update(done=tally.done if spp is not None else time.perf_counter() - t_start)
+    return time.perf_counter() - t_sampling
+
+
+def _within_budget(spl: int, done: int, time_budget: float, t_start: float,
+                   t_sampling: float) -> int:
+    """``spl``, or the samples per pixel that still fit in the budget when a pass of ``spl``
+    would end after it (judged from the ``done`` so far; < 1: stop)."""
+    per_sample = (time.perf_counter() - t_sampling) / done
+    if time.perf_counter() - t_start + per_sample * spl > time_budget:
+        return int((time_budget - (time.perf_counter() - t_start)) / per_sample)
+    return spl
 
 
 

@@ -193,17 +193,23 @@ class RayMarcher:
                           else emission.values, em_min=emission.bbox_min,
                           em_max=emission.bbox_max, em_colour=emission.colour,
                           em_box=emission.own_box)
+        from ..kernels.raymarch import (MarchCamera, MarchEmission, MarchEnvironment,
+                                        MarchLight, MarchMs, MarchVolume)
         res = launch(
-            plan.defines, self.density, g.bbox_min, g.bbox_max, self.medium.density_scale,
-            self.majorant, self.block,
-            self.light_field if plan.lit else None, cube_min, cube_size,
-            planes, *box,
-            camera.origin, fwd, right, up, camera.tan_half_fov,
-            camera.width, camera.height,
-            light.direction, light.irradiance, self.medium.albedo, list(plan.lobes),
-            plan.background, a=o.a, b=o.b, c=o.c, step=plan.step,
-            threshold=plan.threshold, lit=plan.lit, light_quantity=self.light_interp,
-            runtime=self.rt, read_back=read_back, stats=stats, **env_kw)
+            defines=plan.defines,
+            volume=MarchVolume(self.density, g.bbox_min, g.bbox_max, self.medium.density_scale,
+                               self.majorant, self.block),
+            camera=MarchCamera(camera.origin, fwd, right, up, camera.tan_half_fov,
+                               camera.width, camera.height),
+            light=MarchLight(light.direction, light.irradiance, self.medium.albedo,
+                             list(plan.lobes), plan.background,
+                             field=self.light_field if plan.lit else None,
+                             cube_min=cube_min, cube_size=cube_size,
+                             quantity=self.light_interp),
+            ms=MarchMs(planes, *box, a=o.a, b=o.b, c=o.c),
+            environment=MarchEnvironment.pick(env_kw), emission=MarchEmission.pick(env_kw),
+            step=plan.step, threshold=plan.threshold, runtime=self.rt,
+            read_back=read_back, stats=stats)
         if read_back:
             return res, plan
         return res + (plan,)

@@ -1,0 +1,271 @@
+"""Numbers that both a host and a kernel use are written in one place (STYLE.md 16, issue 23).
+
+Two directions, each with its place:
+- a number the kernel's code fixes (a tile side, a padding, an output row's width) is a
+  ``#define`` of cl/include/constants.h, which the Python host reads
+  (clvol/kernels/constants.py) and the C host gets through the bundle's host.* keys;
+- a number the host decides (the feature contract, the weight format, measured lane counts)
+  is passed as a -D define, and the kernel stops with #error without it.
+
+Checked here: no module of clvol/ repeats a kernel's number as a literal (under its own name
+or the host's name for it); the twins in reference/ state the same numbers as the kernels; a
+built program sees the values the Python host read and passed; a kernel refuses to build
+without a define the host must pass (no silent default).
+"""
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from clvol.errors import BuildError
+from clvol.kernels import constants as kc
+from clvol.runtime import _define_flags, get_runtime, include_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+CL_SOURCES = sorted((ROOT / "cl").glob("*.cl")) + sorted((ROOT / "cl" / "include").glob("*.h"))
+
+# The host's name of a kernel's number, where the two differ (Python name -> kernel name).
+KERNEL_NAME = {
+    "PT_OUT": "PT_OUT_NO_EMISSION", "QUERIES_PER_ITEM": "MLP_QUERIES_PER_ITEM",
+    "MAX_VIEW_K": "VIEW_MAX_K", "MAX_VIEW_RAYS": "VIEW_MAX_RAYS", "MAX_OCTAVES": "MS_MAX_OCTAVES",
+    "RR_START": "PT_RR_START", "MAX_VERTICES": "PT_MAX_VERTICES", "T_RR": "PT_T_RR",
+    "ORDER_EXACT": "PT_ORDER_EXACT", "ORDER_EXACT_LOG2": "PT_ORDER_EXACT_LOG2",
+    "ORDER_SUB": "PT_ORDER_SUB", "ORDER_END_LOG2": "PT_ORDER_END_LOG2",
+    "SERIES_BELOW": "H_SERIES_BELOW", "EMPTY_WEIGHT": "VIEW_EMPTY_WEIGHT",
+    "MIN_LEVEL": "VIEW_MIN_LEVEL", "SQUEEZE_DIM": "SQUEEZE", "GAMMA": "MLP_GAMMA",
+    "ALBEDO_EPS": "MLP_ALBEDO_EPS", "M0": "PHILOX_M0", "M1": "PHILOX_M1", "W0": "PHILOX_W0",
+    "W1": "PHILOX_W1",
+}
+
+_NUMBER = r"(0[xX][0-9a-fA-F]+|[0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)[uUfF]?"
+_DEFINE = re.compile(r"^[ \t]*#[ \t]*define[ \t]+([A-Z][A-Z0-9_]*)[ \t]+(-?)" + _NUMBER
+                     + r"[ \t]*(?:/\*.*)?$", re.MULTILINE)
+
+
+def _name(path: Path) -> str:
+    return path.relative_to(ROOT).as_posix() if path.is_relative_to(ROOT) else path.name
+
+
+def _number(text: str) -> float:
+    return float(int(text, 16)) if text.lower().startswith("0x") else float(text)
+
+
+def kernel_numbers(sources=CL_SOURCES) -> dict[str, dict[str, float]]:
+    """NAME -> {file: value} of every ``#define NAME number`` in the OpenCL sources (defaults
+    under #ifndef included)."""
+    out: dict[str, dict[str, float]] = {}
+    for path in sources:
+        for m in _DEFINE.finditer(path.read_text()):
+            out.setdefault(m[1], {})[_name(path)] = \
+                (-1 if m[2] else 1) * _number(m[3])
+    return out
+
+
+def _literal(node):
+    """The number a module-level value states literally: 4, -1.5, np.uint32(0x9E3779B9);
+    None for anything computed."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) \
+            and not isinstance(node.value, bool):
+        return float(node.value)
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+        v = _literal(node.operand)
+        return None if v is None else -v
+    if isinstance(node, ast.Call) and len(node.args) == 1 and not node.keywords:
+        return _literal(node.args[0])        # a dtype around a literal
+    return None
+
+
+def python_literals(folder: Path) -> dict[str, tuple[str, float]]:
+    """NAME -> (file, value) of every module-level ``NAME = <number literal>`` (tuples of names
+    and literals too) in the modules under ``folder``."""
+    out = {}
+    for path in sorted(folder.rglob("*.py")):
+        if "_cl" in path.parts:
+            continue
+        for node in ast.parse(path.read_text(), str(path)).body:
+            if not isinstance(node, (ast.Assign, ast.AnnAssign)) or node.value is None:
+                continue
+            for target in (node.targets if isinstance(node, ast.Assign) else [node.target]):
+                pairs = [(target, node.value)]
+                if isinstance(target, ast.Tuple) and isinstance(node.value, ast.Tuple):
+                    pairs = list(zip(target.elts, node.value.elts))
+                for t, v in pairs:
+                    value = _literal(v)
+                    if isinstance(t, ast.Name) and value is not None:
+                        out[t.id] = (_name(path), value)
+    return out
+
+
+def repeated(literals: dict, numbers: dict) -> dict[str, tuple]:
+    """The Python literals that name (directly or through KERNEL_NAME) a kernel's number:
+    name -> (python file, value, kernel name, {kernel file: value})."""
+    out = {}
+    for name, (path, value) in literals.items():
+        k = KERNEL_NAME.get(name, name)
+        if k in numbers:
+            out[name] = (path, value, k, numbers[k])
+    return out
+
+
+# --------------------------------------------------------------------------- the scanners
+
+def test_the_scanners_find_defines_and_literals(tmp_path):
+    (tmp_path / "k.cl").write_text("#define TILE 4\n#ifndef X\n  #define X 0x1Fu  /* c */\n"
+                                   "#endif\n#define Y 1e-5f\n#define LANES ((a)(0, 1))\n"
+                                   "#define Z (A + 1)\n")
+    got = kernel_numbers([tmp_path / "k.cl"])
+    assert {k: list(v.values()) for k, v in got.items()} == \
+        {"TILE": [4.0], "X": [31.0], "Y": [1e-5]}
+    (tmp_path / "m.py").write_text("import numpy as np\nTILE = 4\nA, B = 1, np.uint32(7)\n"
+                                   "C = len('abc')\nD: float = -0.5\nE = True\n"
+                                   "def f():\n    F = 3\n")
+    lits = python_literals(tmp_path)
+    assert {k: v[1] for k, v in lits.items()} == {"TILE": 4.0, "A": 1.0, "B": 7.0, "D": -0.5}
+    assert set(repeated(lits, got)) == {"TILE"}
+
+
+# --------------------------------------------------------------------------- one place
+
+def test_no_clvol_module_repeats_a_kernel_number():
+    """A number a kernel #defines is read from cl/include/constants.h or passed as -D, never
+    written again in clvol/ (where it would silently diverge from the kernel's)."""
+    twice = repeated(python_literals(ROOT / "clvol"), kernel_numbers())
+    assert not twice, "\n".join(
+        f"{path}: {name} = {value:g} repeats {k} of {sorted(files)}: read it with "
+        f"clvol.kernels.constants.kernel_constant or pass it as a -D define"
+        for name, (path, value, k, files) in sorted(twice.items()))
+
+
+def test_constants_h_holds_the_only_definition_of_its_names():
+    """A kernel that #defined one of the header's names again would see its own value."""
+    header = include_dir() / kc.HEADER
+    names = set(kc.kernel_constants())
+    again = {}
+    for path in CL_SOURCES:
+        if path.name == header.name:
+            continue
+        for m in re.finditer(r"^[ \t]*#[ \t]*define[ \t]+([A-Z][A-Z0-9_]*)\b", path.read_text(),
+                             re.MULTILINE):
+            if m[1] in names:
+                again.setdefault(m[1], []).append(_name(path))
+    assert not again
+
+
+def test_twins_state_the_kernels_numbers():
+    """reference/ imports nothing from clvol (test_architecture.py): its copies of the kernels'
+    numbers are compared here instead."""
+    numbers = kernel_numbers()
+    both = repeated(python_literals(ROOT / "reference"), numbers)
+    # the test would pass vacuously if the scanners stopped matching: these must be found
+    assert {"RR_START", "MAX_VERTICES", "T_RR", "PT_OUT", "ORDER_EXACT", "ORDER_SUB",
+            "SERIES_BELOW", "SKIP_PASSES", "EMPTY_WEIGHT", "MIN_LEVEL", "M0", "W1"} <= set(both)
+    differ = {name: (path, value, k, files) for name, (path, value, k, files) in both.items()
+              if any(np.float32(v) != np.float32(value) for v in files.values())}
+    assert not differ
+
+
+def test_the_header_is_read_strictly():
+    assert kc.parse_constants("/* a\n b */\n#ifndef CLVOL_CONSTANTS_H\n#define CLVOL_CONSTANTS_H\n"
+                              "#define  TILE   4  /* side */\n#define N -2\n#endif\n") == \
+        {"TILE": 4, "N": -2}
+    for bad in ("#define TILE (2 * 2)\n", "#define TILE 4\n#define TILE 4\n", "#include \"x.h\"\n",
+                "#if X\n#define TILE 4\n#endif\n", "#define TILE 4.0f\n"):
+        with pytest.raises(BuildError, match="constants.h"):
+            kc.parse_constants(bad)
+    with pytest.raises(BuildError, match="NOPE"):
+        kc.kernel_constant("NOPE")
+
+
+# --------------------------------------------------------------------------- what a kernel sees
+
+def _probe(header: str, ints: list[str], floats: list[str], defines: dict) -> tuple[list, list]:
+    """Build ``#include header`` and a kernel that writes the listed macros, with the host's
+    -D options for ``defines``; returns the values the program saw."""
+    rt = get_runtime()
+    src = (f'#include "{header}"\n__kernel void probe(__global long *i, __global float *f) {{\n'
+           + "".join(f"    i[{j}] = {n};\n" for j, n in enumerate(ints))
+           + "".join(f"    f[{j}] = {n};\n" for j, n in enumerate(floats)) + "}\n")
+    prog = cl.Program(rt.context, src).build(
+        options=["-I", str(include_dir())] + _define_flags(defines), devices=[rt.device])
+    iv = np.zeros(max(len(ints), 1), np.int64)
+    fv = np.zeros(max(len(floats), 1), np.float32)
+    ib = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, iv.nbytes)
+    fb = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, fv.nbytes)
+    prog.probe(rt.queue, (1,), None, ib, fb)
+    cl.enqueue_copy(rt.queue, iv, ib)
+    cl.enqueue_copy(rt.queue, fv, fb)
+    rt.queue.finish()
+    return iv[:len(ints)].tolist(), fv[:len(floats)].tolist()
+
+
+def test_a_program_sees_the_header_values_the_python_host_uses():
+    from clvol.kernels import gather, mlp, pathtrace, raymarch, transmittance, viewdepth
+    host = {  # kernel name -> the values the Python wrappers launch with
+        "TILE": [raymarch.TILE], "MS_MAX_OCTAVES": [raymarch.MAX_OCTAVES],
+        "SWEEP_PAD": [transmittance.SWEEP_PAD], "SWEEP_BLOCK": [transmittance.SWEEP_BLOCK],
+        "BAKE_SPAN": [gather.BAKE_SPAN], "MLP_QUERIES_PER_ITEM": [mlp.QUERIES_PER_ITEM],
+        "PT_OUT_NO_EMISSION": [pathtrace.PT_OUT, pathtrace.ROW_EM_DIRECT.start],
+        "PT_OUT_EMISSION": [pathtrace.PT_OUT_EMISSION, pathtrace.ROW_EM_SCATTERED.stop],
+        "PT_ORDER_EXACT": [pathtrace.ORDER_EXACT], "PT_ORDER_EXACT_LOG2": [pathtrace.ORDER_EXACT_LOG2],
+        "PT_ORDER_SUB": [pathtrace.ORDER_SUB], "PT_ORDER_END_LOG2": [pathtrace.ORDER_END_LOG2],
+        "VIEW_MAX_K": [viewdepth.MAX_VIEW_K, raymarch.MAX_VIEW_K],
+        "VIEW_MAX_RAYS": [viewdepth.MAX_VIEW_RAYS],
+    }
+    assert set(host) == set(kc.kernel_constants())       # every header value has a user here
+    names = sorted(host)
+    seen, _ = _probe(kc.HEADER, names, [], {})
+    assert {n: [v] * len(host[n]) for n, v in zip(names, seen)} == host
+
+
+def test_mlp_core_sees_the_contract_the_host_passes():
+    from clvol.kernels.mlp import kernel_defines
+    from clvol.neural import export, layout
+    defines = kernel_defines(export.Architecture(), 1, True)
+    ints, floats = _probe("mlp_core.h", ["CONFIG_DIM", "CFG_GMEAN", "CFG_ALBEDO", "CFG_ALPHA",
+                                        "N_TYPES", "SQUEEZE", "MLP_GAMMA"],
+                          ["MLP_ALBEDO_EPS"], defines)
+    f = layout.CONFIG_FIELDS
+    assert ints == [len(f), f.index("g_mean"), f.index("albedo"), f.index("alpha"),
+                    len(layout.FEATURE_TYPES), export.SQUEEZE_DIM, export.GAMMA]
+    assert floats == [np.float32(export.ALBEDO_EPS)]
+
+
+def test_twin_reads_the_config_where_the_kernel_does():
+    from reference import mlp as ref
+    from clvol.kernels.mlp import contract_defines
+    d = contract_defines()
+    assert (ref.G_MEAN, ref.ALBEDO, ref.ALPHA, len(ref.CONFIG_FIELDS), ref.GAMMA) == \
+        (d["CFG_GMEAN"], d["CFG_ALBEDO"], d["CFG_ALPHA"], d["CONFIG_DIM"], d["MLP_GAMMA"])
+
+
+# --------------------------------------------------------------------------- no silent default
+
+def _contract_names():
+    from clvol.kernels.mlp import contract_defines
+    return sorted(contract_defines())
+
+
+@pytest.mark.parametrize("name", _contract_names())
+def test_mlp_core_refuses_to_build_without_a_contract_define(name):
+    from clvol.kernels.mlp import kernel_defines
+    from clvol.neural import export
+    defines = kernel_defines(export.Architecture(), 1, True)
+    del defines[name]
+    with pytest.raises(cl.RuntimeError, match=f"needs -D {name}"):
+        _probe("mlp_core.h", ["CONFIG_DIM"], [], defines)
+
+
+@pytest.mark.parametrize("stem, defines, name", [
+    ("viewdepth", {"VIEW_BLOCK": 4, "VIEW_RAYS": 2}, "VIEW_K"),
+    ("viewdepth", {"VIEW_K": 4, "VIEW_RAYS": 2}, "VIEW_BLOCK"),
+    ("viewdepth", {"VIEW_K": 4, "VIEW_BLOCK": 4}, "VIEW_RAYS"),
+    ("pathtrace", {"PHASE_LOBES": 1}, "PT_LANES"),
+])
+def test_kernels_refuse_to_build_without_a_host_define(stem, defines, name):
+    with pytest.raises(BuildError, match=f"needs -D {name}"):
+        get_runtime().program(stem, defines)
