@@ -216,7 +216,12 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
             "sweep_vector_min_n": kt.VECTOR_MIN_N, "bake_min_row_level": kg.MIN_ROW_LEVEL,
             "bake_span": kg.BAKE_SPAN, "bake_pad": kg.BAKE_PAD, "sort_bits": kg.SORT_BITS,
             "mlp_queries_per_item": km.QUERIES_PER_ITEM, "raymarch_tile": kr.TILE,
-            "raymarch_local_size": kr.LOCAL_SIZE}
+            "raymarch_local_size": kr.LOCAL_SIZE,
+            # the network's config layout (clvol/neural/layout.py CONFIG_FIELDS): the phase
+            # fields first (medium.config_phase), then the albedo and alpha the host adds
+            "config_dim": layout.CONFIG_DIM,
+            "config_albedo": layout.CONFIG_FIELDS.index("albedo"),
+            "config_alpha": layout.CONFIG_FIELDS.index("alpha")}
     for key, value in host.items():
         m[f"host.{key}"] = value
 
@@ -239,7 +244,8 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     # config fields g0 g1 g2 w0 w1 w2 g_mean of every query (clvol/neural/layout.py), as the gather
     # makes them; the host adds albedo and alpha per query
     cfg = kg.config_vectors(medium, 0.0, np.array([[0.0, 0.0, 1.0]]), np.array([0.0, 0.0, 1.0]))
-    m["medium.config_phase"] = cfg[0, :7].tolist()
+    n_phase = layout.CONFIG_FIELDS.index("albedo")       # the fields before the albedo
+    m["medium.config_phase"] = cfg[0, :n_phase].tolist()
 
     m.comment("light: direction toward the light (unit), irradiance RGB, background RGB")
     m["light.direction"] = kt.check_light_dir(light.direction, "light.direction").tolist()

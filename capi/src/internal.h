@@ -162,6 +162,7 @@ struct clvol_renderer {
     manifest mf;
     int pad, sweep_pad, sweep_block, sweep_slack, sweep_group, sweep_vmin, bake_min, bake_span,
         bake_pad, sort_bits, mlp_qpi, tile, rm_local;
+    int cfg_dim, cfg_albedo, cfg_alpha;   /* the network config layout (host.config_*) */
     int source;                 /* SOURCE_*: the bundle's, fixed (its programs) */
     /* volume (V) */
     int nx, ny, nz;

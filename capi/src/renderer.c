@@ -300,6 +300,12 @@ static void read_host_constants(clvol_host *h) {
     h->bake_pad = mf_int_in(m, "host.bake_pad", 0, 4096);
     h->sort_bits = mf_int_in(m, "host.sort_bits", 1, 10);
     h->mlp_qpi = mf_int_in(m, "host.mlp_queries_per_item", 1, 64);
+    h->cfg_dim = mf_int_in(m, "host.config_dim", 3, 64);
+    h->cfg_albedo = mf_int_in(m, "host.config_albedo", 0, h->cfg_dim - 1);
+    h->cfg_alpha = mf_int_in(m, "host.config_alpha", 0, h->cfg_dim - 1);
+    if (h->cfg_albedo > 16 || h->cfg_alpha == h->cfg_albedo)
+        fail(BUNDLE, "%s: host.config_albedo %d / host.config_alpha %d: the phase fields come "
+             "first (at most 16), then two distinct slots", m->where, h->cfg_albedo, h->cfg_alpha);
     h->tile = mf_int_in(m, "host.raymarch_tile", 1, 16);
     h->rm_local = mf_int_in(m, "host.raymarch_local_size", 1, 1024);
 }
@@ -686,12 +692,15 @@ static void lattice_stage(clvol_host *h) {
     /* the network runs at the active points only (n queries, in ascending lattice order:
      * the Python host's order); the others get F_ms = 0 */
     int n = h->n_active, nq = n > 0 ? n : 1;   /* nq: buffers are never empty */
-    double cphase[7];
-    mf_doubles(m, "medium.config_phase", cphase, 7);
+    /* config layout from the bundle: the phase fields [0, cfg_albedo), then the albedo and
+     * alpha slots (clvol/neural/layout.py CONFIG_FIELDS) */
+    const int D = h->cfg_dim, NPH = h->cfg_albedo;
+    double cphase[16];
+    mf_doubles(m, "medium.config_phase", cphase, NPH);
     /* lattice: voxel centres over the box, [z][y][x], omega toward the camera */
     float *pts = xmalloc(sizeof(float) * 3 * (size_t)nq);
     float *oms = xmalloc(sizeof(float) * 3 * (size_t)nq);
-    float *cfg = xmalloc(sizeof(float) * 9 * (size_t)nq);
+    float *cfg = xcalloc((size_t)D * (size_t)nq, sizeof(float));
     int *order = xmalloc(sizeof(int) * (size_t)nq);
     uint32_t *key = xmalloc(sizeof(uint32_t) * (size_t)nq);
     int cells = 1 << h->sort_bits;
@@ -719,9 +728,9 @@ static void lattice_stage(clvol_host *h) {
         }
         key[q] = kk;
         count[kk + 1]++;
-        for (int f = 0; f < 7; ++f) cfg[9 * q + f] = (float)cphase[f];
-        cfg[9 * q + 7] = (float)alb[0];
-        cfg[9 * q + 8] = (float)acos(clampd(mu, -1.0, 1.0));
+        for (int f = 0; f < NPH; ++f) cfg[D * q + f] = (float)cphase[f];
+        cfg[D * q + h->cfg_albedo] = (float)alb[0];
+        cfg[D * q + h->cfg_alpha] = (float)acos(clampd(mu, -1.0, 1.0));
     }
     /* queries in Morton order of their coarse cell (stable counting sort): only speed */
     for (long i = 0; i < nkeys; ++i) count[i + 1] += count[i];
@@ -732,7 +741,7 @@ static void lattice_stage(clvol_host *h) {
         h->d_points = buffer(h, sizeof(float) * 3 * (size_t)nq, NULL);
         h->d_omegas = buffer(h, sizeof(float) * 3 * (size_t)nq, NULL);
         h->d_order = buffer(h, sizeof(int) * (size_t)nq, NULL);
-        h->d_config = buffer(h, sizeof(float) * 9 * (size_t)nq, NULL);
+        h->d_config = buffer(h, sizeof(float) * (size_t)D * (size_t)nq, NULL);
         h->d_feats = buffer(h, sizeof(float) * 3 * (size_t)h->np_ * nq, NULL);
         h->d_tenter = buffer(h, sizeof(float) * (size_t)nq, NULL);
         h->d_fms = buffer(h, sizeof(float) * (size_t)C * nq, NULL);
@@ -744,7 +753,7 @@ static void lattice_stage(clvol_host *h) {
         CL(clEnqueueWriteBuffer(h->queue, h->d_points, CL_FALSE, 0, 12 * (size_t)n, pts, 0, NULL, NULL));
         CL(clEnqueueWriteBuffer(h->queue, h->d_omegas, CL_FALSE, 0, 12 * (size_t)n, oms, 0, NULL, NULL));
         CL(clEnqueueWriteBuffer(h->queue, h->d_order, CL_FALSE, 0, 4 * (size_t)n, order, 0, NULL, NULL));
-        CL(clEnqueueWriteBuffer(h->queue, h->d_config, CL_FALSE, 0, 36 * (size_t)n, cfg, 0, NULL, NULL));
+        CL(clEnqueueWriteBuffer(h->queue, h->d_config, CL_FALSE, 0, sizeof(float) * (size_t)D * (size_t)n, cfg, 0, NULL, NULL));
         /* gather, render mode */
         cl_float4 cmin = f4(h->cube_min), light4 = f4(l), lg, lw;
         mf_float4(m, "medium.lobe_g", 4, &lg);
