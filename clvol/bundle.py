@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -84,34 +85,66 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
 
     The options, the source actually used (the network, or the analytic source the renderer
     falls back to: none or wrenninge), the kernel defines and the lattice points the network
-    evaluates are all taken from a ``clvol.Renderer`` built for the scene; nothing is
-    rendered. ``runtime``: the OpenCL runtime it is built on (default: clvol's).
+    evaluates are all taken from the plan of a ``clvol.Renderer`` built for the scene; nothing
+    is rendered. ``runtime``: the OpenCL runtime it is built on (default: clvol's).
     ``octaves``: an ``Octaves`` for the Wrenninge fallback (default the renderer's: 3 octaves,
     a = b = c = 0.5); used only where the renderer falls back to it."""
-    from .kernels import gather as kg
-    from .kernels import mlp as km
-    from .kernels import pyramid as kp
-    from .kernels import raymarch as kr
-    from .kernels import transmittance as kt
+    b = _plan(scene, dict(weights=weights, ms_resolution=ms_resolution, step=step,
+                          threshold=threshold, majorant_block=block,
+                          light_resolution=light_resolution, light_interp=light_interp,
+                          skip_empty=skip_empty), runtime, octaves)
+    out = Path(out_dir)
+    m = _Manifest()
+    _write_sources(m, scene, out)
+    _write_programs(m, b)
+    _write_host_constants(m)
+    _write_volume(m, b, out)
+    _write_medium_light_camera(m, b)
+    _write_raymarch(m, b)
+    _write_domain(m, b)
+    _write_network(m, b, out)
+    _write_gather_tables(m, b, out)
+    (out / "manifest.txt").write_text(m.text())
+    return out
+
+
+@dataclass
+class _Planned:
+    """The renderer's plan of the scene's frame and what the sections write from it."""
+    scene: object
+    grid: object
+    options: object
+    plan: object
+    domain: dict
+    weights: object            # the network's MlpWeights
+    res: tuple                 # the F_ms lattice (gx, gy, gz)
+    active: object             # the network's active lattice points ([z][y][x] indices)
+    network: bool              # the network runs (lit, and the plan's source)
+    light_res: int
+    block: int                 # majorant block (voxels)
+
+    @property
+    def base(self) -> int:
+        return int(self.weights.contract["base_resolution"])
+
+    @property
+    def med_lobes(self):
+        from .kernels import gather as kg
+        return kg._lobes(self.scene.medium)
+
+
+def _plan(scene, given: dict, runtime, octaves) -> _Planned:
+    """The renderer validates and completes the options exactly as `clvol render` does, and
+    its plan (clvol/render/plan.py) is what the bundle serialises: the source it chose, the
+    kernel defines, the active lattice points, the light field's resolution. What the C host
+    does not implement is refused here, naming it."""
     from .kernels.majorant import majorant_block
-    from .kernels.phase import lobe_vectors, phase_defines
-    from .render.ms.network import (NETWORK_CHUNK, lattice_reach_mask,
-                                    load_network_weights, outside_domain)
+    from .render.ms.network import NETWORK_CHUNK, lattice_reach_mask, load_network_weights
     from .render.raymarch import auto_light_resolution
     from .render.renderer import Renderer
-    from .runtime import DEFAULT_PAD, cl_source_dir, include_dir
-
-    given = dict(weights=weights, ms_resolution=ms_resolution, step=step, threshold=threshold,
-                 majorant_block=block, light_resolution=light_resolution,
-                 light_interp=light_interp, skip_empty=skip_empty,
-                 **(octaves.as_options() if octaves is not None else {}))
     grid = scene.volume.load()
-    # The renderer validates and completes the options exactly as `clvol render` does, and
-    # its plan (clvol/render/plan.py) is what this bundle serialises: the source it chose,
-    # the kernel defines, the active lattice points, the light field's resolution.
     r = Renderer(scene, "raymarch", grid=grid, runtime=runtime, ms="network",
-                 **{k: v for k, v in given.items() if v is not None and k not in
-                    ("octaves", "ms_a", "ms_b", "ms_c")})
+                 **{k: v for k, v in given.items() if v is not None})
     o = r.options
     if octaves is not None:        # the Wrenninge fallback's octaves, used where it runs
         for k, v in octaves.as_options().items():
@@ -123,18 +156,8 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
         # The Python host splits bigger lattices into chunks; the C host runs one launch.
         raise ClvolError(f"bundle option ms_resolution = {o['ms_resolution']!r}: at most "
                          f"{NETWORK_CHUNK} lattice points (32^3) in a bundle")
-    medium, light, cam = scene.medium, scene.light, scene.camera
     if plan.supersample != 1:
         raise ClvolError("bundle: supersampling is not in the bundle format")
-    step, threshold = plan.step_voxels, plan.threshold
-    skip_empty, light_interp = plan.skip_empty, plan.light_interp
-    block = majorant_block(o["majorant_block"], grid.density.shape)
-    w = load_network_weights(r.source.weights_path)
-    light_res = plan.light_resolution or auto_light_resolution(grid)
-    base = int(w.contract["base_resolution"])
-    lam = float(w.contract["lambda"])
-    L = kp.n_levels(base)
-
     # The C host runs the network, none and wrenninge; another source is refused by name.
     if plan.lit and plan.source not in ("network", "none", "wrenninge"):
         raise ClvolError(f"{scene.path or 'scene'}: the renderer would use --ms {plan.source} "
@@ -147,12 +170,15 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     network = plan.lit and plan.source == "network"
     # Lattice points the network evaluates (the others hold F_ms = 0): the plan's rule.
     active = (np.flatnonzero(lattice_reach_mask(grid, res, plan.lattice_reach))
-              if network else None)
-    channels = plan.channels if plan.lit else 1
-    grey = medium.is_grey
-    med_lobes = kg._lobes(medium)
+              if network else np.zeros(0, np.int64))
+    return _Planned(scene, grid, o, plan, r.domain, load_network_weights(r.source.weights_path),
+                    res, active, network, plan.light_resolution or auto_light_resolution(grid),
+                    majorant_block(o["majorant_block"], grid.density.shape))
 
-    out = Path(out_dir)
+
+def _write_sources(m: "_Manifest", scene, out: Path) -> None:
+    """The OpenCL sources the programs build from, copied, and the manifest's head."""
+    from .runtime import cl_source_dir, include_dir
     out.mkdir(parents=True, exist_ok=True)
     (out / "cl" / "include").mkdir(parents=True, exist_ok=True)
     src = cl_source_dir()
@@ -162,8 +188,6 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
         shutil.copyfile(src / name, out / "cl" / name)
     for name in headers:
         shutil.copyfile(include_dir() / name, out / "cl" / "include" / name)
-
-    m = _Manifest()
     m.comment("clvol bundle: key = value, lists space-separated; format in docs/embedding.md")
     m["format"] = FORMAT
     m["format_version"] = FORMAT_VERSION
@@ -172,11 +196,20 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["headers"] = ["cl/include/" + n for n in headers]
     m["include_dir"] = "cl/include"
 
+
+def _write_programs(m: "_Manifest", b: _Planned) -> None:
+    """The programs the Python host builds for this plan, with their -D options."""
+    from .kernels import gather as kg
+    from .kernels import mlp as km
+    from .kernels import pyramid as kp
+    from .kernels import transmittance as kt
+    from .kernels.phase import phase_defines
+    from .runtime import _define_flags
+    plan, base = b.plan, b.base
     m.comment("programs: <name> = source file; options (all devices); options_pocl (added on PoCL)")
-    mlp_defs = km.kernel_defines(w.arch, 1 if grey else 3, True)
-    gather_defs = dict(phase_defines(med_lobes), NP=layout.N_POINTS,
+    mlp_defs = km.kernel_defines(b.weights.arch, 1 if b.scene.medium.is_grey else 3, True)
+    gather_defs = dict(phase_defines(b.med_lobes), NP=layout.N_POINTS,
                        COARSE_LEVEL=kg.coarse_level(base), GATHER_RENDER=1)
-    rm_defs = dict(plan.defines, LIGHT_TAU=int(light_interp == "optical_depth"))
     programs = {
         "pyramid": ("pyramid", {}, {}),
         "majorant": ("majorant", {}, {}),
@@ -186,20 +219,21 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
         "gather": ("gather", gather_defs, {"GATHER_SHUFFLE": 1} if kg.USE_SHUFFLE else {}),
         "gather_bake": ("gather", {}, {}),
         "mlp": ("mlp", mlp_defs, {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}),
-        "raymarch": ("raymarch", rm_defs, {}),
+        "raymarch": ("raymarch", _raymarch_defines(b), {}),
     }
     # What the Python host builds: nothing lit, no light field and no source; an analytic
     # source, the light field (its cube's mips, the sweeps) but no network.
     if not plan.lit:
-        keep = ("majorant", "raymarch")
+        keep = ["majorant", "raymarch"]
     else:
         # the sweeps' widths: float16 columns on levels of at least VECTOR_MIN_N voxels
         # (clvol/kernels/transmittance.py), for the light field and the network's pyramid
-        sizes = [light_res] + ([base >> lv for lv in range(L)] if network else [])
+        sizes = [b.light_res] + ([base >> lv for lv in range(kp.n_levels(base))]
+                                 if b.network else [])
         widths = {16 if n >= kt.VECTOR_MIN_N else 1 for n in sizes}
         keep = ["pyramid", "majorant", "transmittance", "raymarch"]
         keep += [f"transmittance_w{wd}" for wd in sorted(widths)]
-        if network:
+        if b.network:
             keep += ["gather", "gather_bake", "mlp"]
     programs = {k: v for k, v in programs.items() if k in keep}
     m["programs"] = list(programs)
@@ -207,9 +241,19 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
         m[f"program.{name}"] = f"cl/{stem}.cl"
         m[f"program.{name}.options"] = program_options(stem, defs).split()
         if pocl:
-            from .runtime import _define_flags
             m[f"program.{name}.options_pocl"] = _define_flags(pocl)
 
+
+def _raymarch_defines(b: _Planned) -> dict:
+    return dict(b.plan.defines, LIGHT_TAU=int(b.plan.light_interp == "optical_depth"))
+
+
+def _write_host_constants(m: "_Manifest") -> None:
+    from .kernels import gather as kg
+    from .kernels import mlp as km
+    from .kernels import raymarch as kr
+    from .kernels import transmittance as kt
+    from .runtime import DEFAULT_PAD
     m.comment("host constants of the launches (clvol/runtime.py, clvol/kernels/*.py)")
     host = {"pad": DEFAULT_PAD, "sweep_pad": kt.SWEEP_PAD, "sweep_block": kt.SWEEP_BLOCK,
             "sweep_slack": kt.SWEEP_SLACK, "sweep_group": kt.SWEEP_GROUP,
@@ -225,6 +269,9 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     for key, value in host.items():
         m[f"host.{key}"] = value
 
+
+def _write_volume(m: "_Manifest", b: _Planned, out: Path) -> None:
+    grid = b.grid
     m.comment("volume: raw density [nz][ny][nx] float32, sigma_t = density * density_scale")
     m["density.file"] = "density.f32"
     _write_raw(out / "density.f32", grid.density, np.float32)
@@ -233,12 +280,18 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["density.bbox_min"] = [float(v) for v in grid.bbox_min]
     m["density.bbox_max"] = [float(v) for v in grid.bbox_max]
 
+
+def _write_medium_light_camera(m: "_Manifest", b: _Planned) -> None:
+    from .kernels import gather as kg
+    from .kernels import transmittance as kt
+    from .kernels.phase import lobe_vectors
+    medium, light, cam = b.scene.medium, b.scene.light, b.scene.camera
     m.comment("medium")
     m["medium.density_scale"] = float(medium.density_scale)
     m["medium.albedo"] = [float(a) for a in medium.albedo]
-    m["medium.grey"] = grey
-    m["medium.lobes"] = len(med_lobes)
-    g4, w4 = lobe_vectors(med_lobes)
+    m["medium.grey"] = medium.is_grey
+    m["medium.lobes"] = len(b.med_lobes)
+    g4, w4 = lobe_vectors(b.med_lobes)
     m["medium.lobe_g"] = g4.tolist()
     m["medium.lobe_w"] = w4.tolist()
     # config fields g0 g1 g2 w0 w1 w2 g_mean of every query (clvol/neural/layout.py), as the gather
@@ -250,7 +303,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m.comment("light: direction toward the light (unit), irradiance RGB, background RGB")
     m["light.direction"] = kt.check_light_dir(light.direction, "light.direction").tolist()
     m["light.irradiance"] = [float(v) for v in light.irradiance]
-    m["light.background"] = [float(v) for v in plan.background]
+    m["light.background"] = [float(v) for v in b.plan.background]
 
     m.comment("camera: pinhole, orthonormal basis (clvol.scene.Camera.basis)")
     fwd, right, up = cam.basis()
@@ -262,29 +315,36 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["camera.width"] = cam.width
     m["camera.height"] = cam.height
 
+
+def _write_raymarch(m: "_Manifest", b: _Planned) -> None:
+    from .kernels.phase import lobe_vectors
+    plan = b.plan
     m.comment("ray march (step in world units = step_voxels x smallest cell side)")
     m["raymarch.lit"] = plan.lit
     # the multiple-scattering source: network (the lattice below), none or wrenninge (the
     # kernel's octaves: raymarch.octave_abc); only the network reads the network.* keys
     m["raymarch.ms_source"] = plan.source if plan.lit else "none"
-    m["raymarch.step"] = step * float(np.min(grid.cell_size))
-    m["raymarch.step_voxels"] = step          # the option: libclvol's step on a new grid
-    m["raymarch.threshold"] = threshold
-    m["raymarch.block"] = int(block)
-    m["raymarch.skip_empty"] = bool(skip_empty)
-    m["raymarch.light_resolution"] = int(light_res)
-    m["raymarch.light_tau"] = rm_defs["LIGHT_TAU"]
-    m["raymarch.channels"] = channels
+    m["raymarch.step"] = plan.step_voxels * float(np.min(b.grid.cell_size))
+    m["raymarch.step_voxels"] = plan.step_voxels   # the option: libclvol's step on a new grid
+    m["raymarch.threshold"] = plan.threshold
+    m["raymarch.block"] = int(b.block)
+    m["raymarch.skip_empty"] = bool(plan.skip_empty)
+    m["raymarch.light_resolution"] = int(b.light_res)
+    m["raymarch.light_tau"] = _raymarch_defines(b)["LIGHT_TAU"]
+    m["raymarch.channels"] = plan.channels if plan.lit else 1
     rg, rw = lobe_vectors(plan.lobes)
     m["raymarch.lobe_g"] = rg.tolist()
     m["raymarch.lobe_w"] = rw.tolist()
     oc = plan.ms.octaves
     m["raymarch.octave_abc"] = [oc.a, oc.b, oc.c]
 
+
+def _write_domain(m: "_Manifest", b: _Planned) -> None:
+    from .render.ms.network import (BACKWARD_ALBEDO, BACKWARD_LIMIT, THIN_OPTICAL_THICKNESS,
+                                    outside_domain)
+    medium, dom = b.scene.medium, b.domain
     m.comment("domain: what clvol.Renderer needs to pick its source for another medium or "
-              "volume (clvol/render/ms/network.py); libclvol refuses a change that would switch it")
-    from .render.ms.network import BACKWARD_ALBEDO, BACKWARD_LIMIT, THIN_OPTICAL_THICKNESS
-    dom = r.domain
+              "volume (clvol/render/plan.py); libclvol refuses a change that would switch it")
     m["domain.thin_optical_thickness"] = THIN_OPTICAL_THICKNESS
     m["domain.albedo"] = [float(v) for v in dom.get("albedo", [0.0, 1.0])]
     ot_range = dom.get("optical_thickness")
@@ -296,21 +356,26 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m["domain.backward"] = bool(medium.phase.mean_cosine < BACKWARD_LIMIT)
     m["domain.backward_albedo"] = BACKWARD_ALBEDO
 
+
+def _write_network(m: "_Manifest", b: _Planned, out: Path) -> None:
+    from .kernels import mlp as km
+    from .kernels import pyramid as kp
+    w, grid = b.weights, b.grid
     m.comment("network: feature contract, lattice, weights (network.bin, float32)")
     c = w.contract
     m["network.layout_version"] = int(c["layout_version"])
     m["network.template_hash"] = str(c["template_hash"])
-    m["network.base_resolution"] = base
-    m["network.n_levels"] = L
-    m["network.lambda"] = lam
-    m["network.ms_resolution"] = list(res)
+    m["network.base_resolution"] = b.base
+    m["network.n_levels"] = kp.n_levels(b.base)
+    m["network.lambda"] = float(c["lambda"])
+    m["network.ms_resolution"] = list(b.res)
     m["network.ms_bbox_min"] = [float(v) for v in grid.bbox_min]
     m["network.ms_bbox_max"] = [float(v) for v in grid.bbox_max]
     # the lattice points the network evaluates ([z][y][x] indices, ascending); the others
     # hold F_ms = 0 (no density within reach: their F_ms never reaches the image)
-    m["network.active_points"] = int(len(active)) if network else 0
+    m["network.active_points"] = int(len(b.active))
     m["network.active_file"] = "active.i32"
-    _write_raw(out / "active.i32", active if network else np.zeros(0), np.int32)
+    _write_raw(out / "active.i32", b.active, np.int32)
     m["network.file"] = "network.bin"
     packed = km.pack_params(w)
     lw = np.asarray(w.level_weights, np.float32)
@@ -326,10 +391,13 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     for i, (name, off, shape, role) in enumerate(tensors):
         m[f"network.tensor.{i}"] = [name, off, "x".join(str(s) for s in shape), role]
 
+
+def _write_gather_tables(m: "_Manifest", b: _Planned, out: Path) -> None:
+    from .kernels import gather as kg
     m.comment("gather tables: template points [3][NPAD] (frame units), pinfo int [NPAD], "
               "phase features [NA][NPAD]")
-    tpl, pinfo, hl = kg.template_arrays(base)
-    ptab = kg._phase_table_padded(med_lobes)
+    tpl, pinfo, hl = kg.template_arrays(b.base)
+    ptab = kg._phase_table_padded(b.med_lobes)
     m["gather.np"] = layout.N_POINTS
     m["gather.npad"] = tpl.shape[1]
     m["gather.templates"] = "templates.f32"
@@ -340,8 +408,6 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     _write_raw(out / "templates.f32", tpl, np.float32)
     _write_raw(out / "pinfo.i32", pinfo, np.int32)
     _write_raw(out / "phase_table.f32", ptab, np.float32)
-    (out / "manifest.txt").write_text(m.text())
-    return out
 
 
 def _packed_tensors(w, pad8) -> list:
