@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..neural import layout
-from .gather import (GatherError, _check_inputs, _lobes, _phase_table_padded, _static,
-                     bake_render_grid, config_vectors, gather_defines, query_order)
+from .gather import (GatherError, _check_inputs, _lobes, _phase_table_padded, bake_render_grid,
+                     config_vectors, gather_defines, query_order, static_args)
 from .grid import f4
 from .mlp import MlpKernel, _channel_albedo, launch_items
 from .phase import lobe_vectors
@@ -53,16 +53,16 @@ def gather_mlp(net: MlpKernel, pyramid, graded, points, omegas, light_dir, mediu
         "gather_mlp", [None, None, None, np.int32, np.int32, None, np.float32, None, None, None,
                        None, np.int32, None, None, None, None, None, np.float32, None, None,
                        None, None, np.int32, None])
-    st = _static(pyramid)
+    loff, tpl, pinfo, hl = static_args(pyramid)
     ptab = _phase_table_padded(lobes)
     lg, lw = lobe_vectors(lobes)
     order = query_order(pyramid, pts) if sort else np.arange(n, dtype=np.int32)
     out = rt.empty((n, channels))
     evt = launch_items(rt, k, n, (
-        pyramid.buffer, baked.buffer, st["loff"], np.int32(pyramid.n_levels),
+        pyramid.device.buffer, baked.device.buffer, loff, np.int32(pyramid.n_levels),
         np.int32(pyramid.base_resolution), f4(pyramid.cube_min), np.float32(pyramid.cube_size),
-        st["tpl"], st["pinfo"], st["hl"], rt.to_device(ptab), np.int32(ptab.shape[0]),
+        tpl, pinfo, hl, rt.to_device(ptab), np.int32(ptab.shape[0]),
         rt.to_device(pts), rt.to_device(om), f4(l), lg, lw, np.float32(baked.c_out),
-        rt.to_device(order), rt.to_device(cfg), net.params_buf, alb, np.int32(n), out))
+        rt.to_device(order), rt.to_device(cfg), net.params_device.buffer, alb, np.int32(n), out))
     F = rt.from_device(out, (n, channels), wait_for=[evt])
     return F[:, 0] if channels == 1 else F

@@ -9,7 +9,8 @@ marcher (clvol/render/raymarch.py) and the path tracer (clvol/kernels/pathtrace.
 it; a ``Renderer`` uploads one per volume.
 
 ``build_majorant(density, block)`` returns the grid as a NumPy array;
-``build_majorant_buffer`` keeps it on the device for kernels that include majorant.h;
+``build_majorant_buffer`` (a DeviceArray in, a DeviceArray out) keeps it on the device for
+kernels that include majorant.h;
 ``majorant_args(grid_shape, bmin, bmax, block)`` gives the coarse size and the coarse cell
 size (world units) those kernels take. A global majorant is ``block >= max(nx, ny, nz)``.
 """
@@ -46,16 +47,18 @@ def majorant_args(grid_shape, bmin, bmax, block: int):
     return (mx, my, mz), f4(cell * block)
 
 
-def build_majorant_buffer(density_buf, grid_shape, block: int = DEFAULT_BLOCK, runtime=None):
-    """Majorant grid of a density buffer already on the device: (cl.Buffer, (mz, my, mx))."""
-    rt = runtime or get_runtime()
-    nz, ny, nx = (int(n) for n in grid_shape)
-    mz, my, mx = coarse_shape(grid_shape, block)
-    out = rt.empty(mz * my * mx)
+def build_majorant_buffer(density: DeviceArray, block: int = DEFAULT_BLOCK,
+                          runtime=None) -> DeviceArray:
+    """Majorant grid (mz, my, mx) of a [z][y][x] density already on the device."""
+    rt = runtime or density.runtime or get_runtime()
+    nz, ny, nx = (int(n) for n in density.shape)
+    mz, my, mx = coarse_shape(density.shape, block)
+    out = rt.alloc((mz, my, mx))
     k = rt.program("majorant").kernel("majorant_build", _BUILD_ARGS)
-    rt.launch(k, (mx, my, mz), (density_buf, np.int32(nx), np.int32(ny), np.int32(nz),
-                                np.int32(block), np.int32(mx), np.int32(my), np.int32(mz), out))
-    return out, (mz, my, mx)
+    rt.launch(k, (mx, my, mz), (density.buffer, np.int32(nx), np.int32(ny), np.int32(nz),
+                                np.int32(block), np.int32(mx), np.int32(my), np.int32(mz),
+                                out.buffer))
+    return out
 
 
 def build_majorant(density: np.ndarray, block: int = DEFAULT_BLOCK, runtime=None) -> np.ndarray:
@@ -65,8 +68,7 @@ def build_majorant(density: np.ndarray, block: int = DEFAULT_BLOCK, runtime=None
     density = np.ascontiguousarray(density, np.float32)
     if density.ndim != 3:
         raise ClvolError(f"density must be 3-D [z][y][x], got shape {density.shape}")
-    buf, shape = build_majorant_buffer(rt.to_device(density), density.shape, block, rt)
-    return rt.from_device(buf, shape)
+    return build_majorant_buffer(rt.upload(density), block, rt).read()
 
 
 def majorant_block(block, grid_shape) -> int:
@@ -95,8 +97,7 @@ class DeviceMedium:
             raise ClvolError(f"density must be 3-D [z][y][x], got shape {np.shape(grid.density)}")
         b = majorant_block(block, grid.density.shape)
         density = rt.upload(grid.density)
-        buf, shape = build_majorant_buffer(density.buffer, density.shape, b, rt)
-        return cls(grid, b, density, DeviceArray(buf, shape, np.dtype(np.float32), rt), rt)
+        return cls(grid, b, density, build_majorant_buffer(density, b, rt), rt)
 
 
 def dda_segments(origins, dirs, bmin, bmax, grid_shape, maj: np.ndarray, block: int,

@@ -26,7 +26,7 @@ from ..kernels.phase import phase_defines
 from ..kernels.pyramid import MAX_BASE_RESOLUTION
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..neural.layout import is_power_of_two
-from ..runtime import DeviceArray, get_runtime
+from ..runtime import get_runtime
 from .ms.base import MsPlan, MsSource
 from .ms.analytic import NoMs
 
@@ -229,10 +229,8 @@ class RayMarcher:
         from ..kernels.transmittance import check_light_dir, light_transmittance
         l = check_light_dir(light_dir)
         pyr = self.pyramid
-        buf = light_transmittance(pyr, self.medium.density_scale, l,
-                                  quantity=self.light_interp, as_buffer=True)
-        n = pyr.base_resolution
-        self.light_field = DeviceArray(buf, (n, n, n), np.dtype(np.float32), self.rt)
+        self.light_field = light_transmittance(pyr, self.medium.density_scale, l,
+                                               quantity=self.light_interp, as_buffer=True)
         self._light_key = (tuple(l), float(self.medium.density_scale))
         self.light_builds += 1
 
