@@ -1,12 +1,5 @@
-"""Host wrapper for cl/majorant.cl: the coarse majorant grid and its DDA (cl/include/majorant.h),
-and ``DeviceMedium``, a volume on the device (its density and the majorant grid built from it).
-
-``DeviceMedium.upload(grid, block)`` is what every render method needs of a volume before any
-light or camera: the density grid (raw, sigma_t = density * density_scale) and the per-block
-maximum that empty-space skipping and delta tracking read. Derived device data (e.g. the
-light field's pyramid) is kept in its ``cache`` and lives as long as the medium. The ray
-marcher (clvol/render/raymarch.py) and the path tracer (clvol/kernels/pathtrace.py) both read
-it; a ``Renderer`` uploads one per volume.
+"""Host wrapper for cl/majorant.cl: the coarse majorant grid and its DDA (cl/include/majorant.h).
+The volume on the device that owns a majorant grid (``DeviceMedium``) is clvol/kernels/medium.py.
 
 ``build_majorant(density, block)`` returns the grid as a NumPy array;
 ``build_majorant_buffer`` (a DeviceArray in, a DeviceArray out) keeps it on the device for
@@ -15,8 +8,6 @@ kernels that include majorant.h;
 size (world units) those kernels take. A global majorant is ``block >= max(nx, ny, nz)``.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -77,27 +68,6 @@ def majorant_block(block, grid_shape) -> int:
         raise ClvolError(f"majorant block = {block!r}: must be an integer >= 0 (0 = one global "
                          f"majorant)")
     return int(block) if block else max(grid_shape)
-
-
-@dataclass(eq=False)
-class DeviceMedium:
-    """``grid``: the volume (a clvol Grid, or anything with a [z][y][x] ``density`` and
-    ``bbox_min``/``bbox_max``); ``block``: voxels per majorant cell (already resolved: never 0)."""
-    grid: object
-    block: int
-    density: DeviceArray
-    majorant: DeviceArray
-    runtime: object = field(repr=False)
-    cache: dict = field(default_factory=dict, repr=False)
-
-    @classmethod
-    def upload(cls, grid, block: int = DEFAULT_BLOCK, runtime=None) -> "DeviceMedium":
-        rt = runtime or get_runtime()
-        if np.ndim(grid.density) != 3:
-            raise ClvolError(f"density must be 3-D [z][y][x], got shape {np.shape(grid.density)}")
-        b = majorant_block(block, grid.density.shape)
-        density = rt.upload(grid.density)
-        return cls(grid, b, density, build_majorant_buffer(density, b, rt), rt)
 
 
 def dda_segments(origins, dirs, bmin, bmax, grid_shape, maj: np.ndarray, block: int,

@@ -17,8 +17,9 @@ from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
 from . import phase as kphase
 from .grid import f4
-from .majorant import DEFAULT_BLOCK, DeviceMedium, majorant_args
+from .majorant import DEFAULT_BLOCK, majorant_args
 from .majorant import majorant_block as resolve_block
+from .medium import DeviceMedium
 
 # Per-path output row of the kernels (PT_OUT floats).
 ROW_BG, ROW_L1, ROW_LMS = slice(0, 3), slice(3, 6), slice(6, 9)

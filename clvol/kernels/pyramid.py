@@ -15,7 +15,9 @@
    Both readings integrate to the same total per source voxel (a clamped hat and a box over
    one cell both integrate to one cell), and density is 0 outside the source box, so the
    total mass ``sum(density) * voxel_volume`` is conserved exactly (up to float rounding).
-3. Upload level 0 alone and build the mip chain on the device (cl/pyramid.cl): level l+1 is the 2x2x2 mean of level l,
+3. Upload level 0 alone (or, for a grid that is already a base^3 cube, copy it on the device
+   from the density a DeviceMedium holds: clvol/kernels/medium.py ``DeviceMedium.pyramid``)
+   and build the mip chain on the device (cl/pyramid.cl): level l+1 is the 2x2x2 mean of level l,
    down to 1^3 (which holds the mean density of the cube). Every level has the same mass.
 
 Densities stay raw: multiply by the medium's ``density_scale`` for the extinction sigma_t.
@@ -223,28 +225,26 @@ def is_identity(grid: Grid, base_resolution: int) -> bool:
         np.allclose(grid.extent, size, rtol=1e-12, atol=0))
 
 
-def build_pyramid(grid: Grid, base_resolution: int = 256, runtime: Runtime | None = None) -> Pyramid:
+def build_pyramid(grid: Grid, base_resolution: int = 256, runtime: Runtime | None = None,
+                  density: DeviceArray | None = None) -> Pyramid:
     """Pad ``grid`` to a centred cube, resample to base^3 and build every mip level down to 1^3.
 
     Level 0 is resampled on the host (there is no resampling kernel) and uploaded alone; the
-    mips are made on the device."""
+    mips are made on the device. ``density``: the grid's density already on the device (a
+    DeviceMedium's): when the grid is already a base^3 cube, level 0 is copied from it on the
+    device and nothing is uploaded."""
     if not isinstance(grid, Grid):
         raise ClvolError(f"build_pyramid needs a clvol Grid, got {type(grid).__name__}")
     rt = runtime or get_runtime()
     base = check_base_resolution(base_resolution, rt)
     levels = rt.alloc(pyramid_size(base))
-    level0, cube_min, size = resample_to_cube(grid, base)
-    rt.write(levels, level0.ravel(), label="pyramid level 0")
-    top = float(np.max(level0, initial=0.0))
+    if density is not None and is_identity(grid, base) and density.shape == (base,) * 3:
+        cube_min, size = cube_of(grid)
+        rt.copy(levels, density)
+        top = float(np.max(grid.density, initial=0.0))
+    else:
+        level0, cube_min, size = resample_to_cube(grid, base)
+        rt.write(levels, level0.ravel(), label="pyramid level 0")
+        top = float(np.max(level0, initial=0.0))
     build_mips(rt, levels, base)
     return Pyramid(base, n_levels(base), cube_min, size, level_offsets(base), levels, rt, top)
-
-
-def cached_pyramid(cache: dict, grid, base_resolution: int, runtime=None):
-    """build_pyramid, kept in ``cache`` (a volume's device cache, DeviceMedium.cache) under
-    ("pyramid", base): the light field and the environment's sweeps at one resolution
-    share one pyramid."""
-    key = ("pyramid", int(base_resolution))
-    if key not in cache:
-        cache[key] = build_pyramid(grid, base_resolution, runtime)
-    return cache[key]

@@ -1,10 +1,10 @@
 """The trained network as the ray marcher's multiple-scattering source (the paper's method).
 
 ``NetworkSource`` holds one weight file and one volume on the device (the MLP's packed
-weights, the density pyramid at the weights' base resolution) and fills an F_ms lattice for a
-camera position, a light and a medium: graded transmittance toward the light, then the
-render-mode template gather at the lattice points and the OpenCL network, in one kernel by
-default (clvol/kernels/gather_mlp.py) or as two. ``NetworkMs`` is the marcher's
+weights, the density pyramid at the weights' base resolution: the DeviceMedium's, when it is
+given one) and fills an F_ms lattice for a camera position, a light and a medium: graded
+transmittance toward the light, then the render-mode template gather at the lattice points
+and the OpenCL network, in one kernel by default (clvol/kernels/gather_mlp.py) or as two. ``NetworkMs`` is the marcher's
 source built on it: it refills the lattice only when the camera position, the light or the
 medium changed.
 
@@ -160,29 +160,39 @@ class NetworkSource:
     grey albedo (``grey_shortcut``), else one per distinct non-zero channel albedo.
     ``fused`` (default ``FUSED_DEFAULT``): gather and network in one kernel
     (clvol/kernels/gather_mlp.py), else the gather's features through device memory to the
-    network's kernel.
+    network's kernel. ``device_medium``: the volume's DeviceMedium (clvol/kernels/medium.py),
+    whose pyramid at the weights' base resolution is used; without one (tests, benchmarks)
+    the pyramid is built from the grid alone (its level 0 is all that is uploaded).
     """
 
-    def __init__(self, weights, grid, medium, runtime=None, fused: bool | None = None):
+    def __init__(self, weights, grid, medium, runtime=None, fused: bool | None = None,
+                 device_medium=None):
         from ...kernels.mlp import MlpKernel
-        from ...kernels.pyramid import build_pyramid
         self.rt = runtime or get_runtime()
         self.weights = load_network_weights(weights)
         self.grid, self.medium = grid, medium
         self.mlp = MlpKernel(self.weights, self.rt)
         self.base = int(self.weights.contract["base_resolution"])
         self.lam = float(self.weights.contract["lambda"])
-        self.pyramid = build_pyramid(grid, self.base, self.rt)
+        self.pyramid = self._pyramid(grid, device_medium)
         self._graded = (None, None)
         self.graded_builds = 0
         self.fused = FUSED_DEFAULT if fused is None else bool(fused)
 
-    def set_grid(self, grid) -> None:
-        """A new density for the same weights (Renderer.set_density): the pyramid is rebuilt
-        and the graded transmittance dropped; the weights and kernels stay."""
-        from ...kernels.pyramid import build_pyramid
+    def _pyramid(self, grid, device_medium):
+        if device_medium is None:
+            from ...kernels.pyramid import build_pyramid
+            return build_pyramid(grid, self.base, self.rt)
+        if device_medium.grid is not grid:
+            raise ClvolError("NetworkSource: the device medium holds another grid")
+        return device_medium.pyramid(self.base)
+
+    def set_grid(self, grid, device_medium=None) -> None:
+        """A new density for the same weights (Renderer.set_density): the pyramid is the new
+        medium's (or rebuilt) and the graded transmittance dropped; the weights and kernels
+        stay."""
         self.grid = grid
-        self.pyramid = build_pyramid(grid, self.base, self.rt)
+        self.pyramid = self._pyramid(grid, device_medium)
         self._graded = (None, None)
 
     def graded(self, light_dir, density_scale=None):
@@ -319,17 +329,21 @@ class NetworkMs(GridMs):
         self._key = None
 
     def _ensure_network(self, frame) -> None:
-        """Weights and pyramid on the device for the frame's volume (once per volume); the
-        header's setup seconds are this frame's (0 when an earlier frame did it)."""
+        """Weights and pyramid on the device for the frame's volume (once per volume; the
+        pyramid is the frame's DeviceMedium's, found through ``frame.cache``); the header's
+        setup seconds are this frame's (0 when an earlier frame did it)."""
+        from ...kernels.medium import medium_of
         self.setup_seconds = 0.0
         if self.net is None or self.net.grid is not frame.grid:
+            dm = medium_of(frame.cache)
+            dm = dm if dm is not None and dm.grid is frame.grid else None
             with Stopwatch() as sw:
                 if self.net is None:
                     self.net = NetworkSource(self.weights_path, frame.grid, frame.medium,
-                                             frame.runtime)
+                                             frame.runtime, device_medium=dm)
                     frame.count("network_setup")
                 else:                    # a new density (Renderer.set_density): same weights
-                    self.net.set_grid(frame.grid)
+                    self.net.set_grid(frame.grid, dm)
                     frame.count("network_pyramid")
                 frame.runtime.finish()
             self.setup_seconds = sw.seconds
