@@ -420,6 +420,10 @@ class Runtime:
         return cl.enqueue_copy(self.queue, dst.buffer, a,
                                dst_offset=int(offset) * np.dtype(dst.dtype).itemsize)
 
+    def zero(self, dst: "DeviceArray") -> "cl.Event":
+        """Fill ``dst`` with zero bytes on the device (no host transfer)."""
+        return cl.enqueue_fill_buffer(self.queue, dst.buffer, np.uint8(0), 0, max(dst.nbytes, 1))
+
     def copy(self, dst: "DeviceArray", src: "DeviceArray", nbytes: int | None = None,
              dst_offset: int = 0, src_offset: int = 0) -> "cl.Event":
         """Device-to-device copy of ``nbytes`` (default all of ``src``; offsets in bytes):

@@ -8,6 +8,7 @@ import numpy as np
 
 from ...errors import ClvolError
 from ...kernels.raymarch import ms_defines
+from ...runtime import DeviceArray
 from .base import MsPlan, MsSource
 
 
@@ -131,17 +132,21 @@ class GridMs(MsSource):
             rt = self.runtime or get_runtime()
             if self.count:
                 self.count("ms_upload")
-            self._uploaded = up = (self.ms_grid, grey, rt.upload(planes))
+            self._uploaded = up = (self.ms_grid, grey, rt.upload(planes, label="F_ms lattice"))
         return up[2], grey
 
     def plan(self, medium, shortcuts: bool) -> MsPlan:
         if self.ms_grid is None:
             raise _no_grid()
-        planes, grey = self.planes_for(medium, shortcuts)
+        planes, _ = self.planes_for(medium, shortcuts)
+        return self.plan_for(planes, (tuple(self.ms_grid.bbox_min), tuple(self.ms_grid.bbox_max)))
+
+    def plan_for(self, planes: DeviceArray, box) -> MsPlan:
+        """The plan that marches ``planes`` ((C, gz, gy, gx) on the device, C = 1: the grey
+        shortcut) over ``box`` (bbox_min, bbox_max)."""
         gz, gy, gx = planes.shape[1:]
-        p = MsPlan(ms_defines("grid", channels=planes.shape[0]), planes=planes,
-                   box=(tuple(self.ms_grid.bbox_min), tuple(self.ms_grid.bbox_max)))
-        if grey:
+        p = MsPlan(ms_defines("grid", channels=planes.shape[0]), planes=planes, box=box)
+        if planes.shape[0] == 1:
             p.skipped.append("colour channels 2 and 3 of the F_ms grid (grey albedo, grey grid)")
         p.simulated.append(f"multiple scattering ({self.what} {gx}x{gy}x{gz}, "
                            f"{planes.shape[0]} channel(s))")
