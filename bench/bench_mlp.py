@@ -89,11 +89,11 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(1)
     for n in batches:
         f, c = make_inputs(n, rng)
-        fb, cb = rt.to_device(f), rt.to_device(c)
+        fb, cb = rt.upload(f), rt.upload(c)
         ft, ct = torch.from_numpy(f), torch.from_numpy(c)
         for mode, alb in (("grey", None), ("rgb", (0.92, 0.99, 0.94))):
             ch = 1 if alb is None else 3
-            out = rt.empty((n, ch))
+            out = rt.alloc((n, ch))
             cfgs = [ct] if alb is None else [torch.from_numpy(ref.with_albedo(c, a)) for a in alb]
             net.enqueue(fb, cb, n, out, alb).wait()            # build + warm-up
             with torch.inference_mode():
@@ -142,7 +142,7 @@ def compare_sizes(paths, device, repeats: int) -> int:
     nets = [(p, load_weights(p)) for p in paths]
     n = 32 ** 3
     f, c = make_inputs(n, np.random.default_rng(1))
-    fb, cb = rt.to_device(f), rt.to_device(c)
+    fb, cb = rt.upload(f), rt.upload(c)
     print("bench_mlp --sizes: OpenCL forward of a 32^3 lattice (32,768 queries), medians")
     print(f"machine : {machine(rt)}")
     print(f"protocol: {repeats} repeats, files alternating; load average before {os.getloadavg()[0]:.2f}")
@@ -150,7 +150,7 @@ def compare_sizes(paths, device, repeats: int) -> int:
     kernels = [(p, w, MlpKernel(w, runtime=rt)) for p, w in nets]
     times = {(p, m): [] for p, _ in nets for m in ("grey", "rgb")}
     cpu = {p: [] for p, _ in nets}
-    outs = {1: rt.empty((n, 1)), 3: rt.empty((n, 3))}
+    outs = {1: rt.alloc((n, 1)), 3: rt.alloc((n, 3))}
     for _, _, k in kernels:                                  # build + warm-up
         k.enqueue(fb, cb, n, outs[1], None).wait()
         k.enqueue(fb, cb, n, outs[3], (0.92, 0.99, 0.94)).wait()

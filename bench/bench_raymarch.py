@@ -32,7 +32,6 @@ from pathlib import Path
 import numpy as np
 
 from _common import ROOT, cpu_seconds, machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
-from clvol.kernels.pyramid import build_pyramid  # noqa: E402
 from clvol.render.raymarch import RayMarcher  # noqa: E402
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
@@ -57,7 +56,7 @@ def bench_frames(args, rt):
         t_gen = time.perf_counter() - t0
         rm = RayMarcher(grid, scene.medium, runtime=rt)
         t0 = time.perf_counter()
-        rm._pyramid = build_pyramid(grid, rm.light_resolution, rt)
+        rm.pyramid                          # the DeviceMedium builds and keeps it
         rt.finish()
         t_pyr = time.perf_counter() - t0
         lights = [scene.light.direction, (-0.5, 0.8, 0.2), (0.1, 0.3, -0.9)]

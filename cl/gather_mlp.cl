@@ -11,8 +11,18 @@
  *
  * Arguments: those of `gather` in render mode (cl/gather.cl; dens is read only for t_enter's
  * coarse level), then config [N][9] (clvol/kernels/gather.py config_vectors), params and
- * channel_albedo as `mlp_forward`'s, N, and out [N][MLP_CHANNELS]: decoded F (MLP_DECODE 1),
- * out[q] for query q whatever the processing order.
+ * channel_albedo as `mlp_forward`'s, N, then where the output goes (the caller's layout:
+ * device in, caller-owned device out):
+ *   out_index      int [N]    element of query q's channel 0 in out
+ *   channel_stride int        elements between a query's channels
+ *   out            float [..] decoded F (MLP_DECODE 1): channel c of query q at
+ *                             out[out_index[q] + c * channel_stride], whatever the processing
+ *                             order; no other element is written. [N][C] rows are
+ *                             out_index[q] = q C, stride 1; the ray marcher's F_ms lattice
+ *                             (C planes of gz gy gx) is out_index[q] = the point's flat
+ *                             lattice index, stride gz gy gx (the caller zeroes the rest).
+ *   nonfinite      int [1]    1 is ORed in (atomic_or) when a stored value is not finite
+ *                             (the caller zeroes it and reads it: no silent NaN or inf).
  * Defines: the gather's (NP, COARSE_LEVEL, phase, GATHER_SHUFFLE) and the network's (cl/mlp.cl);
  * NP must equal N_POINTS. Private memory is the network's (~105 KB) plus 16 queries' gather
  * state and three 16 x 16 blocks: the host launches groups of one work-item on CPUs, as
@@ -34,16 +44,19 @@ __kernel void gather_mlp(__global const float *dens, __global const float *baked
                          const float4 light4, const float4 lobe_g, const float4 lobe_w,
                          const float c_out, __global const int *order,
                          __global const float *config, __global const float *params,
-                         const float4 channel_albedo, const int N, __global float *out) {
+                         const float4 channel_albedo, const int N,
+                         __global const int *out_index, const int channel_stride,
+                         __global float *out, __global int *nonfinite) {
     const int q0 = get_global_id(0) * 16;
     if (q0 >= N) return;
     const float3 cmin = cmin4.xyz;
     const float3 l = light4.xyz;
 
-    int qs[16], coff[16];
+    int qs[16], coff[16], dst[16];
     for (int j = 0; j < 16; ++j) {
         qs[j] = order[min(q0 + j, N - 1)];   /* tail lanes repeat the last query, never stored */
         coff[j] = qs[j] * CONFIG_DIM;
+        dst[j] = out_index[qs[j]];
     }
     V cfg[CONFIG_DIM], albedo_cfg;
     mlp_config(config, coff, params, cfg, &albedo_cfg);
@@ -79,5 +92,7 @@ __kernel void gather_mlp(__global const float *dens, __global const float *baked
         }
     }
     x[2 * N_POINTS] = vload16(0, centre);
-    mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, qs, min(16, N - q0));
+    if (mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, min(16, N - q0),
+                channel_stride))
+        atomic_or(nonfinite, 1);
 }

@@ -51,11 +51,11 @@ __kernel void mlp_forward(__global const float *features, __global const float *
         const int q = min(q0 + j, n - 1);  // tail lanes recompute the last query, never stored
         foff[j] = q * (N_TYPES * N_POINTS);
         coff[j] = q * CONFIG_DIM;
-        dst[j] = q0 + j;
+        dst[j] = (q0 + j) * MLP_CHANNELS;
     }
     V cfg[CONFIG_DIM], albedo_cfg;
     mlp_config(config, coff, params, cfg, &albedo_cfg);
     V x[N_TYPES * N_POINTS];
     load_features(features, foff, x);
-    mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, min(MLP_QUERIES_PER_ITEM, n - q0));
+    mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, min(MLP_QUERIES_PER_ITEM, n - q0), 1);
 }

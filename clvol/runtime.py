@@ -23,6 +23,10 @@ Device data follows one convention:
 - an array kept on the device is a ``DeviceArray`` (buffer, shape, dtype), made by
   ``Runtime.upload`` or ``Runtime.alloc`` and read with ``.read()``;
 - every launch goes through ``Runtime.launch`` (profiling sees all of them);
+- every host->device upload and device->host readback goes through ``Runtime.to_device`` /
+  ``Runtime.upload`` and ``Runtime.from_device`` / ``DeviceArray.read``, which count it in
+  ``Runtime.transfers`` (calls and bytes per direction and label: the caller's ``label``, or
+  the calling function's name); tests/test_transfers.py holds a render to its budget;
 - data derived from an object and kept for reuse lives in that object's ``cache`` dict
   (``Pyramid.cache``, ``DeviceMedium.cache``) and dies with it; host-only tables that are pure
   functions of small arguments use ``functools.lru_cache``.
@@ -32,7 +36,9 @@ from __future__ import annotations
 import hashlib
 import importlib.resources
 import os
+import sys
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -236,8 +242,69 @@ def _define_flags(defines: dict | None) -> list[str]:
     return flags
 
 
+UPLOAD, READBACK = "upload", "readback"
+
+
+def _call_site() -> str:
+    """``module.function`` of the nearest caller outside this module (a transfer's default
+    label)."""
+    f = sys._getframe(1)
+    while f is not None and f.f_globals.get("__name__") == __name__:
+        f = f.f_back
+    if f is None:
+        return "?"
+    return f"{f.f_globals.get('__name__', '?')}.{f.f_code.co_name}"
+
+
+class Transfers:
+    """Host<->device copies made through one ``Runtime``: calls and bytes per
+    (direction, label), direction ``UPLOAD`` (host -> device) or ``READBACK`` (device ->
+    host); ``sizes`` counts calls per (direction, bytes), so a copy of a given array's size is
+    seen whatever its label. ``since(earlier)`` is what happened after a ``copy()``."""
+
+    def __init__(self):
+        self.count: Counter = Counter()
+        self.bytes: Counter = Counter()
+        self.sizes: Counter = Counter()
+
+    def record(self, direction: str, label: str, nbytes: int) -> None:
+        self.count[direction, label] += 1
+        self.bytes[direction, label] += int(nbytes)
+        self.sizes[direction, int(nbytes)] += 1
+
+    def copy(self) -> "Transfers":
+        t = Transfers()
+        t.count, t.bytes, t.sizes = Counter(self.count), Counter(self.bytes), Counter(self.sizes)
+        return t
+
+    def since(self, earlier: "Transfers") -> "Transfers":
+        t = Transfers()
+        t.count, t.bytes = self.count - earlier.count, self.bytes - earlier.bytes
+        t.sizes = self.sizes - earlier.sizes
+        return t
+
+    def calls(self, direction: str, label: str | None = None) -> int:
+        """Calls in ``direction`` (with ``label``, or all)."""
+        return sum(n for (d, lab), n in self.count.items()
+                   if d == direction and (label is None or lab == label))
+
+    def nbytes(self, direction: str, label: str | None = None) -> int:
+        return sum(n for (d, lab), n in self.bytes.items()
+                   if d == direction and (label is None or lab == label))
+
+    def labels(self, direction: str) -> dict:
+        """{label: calls} in ``direction``."""
+        return {lab: n for (d, lab), n in self.count.items() if d == direction}
+
+    def report(self) -> str:
+        rows = [f"{d:<8} {lab:<56} {self.count[d, lab]:>5} calls {self.bytes[d, lab]:>12} bytes"
+                for d, lab in sorted(self.count)]
+        return "\n".join(rows) if rows else "(no transfers)"
+
+
 class Runtime:
-    """A context and an in-order queue on one device, plus the program cache."""
+    """A context and an in-order queue on one device, plus the program cache and the
+    transfer counters (``transfers``)."""
 
     def __init__(self, device: str | None = None, profiling: bool = False):
         entry, why = choose_device(device)
@@ -252,6 +319,7 @@ class Runtime:
         self._events: list[tuple[str, cl.Event]] = []
         self.kernel_seconds: dict[str, float] = {}
         self.kernel_launches: dict[str, int] = {}
+        self.transfers = Transfers()
 
     @property
     def is_oclgrind(self) -> bool:
@@ -290,12 +358,15 @@ class Runtime:
         return prog
 
     # -- buffers
-    def to_device(self, array: np.ndarray, writable: bool = False) -> "cl.Buffer":
-        """Copy a host array into a new buffer (C-contiguous; at least 1 byte)."""
+    def to_device(self, array: np.ndarray, writable: bool = False,
+                  label: str | None = None) -> "cl.Buffer":
+        """Copy a host array into a new buffer (C-contiguous; at least 1 byte). Counted in
+        ``transfers`` under ``label`` (default: the caller's function)."""
         a = np.ascontiguousarray(array)
         flags = (cl.mem_flags.READ_WRITE if writable else cl.mem_flags.READ_ONLY)
         if a.nbytes == 0:  # zero-size buffers are invalid in OpenCL
             return cl.Buffer(self.context, flags, size=max(a.itemsize, 4))
+        self.transfers.record(UPLOAD, label or _call_site(), a.nbytes)
         return cl.Buffer(self.context, flags | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
 
     def empty(self, shape, dtype=np.float32, zero: bool = False) -> "cl.Buffer":
@@ -307,27 +378,80 @@ class Runtime:
         nbytes = max(int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize, 4)
         buf = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=nbytes)
         if self.is_oclgrind:
+            self.transfers.record(UPLOAD, "zeros (Oclgrind)", nbytes)
             cl.enqueue_copy(self.queue, buf, np.zeros(nbytes, np.uint8))
         elif zero:
             cl.enqueue_fill_buffer(self.queue, buf, np.uint8(0), 0, nbytes)
         return buf
 
-    def upload(self, array, dtype=np.float32) -> "DeviceArray":
-        """A C-ordered copy of ``array`` on the device."""
+    def upload(self, array, dtype=np.float32, label: str | None = None) -> "DeviceArray":
+        """A C-ordered copy of ``array`` on the device (counted under ``label``)."""
         a = np.ascontiguousarray(array, dtype)
-        return DeviceArray(self.to_device(a), a.shape, a.dtype, self)
+        return DeviceArray(self.to_device(a, label=label or _call_site()), a.shape, a.dtype,
+                           self)
 
     def alloc(self, shape, dtype=np.float32, zero: bool = False) -> "DeviceArray":
         """A new device array (contents undefined unless ``zero``)."""
         shape = (int(shape),) if np.isscalar(shape) else tuple(int(n) for n in shape)
         return DeviceArray(self.empty(shape, dtype, zero), shape, np.dtype(dtype), self)
 
-    def from_device(self, buf: "cl.Buffer", shape, dtype=np.float32,
-                    wait_for=None) -> np.ndarray:
+    def from_device(self, buf, shape, dtype=np.float32, wait_for=None,
+                    label: str | None = None) -> np.ndarray:
+        """A host copy of the first ``shape`` elements of ``buf`` (a cl.Buffer or a
+        DeviceArray), counted in ``transfers`` under ``label`` (default: the caller)."""
+        if isinstance(buf, DeviceArray):
+            buf = buf.buffer
         out = np.empty(shape, dtype=dtype)
         if out.nbytes:
+            self.transfers.record(READBACK, label or _call_site(), out.nbytes)
             cl.enqueue_copy(self.queue, out, buf, wait_for=wait_for)
         return out
+
+    def write(self, dst: "DeviceArray", array, offset: int = 0,
+              label: str | None = None) -> "cl.Event":
+        """Copy a host array into ``dst`` from element ``offset`` on (counted as an upload)."""
+        a = np.ascontiguousarray(array, dst.dtype)
+        if offset < 0 or offset + a.size > dst.size:
+            raise ValueError(f"write of {a.size} elements at {offset} past a DeviceArray of "
+                             f"{dst.size}")
+        if not a.nbytes:
+            return None
+        return self._write_bytes(dst.buffer, a.reshape(-1).view(np.uint8),
+                                 int(offset) * np.dtype(dst.dtype).itemsize,
+                                 label or _call_site())
+
+    def _write_bytes(self, buf, data: np.ndarray, byte_offset: int, label: str):
+        """Host bytes into ``buf`` at ``byte_offset``. Under Oclgrind the whole buffer is
+        written: its uninitialised-value check loses track of a buffer written in part
+        (clEnqueueWriteBuffer or CopyBuffer of less than the buffer; measured: mip_reduce
+        reported level 0 written alone into a zeroed pyramid), so the rest is read back and
+        written with it (counted under "(Oclgrind) whole-buffer write")."""
+        if self.is_oclgrind and data.nbytes != buf.size:
+            whole = np.empty(buf.size, np.uint8)
+            self.transfers.record(READBACK, "(Oclgrind) whole-buffer write", whole.nbytes)
+            cl.enqueue_copy(self.queue, whole, buf)
+            whole[byte_offset:byte_offset + data.nbytes] = data
+            data, byte_offset = whole, 0
+        self.transfers.record(UPLOAD, label, data.nbytes)
+        return cl.enqueue_copy(self.queue, buf, data, dst_offset=int(byte_offset))
+
+    def zero(self, dst: "DeviceArray") -> "cl.Event":
+        """Fill ``dst`` with zero bytes on the device (no host transfer)."""
+        return cl.enqueue_fill_buffer(self.queue, dst.buffer, np.uint8(0), 0, max(dst.nbytes, 1))
+
+    def copy(self, dst: "DeviceArray", src: "DeviceArray", nbytes: int | None = None,
+             dst_offset: int = 0, src_offset: int = 0) -> "cl.Event":
+        """Device-to-device copy of ``nbytes`` (default all of ``src``; offsets in bytes):
+        no host transfer."""
+        n = src.nbytes if nbytes is None else int(nbytes)
+        if self.is_oclgrind and n != dst.buffer.size:   # see _write_bytes: through the host
+            data = np.empty(src.buffer.size, np.uint8)
+            self.transfers.record(READBACK, "(Oclgrind) whole-buffer write", data.nbytes)
+            cl.enqueue_copy(self.queue, data, src.buffer)
+            return self._write_bytes(dst.buffer, data[int(src_offset):int(src_offset) + n],
+                                     int(dst_offset), "(Oclgrind) whole-buffer write")
+        return cl.enqueue_copy(self.queue, dst.buffer, src.buffer, byte_count=n,
+                               dst_offset=int(dst_offset), src_offset=int(src_offset))
 
     # -- launches
     def launch(self, kernel: "cl.Kernel", global_size, args, local_size=None,
@@ -365,19 +489,37 @@ class Runtime:
 
 @dataclass(frozen=True, eq=False)
 class DeviceArray:
-    """A C-ordered array living in ``buffer`` on ``runtime``'s device."""
+    """A C-ordered array living in ``buffer`` on ``runtime``'s device: the one handle device
+    data travels in between modules (a raw ``cl.Buffer`` stays inside the function that hands
+    it to pyopencl)."""
     buffer: "cl.Buffer"
     shape: tuple
     dtype: np.dtype = np.dtype(np.float32)
     runtime: "Runtime | None" = None
 
     @classmethod
-    def upload(cls, array, runtime=None) -> "DeviceArray":
-        return (runtime or get_runtime()).upload(array)
+    def upload(cls, array, runtime=None, label: str | None = None) -> "DeviceArray":
+        return (runtime or get_runtime()).upload(array, label=label or _call_site())
 
-    def read(self, wait_for=None) -> np.ndarray:
-        return (self.runtime or get_runtime()).from_device(self.buffer, self.shape, self.dtype,
-                                                           wait_for=wait_for)
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape, dtype=np.int64))
+
+    @property
+    def nbytes(self) -> int:
+        return self.size * np.dtype(self.dtype).itemsize
+
+    def reshape(self, *shape) -> "DeviceArray":
+        """The same buffer seen with another shape of the same size."""
+        shape = tuple(shape[0]) if len(shape) == 1 and not np.isscalar(shape[0]) else shape
+        shape = tuple(int(n) for n in shape)
+        if int(np.prod(shape, dtype=np.int64)) != self.size:
+            raise ValueError(f"cannot view a DeviceArray of shape {self.shape} as {shape}")
+        return DeviceArray(self.buffer, shape, self.dtype, self.runtime)
+
+    def read(self, wait_for=None, label: str | None = None) -> np.ndarray:
+        return (self.runtime or get_runtime()).from_device(
+            self.buffer, self.shape, self.dtype, wait_for=wait_for, label=label or _call_site())
 
 
 _RUNTIMES: dict[tuple, Runtime] = {}

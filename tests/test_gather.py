@@ -260,7 +260,7 @@ def test_bake_matches_twin_every_level():
     pyr, gt = setup(g.density, 64, (0.45, -0.3, 0.84), bmin=g.bbox_min, bmax=g.bbox_max)
     w = np.linspace(-0.3, 0.6, pyr.n_levels)
     baked = kgather.bake_render_grid(pyr, gt, MEDIUM.density_scale, w, 0.07)
-    flat = pyr.runtime.from_device(baked.buffer, (baked.buffer.size // 4,))
+    flat = baked.device.read()
     want = rgather.baked_grid(pyr, gt.data, MEDIUM.density_scale, w, 0.07)
     for lv, (tau, comb) in enumerate(want):
         n = pyr.resolution(lv)
@@ -269,7 +269,7 @@ def test_bake_matches_twin_every_level():
         np.testing.assert_allclose(got[..., 0], tau, rtol=1e-6, atol=0, err_msg=f"tau, level {lv}")
         np.testing.assert_allclose(got[..., 1], comb, atol=2e-6, rtol=0, err_msg=f"C, level {lv}")
     assert np.ptp(want[0][1]) > 0.1                      # power: C varies across the grid
-    np.testing.assert_array_equal(flat[2 * pyr.data.size:], 0.0)   # the padding the kernel reads
+    np.testing.assert_array_equal(flat[2 * pyr.size:], 0.0)   # the padding the kernel reads
     assert float(np.float32(w.sum() + 0.07)) == baked.c_out
 
 
@@ -287,8 +287,8 @@ def test_bake_is_kept_per_pyramid_until_its_inputs_change():
     assert kgather.bake_render_grid(pyr2, gt2, MEDIUM.density_scale, w, 0.1) is b2
     c = kgather.bake_render_grid(pyr, gt, MEDIUM.density_scale, w, 0.2)
     assert c is not a and c.c_out == pytest.approx(a.c_out + 0.1)
-    n = pyr.data.size
-    comb = pyr.runtime.from_device(c.buffer, (c.buffer.size // 4,))[1:2 * n:2]
+    n = pyr.size
+    comb = c.device.read()[1:2 * n:2]
     want = rgather.baked_grid(pyr, gt.data, MEDIUM.density_scale, w, 0.2)
     np.testing.assert_allclose(comb[:want[0][1].size], want[0][1].ravel(), atol=2e-6)
 
@@ -356,13 +356,14 @@ def test_as_buffers_and_reuse():
     # a smaller batch into the same buffers; a larger one gets new buffers
     again = gather(pyr, gt, pts[:20], om[:20], gt.light_dir, MEDIUM, 0.9, as_buffers=True,
                    reuse=dev, **kw)
-    assert again["features"] is dev["features"]
+    assert again["features"].buffer is dev["features"].buffer
+    assert again["features"].shape == (20, 3, layout.N_POINTS)
     np.testing.assert_array_equal(rt.from_device(again["features"], (20, 3, layout.N_POINTS)),
                                   host["features"][:20])
     big = np.concatenate([pts, pts])
     more = gather(pyr, gt, big, np.concatenate([om, om]), gt.light_dir, MEDIUM, 0.9,
                   as_buffers=True, reuse=dev, **kw)
-    assert more["features"] is not dev["features"]
+    assert more["features"].buffer is not dev["features"].buffer
     with pytest.raises(GatherError, match="as_buffers"):
         gather(pyr, gt, pts, om, gt.light_dir, MEDIUM, 0.9, mode="train", as_buffers=True)
 

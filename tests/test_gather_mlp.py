@@ -36,6 +36,7 @@ query counts that are not multiples of the 16 lanes.
 import numpy as np
 import pytest
 
+from clvol.errors import ClvolError
 from clvol.kernels import gather as kgather
 from clvol.kernels.gather import GatherError, gather
 from clvol.kernels.gather_mlp import gather_mlp
@@ -265,3 +266,150 @@ def test_network_source_fused_and_unfused_paths_agree(tmp_path, albedo):
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-6 * np.abs(b).max() + 1e-30)
     assert np.abs(b).max() > 0
     assert ia["gather"] == 0.0 and ia["network"] > 0 and ib["gather"] > 0
+
+
+# --------------------------------------------------------------------------- device output
+
+LATTICE = (4, 3, 5)        # (gz, gy, gx): 60 points per plane, more than the 27 queries
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_device_output_layout_matches_twin(case):
+    """``out``/``out_index`` (the ray marcher's lattice, written on the device): channel c of
+    query q lands at element out_index[q] of plane c, nothing else is written, and the values
+    are the NumPy path's bits. Adversarial: the indices are a scattered, unsorted subset of a
+    non-cubic lattice (so neither q, q C, the processing order nor a transposed layout lands
+    them there), the plane size (60) differs from the query count (27), and the elements
+    left alone hold a sentinel, not 0. Against the twin (reference/gather_mlp.py
+    gather_mlp_into) within the composed-twins bound of the first test."""
+    light, medium, alb, channels, albedo_input = CASES[case]
+    grid, pyr, gt = scene(light, medium.density_scale)
+    seed = list(CASES).index(case) + 5
+    w = network(pyr.n_levels, seed=seed, albedo_input=albedo_input)
+    net = MlpKernel(w)
+    pts, om = queries(grid, pyr, light, seed=seed)
+    n, C = len(pts), 1 if channels is None else 3
+    plane = int(np.prod(LATTICE))
+    rs = np.random.default_rng(seed)
+    idx = rs.choice(plane, n, replace=False)
+    while np.any(idx == np.arange(n)) or np.any(idx == np.arange(n) * C):   # no query at q
+        idx = rs.choice(plane, n, replace=False)
+    assert n != plane and not np.all(np.diff(idx) > 0)
+    rt = pyr.runtime
+    sentinel = np.full((C,) + LATTICE, -7.0, np.float32)
+    out, flag = rt.upload(sentinel), rt.alloc(1, np.int32, zero=True)
+    lw, lb = w.level_weights, w.level_bias
+    kw = dict(level_weights=lw, bias=lb, channel_albedo=channels)
+    ret = gather_mlp(net, pyr, gt, pts, om, gt.light_dir, medium, alb, out=out, out_index=idx,
+                     nonfinite=flag, **kw)
+    assert ret is out
+    got = out.read()
+    assert flag.read()[0] == 0
+    rows = gather_mlp(net, pyr, gt, pts, om, gt.light_dir, medium, alb, **kw)   # NumPy out
+    rows = rows[:, None] if rows.ndim == 1 else rows
+    written = np.zeros(got.shape, bool)
+    written.reshape(C, -1)[:, idx] = True
+    assert np.all(got[~written] == -7.0)                               # nothing else written
+    np.testing.assert_array_equal(got.reshape(C, -1)[:, idx], rows.T)  # the same bits
+    lobes = tuple((l.g, l.weight) for l in medium.phase.lobes)
+    want = rfused.gather_mlp_into(sentinel.copy(), idx, w.params, w.arch, pyr, gt.data, pts, om,
+                                  gt.light_dir, lobes, medium.density_scale, alb, lw, lb,
+                                  channel_albedo=channels)
+    assert np.all(want[~written] == -7.0)
+    f, c = rfused.features(pyr, gt.data, pts, om, gt.light_dir, lobes, medium.density_scale,
+                           alb, lw, lb)
+    steep = max(abs(g) for g, _ in lobes) > 0.9
+    tols = FEATURE_TOL[:2] + ((PHASE_TOL_STEEP,) if steep else FEATURE_TOL[2:])
+    for ch, a in enumerate([alb] if channels is None else channels):
+        y, b = y_bound(w, f, c, a, tols)
+        g_ch, w_ch = got.reshape(C, -1)[ch, idx], want.reshape(C, -1)[ch, idx]
+        bound = f_bound(y, b, a)
+        assert np.all(np.abs(g_ch - w_ch) <= bound), f"channel {ch}"
+        # power: a layout that put query q's value at q, at q C + c, or in another plane
+        # (an index or stride swap) would be seen
+        assert np.ptp(w_ch) > 10 * np.median(bound)
+        for other in (np.arange(n), np.arange(n) * C + ch):
+            moved = want.reshape(-1)[other]
+            assert np.max(np.abs(moved - w_ch)) > 10 * np.median(bound)
+    if channels is not None:
+        assert np.max(np.abs(want[0] - want[2])[written[0]]) > 10 * np.median(bound)
+
+
+def test_device_output_inputs_checked():
+    light = (0.3, 0.5, 0.8)
+    medium = Medium(12.0, (0.9,) * 3, Phase.hg(0.5))
+    grid, pyr, gt = scene(light, medium.density_scale, base=16)
+    w = network(pyr.n_levels, seed=1)
+    net = MlpKernel(w)
+    rt = pyr.runtime
+    pts, om = random_queries(3, 5, 0.4)
+    kw = dict(level_weights=w.level_weights, bias=w.level_bias)
+    args = (net, pyr, gt, pts, om, gt.light_dir, medium, 0.9)
+    with pytest.raises(GatherError, match=r"1 plane\(s\)"):
+        gather_mlp(*args, out=rt.alloc((3, 2, 2, 2)), out_index=np.arange(5), **kw)
+    with pytest.raises(GatherError, match=r"lie in \[0, 8\)"):
+        gather_mlp(*args, out=rt.alloc((1, 2, 2, 2)), out_index=np.arange(5) + 4, **kw)
+    with pytest.raises(GatherError, match="5 integers"):
+        gather_mlp(*args, out=rt.alloc((1, 2, 2, 2)), out_index=np.arange(4), **kw)
+    with pytest.raises(GatherError, match="goes with out"):
+        gather_mlp(*args, out_index=np.arange(5), **kw)
+
+
+def _weights_file(tmp_path, seed=11, bias_shift=0.0):
+    from clvol.neural.export import gather_contract, save_weights
+    w = network(5, seed=seed)
+    p = dict(w.params)
+    last = f"head.{len(w.arch.head_widths)}.bias"
+    p[last] = (p[last] + np.float32(bias_shift)).astype(np.float32)
+    path = tmp_path / f"net{seed}_{bias_shift:g}.npz"
+    save_weights(path, w.arch, p, gather_contract(16, 0.6), training={"note": "test"})
+    return path
+
+
+@pytest.mark.parametrize("albedo", [0.9, (0.7, 0.95, 0.8)])
+def test_fill_device_equals_the_host_lattice(tmp_path, albedo):
+    """NetworkSource.fill_device (the default render path: the lattice written on the device
+    in the marcher's (C, gz, gy, gx) layout) holds fill's MsGrid planes bit for bit, with and
+    without an active mask (0 elsewhere), on a non-cubic lattice; into the caller's array
+    when its shape fits; the unfused path through the host gives the same."""
+    from clvol.render.ms import network as rnet
+    path = _weights_file(tmp_path)
+    grid = generate("cloud", seed=4, resolution=(12, 16, 10))
+    medium = Medium(25.0, (albedo,) * 3 if np.isscalar(albedo) else albedo, Phase.hg(0.7))
+    light, origin, res = unit((0.5, 0.8, 0.3)), (0.4, 0.3, 2.0), (5, 6, 7)
+    src = rnet.NetworkSource(path, grid, medium)
+    active = np.random.default_rng(3).random(5 * 6 * 7) < 0.6
+    for act in (None, active):
+        g, _ = src.fill(light, res, origin=origin, active=act)
+        want = g.planes()
+        lat, box, info = src.fill_device(light, res, origin=origin, active=act)
+        got = lat.read()
+        assert got.shape == want.shape == ((1 if np.isscalar(albedo) else 3), 7, 6, 5)
+        np.testing.assert_array_equal(got, want)
+        assert box == (tuple(g.bbox_min), tuple(g.bbox_max))
+        assert np.ptp(want) > 0 and info["points"] == (210 if act is None else active.sum())
+        if act is not None:
+            assert np.all(got.reshape(got.shape[0], -1)[:, ~active] == 0)
+    again, _, _ = src.fill_device(light, res, origin=(0.0, 1.0, 2.0), out=lat)
+    assert again is lat
+    slow = rnet.NetworkSource(path, grid, medium, fused=False)
+    np.testing.assert_array_equal(slow.fill_device(light, res, origin=origin)[0].read(),
+                                  src.fill_device(light, res, origin=origin)[0].read())
+
+
+def test_non_finite_network_output_is_refused_on_both_paths(tmp_path):
+    """No silent NaN: a network whose output overflows (y ~ 1e3: F = inf) is refused by the
+    host path (isfinite on the values) and by the device path (the kernel's non-finite flag,
+    the one value read back)."""
+    from clvol.render.ms import network as rnet
+    path = _weights_file(tmp_path, bias_shift=1000.0)
+    grid = generate("cloud", seed=4, resolution=(12, 16, 10))
+    medium = Medium(25.0, (0.9,) * 3, Phase.hg(0.7))
+    src = rnet.NetworkSource(path, grid, medium)
+    light = unit((0.5, 0.8, 0.3))
+    with pytest.raises(ClvolError, match="non-finite F_ms"):
+        src.fill(light, 4, origin=(0.4, 0.3, 2.0))
+    with pytest.raises(ClvolError, match="non-finite F_ms"):
+        src.fill_device(light, 4, origin=(0.4, 0.3, 2.0))
+    ok = rnet.NetworkSource(_weights_file(tmp_path), grid, medium)
+    assert np.all(np.isfinite(ok.fill_device(light, 4, origin=(0.4, 0.3, 2.0))[0].read()))

@@ -94,8 +94,8 @@ def test_tail_sizes_and_no_write_past_n(net, weights, n):
     rt = net.rt
     f, c = ref.random_inputs(n, np.random.default_rng(n))
     sentinel = np.full(n + 40, -7.0, np.float32)
-    out = rt.to_device(sentinel, writable=True)
-    evt = net.enqueue(rt.to_device(f), rt.to_device(c), n, out)
+    out = rt.upload(sentinel)
+    evt = net.enqueue(rt.upload(f), rt.upload(c), n, out)
     got = rt.from_device(out, sentinel.shape, wait_for=[evt])
     _assert_y(got[:n], ref.forward(weights.params, ARCH, f, c))
     assert np.all(got[n:] == -7.0)
@@ -105,7 +105,7 @@ def test_fed_by_device_buffers(net, weights):
     """The render path: gather buffers in, device buffer out, no host copies of features."""
     rt = net.rt
     f, c = ref.random_inputs(40, np.random.default_rng(2))
-    got = net.forward(rt.to_device(f), rt.to_device(c), channel_albedo=(0.5, 0.6, 0.7), n=40)
+    got = net.forward(rt.upload(f), rt.upload(c), channel_albedo=(0.5, 0.6, 0.7), n=40)
     _assert_y(got, ref.forward_channels(weights.params, ARCH, f, c, (0.5, 0.6, 0.7)))
 
 

@@ -447,7 +447,7 @@ def test_pathtrace_tiny():
 
 
 def test_shared_device_medium_gives_the_same_rows_and_refuses_a_mismatch():
-    from clvol.kernels.majorant import DeviceMedium
+    from clvol.kernels.medium import DeviceMedium
     med = make_medium(lobes=[(0.5, 1.0)])
     dm = DeviceMedium.upload(med, 2)
     own = PathTracer(med, majorant_block=2).render_batch(CAM, 5, 0, 2)

@@ -184,25 +184,25 @@ def test_renderer_recomputes_only_what_a_change_invalidates():
         np.testing.assert_array_equal(img.total, _fresh(sc, **change, **opts).total)
         return img
 
+    # (the network's lattice is filled on the device: no "ms_upload", the grid source's stage)
     first = step({"volume": 1, "device_medium": 1, "network_setup": 1, "light_field": 1,
-                  "graded_transmittance": 1, "ms_lattice": 1, "ms_upload": 1, "march": 1})
+                  "graded_transmittance": 1, "ms_lattice": 1, "march": 1})
     step({"march": 1})                                                     # nothing changed
     turned = dataclasses.replace(sc.camera, target=(0.1, 0.0, 0.0))        # same position
     step({"march": 1}, camera=turned)
     moved = dataclasses.replace(sc.camera, origin=(0.6, 0.4, 2.1))
-    step({"ms_lattice": 1, "ms_upload": 1, "march": 1}, camera=moved)
+    step({"ms_lattice": 1, "march": 1}, camera=moved)
     lit = dataclasses.replace(sc.light, direction=(0.0, 1.0, 0.0))
-    step({"light_field": 1, "graded_transmittance": 1, "ms_lattice": 1, "ms_upload": 1,
-          "march": 1}, light=lit)
+    step({"light_field": 1, "graded_transmittance": 1, "ms_lattice": 1, "march": 1}, light=lit)
     brighter = dataclasses.replace(sc.light, irradiance=(2.0, 2.0, 2.0))
-    img = step({"light_field": 1, "graded_transmittance": 1, "ms_lattice": 1, "ms_upload": 1,
-                "march": 1}, light=brighter)   # back to the scene's direction
+    img = step({"light_field": 1, "graded_transmittance": 1, "ms_lattice": 1, "march": 1},
+               light=brighter)   # back to the scene's direction
     np.testing.assert_allclose(img.total, 2 * first.total, rtol=1e-6, atol=0)
     greyer = dataclasses.replace(sc.medium, albedo=(0.9, 0.9, 0.9))
-    step({"ms_lattice": 1, "ms_upload": 1, "march": 1}, medium=greyer)
+    step({"ms_lattice": 1, "march": 1}, medium=greyer)
     denser = dataclasses.replace(sc.medium, density_scale=45.0)
-    step({"light_field": 1, "graded_transmittance": 1, "ms_lattice": 1, "ms_upload": 1,
-          "march": 1}, medium=denser)
+    step({"light_field": 1, "graded_transmittance": 1, "ms_lattice": 1, "march": 1},
+         medium=denser)
     r2 = clvol.Renderer(sc, ms="wrenninge")
     r2.render()
     r2.render(camera=moved)

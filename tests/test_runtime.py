@@ -88,3 +88,24 @@ def test_zero_size_buffers_are_allowed():
     buf = rt.to_device(np.zeros(0, np.float32))
     assert buf.size >= 4
     assert rt.from_device(buf, (0,)).shape == (0,)
+
+
+def test_transfers_are_counted_by_direction_label_and_size():
+    rt = runtime.get_runtime()
+    before = rt.transfers.copy()
+    a = rt.upload(np.arange(6, dtype=np.float32).reshape(2, 3), label="test-up")
+    b = rt.alloc(8)
+    rt.write(b, np.ones(5, np.float32), offset=2, label="test-write")
+    rt.copy(b, a, nbytes=8)                       # device to device: not a transfer
+    got = b.read(label="test-down")
+    t = rt.transfers.since(before)
+    assert got.tolist()[:2] == [0.0, 1.0] and got.tolist()[2:7] == [1.0] * 5
+    assert t.count == {("upload", "test-up"): 1, ("upload", "test-write"): 1,
+                       ("readback", "test-down"): 1}
+    assert t.nbytes("upload") == 24 + 20 and t.nbytes("readback") == 32
+    assert t.sizes[("upload", 24)] == 1 and t.calls("readback") == 1
+    # unlabelled transfers carry the calling function's name
+    rt.from_device(a, (2, 3))
+    assert rt.transfers.since(before).count[("readback", f"{__name__}."
+                                             "test_transfers_are_counted_by_direction_label_and_size")] == 1
+    assert a.nbytes == 24 and a.reshape(3, 2).shape == (3, 2)

@@ -79,7 +79,7 @@ def test_set_density_recomputes_only_what_the_density_invalidates(tmp_path):
     img = r.render(grid=g2)
     diff = {k: r.counts[k] - before.get(k, 0) for k in r.counts if r.counts[k] != before.get(k, 0)}
     assert diff == {"device_medium": 1, "network_pyramid": 1, "light_field": 1,
-                    "graded_transmittance": 1, "ms_lattice": 1, "ms_upload": 1, "march": 1}
+                    "graded_transmittance": 1, "ms_lattice": 1, "march": 1}
     np.testing.assert_array_equal(img.total, clvol.Renderer(sc, grid=g2, ms_resolution=8)
                                   .render().total)
     back = r.render(grid=g1)

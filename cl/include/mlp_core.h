@@ -201,11 +201,13 @@ static inline void mlp_config(__global const float *config, const int *coff,
 }
 
 /* The network on the raw features x of 16 queries (normalised here, in place) with their
- * config (mlp_config); lane j's output goes to out[rows[j] * MLP_CHANNELS + ch], j < count. */
+ * config (mlp_config); lane j's channel ch goes to out[rows[j] + ch * stride], j < count (the
+ * caller's layout: rows[j] = query * MLP_CHANNELS and stride 1 for [n][C] rows, or a lattice
+ * index and the plane size for C planes). Returns 1 when a stored value is not finite. */
 __attribute__((always_inline))
-static inline void mlp_run(V *x, V *cfg, const V albedo_cfg, __global const float *params,
-                           const float4 channel_albedo, __global float *out, const int *rows,
-                           const int count) {
+static inline int mlp_run(V *x, V *cfg, const V albedo_cfg, __global const float *params,
+                          const float4 channel_albedo, __global float *out, const int *rows,
+                          const int count, const int stride) {
     /* pack_params (clvol/kernels/mlp.py): feature shift and scale per type, config shift
      * and scale per field, then the layers */
     __global const float *fshift = params, *fscale = params + N_TYPES;
@@ -304,6 +306,7 @@ static inline void mlp_run(V *x, V *cfg, const V albedo_cfg, __global const floa
         res[ch] = dst[0];
     }
 
+    int bad = 0;
     for (int ch = 0; ch < MLP_CHANNELS; ++ch) {
         V y = res[ch];
 #if MLP_DECODE
@@ -317,9 +320,12 @@ static inline void mlp_run(V *x, V *cfg, const V albedo_cfg, __global const floa
 #endif
         float r[16];
         vstore16(y, 0, r);
-        for (int j = 0; j < count; ++j)
-            out[rows[j] * MLP_CHANNELS + ch] = r[j];
+        for (int j = 0; j < count; ++j) {
+            out[rows[j] + ch * stride] = r[j];
+            bad |= !isfinite(r[j]);
+        }
     }
+    return bad;
 }
 
 #endif

@@ -8,7 +8,7 @@
                  level_weights=w, bias=b)            # features (combined T), config
 
     dev = gather(..., mode="render", level_weights=w, bias=b, as_buffers=True, reuse=dev)
-                                # device buffers for the OpenCL network (dev = None at first)
+                                # DeviceArrays for the OpenCL network (dev = None at first)
 
 Render mode bakes, once per (graded fields, weights, bias), a float2 grid per level holding
 (optical thickness of a voxel, sum_l w_l T_l + b) at that level's voxel centres, interleaved so
@@ -30,6 +30,7 @@ from ..errors import ClvolError
 from ..neural import layout
 from ..neural.phasetable import N_ALPHA, phase_feature_table, volume_phase
 from ..neural.templates import load_templates
+from ..runtime import DeviceArray
 from .constants import kernel_constant
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
@@ -94,9 +95,10 @@ def template_arrays(base_resolution: int):
 @dataclass(eq=False)
 class BakedGrid:
     """float2 (tau, C) per voxel of every level, offsets x 2 of the pyramid's, + BAKE_PAD floats
-    of zeros (the kernel's row loads on the 1-voxel level read up to 3 voxels past it).
-    One per pyramid at a time: the next bake for the same pyramid overwrites the buffer."""
-    buffer: object
+    of zeros (the kernel's row loads on the 1-voxel level read up to 3 voxels past it), in
+    ``device`` (a flat DeviceArray). One per pyramid at a time: the next bake for the same
+    pyramid overwrites it."""
+    device: DeviceArray
     weights: tuple
     bias: float
     c_out: float
@@ -123,22 +125,29 @@ def _reused(pyramid: Pyramid, name: str, nfloats: int):
     a fresh buffer costs a page fault per 4 KiB on its first write, as much CPU time as the
     gather itself for the features of 65,536 queries (docs/templates.md)."""
     buf = pyramid.cache.get(name)
-    if buf is None or buf.size < 4 * max(nfloats, 1):
+    if buf is None or buf.size < max(nfloats, 1):
         pyramid.cache.pop(name, None)
-        buf = pyramid.cache[name] = pyramid.runtime.empty(max(nfloats, 1))
+        buf = pyramid.cache[name] = pyramid.runtime.alloc(max(nfloats, 1))
     return buf
 
 
 def _static(pyramid: Pyramid) -> dict:
-    """Device copies of the per-pyramid tables (level offsets, templates), made once."""
+    """Device copies (DeviceArrays) of the per-pyramid tables (level offsets, templates),
+    made once."""
     st = pyramid.cache.get("gather")
     if st is None:
         rt = pyramid.runtime
         tpl, info, hl = template_arrays(pyramid.base_resolution)
         st = pyramid.cache["gather"] = {
-            "loff": rt.to_device(pyramid.level_offsets.astype(np.int32)),
-            "tpl": rt.to_device(tpl), "pinfo": rt.to_device(info), "hl": rt.to_device(hl)}
+            "loff": rt.upload(pyramid.level_offsets, np.int32),
+            "tpl": rt.upload(tpl), "pinfo": rt.upload(info, np.int32), "hl": rt.upload(hl)}
     return st
+
+
+def static_args(pyramid: Pyramid) -> tuple:
+    """The kernels' (loff, tpl, pinfo, hl) buffer arguments."""
+    st = _static(pyramid)
+    return st["loff"].buffer, st["tpl"].buffer, st["pinfo"].buffer, st["hl"].buffer
 
 
 def _xpass_layout(pyramid: Pyramid, lvl: int) -> tuple[np.ndarray, int]:
@@ -164,19 +173,22 @@ def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, le
     if hit is not None and hit[0] is graded and hit[1] == key:
         return hit[2]
     rt = pyramid.runtime
-    total = int(pyramid.data.size)
+    total = int(pyramid.size)
     if 2 * total + BAKE_PAD > MAX_RENDER_FLOATS:
         raise GatherError(f"render mode supports pyramids up to 2^30 voxels in all (base 512); "
                           f"base_resolution = {pyramid.base_resolution} has {total}")
     L, n0 = pyramid.n_levels, pyramid.base_resolution
     # One light at a time per pyramid: the previous bake's buffer is overwritten (a fresh one
     # would cost a page fault per 4 KiB on first write).
-    out = pyramid.cache.get("gather_baked")
-    if out is None:
-        out = pyramid.cache["gather_baked"] = rt.empty(2 * total + BAKE_PAD)
-        if not rt.is_oclgrind:          # (Oclgrind: rt.empty already zero-filled it)
-            cl.enqueue_fill_buffer(rt.queue, out, np.float32(0.0), 4 * 2 * total, 4 * BAKE_PAD)
-    st = _static(pyramid)
+    baked_dev = pyramid.cache.get("gather_baked")
+    if baked_dev is None:
+        baked_dev = pyramid.cache["gather_baked"] = rt.alloc(2 * total + BAKE_PAD)
+        if not rt.is_oclgrind:          # (Oclgrind: rt.alloc already zero-filled it)
+            cl.enqueue_fill_buffer(rt.queue, baked_dev.buffer, np.float32(0.0), 4 * 2 * total,
+                                   4 * BAKE_PAD)
+    out = baked_dev.buffer
+    loff = _static(pyramid)["loff"].buffer
+    dens, graded_buf = pyramid.device.buffer, graded.device.buffer
     prog = rt.program("gather")
     taufac = _taufac(pyramid, density_scale)
     wbuf = rt.to_device(w.astype(np.float32))
@@ -187,18 +199,19 @@ def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, le
                                        np.int32, np.float32, None, np.float32, None])
         scratch_size = max(_xpass_layout(pyramid, l)[1] for l in row_levels)
         scratch = pyramid.cache.get("gather_xpass")
-        if scratch is None or scratch.size < 4 * max(scratch_size, 1):
-            scratch = pyramid.cache["gather_xpass"] = rt.empty(max(scratch_size, 1))
+        if scratch is None or scratch.size < max(scratch_size, 1):
+            scratch = pyramid.cache["gather_xpass"] = rt.alloc(max(scratch_size, 1))
+        scratch = scratch.buffer
         for lvl in row_levels:
             n = pyramid.resolution(lvl)
             log2n = n.bit_length() - 1
             xoff, _ = _xpass_layout(pyramid, lvl)
             for m in range(lvl + 1, L):
                 nm = pyramid.resolution(m)
-                rt.launch(kx, nm * nm * n, (graded.buffer, np.int32(pyramid.level_offsets[m]),
+                rt.launch(kx, nm * nm * n, (graded_buf, np.int32(pyramid.level_offsets[m]),
                                             np.int32(nm), np.int32(n), np.int32(log2n), scratch,
                                             np.int32(xoff[m])))
-            rt.launch(kr, n ** 3 // min(n, BAKE_SPAN), (pyramid.buffer, graded.buffer, scratch, st["loff"],
+            rt.launch(kr, n ** 3 // min(n, BAKE_SPAN), (dens, graded_buf, scratch, loff,
                                          rt.to_device(xoff),
                                          np.int32(L), np.int32(n0), np.int32(lvl), np.int32(log2n),
                                          taufac[lvl], wbuf, np.float32(b), out))
@@ -207,9 +220,9 @@ def bake_render_grid(pyramid: Pyramid, graded: GradedT, density_scale: float, le
         ks = prog.kernel("bake_small", [None, None, None, np.int32, np.int32, np.int32, None, None,
                                         np.float32, None])
         rt.launch(ks, total - int(pyramid.level_offsets[first]),
-                  (pyramid.buffer, graded.buffer, st["loff"], np.int32(L), np.int32(n0),
+                  (dens, graded_buf, loff, np.int32(L), np.int32(n0),
                    np.int32(first), rt.to_device(taufac), wbuf, np.float32(b), out))
-    baked = BakedGrid(out, tuple(w), b, float(np.float32(w.sum() + b)))
+    baked = BakedGrid(baked_dev, tuple(w), b, float(np.float32(w.sum() + b)))
     pyramid.cache["gather_bake"] = (graded, key, baked)   # one light at a time per pyramid
     return baked
 
@@ -315,12 +328,12 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
     sum_l w_l levels[:, l] + bias when ``level_weights`` is given, else with 0 (the model
     combines ``levels`` itself). Render mode needs ``level_weights``.
 
-    ``as_buffers=True`` (render mode) returns device buffers instead of arrays, for the
-    network's OpenCL forward (clvol/kernels/mlp.py: ``MlpKernel.enqueue(features, config, n,
-    ...)``): ``features`` and ``config`` (and ``t_enter``) are cl.Buffers holding the same
-    layout, plus ``n``; nothing is read back (~200 MiB for 65,536 queries). Pass a previous
-    such result as ``reuse`` to have its buffers overwritten instead of new ones allocated (new
-    buffers cost a page fault per 4 KiB on their first write).
+    ``as_buffers=True`` (render mode) returns DeviceArrays instead of arrays, for the
+    network's OpenCL forward (clvol/kernels/mlp.py: ``MlpKernel.forward(features, config,
+    ...)``): ``features`` (n, 3, NP), ``config`` (n, 9) and ``t_enter`` (n,), plus ``n``;
+    nothing is read back (~200 MiB for 65,536 queries). Pass a previous such result as
+    ``reuse`` to have its buffers overwritten instead of new ones allocated (new buffers cost
+    a page fault per 4 KiB on their first write).
 
     ``sort`` (default): the kernel visits the queries in ``query_order`` (results are the same
     and in the caller's order; only speed changes). ``sort=False`` visits them as given, for
@@ -336,7 +349,7 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
         order = query_order(pyramid, pts) if sort else np.arange(n, dtype=np.int32)
         _launch(pyramid, graded, _lobes(medium), render, pts, om, l, order, grids, feats, tenter)
     if as_buffers:
-        return {"features": feats, "config": pyramid.runtime.to_device(cfg), "t_enter": tenter,
+        return {"features": feats, "config": pyramid.runtime.upload(cfg), "t_enter": tenter,
                 "n": n}
     out = _read_features(pyramid, feats, grids, n, render, level_weights, bias)
     out["config"] = cfg
@@ -369,24 +382,28 @@ def _mode_inputs(pyramid, graded, medium, level_weights, bias, render: bool, n: 
     if render:
         baked = bake_render_grid(pyramid, graded, medium.density_scale, level_weights, bias)
         unused = rt.empty(1)
-        return _ModeInputs(baked.buffer, baked.c_out, taufac=unused, levels=unused)
+        return _ModeInputs(baked.device.buffer, baked.c_out, taufac=unused, levels=unused)
     # levels: not kept on the pyramid (9x the features, and training is compute-bound)
     return _ModeInputs(rt.empty(1), 0.0, rt.to_device(_taufac(pyramid, medium.density_scale)),
                        rt.empty(n * pyramid.n_levels * layout.N_POINTS))
 
 
 def _feature_buffers(pyramid, n: int, as_buffers: bool, reuse: dict | None):
-    """(features, t_enter) buffers: the caller's previous ones when they fit (``reuse``,
+    """(features, t_enter) DeviceArrays: the caller's previous ones when they fit (``reuse``,
     as_buffers), new ones for the caller, or the pyramid's own (read back, then reused by the
     next call)."""
-    rt, size = pyramid.runtime, n * 3 * layout.N_POINTS
+    rt, NP = pyramid.runtime, layout.N_POINTS
     if not as_buffers:
-        return (_reused(pyramid, "gather_features", size),
+        return (_reused(pyramid, "gather_features", n * 3 * NP),
                 _reused(pyramid, "gather_t_enter", n))
     old_f, old_t = (reuse or {}).get("features"), (reuse or {}).get("t_enter")
-    fits = (isinstance(old_f, cl.Buffer) and isinstance(old_t, cl.Buffer)
-            and old_f.size >= 4 * max(size, 1) and old_t.size >= 4 * max(n, 1))
-    return (old_f, old_t) if fits else (rt.empty(size), rt.empty(n))
+    fits = (isinstance(old_f, DeviceArray) and isinstance(old_t, DeviceArray)
+            and old_f.buffer.size >= 4 * max(n * 3 * NP, 1)
+            and old_t.buffer.size >= 4 * max(n, 1))
+    if fits:
+        return (DeviceArray(old_f.buffer, (n, 3, NP), old_f.dtype, rt),
+                DeviceArray(old_t.buffer, (n,), old_t.dtype, rt))
+    return rt.alloc((n, 3, NP)), rt.alloc(n)
 
 
 _GATHER_ARGS = [None, None, None, None, np.int32, np.int32, None, np.float32, None, None, None,
@@ -399,15 +416,16 @@ def _launch(pyramid, graded, lobes, render: bool, pts, om, l, order, grids: _Mod
     rt = pyramid.runtime
     k = rt.program("gather", defines=gather_defines(pyramid, lobes, render)).kernel(
         "gather", _GATHER_ARGS)
-    st = _static(pyramid)
+    loff, tpl, pinfo, hl = static_args(pyramid)
     ptab = _phase_table_padded(lobes)
     lg, lw = lobe_vectors(lobes)
-    args = (pyramid.buffer, graded.buffer, grids.baked, st["loff"], np.int32(pyramid.n_levels),
+    args = (pyramid.device.buffer, graded.device.buffer, grids.baked, loff,
+            np.int32(pyramid.n_levels),
             np.int32(pyramid.base_resolution), f4(pyramid.cube_min),
-            np.float32(pyramid.cube_size), grids.taufac, st["tpl"], st["pinfo"], st["hl"],
+            np.float32(pyramid.cube_size), grids.taufac, tpl, pinfo, hl,
             rt.to_device(ptab), np.int32(ptab.shape[0]), rt.to_device(pts), rt.to_device(om),
             f4(l), lg, lw, np.float32(grids.c_out), rt.to_device(order), np.int32(len(pts)),
-            feats, grids.levels, tenter)
+            feats.buffer, grids.levels, tenter.buffer)
     # A fixed local size: with a NULL one PoCL picks a group size from the global size and
     # compiles the kernel anew for each size it picks (~0.4 s each on the 2-core CPU), which a
     # query count that changes every frame (the view-space source) hit each frame.

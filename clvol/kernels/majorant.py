@@ -1,21 +1,13 @@
-"""Host wrapper for cl/majorant.cl: the coarse majorant grid and its DDA (cl/include/majorant.h),
-and ``DeviceMedium``, a volume on the device (its density and the majorant grid built from it).
-
-``DeviceMedium.upload(grid, block)`` is what every render method needs of a volume before any
-light or camera: the density grid (raw, sigma_t = density * density_scale) and the per-block
-maximum that empty-space skipping and delta tracking read. Derived device data (e.g. the
-light field's pyramid) is kept in its ``cache`` and lives as long as the medium. The ray
-marcher (clvol/render/raymarch.py) and the path tracer (clvol/kernels/pathtrace.py) both read
-it; a ``Renderer`` uploads one per volume.
+"""Host wrapper for cl/majorant.cl: the coarse majorant grid and its DDA (cl/include/majorant.h).
+The volume on the device that owns a majorant grid (``DeviceMedium``) is clvol/kernels/medium.py.
 
 ``build_majorant(density, block)`` returns the grid as a NumPy array;
-``build_majorant_buffer`` keeps it on the device for kernels that include majorant.h;
+``build_majorant_buffer`` (a DeviceArray in, a DeviceArray out) keeps it on the device for
+kernels that include majorant.h;
 ``majorant_args(grid_shape, bmin, bmax, block)`` gives the coarse size and the coarse cell
 size (world units) those kernels take. A global majorant is ``block >= max(nx, ny, nz)``.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -46,16 +38,18 @@ def majorant_args(grid_shape, bmin, bmax, block: int):
     return (mx, my, mz), f4(cell * block)
 
 
-def build_majorant_buffer(density_buf, grid_shape, block: int = DEFAULT_BLOCK, runtime=None):
-    """Majorant grid of a density buffer already on the device: (cl.Buffer, (mz, my, mx))."""
-    rt = runtime or get_runtime()
-    nz, ny, nx = (int(n) for n in grid_shape)
-    mz, my, mx = coarse_shape(grid_shape, block)
-    out = rt.empty(mz * my * mx)
+def build_majorant_buffer(density: DeviceArray, block: int = DEFAULT_BLOCK,
+                          runtime=None) -> DeviceArray:
+    """Majorant grid (mz, my, mx) of a [z][y][x] density already on the device."""
+    rt = runtime or density.runtime or get_runtime()
+    nz, ny, nx = (int(n) for n in density.shape)
+    mz, my, mx = coarse_shape(density.shape, block)
+    out = rt.alloc((mz, my, mx))
     k = rt.program("majorant").kernel("majorant_build", _BUILD_ARGS)
-    rt.launch(k, (mx, my, mz), (density_buf, np.int32(nx), np.int32(ny), np.int32(nz),
-                                np.int32(block), np.int32(mx), np.int32(my), np.int32(mz), out))
-    return out, (mz, my, mx)
+    rt.launch(k, (mx, my, mz), (density.buffer, np.int32(nx), np.int32(ny), np.int32(nz),
+                                np.int32(block), np.int32(mx), np.int32(my), np.int32(mz),
+                                out.buffer))
+    return out
 
 
 def build_majorant(density: np.ndarray, block: int = DEFAULT_BLOCK, runtime=None) -> np.ndarray:
@@ -65,8 +59,7 @@ def build_majorant(density: np.ndarray, block: int = DEFAULT_BLOCK, runtime=None
     density = np.ascontiguousarray(density, np.float32)
     if density.ndim != 3:
         raise ClvolError(f"density must be 3-D [z][y][x], got shape {density.shape}")
-    buf, shape = build_majorant_buffer(rt.to_device(density), density.shape, block, rt)
-    return rt.from_device(buf, shape)
+    return build_majorant_buffer(rt.upload(density), block, rt).read()
 
 
 def majorant_block(block, grid_shape) -> int:
@@ -75,28 +68,6 @@ def majorant_block(block, grid_shape) -> int:
         raise ClvolError(f"majorant block = {block!r}: must be an integer >= 0 (0 = one global "
                          f"majorant)")
     return int(block) if block else max(grid_shape)
-
-
-@dataclass(eq=False)
-class DeviceMedium:
-    """``grid``: the volume (a clvol Grid, or anything with a [z][y][x] ``density`` and
-    ``bbox_min``/``bbox_max``); ``block``: voxels per majorant cell (already resolved: never 0)."""
-    grid: object
-    block: int
-    density: DeviceArray
-    majorant: DeviceArray
-    runtime: object = field(repr=False)
-    cache: dict = field(default_factory=dict, repr=False)
-
-    @classmethod
-    def upload(cls, grid, block: int = DEFAULT_BLOCK, runtime=None) -> "DeviceMedium":
-        rt = runtime or get_runtime()
-        if np.ndim(grid.density) != 3:
-            raise ClvolError(f"density must be 3-D [z][y][x], got shape {np.shape(grid.density)}")
-        b = majorant_block(block, grid.density.shape)
-        density = rt.upload(grid.density)
-        buf, shape = build_majorant_buffer(density.buffer, density.shape, b, rt)
-        return cls(grid, b, density, DeviceArray(buf, shape, np.dtype(np.float32), rt), rt)
 
 
 def dda_segments(origins, dirs, bmin, bmax, grid_shape, maj: np.ndarray, block: int,

@@ -5,21 +5,20 @@
     y = net.forward(features, config)                 # y [N] (config's albedo)
     F = net.forward(features, config, channel_albedo=(0.9, 0.95, 1.0), decode=True)   # F [N][3]
     F = net.radiance(features, config, albedo_rgb)    # F [N][3], grey media: one evaluation
-    net.enqueue(features_buf, config_buf, n, out_buf, ...)   # gather buffers -> device output
+    net.enqueue(features_dev, config_dev, n, out_dev, ...)   # DeviceArrays in and out
 
-``features``/``config`` are the gather's arrays or buffers (clvol/neural/layout.py). With
+``features``/``config`` are the gather's arrays or DeviceArrays (clvol/neural/layout.py). With
 ``channel_albedo`` one evaluation per distinct non-zero channel albedo is run in the kernel
 (grey: pass the config's albedo and no channel_albedo, one evaluation); albedo-0 channels give 0.
 """
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 
 from ..errors import NetworkInputError
 from ..neural.export import ALBEDO_EPS, GAMMA, SQUEEZE_DIM, TYPES, MlpWeights
 from ..neural.layout import CONFIG_DIM, CONFIG_FIELDS
-from ..runtime import get_runtime
+from ..runtime import DeviceArray, get_runtime
 from .constants import kernel_constant
 
 QUERIES_PER_ITEM = kernel_constant("MLP_QUERIES_PER_ITEM")   # float16 lanes of one work-item
@@ -80,7 +79,7 @@ class MlpKernel:
         self.arch = weights.arch
         self.rt = runtime or get_runtime()
         self.params = pack_params(weights)
-        self.params_buf = self.rt.to_device(self.params)
+        self.params_device = self.rt.upload(self.params, label="network weights")
         self._kernels = {}
         self._extra = dict(defines or {})
 
@@ -102,27 +101,34 @@ class MlpKernel:
                 "mlp_forward", [None, None, None, None, np.int32, None])
         return k
 
-    def enqueue(self, features, config, n: int, out, channel_albedo=None, decode: bool = False,
-                wait_for=None):
-        """Launch on device buffers: features [n][3][P], config [n][9] -> out [n][C] float32,
+    def enqueue(self, features: DeviceArray, config: DeviceArray, n: int, out: DeviceArray,
+                channel_albedo=None, decode: bool = False, wait_for=None):
+        """Launch on DeviceArrays: features [n][3][P], config [n][9] -> out [n][C] float32,
         C = 3 with channel_albedo, else 1. Returns the event."""
+        for name, a in (("features", features), ("config", config), ("out", out)):
+            if not isinstance(a, DeviceArray):
+                raise NetworkInputError(f"MlpKernel.enqueue: {name} must be a DeviceArray "
+                                        f"(Runtime.upload / alloc), got {type(a).__name__}")
         channels = 1 if channel_albedo is None else 3
         alb = np.zeros(4, np.float32)
         if channel_albedo is not None:
             alb[:3] = _channel_albedo(channel_albedo)
         return launch_items(self.rt, self.kernel(channels, decode), n,
-                            (features, config, self.params_buf, alb, np.int32(n), out),
+                            (features.buffer, config.buffer, self.params_device.buffer, alb,
+                             np.int32(n), out.buffer),
                             wait_for=wait_for)
 
     def forward(self, features, config, channel_albedo=None, decode: bool = False,
                 n: int | None = None) -> np.ndarray:
         """y (or F with ``decode``) as [N] (config's albedo) or [N][3] (``channel_albedo``).
-        ``features``/``config`` are arrays (checked against the layout) or device buffers
-        (then pass ``n``)."""
+        ``features``/``config`` are arrays (checked against the layout) or DeviceArrays (``n``:
+        their first dimension unless given)."""
         rt = self.rt
-        if isinstance(features, cl.Buffer) or isinstance(config, cl.Buffer):
-            if n is None:
-                raise NetworkInputError("MlpKernel.forward: pass n with device buffers")
+        if isinstance(features, DeviceArray) or isinstance(config, DeviceArray):
+            if not (isinstance(features, DeviceArray) and isinstance(config, DeviceArray)):
+                raise NetworkInputError("MlpKernel.forward: features and config must both be "
+                                        "arrays or both DeviceArrays")
+            n = features.shape[0] if n is None else int(n)
             fb, cb = features, config
         else:
             features = np.asarray(features)
@@ -132,14 +138,13 @@ class MlpKernel:
             if features.shape != want_f or config.shape != (n, CONFIG_DIM):
                 raise NetworkInputError(f"features {features.shape} / config {config.shape}: "
                                         f"expected {want_f} / {(n, CONFIG_DIM)} (clvol/neural/layout.py)")
-            fb = rt.to_device(np.ascontiguousarray(features, np.float32))
-            cb = rt.to_device(np.ascontiguousarray(config, np.float32))
+            fb, cb = rt.upload(features), rt.upload(config)
         channels = 1 if channel_albedo is None else 3
         if n == 0:
             return np.zeros((0,) if channels == 1 else (0, 3), np.float32)
-        out = rt.empty((n, channels))
+        out = rt.alloc((n, channels))
         evt = self.enqueue(fb, cb, n, out, channel_albedo, decode)
-        y = rt.from_device(out, (n, channels), wait_for=[evt])
+        y = out.read(wait_for=[evt])
         return y[:, 0] if channels == 1 else y
 
 
@@ -149,7 +154,7 @@ class MlpKernel:
         medium's), three for a chromatic one (equal channels share one); albedo 0 gives 0."""
         alb = _channel_albedo(albedo_rgb)
         if alb[0] == alb[1] == alb[2]:
-            if isinstance(config, cl.Buffer):   # the kernel's 3-channel mode dedupes equal albedos
+            if isinstance(config, DeviceArray):   # the kernel's 3-channel mode dedupes equal albedos
                 return self.forward(features, config, channel_albedo=alb, decode=True, n=n)
             cfg = np.array(config, np.float32, copy=True)
             cfg[:, CONFIG_FIELDS.index("albedo")] = alb[0]

@@ -14,12 +14,13 @@ import numpy as np
 
 from .. import envmap as envmap_mod
 from ..errors import ClvolError
-from ..runtime import get_runtime
+from ..runtime import DeviceArray, get_runtime
 from . import phase as kphase
 from .constants import kernel_constant
 from .grid import f4
-from .majorant import DEFAULT_BLOCK, DeviceMedium, majorant_args
+from .majorant import DEFAULT_BLOCK, majorant_args
 from .majorant import majorant_block as resolve_block
+from .medium import DeviceMedium
 
 # Per-path output row of the kernels (PT_OUT floats; the widths are cl/include/constants.h's).
 ROW_BG, ROW_L1, ROW_LMS = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -279,8 +280,12 @@ class PathTracer:
                     orders: bool = False):
         """Rows (ppl, nq, PT_OUT) for paths sample0..sample0+ppl-1 of every query; with
         ``orders``, (ppl, nq, PT_OUT + 2 ORDER_BINS): each row followed by its per-order
-        sums and first moments (grey media with a sun and no environment only)."""
+        sums and first moments (grey media with a sun and no environment only).
+        ``points_buf``, ``omegas_buf``: the queries' float32 (nq, 3) on the device, as
+        DeviceArrays (a raw cl.Buffer is still taken from callers not yet converted)."""
         rt = self.rt
+        points_buf, omegas_buf = (b.buffer if isinstance(b, DeviceArray) else b
+                                  for b in (points_buf, omegas_buf))
         if "PT_EMISSION" in self.defines:
             raise ClvolError("point queries are per unit sun: build the PathTracer without "
                              "emission")

@@ -15,7 +15,9 @@
    Both readings integrate to the same total per source voxel (a clamped hat and a box over
    one cell both integrate to one cell), and density is 0 outside the source box, so the
    total mass ``sum(density) * voxel_volume`` is conserved exactly (up to float rounding).
-3. Build the mip chain on the device (cl/pyramid.cl): level l+1 is the 2x2x2 mean of level l,
+3. Upload level 0 alone (or, for a grid that is already a base^3 cube, copy it on the device
+   from the density a DeviceMedium holds: clvol/kernels/medium.py ``DeviceMedium.pyramid``)
+   and build the mip chain on the device (cl/pyramid.cl): level l+1 is the 2x2x2 mean of level l,
    down to 1^3 (which holds the mean density of the cube). Every level has the same mass.
 
 Densities stay raw: multiply by the medium's ``density_scale`` for the extinction sigma_t.
@@ -25,12 +27,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import pyopencl as cl
 from scipy import sparse
 
 from ..errors import ClvolError
 from ..neural.layout import is_power_of_two, n_levels
-from ..runtime import Runtime, get_runtime
+from ..runtime import DeviceArray, Runtime, get_runtime
 from ..volume.grid import Grid
 
 MAX_BASE_RESOLUTION = 1024
@@ -38,15 +39,19 @@ MAX_BASE_RESOLUTION = 1024
 
 @dataclass(eq=False)
 class Pyramid:
-    """All mip levels of the cube-padded, resampled density, host copy and device buffer.
+    """All mip levels of the cube-padded, resampled density, on the device (a host copy on
+    request).
 
     base_resolution  n_0 (a power of two); level l has n_l = base >> l voxels per side.
     n_levels         log2(base) + 1 (9 for 256, 11 for 1024).
     cube_min         float64 (3,) x, y, z: the cube's lower corner in world units.
     cube_size        float: the cube's edge length; voxel size of level l is cube_size / n_l.
-    level_offsets    int64 (n_levels,): element offset of level l in ``data`` / ``buffer``.
-    data             float32 1-D, all levels concatenated, level l stored [z][y][x] (x fastest).
-    buffer           cl.Buffer holding ``data`` on ``runtime``'s device (made once).
+    level_offsets    int64 (n_levels,): element offset of level l in ``device`` / ``data``.
+    device           DeviceArray float32 (size,): all levels concatenated, level l stored
+                     [z][y][x] (x fastest), on ``runtime``'s device (made once).
+    max_density      the largest density of level 0 (no mean of it is larger).
+    data             float32 1-D host copy of ``device``, read back on first access (rendering
+                     never reads it: tests, twins and training do).
     """
 
     base_resolution: int
@@ -54,16 +59,28 @@ class Pyramid:
     cube_min: np.ndarray
     cube_size: float
     level_offsets: np.ndarray
-    data: np.ndarray
-    buffer: "cl.Buffer"
+    device: DeviceArray
     runtime: Runtime = field(repr=False)
+    max_density: float = 0.0
     # Derived device data made on demand by other kernels (e.g. the transmittance sweep's
     # padded per-axis copies), kept as long as the pyramid lives.
     cache: dict = field(default_factory=dict, repr=False)
+    _data: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def cube_max(self) -> np.ndarray:
         return self.cube_min + self.cube_size
+
+    @property
+    def size(self) -> int:
+        """Floats in all levels."""
+        return self.device.size
+
+    @property
+    def data(self) -> np.ndarray:
+        if self._data is None:
+            self._data = self.device.read(label="pyramid (host copy)")
+        return self._data
 
     def resolution(self, level: int) -> int:
         """Voxels per side of ``level``."""
@@ -175,8 +192,7 @@ def resample_to_cube(grid: Grid, base_resolution: int) -> tuple[np.ndarray, np.n
     resampled to base^3 (cell means; see the module docstring)."""
     base = int(base_resolution)
     cube_min, size = cube_of(grid)
-    nx, ny, nz = grid.resolution
-    if (nx, ny, nz) == (base,) * 3 and np.allclose(grid.extent, size, rtol=1e-12, atol=0):
+    if is_identity(grid, base):
         return grid.density.copy(), cube_min, size  # already a base^3 cube: identity
     dtype = np.float64 if base <= 256 else np.float32  # float64 temporaries up to 128 MiB
     mats = [resample_matrix(grid.resolution[a], grid.bbox_min[a], grid.bbox_max[a], base,
@@ -190,37 +206,45 @@ def resample_to_cube(grid: Grid, base_resolution: int) -> tuple[np.ndarray, np.n
 
 # ----------------------------------------------------------------------------- pyramid
 
-def build_mips(runtime: Runtime, buffer: "cl.Buffer", base_resolution: int) -> None:
-    """Fill levels 1.. of ``buffer`` from level 0 (in place, on the device)."""
+def build_mips(runtime: Runtime, levels: DeviceArray, base_resolution: int) -> None:
+    """Fill levels 1.. of ``levels`` (the whole pyramid) from level 0 (in place, on the
+    device)."""
     k = runtime.program("pyramid").kernel("mip_reduce", [None, np.int32, np.int32, np.int32])
     offs = level_offsets(base_resolution)
     for l in range(1, len(offs)):
         n = base_resolution >> l
-        runtime.launch(k, n ** 3, (buffer, np.int32(offs[l - 1]), np.int32(offs[l]), np.int32(n)))
+        runtime.launch(k, n ** 3, (levels.buffer, np.int32(offs[l - 1]), np.int32(offs[l]),
+                                   np.int32(n)))
 
 
-def build_pyramid(grid: Grid, base_resolution: int = 256, runtime: Runtime | None = None) -> Pyramid:
-    """Pad ``grid`` to a centred cube, resample to base^3 and build every mip level down to 1^3."""
+def is_identity(grid: Grid, base_resolution: int) -> bool:
+    """The grid is already a base^3 cube: its density is level 0 as it is."""
+    base = int(base_resolution)
+    _, size = cube_of(grid)
+    return tuple(grid.resolution) == (base,) * 3 and bool(
+        np.allclose(grid.extent, size, rtol=1e-12, atol=0))
+
+
+def build_pyramid(grid: Grid, base_resolution: int = 256, runtime: Runtime | None = None,
+                  density: DeviceArray | None = None) -> Pyramid:
+    """Pad ``grid`` to a centred cube, resample to base^3 and build every mip level down to 1^3.
+
+    Level 0 is resampled on the host (there is no resampling kernel) and uploaded alone; the
+    mips are made on the device. ``density``: the grid's density already on the device (a
+    DeviceMedium's): when the grid is already a base^3 cube, level 0 is copied from it on the
+    device and nothing is uploaded."""
     if not isinstance(grid, Grid):
         raise ClvolError(f"build_pyramid needs a clvol Grid, got {type(grid).__name__}")
     rt = runtime or get_runtime()
     base = check_base_resolution(base_resolution, rt)
-    level0, cube_min, size = resample_to_cube(grid, base)
-    data = np.empty(pyramid_size(base), np.float32)
-    data[:base ** 3] = level0.ravel()
-    data[base ** 3:] = 0  # written from the host in full (Oclgrind: see Runtime.empty)
-    buf = rt.to_device(data, writable=True)
-    build_mips(rt, buf, base)
-    data = rt.from_device(buf, data.shape)
-    rt.finish()
-    return Pyramid(base, n_levels(base), cube_min, size, level_offsets(base), data, buf, rt)
-def cached_pyramid(cache: dict, grid, base_resolution: int, runtime=None):
-    """build_pyramid, kept in ``cache`` (a volume's device cache, DeviceMedium.cache) under
-    ("pyramid", base): the light field and the environment's sweeps at one resolution
-    share one pyramid."""
-    key = ("pyramid", int(base_resolution))
-    if key not in cache:
-        cache[key] = build_pyramid(grid, base_resolution, runtime)
-    return cache[key]
-
-
+    levels = rt.alloc(pyramid_size(base))
+    if density is not None and is_identity(grid, base) and density.shape == (base,) * 3:
+        cube_min, size = cube_of(grid)
+        rt.copy(levels, density)
+        top = float(np.max(grid.density, initial=0.0))
+    else:
+        level0, cube_min, size = resample_to_cube(grid, base)
+        rt.write(levels, level0.ravel(), label="pyramid level 0")
+        top = float(np.max(level0, initial=0.0))
+    build_mips(rt, levels, base)
+    return Pyramid(base, n_levels(base), cube_min, size, level_offsets(base), levels, rt, top)

@@ -4,7 +4,9 @@ light transmittance, and the render-time combination across levels (docs/transmi
     pyr = build_pyramid(grid, 256)                                   # clvol/kernels/pyramid.py
     g = graded_transmittance(pyr, medium.density_scale, light.direction, lam=0.6)
     g.level(3)            # (32, 32, 32) T_3 at level-3 voxel centres, [z][y][x]
-    g.buffer              # all levels on the device, offsets g.level_offsets (= pyr.level_offsets)
+    g.device              # all levels on the device (DeviceArray), offsets g.level_offsets
+    t = light_transmittance(pyr, medium.density_scale, light.direction, as_buffer=True)
+                          # (n, n, n) DeviceArray, nothing read back
     t = light_transmittance(pyr, medium.density_scale, light.direction)   # (256,)*3, lambda = 1
     c = combine_levels(g, weights, bias)  # base^3: sum_l w_l T_l + b at base voxel centres
 
@@ -27,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ClvolError
-from ..runtime import Runtime, padded
+from ..runtime import DeviceArray, Runtime, padded
 from .constants import kernel_constant
 from .grid import f4
 from .pyramid import Pyramid
@@ -41,9 +43,9 @@ DEFAULT_LAMBDA = 0.6
 class GradedT:
     """Graded transmittance T_l (or optical depth) for every level, concatenated like the pyramid.
 
-    buffer         cl.Buffer on the pyramid's device, level l at element offset level_offsets[l],
-                   n_l^3 values [z][y][x] at level l's voxel centres.
-    data           float32 1-D host copy (made on first access; rendering needs only ``buffer``).
+    device         DeviceArray (size,) on the pyramid's device, level l at element offset
+                   level_offsets[l], n_l^3 values [z][y][x] at level l's voxel centres.
+    data           float32 1-D host copy (made on first access; rendering needs only ``device``).
     """
 
     pyramid: Pyramid = field(repr=False)
@@ -52,7 +54,7 @@ class GradedT:
     lam: float
     method: str
     quantity: str
-    buffer: "cl.Buffer" = field(repr=False)
+    device: DeviceArray = field(repr=False)
     _data: np.ndarray | None = field(default=None, repr=False)
 
     @property
@@ -70,7 +72,7 @@ class GradedT:
     @property
     def data(self) -> np.ndarray:
         if self._data is None:
-            self._data = self.pyramid.runtime.from_device(self.buffer, self.pyramid.data.shape)
+            self._data = self.device.read(label="graded transmittance (host copy)")
         return self._data
 
     def level(self, level: int) -> np.ndarray:
@@ -118,7 +120,7 @@ def _check_args(pyramid, density_scale, lam, method, quantity) -> tuple[float, f
     if not (np.isfinite(s) and s >= 0):
         raise ClvolError(f"density_scale = {density_scale!r} must be a finite number >= 0")
     # The largest optical depth must stay a finite float32 (inf * 0 would make NaN).
-    worst = s * float(np.max(pyramid.data, initial=0.0)) * pyramid.cube_size * np.sqrt(3.0)
+    worst = s * pyramid.max_density * pyramid.cube_size * np.sqrt(3.0)
     if not worst < 1e37:
         raise ClvolError(f"density_scale = {density_scale!r} times the largest density over the "
                          f"cube gives optical depths beyond float32 range; rescale the density")
@@ -157,19 +159,19 @@ def _layout_size(n: int) -> int:
 
 
 def sweep_layout(pyr: Pyramid, axis: int):
-    """(buffer, offsets): every level padded and permuted for sweeps along ``axis`` (made
+    """(DeviceArray, offsets): every level padded and permuted for sweeps along ``axis`` (made
     once per pyramid and axis on the device, then cached on the pyramid)."""
     key = ("sweep_layout", axis)
     if key not in pyr.cache:
         rt = pyr.runtime
         sizes = [_layout_size(pyr.resolution(l)) for l in range(pyr.n_levels)]
         offs = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-        buf = rt.empty(int(sum(sizes)) + SWEEP_SLACK)
+        buf = rt.alloc(int(sum(sizes)) + SWEEP_SLACK)
         k = rt.program("transmittance").kernel(
             "sweep_layout", [None, np.int32, np.int32, np.int32, None, np.int32])
         for l in range(pyr.n_levels):
-            rt.launch(k, sizes[l], (pyr.buffer, np.int32(pyr.level_offsets[l]),
-                                    np.int32(pyr.resolution(l)), np.int32(axis), buf,
+            rt.launch(k, sizes[l], (pyr.device.buffer, np.int32(pyr.level_offsets[l]),
+                                    np.int32(pyr.resolution(l)), np.int32(axis), buf.buffer,
                                     np.int32(offs[l])))
         pyr.cache[key] = (buf, offs)
     return pyr.cache[key]
@@ -192,7 +194,7 @@ _ARG_B = 18  # index of the per-launch block argument b
 
 
 def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
-                 out_depth: bool, out: "cl.Buffer", out_off: int) -> None:
+                 out_depth: bool, out: DeviceArray, out_off: int) -> None:
     n = pyr.resolution(level)
     a, sa, su, sv, inv_la = sweep_geometry(light_dir)
     width = 16 if n >= VECTOR_MIN_N else 1
@@ -219,10 +221,10 @@ def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
     n_vox = n * n // 16 if (width == 16 and a == 0) else SWEEP_BLOCK * n * (n // width)
     # clSetKernelArg does not retain buffers: keep every one referenced until the last enqueue.
     tables = [rt.to_device(t) for t in (stab, sftab, btab)]
-    k.set_args(layout, np.int32(offs[level]), np.int32(n), np.int32(a), np.int32(sa),
+    k.set_args(layout.buffer, np.int32(offs[level]), np.int32(n), np.int32(a), np.int32(sa),
                np.float32(su), np.float32(sv), np.float32(scale * inv_la / 6.0),
                col, np.int32(cw), np.int32(ou), np.int32(ov), bb, np.int32(bw), np.int32(brows),
-               *tables, np.int32(0), np.int32(nb), np.int32(out_depth), out, np.int32(out_off),
+               *tables, np.int32(0), np.int32(nb), np.int32(out_depth), out.buffer, np.int32(out_off),
                np.int32(n_col))
     for b in range(nb + 1):
         k.set_arg(_ARG_B, np.int32(b))
@@ -230,26 +232,26 @@ def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
 
 
 def _run_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir, method: str,
-               out_depth: bool, out: "cl.Buffer", out_off: int) -> None:
+               out_depth: bool, out: DeviceArray, out_off: int) -> None:
     if method == "sweep":
         _sweep_level(rt, pyr, level, scale, light_dir, out_depth, out, out_off)
         return
     n = pyr.resolution(level)
     k = rt.program("transmittance").kernel("transmittance_brute", [
         None, np.int32, np.int32, None, np.float32, np.int32, None, np.int32])
-    rt.launch(k, n ** 3, (pyr.buffer, np.int32(pyr.level_offsets[level]), np.int32(n),
-                          f4(light_dir), np.float32(scale), np.int32(out_depth), out,
+    rt.launch(k, n ** 3, (pyr.device.buffer, np.int32(pyr.level_offsets[level]), np.int32(n),
+                          f4(light_dir), np.float32(scale), np.int32(out_depth), out.buffer,
                           np.int32(out_off)))
 
 
 def graded_transmittance(pyramid: Pyramid, density_scale: float, light_dir, lam: float = DEFAULT_LAMBDA,
                          method: str = "sweep", quantity: str = "transmittance") -> GradedT:
     """T_l = exp(-integral toward the light of lam^(l+1) * density_scale * rho_l) on every level
-    l, at level l's voxel centres (seed eq. 1). Returns a GradedT (device buffer + lazy host copy)."""
+    l, at level l's voxel centres (seed eq. 1). Returns a GradedT (device array + lazy host copy)."""
     s, lam_f = _check_args(pyramid, density_scale, lam, method, quantity)
     l = check_light_dir(light_dir)
     rt = pyramid.runtime
-    out = rt.empty(pyramid.data.size)  # read by later kernels (gather)
+    out = rt.alloc(pyramid.size)  # read by later kernels (gather)
     for level in range(pyramid.n_levels):
         scale = lam_f ** (level + 1) * s * pyramid.voxel_size(level)
         _run_level(rt, pyramid, level, scale, l, method, quantity == "optical_depth", out,
@@ -260,22 +262,22 @@ def graded_transmittance(pyramid: Pyramid, density_scale: float, light_dir, lam:
 def light_transmittance(pyramid: Pyramid, density_scale: float, light_dir, method: str = "sweep",
                         quantity: str = "transmittance", as_buffer: bool = False):
     """The exact light transmittance (lambda = 1, level 0) for single scattering: an (n, n, n)
-    float32 array [z][y][x] over the cube at base voxel centres, or its cl.Buffer when
-    ``as_buffer`` (nothing is copied back). T = 1 outside the cube."""
+    float32 array [z][y][x] over the cube at base voxel centres, or the (n, n, n) DeviceArray
+    holding it when ``as_buffer`` (nothing is copied back). T = 1 outside the cube."""
     s, _ = _check_args(pyramid, density_scale, 1.0, method, quantity)
     l = check_light_dir(light_dir)
     rt = pyramid.runtime
     n = pyramid.base_resolution
-    out = rt.empty(n ** 3)  # read by later kernels (ray marcher)
+    out = rt.alloc((n, n, n))  # read by later kernels (ray marcher)
     _run_level(rt, pyramid, 0, s * pyramid.voxel_size(0), l, method,
                quantity == "optical_depth", out, 0)
-    return out if as_buffer else rt.from_device(out, (n, n, n))
+    return out if as_buffer else out.read()
 
 
 def combine_levels(graded: GradedT, weights, bias: float = 0.0, as_buffer: bool = False):
     """Bake sum_l w_l T_l + bias at the base voxel centres (each T_l read trilinearly, clamped):
     the learned 1x1x1 convolution across levels (the seed's "3D-CNN") applied once per light
-    change. Returns a (base,)*3 float32 array [z][y][x], or its cl.Buffer when ``as_buffer``.
+    change. Returns a (base,)*3 float32 array [z][y][x], or its DeviceArray when ``as_buffer``.
     Outside the cube every T_l is 1, so the combined value there is sum_l w_l + bias."""
     if not isinstance(graded, GradedT):
         raise ClvolError(f"combine_levels needs a GradedT, got {type(graded).__name__}")
@@ -287,8 +289,9 @@ def combine_levels(graded: GradedT, weights, bias: float = 0.0, as_buffer: bool 
     base = graded.base_resolution
     k = rt.program("transmittance").kernel("combine_levels",
                                            [None, None, None, np.int32, np.int32, np.float32, None])
-    out = rt.empty(base ** 3)
-    rt.launch(k, base ** 3, (graded.buffer, rt.to_device(graded.level_offsets.astype(np.int32)),
+    out = rt.alloc((base,) * 3)
+    rt.launch(k, base ** 3, (graded.device.buffer,
+                             rt.to_device(graded.level_offsets.astype(np.int32)),
                              rt.to_device(w.astype(np.float32)), np.int32(graded.n_levels),
-                             np.int32(base), np.float32(bias), out))
-    return out if as_buffer else rt.from_device(out, (base,) * 3)
+                             np.int32(base), np.float32(bias), out.buffer))
+    return out if as_buffer else out.read()

@@ -5,7 +5,7 @@ bound to methods), the two methods ``raymarch`` (the ray marcher and its plan) a
 ``pathtrace`` (the reference path tracer and point queries), the package ``ms`` (the
 multiple-scattering sources, one module each, and the ``--ms`` registry in its ``__init__``),
 ``environment`` (sky light for the marcher) and ``sphere`` (direction sets). The volume on the
-device that every method reads (``DeviceMedium``) is clvol/kernels/majorant.py's.
+device that every method reads (``DeviceMedium``) is clvol/kernels/medium.py's.
 
 Render-method registry shared by the CLI and Python callers.
 

@@ -20,11 +20,12 @@ import math
 import numpy as np
 
 from ..errors import ClvolError
-from ..kernels.majorant import DEFAULT_BLOCK, DeviceMedium
+from ..kernels.majorant import DEFAULT_BLOCK
+from ..kernels.medium import DeviceMedium
 from ..kernels.pyramid import MAX_BASE_RESOLUTION
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..neural.layout import is_power_of_two
-from ..runtime import DeviceArray, get_runtime
+from ..runtime import get_runtime
 from .ms.base import MsSource
 from .plan import MAX_LIGHT_RESOLUTION, plan_frame
 from .plan import auto_light_resolution as plan_light_resolution
@@ -81,10 +82,11 @@ def auto_light_resolution(grid) -> int:
 class RayMarcher:
     """A volume kept on the device for many frames: density, majorant grid, light field.
 
-    ``grid``: clvol Grid; ``medium``: clvol Medium (``set_medium`` changes it). The light field
-    (T_light, or its optical depth with light_interp="optical_depth", on the pyramid's cube)
-    is made by ``set_light`` (the light-change cost) and kept until the light direction or the
-    density scale changes. ``light_builds`` counts them.
+    ``grid``: clvol Grid; ``medium``: clvol Medium (``set_medium`` changes it). The volume's
+    device data is its DeviceMedium's (clvol/kernels/medium.py): the light field (T_light, or
+    its optical depth with light_interp="optical_depth", on the pyramid's cube) is asked of it
+    by ``set_light`` (the light-change cost) and kept until the light direction or the density
+    scale changes. ``light_builds`` counts them.
     """
 
     def __init__(self, grid, medium, runtime=None, block: int = DEFAULT_BLOCK,
@@ -120,9 +122,8 @@ class RayMarcher:
 
     @property
     def pyramid(self):
-        """Density resampled to the light field's cube (built once, on first use)."""
-        from ..kernels.pyramid import cached_pyramid
-        return cached_pyramid(self.dm.cache, self.grid, self.light_resolution, self.rt)
+        """Density resampled to the light field's cube (the DeviceMedium's, built once)."""
+        return self.dm.pyramid(self.light_resolution)
 
     def set_medium(self, medium) -> None:
         self.medium = medium
@@ -141,17 +142,18 @@ class RayMarcher:
         self._env_T = None
         self._env_field = self._env_field_key = None
 
-    def set_light(self, light_dir) -> None:
-        """(Re)compute the exact light field for a light toward ``light_dir``."""
-        from ..kernels.transmittance import check_light_dir, light_transmittance
+    def set_light(self, light_dir) -> bool:
+        """Make the light field the one for a light toward ``light_dir`` (the DeviceMedium's:
+        computed there unless it already holds it). Returns True when it was computed."""
+        from ..kernels.transmittance import check_light_dir
         l = check_light_dir(light_dir)
-        pyr = self.pyramid
-        buf = light_transmittance(pyr, self.medium.density_scale, l,
-                                  quantity=self.light_interp, as_buffer=True)
-        n = pyr.base_resolution
-        self.light_field = DeviceArray(buf, (n, n, n), np.dtype(np.float32), self.rt)
+        builds = self.dm.light_builds
+        self.light_field = self.dm.light_field(l, self.medium.density_scale, self.light_interp,
+                                               self.light_resolution)
         self._light_key = (tuple(l), float(self.medium.density_scale))
-        self.light_builds += 1
+        built = self.dm.light_builds != builds
+        self.light_builds += built
+        return built
 
     @property
     def light_dir(self):
@@ -164,8 +166,7 @@ class RayMarcher:
         key = (tuple(check_light_dir(light_dir)), float(self.medium.density_scale))
         if self.light_field is not None and key == self._light_key:
             return False
-        self.set_light(light_dir)
-        return True
+        return self.set_light(light_dir)
 
     def march(self, camera, light, plan, source: MsSource, *, read_back: bool = True,
               stats: bool = False, emission=None):

@@ -146,7 +146,7 @@ class Renderer:
         """The volume on the device with its majorant (uploaded on first use, shared by
         every frame and method)."""
         if self._device_medium is None:
-            from ..kernels.majorant import DeviceMedium
+            from ..kernels.medium import DeviceMedium
             self._device_medium = DeviceMedium.upload(self.grid, self.options["majorant_block"],
                                                       self.rt)
             self._count("device_medium")

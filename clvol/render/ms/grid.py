@@ -151,7 +151,7 @@ class GridMs(MsSource):
             rt = self.runtime or get_runtime()
             if self.count:
                 self.count("ms_upload")
-            self._uploaded = up = (self.ms_grid, grey, rt.upload(planes))
+            self._uploaded = up = (self.ms_grid, grey, rt.upload(planes, label="F_ms lattice"))
         return up[2], (tuple(self.ms_grid.bbox_min), tuple(self.ms_grid.bbox_max))
 
 

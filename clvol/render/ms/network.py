@@ -1,12 +1,15 @@
 """The trained network as the ray marcher's multiple-scattering source (the paper's method).
 
 ``NetworkSource`` holds one weight file and one volume on the device (the MLP's packed
-weights, the density pyramid at the weights' base resolution) and fills an F_ms lattice for a
-camera position, a light and a medium: graded transmittance toward the light, then the
-render-mode template gather at the lattice points and the OpenCL network, in one kernel by
-default (clvol/kernels/gather_mlp.py) or as two. ``NetworkMs`` is the marcher's
-source built on it: it refills the lattice only when the camera position, the light or the
-medium changed.
+weights, the density pyramid at the weights' base resolution: the DeviceMedium's, when it is
+given one) and fills an F_ms lattice for a camera position, a light and a medium: graded
+transmittance toward the light, then the render-mode template gather at the lattice points
+and the OpenCL network, in one kernel by default (clvol/kernels/gather_mlp.py) or as two.
+``fill_device`` writes the lattice straight into a device array in the marcher's layout
+(device in, caller-owned device out: nothing is read back); ``fill`` returns it as an
+``MsGrid`` on the host. ``NetworkMs`` is the marcher's source built on it: it refills the
+lattice only when the camera position, the light or the medium changed, on the device unless
+``ms_refresh`` or ``ms_directions`` need the values on the host.
 
 The weight file states the domain it was trained on (clvol/neural/export.py's
 ``weights_domain``); ``outside_domain`` says how a medium lies outside it.
@@ -18,7 +21,7 @@ import numpy as np
 
 from ...errors import ClvolError, WeightsError
 from ...neural.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
-from ...runtime import Stopwatch, get_runtime
+from ...runtime import DeviceArray, Stopwatch, get_runtime
 from ..sphere import fibonacci_directions, spherical_barycentric
 from .grid import GridMs, MsGrid, check_ms_grid, ms_lattice
 from .base import MsPlan
@@ -160,29 +163,39 @@ class NetworkSource:
     grey albedo (``grey_shortcut``), else one per distinct non-zero channel albedo.
     ``fused`` (default ``FUSED_DEFAULT``): gather and network in one kernel
     (clvol/kernels/gather_mlp.py), else the gather's features through device memory to the
-    network's kernel.
+    network's kernel. ``device_medium``: the volume's DeviceMedium (clvol/kernels/medium.py),
+    whose pyramid at the weights' base resolution is used; without one (tests, benchmarks)
+    the pyramid is built from the grid alone (its level 0 is all that is uploaded).
     """
 
-    def __init__(self, weights, grid, medium, runtime=None, fused: bool | None = None):
+    def __init__(self, weights, grid, medium, runtime=None, fused: bool | None = None,
+                 device_medium=None):
         from ...kernels.mlp import MlpKernel
-        from ...kernels.pyramid import build_pyramid
         self.rt = runtime or get_runtime()
         self.weights = load_network_weights(weights)
         self.grid, self.medium = grid, medium
         self.mlp = MlpKernel(self.weights, self.rt)
         self.base = int(self.weights.contract["base_resolution"])
         self.lam = float(self.weights.contract["lambda"])
-        self.pyramid = build_pyramid(grid, self.base, self.rt)
+        self.pyramid = self._pyramid(grid, device_medium)
         self._graded = (None, None)
         self.graded_builds = 0
         self.fused = FUSED_DEFAULT if fused is None else bool(fused)
 
-    def set_grid(self, grid) -> None:
-        """A new density for the same weights (Renderer.set_density): the pyramid is rebuilt
-        and the graded transmittance dropped; the weights and kernels stay."""
-        from ...kernels.pyramid import build_pyramid
+    def _pyramid(self, grid, device_medium):
+        if device_medium is None:
+            from ...kernels.pyramid import build_pyramid
+            return build_pyramid(grid, self.base, self.rt)
+        if device_medium.grid is not grid:
+            raise ClvolError("NetworkSource: the device medium holds another grid")
+        return device_medium.pyramid(self.base)
+
+    def set_grid(self, grid, device_medium=None) -> None:
+        """A new density for the same weights (Renderer.set_density): the pyramid is the new
+        medium's (or rebuilt) and the graded transmittance dropped; the weights and kernels
+        stay."""
         self.grid = grid
-        self.pyramid = build_pyramid(grid, self.base, self.rt)
+        self.pyramid = self._pyramid(grid, device_medium)
         self._graded = (None, None)
 
     def graded(self, light_dir, density_scale=None):
@@ -224,36 +237,94 @@ class NetworkSource:
         vals = full.reshape((res[2], res[1], res[0]) + (() if grey else (3,)))
         return check_ms_grid(MsGrid(vals, tuple(lo), tuple(hi))), info
 
+    def fill_device(self, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
+                    bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None,
+                    active=None, out: DeviceArray | None = None):
+        """(lattice, (bbox_min, bbox_max), info): ``fill``'s F_ms on the device, in the ray
+        marcher's layout: a (C, gz, gy, gx) float32 DeviceArray of planes, C = 1 for a grey
+        albedo with the shortcut else 3, 0 at the points not ``active``. ``out``: the
+        caller's lattice to overwrite when it has that shape, else a new one is made. On the
+        fused path the kernel writes each active point's F_ms straight into it (at the
+        point's flat lattice index) and nothing is read back but a 4-byte non-finite flag
+        (checked: no silent NaN); on the unfused path the values come from ``fill`` and are
+        written into it from the host."""
+        medium = self.medium if medium is None else medium
+        if bbox_min is None or bbox_max is None:
+            bbox_min, bbox_max = self.grid.bbox_min, self.grid.bbox_max
+        if origin is None:
+            raise ClvolError("NetworkSource.fill_device: give the camera's origin")
+        rt = self.rt
+        res, lo, hi, pts_all, om_all = ms_lattice(None, resolution, bbox_min, bbox_max, origin)
+        grey = grey_shortcut and medium.is_grey
+        shape = (1 if grey else 3, res[2], res[1], res[0])
+        if out is None or tuple(out.shape) != shape or out.runtime is not rt:
+            out = rt.alloc(shape)
+        if not self.fused:
+            g, info = self.fill(light_dir, resolution, bbox_min, bbox_max, grey_shortcut,
+                                medium, origin, active)
+            rt.write(out, g.planes(), label="F_ms lattice (unfused path)")
+            return out, (tuple(lo), tuple(hi)), info
+        n = len(pts_all)
+        idx = (np.arange(n) if active is None else
+               np.flatnonzero(np.asarray(active, bool).ravel()))
+        rt.zero(out)
+        flag = rt.alloc(1, np.int32, zero=True)
+        _, info = self._evaluate(pts_all[idx], om_all[idx], light_dir, medium, grey, out=out,
+                                 out_index=idx, nonfinite=flag)
+        if flag.read(label="network non-finite flag")[0]:
+            raise ClvolError(f"{self.weights.path}: the network produced non-finite F_ms")
+        return out, (tuple(lo), tuple(hi)), info
+
     def evaluate(self, pts, om, light_dir, medium=None, grey_shortcut: bool = True):
         """(F_ms, info) at world points ``pts`` (N, 3) toward unit directions ``om`` (N, 3)
         for a light toward ``light_dir``: float32 (N,) for a grey albedo with the shortcut,
         else (N, 3); >= 0 (the network's rare negative outputs are clipped). info: seconds
         "light", "gather", "network", "evaluations" (per point) and "points"; on the fused
         path (``self.fused``) "network" holds the gather's time too and "gather" is 0."""
+        medium = self.medium if medium is None else medium
+        out, info = self._evaluate(pts, om, light_dir, medium,
+                                   grey_shortcut and medium.is_grey)
+        if not np.all(np.isfinite(out)):
+            raise ClvolError(f"{self.weights.path}: the network produced non-finite F_ms")
+        return np.maximum(out, 0.0), info
+
+    def _evaluate(self, pts, om, light_dir, medium, grey: bool, out=None, out_index=None,
+                  nonfinite=None):
+        """evaluate's work: (F_ms, info) with F_ms on the host, or (None, info) with ``out``
+        (fused path only): F_ms of point i written into the device lattice ``out`` at
+        ``out_index[i]`` of each plane (clvol/kernels/gather_mlp.py), non-finite values
+        flagged in ``nonfinite``."""
         from ...kernels.gather import gather
         from ...kernels.gather_mlp import gather_mlp
         from ...kernels.transmittance import check_light_dir
         rt = self.rt
-        medium = self.medium if medium is None else medium
         pts = np.asarray(pts, np.float64).reshape(-1, 3)
         om = np.asarray(om, np.float64).reshape(-1, 3)
         alb = np.asarray(medium.albedo, np.float64)
-        grey = grey_shortcut and medium.is_grey
         l = check_light_dir(light_dir)
         info = {"light": 0.0, "gather": 0.0, "network": 0.0}
         with Stopwatch() as sw:
             graded = self.graded(l, medium.density_scale)
             rt.finish()
         info["light"] = sw.seconds
-        out = np.zeros((len(pts),) if grey else (len(pts), 3), np.float32)
+        host = out is None
+        if host:
+            out = np.zeros((len(pts),) if grey else (len(pts), 3), np.float32)
+        elif not self.fused:
+            raise ClvolError("NetworkSource: device output needs the fused kernel")
         reuse = None
         if self.fused:
             for i in range(0, len(pts), FUSED_CHUNK):
                 sl = slice(i, i + FUSED_CHUNK)
-                with Stopwatch() as sw:   # grey: the config's albedo is the medium's
-                    out[sl] = gather_mlp(self.mlp, self.pyramid, graded, pts[sl], om[sl], l, medium,
-                                         float(alb[0]), self.weights.level_weights,
-                                         self.weights.level_bias, None if grey else alb)
+                args = (self.mlp, self.pyramid, graded, pts[sl], om[sl], l, medium,
+                        float(alb[0]), self.weights.level_weights, self.weights.level_bias,
+                        None if grey else alb)   # grey: the config's albedo is the medium's
+                with Stopwatch() as sw:
+                    if host:
+                        out[sl] = gather_mlp(*args)
+                    else:
+                        gather_mlp(*args, out=out, out_index=out_index[sl], nonfinite=nonfinite)
+                        rt.finish()
                 info["network"] += sw.seconds
         else:
             for i in range(0, len(pts), NETWORK_CHUNK):
@@ -274,9 +345,7 @@ class NetworkSource:
                 info["network"] += sw.seconds
         info["evaluations"] = 1 if grey else len(set(float(a) for a in alb if a > 0))
         info["points"] = int(len(pts))
-        if not np.all(np.isfinite(out)):
-            raise ClvolError(f"{self.weights.path}: the network produced non-finite F_ms")
-        return np.maximum(out, 0.0), info
+        return (out if host else None), info
 
 
 class NetworkMs(GridMs):
@@ -313,22 +382,27 @@ class NetworkMs(GridMs):
         """The state every network-backed source keeps (this one and view.py's)."""
         self.weights_path = shipped_weights() if weights is None else weights
         self.net: NetworkSource | None = None
+        self.lattice = None       # (DeviceArray (C, gz, gy, gx), box): the device-filled lattice
         self.info = None
         self.setup_seconds = 0.0
         self._key = None
 
     def _ensure_network(self, frame) -> None:
-        """Weights and pyramid on the device for the frame's volume (once per volume); the
-        header's setup seconds are this frame's (0 when an earlier frame did it)."""
+        """Weights and pyramid on the device for the frame's volume (once per volume; the
+        pyramid is the frame's DeviceMedium's, found through ``frame.cache``); the header's
+        setup seconds are this frame's (0 when an earlier frame did it)."""
+        from ...kernels.medium import medium_of
         self.setup_seconds = 0.0
         if self.net is None or self.net.grid is not frame.grid:
+            dm = medium_of(frame.cache)
+            dm = dm if dm is not None and dm.grid is frame.grid else None
             with Stopwatch() as sw:
                 if self.net is None:
                     self.net = NetworkSource(self.weights_path, frame.grid, frame.medium,
-                                             frame.runtime)
+                                             frame.runtime, device_medium=dm)
                     frame.count("network_setup")
                 else:                    # a new density (Renderer.set_density): same weights
-                    self.net.set_grid(frame.grid)
+                    self.net.set_grid(frame.grid, dm)
                     frame.count("network_pyramid")
                 frame.runtime.finish()
             self.setup_seconds = sw.seconds
@@ -383,8 +457,12 @@ class NetworkMs(GridMs):
         fill = dict(grey_shortcut=frame.shortcuts, medium=frame.medium,
                     origin=frame.camera.origin)
         light = frame.light.direction
-        if (self.refresh == 1 or self._key is None or self.ms_grid is None
-                or key[1:] != self._key[1:]):
+        if self.refresh == 1:   # the default: the lattice stays on the device (no round trip)
+            old = self.lattice[0] if self.lattice is not None else None
+            planes, box, self.info = self.net.fill_device(light, self.resolution, active=active,
+                                                          out=old, **fill)
+            self.lattice, self.ms_grid, self._todo = (planes, box), None, 0
+        elif self._key is None or self.ms_grid is None or key[1:] != self._key[1:]:
             self.ms_grid, self.info = self.net.fill(light, self.resolution, active=active, **fill)
             self._todo = 0
         else:
@@ -409,6 +487,7 @@ class NetworkMs(GridMs):
         """View-independent cache: F_ms at ``directions`` fixed directions per lattice point,
         filled once per light and medium; each camera position then interpolates them toward
         omega (barycentric on the directions' spherical triangulation)."""
+        self.lattice = None
         dirs = fibonacci_directions(self.directions)
         if self._table is None or self._table[0] != light_key:
             tables, info = [], None
@@ -455,6 +534,26 @@ class NetworkMs(GridMs):
             p.skipped.append("network evaluations at lattice points with no density within "
                              "reach (their F_ms never reaches the image)")
         return p
+
+    def device_data(self, medium, shortcuts: bool):
+        """The lattice as the network filled it on the device (no host round trip), or the
+        host-filled grid of the refresh and directional modes, uploaded."""
+        if self.lattice is not None:
+            planes, box = self.lattice
+            return self._lattice_for(planes, medium, shortcuts), box
+        return super().device_data(medium, shortcuts)
+
+    def _lattice_for(self, planes: DeviceArray, medium, shortcuts: bool) -> DeviceArray:
+        """The device lattice in the planes ``GridMs.device_data`` would give this medium: as
+        filled (one plane exactly for a grey medium with shortcuts, as ``prepare`` fills it
+        for the same frame), or a grey lattice repeated into three planes on the device."""
+        if planes.shape[0] == 1 and not (shortcuts and medium.is_grey):
+            rt = planes.runtime
+            three = rt.alloc((3,) + tuple(planes.shape[1:]))
+            for c in range(3):
+                rt.copy(three, planes, dst_offset=c * planes.nbytes)
+            return three
+        return planes
 
     def header(self) -> dict:
         return {"raymarch.ms_resolution": str(self.resolution), **self._network_header()}
