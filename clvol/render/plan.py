@@ -128,6 +128,7 @@ class FramePlan:
     emission: bool
     simulated: tuple
     skipped: tuple
+    keys: dict                      # stage -> what it depends on (clvol/render/stages.py)
 
     def header(self, label: str) -> dict:
         """The header entries that state this plan (``label``: the source's description)."""
@@ -205,7 +206,31 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
         threshold=float(o["threshold"]), light_resolution=light_res,
         light_interp=o["light_interp"], supersample=s, lattice_reach=reach,
         emission=getattr(scene, "emission", None) is not None, simulated=tuple(sim),
-        skipped=tuple(skip))
+        skipped=tuple(skip), keys=_stage_keys(cls, camera, light, medium, shortcuts, lobes, env))
+
+
+def light_key(light_dir, density_scale) -> tuple:
+    """What the light field depends on: the unit direction toward the light and the density
+    scale (the volume and the field's resolution are the marcher's own)."""
+    from ..kernels.transmittance import check_light_dir
+    return tuple(check_light_dir(light_dir)), float(density_scale)
+
+
+def _stage_keys(cls, camera, light, medium, shortcuts, lobes, env) -> dict:
+    """Each recomputable stage's key: what its value depends on, for this frame."""
+    from .environment import sky_key
+    keys = {"light_field": light_key(light.direction, medium.density_scale),
+            "ms": cls.key_for(camera, light, medium, shortcuts)}
+    if env["env_background"] == "map":
+        keys["env_background"] = (sky_key(light, 0), camera)
+    if env["env_scatter"]:
+        sky = (sky_key(light, env["env_directions"]), medium.is_grey)
+        keys["env_sky"] = sky
+        # the phase toward the camera enters the field only for an anisotropic phase
+        keys["env_field"] = (sky, float(medium.density_scale),
+                             tuple(float(a) for a in medium.albedo), lobes,
+                             tuple(camera.origin) if lobes else None)
+    return keys
 
 
 def _sun_and_phase(medium, light, lit, shortcuts, sim, skip) -> tuple:

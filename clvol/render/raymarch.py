@@ -27,7 +27,8 @@ from ..kernels.raymarch import LIGHT_QUANTITIES, launch
 from ..neural.layout import is_power_of_two
 from ..runtime import get_runtime
 from .ms.base import MsSource
-from .plan import MAX_LIGHT_RESOLUTION, plan_frame
+from .plan import MAX_LIGHT_RESOLUTION, light_key, plan_frame
+from .stages import Stage
 from .plan import auto_light_resolution as plan_light_resolution
 
 # Segment length in voxels of the density grid. Half a voxel, because at one voxel the
@@ -104,20 +105,21 @@ class RayMarcher:
         self.dm = device_medium or DeviceMedium.upload(grid, block, self.rt)
         self.block = self.dm.block
         self.density, self.majorant = self.dm.density, self.dm.majorant
-        self.light_field = None
-        self._light_key = None
         self.light_builds = 0
         from .environment import DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_RESOLUTION
         check_env_options(env_directions, env_resolution)
         self.env_directions = int(env_directions or DEFAULT_ENV_DIRECTIONS)
         self.env_resolution = int(env_resolution or DEFAULT_ENV_RESOLUTION)
         self._env_T = None
-        self._env_sky = self._env_sky_key = None
-        self._env_field = self._env_field_key = None
-        self._bg = self._bg_key = None
-        # Called with a stage name ("env_transmittance", "env_sky", "env_field",
-        # "env_background") each time one is recomputed (the Renderer counts them).
+        # Called with a stage name ("light_field", "env_transmittance", "env_sky",
+        # "env_field", "env_background") each time one is recomputed (the Renderer counts).
         self.count = lambda stage: None
+        # The stages, keyed by what the plan says they depend on (clvol/render/stages.py).
+        counted = lambda stage: self.count(stage)                      # noqa: E731
+        self._light = Stage("light_field", counted)
+        self._env_sky = Stage("env_sky", counted)
+        self._env_field = Stage("env_field", counted)
+        self._bg = Stage("env_background", counted)
         self.env_seconds = 0.0     # host time of the last frame's environment precomputation
 
     @property
@@ -137,36 +139,45 @@ class RayMarcher:
         self.block = self.dm.block
         self.density, self.majorant = self.dm.density, self.dm.majorant
         self.light_resolution = light_resolution or auto_light_resolution(grid)
-        self.light_field = None
-        self._light_key = None
+        self._light.drop()
         self._env_T = None
-        self._env_field = self._env_field_key = None
+        self._env_field.drop()
 
     def set_light(self, light_dir) -> bool:
-        """Make the light field the one for a light toward ``light_dir`` (the DeviceMedium's:
-        computed there unless it already holds it). Returns True when it was computed."""
-        from ..kernels.transmittance import check_light_dir
-        l = check_light_dir(light_dir)
+        """Make the light field the one for a light toward ``light_dir`` now (the benchmarks'
+        light change: the DeviceMedium computes it unless it already holds it). Returns True
+        when it was computed."""
+        self._light.drop()
+        return self.ensure_light(light_dir)
+
+    def _compute_light(self, key):
+        l, scale = key
         builds = self.dm.light_builds
-        self.light_field = self.dm.light_field(l, self.medium.density_scale, self.light_interp,
-                                               self.light_resolution)
-        self._light_key = (tuple(l), float(self.medium.density_scale))
-        built = self.dm.light_builds != builds
-        self.light_builds += built
-        return built
+        field = self.dm.light_field(np.asarray(l), scale, self.light_interp,
+                                    self.light_resolution)
+        self.light_builds += self.dm.light_builds != builds
+        return field
+
+    @property
+    def light_field(self):
+        return self._light.value
 
     @property
     def light_dir(self):
-        return None if self._light_key is None else np.asarray(self._light_key[0])
+        return np.asarray(self._light.key[0]) if self._light.built else None
 
     def ensure_light(self, light_dir) -> bool:
-        """Build the light field unless it is already the one for this light and medium.
-        Returns True when it was built."""
-        from ..kernels.transmittance import check_light_dir
-        key = (tuple(check_light_dir(light_dir)), float(self.medium.density_scale))
-        if self.light_field is not None and key == self._light_key:
-            return False
-        return self.set_light(light_dir)
+        """The light field for this light and the medium's density scale (the stage's key,
+        clvol/render/plan.py ``light_key``), computed only when that changed. Returns True
+        when it was computed."""
+        return self.ensure_light_for(light_key(light_dir, self.medium.density_scale))
+
+    def ensure_light_for(self, key) -> bool:
+        """The light field for the plan's ``keys["light_field"]`` (direction, density
+        scale), computed only when the key changed; True when it was computed."""
+        builds = self.light_builds
+        self._light.get(key, lambda: self._compute_light(key))
+        return self.light_builds != builds
 
     def march(self, camera, light, plan, source: MsSource, *, read_back: bool = True,
               stats: bool = False, emission=None):
@@ -176,7 +187,7 @@ class RayMarcher:
         its ``device`` planes when set). Returns (layers, plan), or with ``read_back=False``
         (event, buffers, plan)."""
         if plan.lit:
-            self.ensure_light(light.direction)
+            self.ensure_light_for(plan.keys["light_field"])
         from ..runtime import Stopwatch
         with Stopwatch() as sw:
             env_kw = self.environment(camera, light, plan)
@@ -240,14 +251,11 @@ class RayMarcher:
             env_background      a map scene's camera or map
         """
         from . import environment as E
-        out = {}
+        from ..kernels.raymarch import env_device_layout
+        out, keys = {}, plan.keys
         if plan.env_background == "map":
-            key = (E.sky_key(light, 0), camera)
-            if key != self._bg_key:
-                self._bg = self.rt.upload(E.background_image(light, camera))
-                self._bg_key = key
-                self.count("env_background")
-            out["bg_image"] = self._bg
+            out["bg_image"] = self._bg.get(keys["env_background"], lambda: self.rt.upload(
+                E.background_image(light, camera)))
         if not plan.env_scatter:
             return out
         if self._env_T is None:
@@ -255,25 +263,15 @@ class RayMarcher:
                                              self.rt, self.dm.cache)
         if self._env_T.ensure(self.medium.density_scale):
             self.count("env_transmittance")
-        alb = tuple(float(a) for a in self.medium.albedo)
-        grey = self.medium.is_grey
-        skey = (E.sky_key(light, self.env_directions), grey)
-        if skey != self._env_sky_key:
-            self._env_sky = E.make_sky(light, self.env_directions, grey)
-            self._env_sky_key = skey
-            self.count("env_sky")
+        sky = self._env_sky.get(keys["env_sky"], lambda: E.make_sky(
+            light, self.env_directions, self.medium.is_grey))
         pyr = self._env_T.pyramid
-        fkey = (skey, self._env_T.builds, alb, tuple(plan.lobes),
-                tuple(camera.origin) if plan.lobes else None)
-        if fkey != self._env_field_key:
-            field = E.source_field(self._env_T.T, self._env_sky, alb, plan.lobes, pyr.cube_min,
-                                   pyr.cube_size, camera.origin)
-            from ..kernels.raymarch import env_device_layout
-            self._env_field = self.rt.upload(env_device_layout(field))
-            self._env_field_key = fkey
-            self.count("env_field")
-        out.update(env=self._env_field, env_min=pyr.cube_min, env_size=pyr.cube_size,
-                   env_colour=self._env_sky.colour)
+        alb = tuple(float(a) for a in self.medium.albedo)
+        field = self._env_field.get(keys["env_field"], lambda: self.rt.upload(env_device_layout(
+            E.source_field(self._env_T.T, sky, alb, plan.lobes, pyr.cube_min, pyr.cube_size,
+                           camera.origin))))
+        out.update(env=field, env_min=pyr.cube_min, env_size=pyr.cube_size,
+                   env_colour=sky.colour)
         return out
 
 

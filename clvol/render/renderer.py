@@ -239,14 +239,15 @@ class Renderer:
             plan = self.plan(cam, light, medium)
             source = self._source(plan.source)
             if plan.lit:
-                source.prepare(SourceFrame(grid, plan.camera, light, medium, self.rt, plan.shortcuts,
-                                     self._count, plan.lattice_reach, rm.dm.cache, rm.density,
-                                     plan.step, plan.threshold))
+                source.prepare(SourceFrame(grid, plan.camera, light, medium, self.rt,
+                                           plan.shortcuts, self._count, plan.lattice_reach,
+                                           rm.dm.cache, rm.density, plan.step, plan.threshold,
+                                           plan.keys["ms"]))
             else:
                 source.skip()
             with Stopwatch() as sw_light:
-                if plan.lit and rm.ensure_light(light.direction):
-                    self._count("light_field")
+                if plan.lit:
+                    rm.ensure_light_for(plan.keys["light_field"])   # counted by its stage
                 self.rt.finish()
             emission = self.emission
             with Stopwatch() as sw_march:

@@ -109,6 +109,7 @@ class SourceFrame:
     density: object = None    # the density already on the device (DeviceArray), if any
     step: float = 0.0         # the march's segment length (world units) ...
     threshold: float = 1e-3   # ... and its early-termination transmittance
+    key: object = None        # the plan's keys["ms"]: what the source's data depends on
 
 
 class MsSource:
@@ -131,6 +132,12 @@ class MsSource:
         """The kernel defines, octaves and effects of this source for ``medium`` seen by
         ``camera`` (the marched camera) with render options ``o``."""
         return MsPlan(ms_defines("none"), skipped=[f"multiple scattering (--ms {cls.name})"])
+
+    @classmethod
+    def key_for(cls, camera, light, medium, shortcuts: bool):
+        """What this source's data depends on for a frame (the plan's ``keys["ms"]``;
+        clvol/render/stages.py); None for a source without data of its own."""
+        return None
 
     def prepare(self, frame: "SourceFrame") -> None:
         """Fill this source's data for the frame (nothing to do for an analytic source)."""

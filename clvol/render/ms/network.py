@@ -428,9 +428,7 @@ class NetworkMs(GridMs):
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0,
                              **({"interpolate": 0.0} if "interpolate" in self.info else {}))
         self._ensure_network(frame)
-        m = frame.medium
-        key = (tuple(frame.camera.origin), tuple(frame.light.direction), m.density_scale,
-               tuple(m.albedo), m.phase, bool(frame.shortcuts))
+        key = frame.key
         if key == self._key and not self._todo:
             return
         active = None
@@ -519,6 +517,13 @@ class NetworkMs(GridMs):
         self.info = dict(info) if filled else dict(info, light=0.0, gather=0.0, network=0.0)
         self.info["interpolate"] = sw.seconds
         frame.count("ms_lattice")
+
+    @classmethod
+    def key_for(cls, camera, light, medium, shortcuts: bool):
+        """The lattice depends on the camera position (omega toward it; first, as the
+        refresh mode reads it), the light direction and the medium."""
+        return (tuple(camera.origin), tuple(light.direction), medium.density_scale,
+                tuple(medium.albedo), medium.phase, bool(shortcuts))
 
     @classmethod
     def plan_for(cls, medium, camera, shortcuts: bool, options) -> MsPlan:

@@ -85,9 +85,7 @@ class ViewMs(NetworkMs):
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0)
         self._ensure_network(frame)
         cam, m = frame.camera, frame.medium
-        key = (tuple(cam.origin), tuple(np.concatenate(cam.basis())), cam.tan_half_fov,
-               cam.width, cam.height, tuple(frame.light.direction), m.density_scale,
-               tuple(m.albedo), m.phase, bool(frame.shortcuts))
+        key = frame.key
         if key == self._key:
             return
         rt = frame.runtime
@@ -143,6 +141,13 @@ class ViewMs(NetworkMs):
             return vals[:, :channels], info
         vals, info = self.net.evaluate(pts, -dirs, frame.light.direction, m, frame.shortcuts)
         return vals.reshape(len(vals), -1), info
+
+    @classmethod
+    def key_for(cls, camera, light, medium, shortcuts: bool):
+        """The table depends on the whole camera (its rays), the light and the medium."""
+        return (tuple(camera.origin), tuple(np.concatenate(camera.basis())),
+                camera.tan_half_fov, camera.width, camera.height, tuple(light.direction),
+                medium.density_scale, tuple(medium.albedo), medium.phase, bool(shortcuts))
 
     @classmethod
     def _block_knots(cls, camera, o) -> tuple[int, int]:
@@ -364,8 +369,7 @@ class StochasticViewMs(ViewMs):
         grey = frame.shortcuts and m.is_grey
         self.block = (auto_block(cam.width, cam.height) if self.fixed_block is None
                       else self.fixed_block)
-        key = (tuple(frame.light.direction), m.density_scale, tuple(m.albedo), m.phase,
-               bool(frame.shortcuts), cam.width, cam.height, cam.tan_half_fov)
+        key = frame.key
         bx, by = block_grid(cam.width, cam.height, self.block)
         h = self.history
         if h is None or h.key != key:
@@ -410,6 +414,13 @@ class StochasticViewMs(ViewMs):
         if self.net.graded_builds != builds:
             frame.count("graded_transmittance")
         frame.count("ms_view_table")
+
+    @classmethod
+    def key_for(cls, camera, light, medium, shortcuts: bool):
+        """The history holds for one light, medium and image layout; camera motion is
+        reprojected, not a new key."""
+        return (tuple(light.direction), medium.density_scale, tuple(medium.albedo),
+                medium.phase, bool(shortcuts), camera.width, camera.height, camera.tan_half_fov)
 
     @classmethod
     def _block_knots(cls, camera, o) -> tuple[int, int]:
