@@ -205,12 +205,16 @@ def test_fused_equals_unfused(channels, monkeypatch):
         assert np.all(got[:, 0] == 0)
 
 
-def test_inputs_checked():
-    light = (0.3, 0.5, 0.8)
+def _checked_setup():
+    """A small volume, its graded field and a network: the input-check tests' fixture."""
     medium = Medium(12.0, (0.9,) * 3, Phase.hg(0.5))
-    grid, pyr, gt = scene(light, medium.density_scale, base=16)
+    _, pyr, gt = scene((0.3, 0.5, 0.8), medium.density_scale, base=16)
     w = network(pyr.n_levels, seed=1)
-    net = MlpKernel(w)
+    return medium, pyr, gt, w, MlpKernel(w)
+
+
+def test_inputs_checked():
+    medium, pyr, gt, w, net = _checked_setup()
     kw = dict(level_weights=w.level_weights, bias=w.level_bias)
     out = gather_mlp(net, pyr, gt, np.zeros((0, 3)), np.zeros((0, 3)), gt.light_dir, medium, 0.9, **kw)
     assert out.shape == (0,)
@@ -336,11 +340,7 @@ def test_device_output_layout_matches_twin(case):
 
 
 def test_device_output_inputs_checked():
-    light = (0.3, 0.5, 0.8)
-    medium = Medium(12.0, (0.9,) * 3, Phase.hg(0.5))
-    grid, pyr, gt = scene(light, medium.density_scale, base=16)
-    w = network(pyr.n_levels, seed=1)
-    net = MlpKernel(w)
+    medium, pyr, gt, w, net = _checked_setup()
     rt = pyr.runtime
     pts, om = random_queries(3, 5, 0.4)
     kw = dict(level_weights=w.level_weights, bias=w.level_bias)
