@@ -1,6 +1,6 @@
 """``plan_frame``: the one place that decides what a ray-marched frame simulates, and how.
 
-    plan = plan_frame(scene, options, volume=VolumeFacts.of(grid), domain=weights_domain)
+    plan = plan_frame(scene, options, volume=VolumeFacts(grid), domain=weights_domain)
 
 A ``FramePlan`` holds every decision of a frame: the multiple-scattering source that runs
 (the configured one, or the measured alternative for a medium outside the network's training
