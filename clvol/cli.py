@@ -172,7 +172,9 @@ def _cmd_render(args) -> int:
         return _render_frames(args, scene, renderer, png, exposure, tone)
     result = renderer.render()
     if args.profile:
-        print("device time per kernel:\n" + get_runtime().timing_report(), file=sys.stderr)
+        rt = get_runtime()
+        print("device time per kernel:\n" + rt.timing_report(), file=sys.stderr)
+        print("host<->device transfers:\n" + rt.transfers.report(), file=sys.stderr)
     header = {"scene": str(args.scene), **result.header}
     if png is not None:     # the preview's exposure, also recorded in the EXR's header
         stops, how = choose_exposure(exposure, result.layers["total"], scene.light)
@@ -386,7 +388,8 @@ def _add_render(sub) -> None:
     p.add_argument("-o", "--output", required=True, help="output .exr")
     _add_preview_arguments(p)
     p.add_argument("--device", help="OpenCL device: P:D, gpu, cpu or a name substring")
-    p.add_argument("--profile", action="store_true", help="print per-kernel device times")
+    p.add_argument("--profile", action="store_true",
+                   help="print per-kernel device times and the host<->device transfers")
     p.add_argument("--width", type=int, default=None, help="override the camera's width")
     p.add_argument("--height", type=int, default=None, help="override the camera's height")
     p.add_argument("--quiet", action="store_true",
