@@ -22,15 +22,14 @@ place (as pbrt-v4's ``GridMedium`` owns its density grid and its ``MajorantGrid`
 Everything derived lives in ``cache`` and dies with the medium; a ``Renderer`` makes one
 medium per volume (``Renderer.device_medium``, again on ``set_density``) and both methods read
 it: the ray marcher (clvol/render/raymarch.py) and its network source, and the path tracer
-(clvol/kernels/pathtrace.py). Code that is handed only the cache (a source's
-``Frame.cache``, the environment's transmittance) reaches the medium with ``medium_of``.
+(clvol/kernels/pathtrace.py). The sources get it in their frame input
+(``SourceFrame.device_medium``), the environment's transmittance when it is made.
 
 This module wraps no kernel of its own: it composes the wrappers of majorant.cl, pyramid.cl
 and transmittance.cl.
 """
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,24 +37,6 @@ import numpy as np
 from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
 from .majorant import DEFAULT_BLOCK, build_majorant_buffer, majorant_block
-
-
-class MediumCache(dict):
-    """A DeviceMedium's cache: the data derived from the volume, kept as long as it lives (a
-    dict), plus a weak reference to the medium itself (``medium``)."""
-
-    def __init__(self, medium: "DeviceMedium | None" = None):
-        super().__init__()
-        self._ref = None if medium is None else weakref.ref(medium)
-
-    @property
-    def medium(self) -> "DeviceMedium | None":
-        return None if self._ref is None else self._ref()
-
-
-def medium_of(cache) -> "DeviceMedium | None":
-    """The DeviceMedium whose ``cache`` this is, or None (a plain dict, or None)."""
-    return cache.medium if isinstance(cache, MediumCache) else None
 
 
 @dataclass(eq=False)
@@ -70,12 +51,6 @@ class DeviceMedium:
     runtime: object = field(repr=False)
     cache: dict = field(default_factory=dict, repr=False)
     light_builds: int = 0          # light fields computed (light_field calls that missed)
-
-    def __post_init__(self):
-        if not isinstance(self.cache, MediumCache) or self.cache.medium is not self:
-            cache = MediumCache(self)
-            cache.update(self.cache)
-            self.cache = cache
 
     @classmethod
     def upload(cls, grid, block: int = DEFAULT_BLOCK, runtime=None) -> "DeviceMedium":

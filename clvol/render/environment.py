@@ -144,23 +144,19 @@ def background_image(light, camera) -> np.ndarray:
 class EnvTransmittance:
     """T_i(x) toward each of ``k`` sky directions on a ``resolution``^3 pyramid over the
     medium's cube (float32 (K, n, n, n) on the host). Rebuilt when the density scale changes.
-    ``cache``: the volume's DeviceMedium cache; the pyramid is that medium's
+    ``device_medium``: the volume on the device; the pyramid is that medium's
     (``DeviceMedium.pyramid``, clvol/kernels/medium.py): no second copy of the density."""
 
-    def __init__(self, grid, k: int, resolution: int, runtime, cache: dict):
-        self.grid, self.k, self.n, self.rt, self.cache = grid, k, resolution, runtime, cache
+    def __init__(self, grid, k: int, resolution: int, runtime, device_medium):
+        self.grid, self.k, self.n, self.rt = grid, k, resolution, runtime
+        self.dm = device_medium
         self.T = None
         self._scale = None
         self.builds = 0
 
     @property
     def pyramid(self):
-        from ..kernels.medium import medium_of
-        dm = medium_of(self.cache)
-        if dm is None:
-            raise ClvolError("EnvTransmittance: cache must be a DeviceMedium's "
-                             "(clvol/kernels/medium.py)")
-        return dm.pyramid(self.n)
+        return self.dm.pyramid(self.n)
 
     def ensure(self, density_scale: float) -> bool:
         """Build the fields unless they are those of ``density_scale``; True when built."""

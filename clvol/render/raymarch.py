@@ -260,7 +260,7 @@ class RayMarcher:
             return out
         if self._env_T is None:
             self._env_T = E.EnvTransmittance(self.grid, self.env_directions, self.env_resolution,
-                                             self.rt, self.dm.cache)
+                                             self.rt, self.dm)
         if self._env_T.ensure(self.medium.density_scale):
             self.count("env_transmittance")
         sky = self._env_sky.get(keys["env_sky"], lambda: E.make_sky(

@@ -241,7 +241,7 @@ class Renderer:
             if plan.lit:
                 source.prepare(SourceFrame(grid, plan.camera, light, medium, self.rt,
                                            plan.shortcuts, self._count, plan.lattice_reach,
-                                           rm.dm.cache, rm.density, plan.step, plan.threshold,
+                                           rm.dm, plan.step, plan.threshold,
                                            plan.keys["ms"]))
             else:
                 source.skip()

@@ -105,8 +105,8 @@ class SourceFrame:
     shortcuts: bool = True
     count: object = None
     reach: float | None = None  # the plan's active-point reach (None: every lattice point)
-    cache: dict | None = None  # the DeviceMedium's cache (data that lives as long as the volume)
-    density: object = None    # the density already on the device (DeviceArray), if any
+    device_medium: object = None  # the volume on the device (clvol/kernels/medium.py): its
+                                  # density, pyramids and cache (data as long as the volume)
     step: float = 0.0         # the march's segment length (world units) ...
     threshold: float = 1e-3   # ... and its early-termination transmittance
     key: object = None        # the plan's keys["ms"]: what the source's data depends on

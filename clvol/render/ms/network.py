@@ -389,12 +389,11 @@ class NetworkMs(GridMs):
 
     def _ensure_network(self, frame) -> None:
         """Weights and pyramid on the device for the frame's volume (once per volume; the
-        pyramid is the frame's DeviceMedium's, found through ``frame.cache``); the header's
-        setup seconds are this frame's (0 when an earlier frame did it)."""
-        from ...kernels.medium import medium_of
+        pyramid is the frame's DeviceMedium's); the header's setup seconds are this frame's
+        (0 when an earlier frame did it)."""
         self.setup_seconds = 0.0
         if self.net is None or self.net.grid is not frame.grid:
-            dm = medium_of(frame.cache)
+            dm = frame.device_medium
             dm = dm if dm is not None and dm.grid is frame.grid else None
             with Stopwatch() as sw:
                 if self.net is None:
@@ -434,7 +433,8 @@ class NetworkMs(GridMs):
         active = None
         if frame.reach is not None:     # the plan's active-point rule (shortcuts on)
             mkey = ("network_active", self.resolution, frame.reach)
-            cache = frame.cache if frame.cache is not None else {}
+            dm = frame.device_medium
+            cache = dm.cache if dm is not None else {}
             if mkey not in cache:
                 cache[mkey] = lattice_reach_mask(frame.grid, self.resolution, frame.reach)
             active = cache[mkey]

@@ -92,7 +92,8 @@ class ViewMs(NetworkMs):
         fwd, right, up = cam.basis()
         builds = self.net.graded_builds
         with Stopwatch() as sw:
-            density = frame.density if frame.density is not None else frame.grid.density
+            dm = frame.device_medium
+            density = dm.density if dm is not None else frame.grid.density
             depths, _ = view_depths(density, frame.grid.bbox_min, frame.grid.bbox_max,
                                     m.density_scale, cam.origin, fwd, right, up,
                                     cam.tan_half_fov, cam.width, cam.height, self.block,
@@ -297,7 +298,8 @@ class StochasticViewMs(ViewMs):
         bx, by = block_grid(cam.width, cam.height, self.block)
         jitter = rng.random((by, bx, 3), dtype=np.float32)
         fwd, right, up = cam.basis()
-        density = frame.density if frame.density is not None else frame.grid.density
+        dm = frame.device_medium
+        density = dm.density if dm is not None else frame.grid.density
         depths, _ = view_depths(density, frame.grid.bbox_min, frame.grid.bbox_max,
                                 m.density_scale, cam.origin, fwd, right, up, cam.tan_half_fov,
                                 cam.width, cam.height, self.block, 1, 1,
