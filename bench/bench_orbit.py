@@ -9,7 +9,8 @@ Volumes: ``cloud`` (examples' cloud, 96^3, tests/data/scenes/cloud.toml) and the
 generator at 128^3 and 256^3. Motions, one change every frame: ``camera`` (an orbit, 3 degrees
 per frame), ``light`` (the light turns 5 degrees per frame), ``medium`` (albedo and g
 alternate). Each (volume, size, motion) keeps one ``Renderer`` per method, renders one
-untimed warm-up frame (kernel builds), then ``--frames`` timed frames. Printed per row:
+untimed warm-up frame (kernel builds), then ``--frames`` timed frames, the two methods
+interleaved frame by frame (one change rendered by each, then the next). Printed per row:
 median frame time of each method and their ratio (wall clock and this process's CPU time), and
 the default method's median split by stage (light field, graded transmittance, view-space
 query depths, gather, network, interpolation of the view-independent cache, march; a stage the
@@ -63,31 +64,43 @@ def frames(scene, motion: str, n: int) -> list[dict]:
     return out
 
 
-def run(renderer: Renderer, todo: list[dict]) -> tuple[list[float], dict]:
-    renderer.render()                                  # warm-up: builds, uploads, first fill
-    times, stages = [], {s: [] for s in STAGES}
-    cpu = []
+def _frame(renderer: Renderer, change: dict, times: list, cpu: list, stages: dict) -> None:
+    """Render one change, recording its wall and CPU time and the stages it recomputed."""
+    before = dict(renderer.counts)
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = renderer.render(**change)
+    times.append(time.perf_counter() - t0)
+    cpu.append(time.process_time() - c0)
+    h = res.header
+    grew = {k for k in renderer.counts if renderer.counts[k] != before.get(k, 0)}
+    stages["light_field"].append(h["seconds.light_field"] if "light_field" in grew else 0.0)
+    filled = "ms_lattice" in grew or "ms_view_table" in grew
+    stages["view_depths"].append(h.get("seconds.view_depths", 0.0) if filled else 0.0)
+    stages["view_reproject"].append(h.get("seconds.view_reproject", 0.0) if filled else 0.0)
+    stages["graded_transmittance"].append(
+        h.get("seconds.graded_transmittance", 0.0) if "graded_transmittance" in grew else 0.0)
+    stages["gather"].append(h.get("seconds.gather", 0.0) if filled else 0.0)
+    stages["network"].append(h.get("seconds.network", 0.0) if filled else 0.0)
+    stages["ms_interpolate"].append(h.get("seconds.ms_interpolate", 0.0) if filled else 0.0)
+    stages["march"].append(h["seconds.march"])
+
+
+def run(renderers: list[Renderer], todo: list[dict]) -> list[tuple[list[float], dict]]:
+    """Each renderer's (wall times, median stages and CPU) over ``todo``, the renderers
+    interleaved frame by frame (change i by each, then change i + 1), so that a change of
+    the machine's load falls on both sides of the ratio alike."""
+    for r in renderers:
+        r.render()                                     # warm-up: builds, uploads, first fill
+    rec = [([], [], {s: [] for s in STAGES}) for _ in renderers]
     for change in todo:
-        before = dict(renderer.counts)
-        t0, c0 = time.perf_counter(), time.process_time()
-        res = renderer.render(**change)
-        times.append(time.perf_counter() - t0)
-        cpu.append(time.process_time() - c0)
-        h = res.header
-        grew = {k for k in renderer.counts if renderer.counts[k] != before.get(k, 0)}
-        stages["light_field"].append(h["seconds.light_field"] if "light_field" in grew else 0.0)
-        filled = "ms_lattice" in grew or "ms_view_table" in grew
-        stages["view_depths"].append(h.get("seconds.view_depths", 0.0) if filled else 0.0)
-        stages["view_reproject"].append(h.get("seconds.view_reproject", 0.0) if filled else 0.0)
-        stages["graded_transmittance"].append(
-            h.get("seconds.graded_transmittance", 0.0) if "graded_transmittance" in grew else 0.0)
-        stages["gather"].append(h.get("seconds.gather", 0.0) if filled else 0.0)
-        stages["network"].append(h.get("seconds.network", 0.0) if filled else 0.0)
-        stages["ms_interpolate"].append(h.get("seconds.ms_interpolate", 0.0) if filled else 0.0)
-        stages["march"].append(h["seconds.march"])
-    out = {k: float(np.median(v)) for k, v in stages.items()}
-    out["cpu"] = float(np.median(cpu))
-    return times, out
+        for r, (times, cpu, stages) in zip(renderers, rec):
+            _frame(r, change, times, cpu, stages)
+    out = []
+    for times, cpu, stages in rec:
+        st = {k: float(np.median(v)) for k, v in stages.items()}
+        st["cpu"] = float(np.median(cpu))
+        out.append((times, st))
+    return out
 
 
 def main(argv=None) -> int:
@@ -138,8 +151,7 @@ def main(argv=None) -> int:
                 todo = frames(sc, motion, args.frames)
                 kw = {n: getattr(args, n) for n in reads if getattr(args, n) is not None}
                 d = Renderer(sc, grid=grid, ms=args.ms, **kw)
-                td, st = run(d, todo)
-                tp, sp = run(Renderer(sc, ms="none", grid=grid), todo)
+                (td, st), (tp, sp) = run([d, Renderer(sc, ms="none", grid=grid)], todo)
                 md, mp = float(np.median(td)), float(np.median(tp))
                 pts = d.source.info["points"] if d.source.info else 0
                 cd, cp = st["cpu"], sp["cpu"]
