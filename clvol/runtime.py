@@ -33,6 +33,7 @@ Device data follows one convention:
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.resources
 import os
@@ -52,8 +53,10 @@ from .errors import BuildError, DeviceError
 DEFAULT_PAD = 64
 
 
+@functools.lru_cache(maxsize=None)
 def cl_source_dir() -> Path:
-    """Folder holding the ``.cl`` sources (``cl/`` in a checkout, ``clvol/_cl`` installed)."""
+    """Folder holding the ``.cl`` sources (``cl/`` in a checkout, ``clvol/_cl`` installed);
+    where the package lies does not change in a process, and every launch asks."""
     return Path(str(importlib.resources.files("clvol._cl")))
 
 
@@ -215,7 +218,7 @@ def _sources_hash(stem_path: Path) -> str:
     """A hash of the source and every header. Reading them costs ~0.8 ms a launch on every
     frame, so the hash is kept per (file, size, mtime) signature: an edited file still
     changes the signature and is read again."""
-    files = [stem_path] + sorted(include_dir().glob("*.h"))
+    files = [stem_path] + _headers()
     sig = tuple((str(f), st.st_size, st.st_mtime_ns) for f in files for st in (f.stat(),))
     cached = _HASHES.get(sig)
     if cached is not None:
@@ -226,6 +229,20 @@ def _sources_hash(stem_path: Path) -> str:
         h.update(hdr.read_bytes())
     _HASHES[sig] = h.hexdigest()[:16]
     return _HASHES[sig]
+
+
+_HEADERS: dict = {}
+
+
+def _headers() -> list[Path]:
+    """The include folder's headers, listed again only when the folder changed (its mtime:
+    a header added or removed); an edited header is caught by _sources_hash's stat."""
+    inc = include_dir()
+    key = (str(inc), inc.stat().st_mtime_ns)
+    if key not in _HEADERS:
+        _HEADERS.clear()
+        _HEADERS[key] = sorted(inc.glob("*.h"))
+    return _HEADERS[key]
 
 
 def _define_flags(defines: dict | None) -> list[str]:
