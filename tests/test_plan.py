@@ -8,16 +8,14 @@ docs/raymarch.md's rules, not read back from the code's constants. The last test
 from __future__ import annotations
 
 import ast
-import dataclasses
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from clvol.render.ms.network import load_network_weights, shipped_weights
 from clvol.render.options import bind
 from clvol.render.plan import VolumeFacts, plan_frame
-from clvol.scene import Phase, scene_from_dict
+from clvol.scene import scene_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 

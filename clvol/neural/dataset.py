@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import io
 import json
-import math
 import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
