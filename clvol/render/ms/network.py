@@ -427,8 +427,8 @@ class NetworkMs(GridMs):
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0,
                              **({"interpolate": 0.0} if "interpolate" in self.info else {}))
         self._ensure_network(frame)
-        key = frame.key
-        if key == self._key and not self._todo:
+        key = frame.key                 # None (no plan): what the lattice depends on is unknown
+        if key is not None and key == self._key and not self._todo:
             return
         active = None
         if frame.reach is not None:     # the plan's active-point rule (shortcuts on)

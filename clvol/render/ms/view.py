@@ -85,8 +85,8 @@ class ViewMs(NetworkMs):
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0)
         self._ensure_network(frame)
         cam, m = frame.camera, frame.medium
-        key = frame.key
-        if key == self._key:
+        key = frame.key                 # None (no plan): what the table depends on is unknown
+        if key is not None and key == self._key:
             return
         rt = frame.runtime
         fwd, right, up = cam.basis()
@@ -374,7 +374,7 @@ class StochasticViewMs(ViewMs):
         key = frame.key
         bx, by = block_grid(cam.width, cam.height, self.block)
         h = self.history
-        if h is None or h.key != key:
+        if h is None or key is None or h.key != key:
             h = self.history = _History(key, 1 if grey else 3, by, bx)
         moved = h.camera is not None and (tuple(h.camera.origin) != tuple(cam.origin) or
                                           not np.array_equal(np.concatenate(h.camera.basis()),
