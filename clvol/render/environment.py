@@ -25,9 +25,23 @@ u is the direction of the camera ray through x, so the field is exact in directi
 pixel; an anisotropic phase therefore makes the field depend on the camera position (rebuilt
 when it moves); an isotropic one (f_i = 1 / (4 pi)) does not.
 
-Multiple scattering (an approximation, measured in docs/raymarch.md "Environment light").
-The sky light that does not reach x directly along w_i (the fraction 1 - T_i) is taken to
-arrive at x after scattering instead, from the same direction, diminished by a factor R:
+Multiple scattering, by the network (the default wherever the network serves the sun; measured
+in docs/raymarch.md "Environment light"). Light is additive, so the sky's multiple scattering
+is the sum of the network's F_ms for each sky cell's direction, weighted by the cell's
+irradiance:
+
+    M_c(x) = albedo_c sum_j E_j,c F_ms,c(x, w_j, u),
+
+over J cells of their own (``DEFAULT_ENV_MS_DIRECTIONS``; E_j from ``make_sky`` with J cells,
+so a map's energy is kept exactly), u toward the camera: the network's queries at the field's
+voxel centres within reach of the density (``network_ms``), one network call per cell, the
+graded transmittance toward every cell kept between camera moves.
+
+Multiple scattering, the escape model (an approximation; the plan uses it where the network
+does not run: an analytic sun source, a medium outside the network's domain, and the white
+furnace, where it is exact). The sky light that does not reach x directly along w_i (the
+fraction 1 - T_i) is taken to arrive at x after scattering instead, from the same direction,
+diminished by a factor R:
 
     M_c(x) = albedo_c R_c(x) sum_i E_i,c (1 - T_i(x)) f_i(x).
 
@@ -64,6 +78,9 @@ from .sphere import fibonacci_directions
 
 DEFAULT_ENV_DIRECTIONS = 64
 DEFAULT_ENV_RESOLUTION = 32
+# Sky cells the network is evaluated for: the cloud_sky_only scene (bench/neural_quality.py)
+# measured rmse100 3.44 / 1.98 / 1.52 / 1.44 with 8 / 16 / 32 / 64 cells (docs/raymarch.md).
+DEFAULT_ENV_MS_DIRECTIONS = 32
 INV_4PI = 1.0 / (4.0 * math.pi)
 # The escape model's R is raised to this power (fitted: docs/raymarch.md "Environment light").
 MS_EXPONENT = 2.0
@@ -78,6 +95,14 @@ def sky_directions(k: int) -> np.ndarray:
 
 def has_environment(light) -> bool:
     return light.environment is not None or getattr(light, "environment_map", None) is not None
+
+
+def sky_is_uniform(light) -> bool:
+    """A constant sky, or a map whose texels are all alike (its scale may be coloured)."""
+    if light.environment is not None:
+        return True
+    t = light.environment_texels()
+    return t is not None and bool(np.all(t.reshape(-1, 3) == t.reshape(-1, 3)[0]))
 
 
 @dataclass(frozen=True)
@@ -207,9 +232,12 @@ def voxel_centres(cube_min, cube_size, n) -> np.ndarray:
     return np.stack([x.ravel(), y.ravel(), z.ravel()], axis=-1) + np.asarray(cube_min)
 
 
-def source_field(T, sky: Sky, albedo, lobes, cube_min, cube_size, origin) -> np.ndarray:
+def source_field(T, sky: Sky, albedo, lobes, cube_min, cube_size, origin,
+                 ms: np.ndarray | None = None, escape: bool = True) -> np.ndarray:
     """(2 C, n, n, n) float32: the single (planes 0..C-1) and multiple (C..2C-1) in-scattered
-    radiance per unit extinction (module doc), from T (K, n, n, n)."""
+    radiance per unit extinction (module doc), from T (K, n, n, n). ``ms``: the network's
+    (C, n^3) sum_j E_j F_ms (``network_ms``) for the multiple planes instead of the escape
+    model; ``escape=False`` without it: no multiple scattering (--max-order 1)."""
     k, n = T.shape[0], T.shape[1]
     C = sky.channels
     alb = np.asarray(albedo, np.float64)
@@ -230,6 +258,9 @@ def source_field(T, sky: Sky, albedo, lobes, cube_min, cube_size, origin) -> np.
         sky_f = E32 @ fw                                       # (C, P): sum_i E_i f_i
     for c in range(C):
         out[c] = alb[c] * single[c]
+        if ms is not None or not escape:
+            out[C + c] = alb[c] * ms[c] if ms is not None else 0.0
+            continue
         if not total[c] > 0:
             out[C + c] = 0.0
             continue
@@ -240,3 +271,58 @@ def source_field(T, sky: Sky, albedo, lobes, cube_min, cube_size, origin) -> np.
         blocked = np.maximum(sky_f[c].astype(np.float64) - single[c], 0.0)  # sum E f (1 - T)
         out[C + c] = alb[c] * R * blocked
     return out.reshape((2 * C,) + (n,) * 3)
+
+
+class SkyNetwork:
+    """The network's share of the sky (``network_ms``): one NetworkSource (weights and the
+    pyramid of the medium's DeviceMedium) that keeps the graded transmittance toward each of
+    the sky's cells, and the field voxels it evaluates (those within reach of the density)."""
+
+    def __init__(self, weights, grid, medium, runtime, device_medium):
+        from .ms.network import NetworkSource, shipped_weights
+        self.net = NetworkSource(shipped_weights() if weights is None else weights, grid,
+                                 medium, runtime, device_medium=device_medium)
+        self._active = None
+        self.queries = 0          # network queries of the last field (points x cells)
+
+    def active(self, cube_min, cube_size, n, reach) -> np.ndarray:
+        """The field voxels the march can read where there is density (the network lattice's
+        rule, clvol/render/ms/network.py ``lattice_reach_mask``, over the field's cube)."""
+        from .ms.network import lattice_reach_mask
+        key = (tuple(cube_min), float(cube_size), n, reach)
+        if self._active is None or self._active[0] != key:
+            lo = np.asarray(cube_min, np.float64)
+            self._active = (key, lattice_reach_mask(self.net.grid, n, reach,
+                                                    box=(lo, lo + cube_size)))
+        return self._active[1]
+
+    def field(self, cells: Sky, medium, cube_min, cube_size, n, origin, reach) -> np.ndarray:
+        """(C, n^3) float32 sum_j E_j,c F_ms,c(x, w_j, toward ``origin``) at the field's voxel
+        centres (0 at voxels out of reach)."""
+        act = np.flatnonzero(self.active(cube_min, cube_size, n, reach))
+        self.net.graded_keep = len(cells.directions)
+        pts = voxel_centres(cube_min, cube_size, n)
+        return network_ms(self.net, cells, medium, pts, act, origin)
+
+
+def network_ms(net, cells: Sky, medium, points, active, origin) -> np.ndarray:
+    """(C, P) float32: sum_j E_j,c F_ms,c(x, w_j, u) at ``points`` (P, 3) (the module doc),
+    evaluated by ``net`` (a NetworkSource) at the indices ``active`` only (0 elsewhere), u the
+    unit direction from each point toward ``origin``. C = ``cells.channels``: a grey medium's
+    one F_ms per point serves every channel of E."""
+    C = cells.channels
+    out = np.zeros((C, len(points)), np.float64)
+    if len(active) == 0:
+        return out.astype(np.float32)
+    pts = np.asarray(points, np.float64)[active]
+    om = np.asarray(origin, np.float64) - pts
+    norm = np.linalg.norm(om, axis=1, keepdims=True)
+    # A point at the camera sees every direction alike: any unit vector will do there (+z).
+    om = np.where(norm > 0, om / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
+    for w, e in zip(cells.directions, cells.irradiance):
+        if not np.any(e > 0):
+            continue                      # a black cell adds nothing
+        F, _ = net.evaluate(pts, om, w, medium)
+        F = np.asarray(F, np.float64)
+        out[:, active] += e[:, None] * (F[None, :] if F.ndim == 1 else F.T)
+    return out.astype(np.float32)

@@ -118,6 +118,10 @@ class FramePlan:
     env_background: str             # "none", "constant" or "map"
     env_directions: int
     env_resolution: int
+    env_ms: str                     # the sky's multiple scattering: network, escape or none
+    env_ms_directions: int          # sky cells the network is evaluated for (network only)
+    env_weights: object             # the network's weight file (network only; None: shipped)
+    env_reach: float | None         # the network's active-voxel rule (None: every voxel)
     step_voxels: float
     step: float                     # world units
     threshold: float
@@ -138,7 +142,10 @@ class FramePlan:
             "simulated": "; ".join(self.simulated),
             "skipped": "; ".join(self.skipped) or "nothing",
             **({"raymarch.env_directions": self.env_directions,
-                "raymarch.env_resolution": self.env_resolution} if self.env_scatter else {}),
+                "raymarch.env_resolution": self.env_resolution,
+                "raymarch.env_ms": self.env_ms} if self.env_scatter else {}),
+            **({"raymarch.env_ms_directions": self.env_ms_directions}
+               if self.env_scatter and self.env_ms == "network" else {}),
             "raymarch.ms": self.source,
             "raymarch.step_voxels": self.step_voxels,
             "raymarch.step": self.step,
@@ -185,7 +192,9 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
     ms = cls.plan_for(medium, camera, shortcuts, o)
     if lit:
         _ms_effects(ms, choice, sim, skip)
-    env = _environment(medium, light, o, shortcuts, sim, skip)
+    env = _environment(medium, light, o, shortcuts, choice, sim, skip)
+    env["env_reach"] = (volume.lattice_reach(o["step"]) if env["env_ms"] == "network" and
+                        shortcuts and volume is not None else None)
     _emission_effects(getattr(scene, "emission", None), sim, skip)
 
     defines = dict(phase_defines(list(lobes)))
@@ -226,10 +235,16 @@ def _stage_keys(cls, camera, light, medium, shortcuts, lobes, env) -> dict:
     if env["env_scatter"]:
         sky = (sky_key(light, env["env_directions"]), medium.is_grey)
         keys["env_sky"] = sky
-        # the phase toward the camera enters the field only for an anisotropic phase
+        net = env["env_ms"] == "network"
+        if net:                                   # the network's own J cells
+            keys["env_ms_sky"] = (sky_key(light, env["env_ms_directions"]), medium.is_grey)
+        # the phase toward the camera enters the field only for an anisotropic phase; the
+        # network's F_ms always depends on the direction toward the camera
         keys["env_field"] = (sky, float(medium.density_scale),
                              tuple(float(a) for a in medium.albedo), lobes,
-                             tuple(camera.origin) if lobes else None)
+                             tuple(camera.origin) if lobes or net else None, env["env_ms"],
+                             (keys["env_ms_sky"], str(env["env_weights"]), medium.phase,
+                              env["env_reach"]) if net else None)
     return keys
 
 
@@ -261,8 +276,9 @@ def _ms_effects(ms: MsPlan, choice: SourceChoice, sim, skip) -> None:
                     "medium: one colour-free march, colour applied once per ray)")
 
 
-def _environment(medium, light, o, shortcuts, sim, skip) -> dict:
-    """The sky's share of the frame: whether it lights the medium, what is behind it."""
+def _environment(medium, light, o, shortcuts, choice, sim, skip) -> dict:
+    """The sky's share of the frame: whether it lights the medium, how its multiple
+    scattering is found (``_env_ms``), what is behind it."""
     from .environment import DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_RESOLUTION, has_environment
     env_on = has_environment(light)
     dirs = int(o["env_directions"] or DEFAULT_ENV_DIRECTIONS)
@@ -270,16 +286,14 @@ def _environment(medium, light, o, shortcuts, sim, skip) -> dict:
     env_map = getattr(light, "environment_map", None) is not None
     sky_dark = env_on and not np.any(light.sky_mean() > 0)    # a black constant or map
     scatter = env_on and ((any(a > 0 for a in medium.albedo) and not sky_dark) or not shortcuts)
+    env_ms, ms_dirs = ("none", 0)
     if scatter:
         what = "the map's" if env_map else "the sky's"
         sim.append(f"environment single scattering ({what} light from {dirs} "
                    f"directions, each cell's irradiance with the transmittance toward it "
                    f"({res}^3 fields from the density pyramid) and the phase "
                    f"function along each camera ray)")
-        sim.append("environment multiple scattering (approximation: the sky light "
-                   "blocked toward each direction arrives scattered, scaled by an escape "
-                   "model's (albedo t / (1 - albedo (1 - t)))^2; exact in a white furnace; "
-                   "measured error in docs/raymarch.md)")
+        env_ms, ms_dirs = _env_ms(medium, light, o, choice, res, sim, skip)
     elif env_on:
         skip.append("environment in-scattering (" + ("a black sky" if sky_dark else
                     "albedo 0: nothing scatters") + ")")
@@ -293,7 +307,35 @@ def _environment(medium, light, o, shortcuts, sim, skip) -> dict:
         env_scatter=scatter,
         env_background="map" if env_map else "constant" if light.environment is not None
         else "none",
-        env_directions=dirs, env_resolution=res)
+        env_directions=dirs, env_resolution=res, env_ms=env_ms, env_ms_directions=ms_dirs,
+        env_weights=o["weights"] if env_ms == "network" else None)
+
+
+def _env_ms(medium, light, o, choice, res, sim, skip) -> tuple:
+    """(how the sky's multiple scattering is found, network sky cells): the network where it
+    serves the sun (the --ms source chosen for this medium is a network source) unless
+    --env-ms escape; the escape model otherwise, and in a white furnace (albedo 1 under a
+    uniform sky), where it is exact; none at --max-order 1."""
+    from .environment import DEFAULT_ENV_MS_DIRECTIONS, sky_is_uniform
+    if o["max_order"] == 1:
+        skip.append("environment multiple scattering (--max-order 1)")
+        return "none", 0
+    furnace = all(a == 1.0 for a in medium.albedo) and sky_is_uniform(light)
+    if (o["env_ms"] or "network") == "network" and issubclass(source_class(choice.name), NetworkMs) \
+            and not furnace:
+        j = int(o["env_ms_directions"] or DEFAULT_ENV_MS_DIRECTIONS)
+        sim.append(f"environment multiple scattering (the network's F_ms for {j} sky "
+                   f"directions, each weighted by its cell's irradiance, at the {res}^3 "
+                   f"field's voxels toward the camera)")
+        return "network", j
+    why = ("exact here: albedo 1 under a uniform sky" if furnace else
+           "--env-ms escape" if o["env_ms"] == "escape" else
+           f"the network does not serve the sun here (--ms {choice.name})")
+    sim.append("environment multiple scattering (approximation: the sky light "
+               "blocked toward each direction arrives scattered, scaled by an escape "
+               f"model's (albedo t / (1 - albedo (1 - t)))^2; {why}; measured error in "
+               "docs/raymarch.md)")
+    return "escape", 0
 
 
 def _emission_effects(emission, sim, skip) -> None:

@@ -41,7 +41,7 @@ MAX_SUPERSAMPLE = 8
 
 
 def check_march_options(step, threshold, light_resolution, supersample, light_interp,
-                        env_directions=None, env_resolution=None):
+                        env_directions=None, env_resolution=None, env_ms_directions=None):
     """Refuse bad ray-marcher options when the Renderer is made, not at its first frame (the
     environment options included: a scene without a sky never reads them, but a bad value is
     still a mistake worth one line now)."""
@@ -59,15 +59,20 @@ def check_march_options(step, threshold, light_resolution, supersample, light_in
         raise bad("supersample", supersample, f"must be an integer from 1 to {MAX_SUPERSAMPLE}")
     if light_interp not in LIGHT_QUANTITIES:
         raise bad("light_interp", light_interp, f"choose one of {list(LIGHT_QUANTITIES)}")
-    check_env_options(env_directions, env_resolution)
+    check_env_options(env_directions, env_resolution, env_ms_directions)
 
 
-def check_env_options(env_directions, env_resolution) -> None:
+def check_env_options(env_directions, env_resolution, env_ms_directions=None) -> None:
     """The environment source's sky directions (1..1024) and field resolution (a power of two
     from 4 to 256); None: the default."""
     from .environment import sky_directions
     if env_directions is not None:
         sky_directions(env_directions)                    # refuses a bad count
+    if env_ms_directions is not None and not (
+            isinstance(env_ms_directions, (int, np.integer)) and
+            not isinstance(env_ms_directions, bool) and 1 <= env_ms_directions <= 256):
+        raise ClvolError(f"raymarch option env_ms_directions = {env_ms_directions!r}: must be "
+                         f"an integer from 1 to 256")
     if env_resolution is not None and not (
             isinstance(env_resolution, (int, np.integer)) and not isinstance(env_resolution, bool)
             and is_power_of_two(int(env_resolution)) and 4 <= env_resolution <= 256):
@@ -119,6 +124,8 @@ class RayMarcher:
         self._light = Stage("light_field", counted)
         self._env_sky = Stage("env_sky", counted)
         self._env_field = Stage("env_field", counted)
+        self._env_ms_sky = Stage("env_ms_sky", counted)   # the network's J cells
+        self._env_net = None       # environment.SkyNetwork, made on the first network sky
         self._bg = Stage("env_background", counted)
         self.env_seconds = 0.0     # host time of the last frame's environment precomputation
 
@@ -142,6 +149,7 @@ class RayMarcher:
         self._light.drop()
         self._env_T = None
         self._env_field.drop()
+        self._env_net = None
 
     def set_light(self, light_dir) -> bool:
         """Make the light field the one for a light toward ``light_dir`` now (the benchmarks'
@@ -267,12 +275,30 @@ class RayMarcher:
             light, self.env_directions, self.medium.is_grey))
         pyr = self._env_T.pyramid
         alb = tuple(float(a) for a in self.medium.albedo)
-        field = self._env_field.get(keys["env_field"], lambda: self.rt.upload(env_device_layout(
-            E.source_field(self._env_T.T, sky, alb, plan.lobes, pyr.cube_min, pyr.cube_size,
-                           camera.origin))))
-        out.update(env=field, env_min=pyr.cube_min, env_size=pyr.cube_size,
-                   env_colour=sky.colour)
+
+        def field():
+            ms = self._env_network_ms(camera, light, plan, pyr)
+            return self.rt.upload(env_device_layout(E.source_field(
+                self._env_T.T, sky, alb, plan.lobes, pyr.cube_min, pyr.cube_size,
+                camera.origin, ms=ms, escape=plan.env_ms == "escape")))
+        out.update(env=self._env_field.get(keys["env_field"], field), env_min=pyr.cube_min,
+                   env_size=pyr.cube_size, env_colour=sky.colour)
         return out
+
+    def _env_network_ms(self, camera, light, plan, pyr):
+        """The network's (C, n^3) sky multiple scattering for this camera position
+        (environment.py ``SkyNetwork``), or None where the plan says otherwise."""
+        from . import environment as E
+        if plan.env_ms != "network":
+            return None
+        if self._env_net is None or self._env_net.net.grid is not self.grid:
+            self._env_net = E.SkyNetwork(plan.env_weights or None, self.grid, self.medium,
+                                         self.rt, self.dm)
+            self.count("env_network_setup")
+        cells = self._env_ms_sky.get(plan.keys["env_ms_sky"], lambda: E.make_sky(
+            light, plan.env_ms_directions, self.medium.is_grey))
+        return self._env_net.field(cells, self.medium, pyr.cube_min, pyr.cube_size,
+                                   self.env_resolution, camera.origin, plan.env_reach)
 
 
 def make_source(ms: str, options: dict | None = None, runtime=None) -> MsSource:
@@ -381,6 +407,14 @@ def _march_arguments(group) -> None:
     group.add_argument("--env-resolution", type=int, default=None, metavar="N",
                        help="environment light: voxels per side of each direction's "
                             "transmittance field (power of two; default 32)")
+    group.add_argument("--env-ms", choices=["network", "escape"], default=None,
+                       help="environment light's multiple scattering: the network for "
+                            "--env-ms-directions sky cells (default wherever the network "
+                            "serves the sun) or the escape model (cheaper, less accurate; "
+                            "docs/raymarch.md)")
+    group.add_argument("--env-ms-directions", type=int, default=None, metavar="J",
+                       help="environment light: sky cells the network is evaluated for "
+                            "(default 32; each is one network call per camera position)")
     group.add_argument("--supersample", type=int, default=1,
                        help="S x S rays per pixel (default 1)")
     group.add_argument("--no-skip-empty", dest="skip_empty", action="store_false",

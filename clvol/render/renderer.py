@@ -173,8 +173,13 @@ class Renderer:
                                  f"{given['ms']} adds multiple scattering; drop one of them")
         source_class(o["ms"])                     # an unknown name is refused here
         check_march_options(o["step"], o["threshold"], o["light_resolution"], o["supersample"],
-                            o["light_interp"], o["env_directions"], o["env_resolution"])
-        for always in ("shortcuts", "skip_empty", "majorant_block"):   # read by every frame
+                            o["light_interp"], o["env_directions"], o["env_resolution"],
+                            o["env_ms_directions"])
+        # read by every frame (env_ms: by every frame with a sky; a bad value is refused
+        # by argparse's choices or below for every scene)
+        if o["env_ms"] not in (None, "network", "escape"):
+            raise ClvolError(f"raymarch option env_ms = {o['env_ms']!r}: choose network or escape")
+        for always in ("shortcuts", "skip_empty", "majorant_block"):
             o[always]
         self.source = make_source(o["ms"], o, self.rt)
         self.source.count = self._count

@@ -123,7 +123,7 @@ def lattice_reach(grid, step_voxels: float) -> float:
     return float(np.max(grid.cell_size)) + float(step_voxels) * float(np.min(grid.cell_size))
 
 
-def lattice_reach_mask(grid, resolution, reach: float) -> np.ndarray:
+def lattice_reach_mask(grid, resolution, reach: float, box=None) -> np.ndarray:
     """Boolean mask over the F_ms lattice points ([z][y][x], the volume's box): True where
     some voxel of non-zero density has its centre within one lattice cell plus ``reach``
     (world units, per axis) of the point. The march reads a lattice point only at samples
@@ -131,8 +131,10 @@ def lattice_reach_mask(grid, resolution, reach: float) -> np.ndarray:
     there (a trilinear read: non-zero only within one voxel of an occupied centre), so F_ms at
     the other points never reaches the image: they need no network evaluation.
     ``reach`` must cover one voxel plus the distance between the density sample and the F_ms
-    sample of a march segment (one step)."""
+    sample of a march segment (one step). ``box`` = (lo, hi): a lattice over that box instead
+    of the volume's (the environment's field covers the pyramid's cube)."""
     res = (resolution,) * 3 if np.isscalar(resolution) else tuple(resolution)
+    lo_box, hi_box = (grid.bbox_min, grid.bbox_max) if box is None else box
     occ = (np.asarray(grid.density) > 0).astype(np.int32)
     # 3-D summed-area table: occupied voxels in any index box in O(1).
     sat = np.zeros(tuple(n + 1 for n in occ.shape), np.int64)
@@ -140,9 +142,10 @@ def lattice_reach_mask(grid, resolution, reach: float) -> np.ndarray:
     lo_ix, hi_ix = [], []
     for a in range(3):                      # a = x, y, z; density axis 2 - a
         n = occ.shape[2 - a]
-        ext = float(grid.bbox_max[a] - grid.bbox_min[a])
-        cell_l, cell_d = ext / res[a], ext / n
-        p = (np.arange(res[a]) + 0.5) * cell_l                     # lattice centres, from bbox_min
+        cell_d = float(grid.bbox_max[a] - grid.bbox_min[a]) / n
+        cell_l = float(hi_box[a] - lo_box[a]) / res[a]
+        # lattice centres, measured from the density's bbox_min
+        p = float(lo_box[a] - grid.bbox_min[a]) + (np.arange(res[a]) + 0.5) * cell_l
         r = cell_l + reach
         lo_ix.append(np.clip(np.ceil((p - r) / cell_d - 0.5), 0, n).astype(np.int64))
         hi_ix.append(np.clip(np.floor((p + r) / cell_d - 0.5) + 1, 0, n).astype(np.int64))
@@ -178,7 +181,8 @@ class NetworkSource:
         self.base = int(self.weights.contract["base_resolution"])
         self.lam = float(self.weights.contract["lambda"])
         self.pyramid = self._pyramid(grid, device_medium)
-        self._graded = (None, None)
+        self._graded = {}          # (direction, density scale) -> GradedT, oldest first
+        self.graded_keep = 1
         self.graded_builds = 0
         self.fused = FUSED_DEFAULT if fused is None else bool(fused)
 
@@ -196,17 +200,21 @@ class NetworkSource:
         stay."""
         self.grid = grid
         self.pyramid = self._pyramid(grid, device_medium)
-        self._graded = (None, None)
+        self._graded = {}
 
     def graded(self, light_dir, density_scale=None):
+        """The graded transmittance toward ``light_dir`` (the last ``graded_keep`` directions
+        are kept: the sky's network source asks for the same few on every camera move)."""
         from ...kernels.transmittance import check_light_dir, graded_transmittance
         l = check_light_dir(light_dir)
         s = float(self.medium.density_scale if density_scale is None else density_scale)
         key = (tuple(l), s)
-        if self._graded[0] != key:
-            self._graded = (key, graded_transmittance(self.pyramid, s, l, lam=self.lam))
+        if key not in self._graded:
+            while len(self._graded) >= max(1, self.graded_keep):
+                self._graded.pop(next(iter(self._graded)))      # the oldest
+            self._graded[key] = graded_transmittance(self.pyramid, s, l, lam=self.lam)
             self.graded_builds += 1
-        return self._graded[1]
+        return self._graded[key]
 
     def fill(self, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
              bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None, active=None,
