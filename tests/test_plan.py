@@ -118,3 +118,34 @@ def test_only_plan_py_decides_the_source():
                 if name in deciders:
                     callers.append(path.relative_to(ROOT).as_posix())
     assert set(callers) == {"clvol/render/plan.py"}, callers
+
+
+def _sky(scene, albedo=None, **light):
+    import dataclasses
+    lt = dataclasses.replace(scene.light, environment=(0.3, 0.5, 0.9), **light)
+    med = scene.medium if albedo is None else dataclasses.replace(scene.medium, albedo=albedo)
+    return dataclasses.replace(scene, light=lt, medium=med)
+
+
+def test_the_sky_multiple_scattering_follows_the_sun_source(domain, no_device):
+    """docs/raymarch.md "Environment light": the network for the sky wherever it serves the
+    sun; the escape model for an analytic source, on request, and in the white furnace (where
+    it is exact); nothing at --max-order 1."""
+    sc = _sky(_scene())
+    p = _plan(sc, domain)
+    assert p.env_scatter and p.env_ms == "network" and p.env_ms_directions == 32
+    assert p.env_reach is not None                   # only voxels near density are queried
+    assert p.header("x")["raymarch.env_ms"] == "network"
+    assert p.keys["env_field"][4] == (0.0, 0.0, 2.5)  # the network's F_ms follows the camera
+    assert _plan(sc, domain, env_ms_directions=8).env_ms_directions == 8
+    assert _plan(sc, domain, ms="wrenninge").env_ms == "escape"
+    assert _plan(sc, domain, env_ms="escape").env_ms == "escape"
+    assert _plan(sc, domain, ms="stochastic").env_ms == "network"
+    furnace = _plan(_sky(_scene(), albedo=(1.0, 1.0, 1.0)), domain)
+    assert furnace.env_ms == "escape" and "uniform sky" in "; ".join(furnace.simulated)
+    p1 = _plan(sc, domain, ms="none", max_order=1)
+    assert p1.env_scatter and p1.env_ms == "none"
+    assert "environment multiple scattering (--max-order 1)" in p1.skipped
+    # sun-lit, no sky: none of it
+    p0 = _plan(_scene(), domain)
+    assert not p0.env_scatter and "env_field" not in p0.keys

@@ -39,12 +39,14 @@ def test_sky_directions_cover_the_sphere_evenly():
 
 
 @pytest.mark.parametrize("phase", [{"type": "isotropic"}, None], ids=["iso", "hg0.857"])
-def test_white_furnace_renders_the_sky_everywhere(phase):
-    """Albedo 1 under a uniform sky: the medium vanishes. The model is exact there for any
-    phase function (environment.py: single + multiple = albedo sum_i E_i f_i = L), so what is
-    left is float32 rounding over a march of ~100 segments: measured 3e-7, bound 1e-5 (100x
-    the rounding of a float32 sum of that length), far inside the 1% target."""
-    r = clvol.Renderer(_scene(phase=phase), ms="none").render()
+@pytest.mark.parametrize("ms", ["none", "network"])
+def test_white_furnace_renders_the_sky_everywhere(phase, ms):
+    """Albedo 1 under a uniform sky: the medium vanishes. The escape model is exact there for
+    any phase function (environment.py: single + multiple = albedo sum_i E_i f_i = L), and the
+    plan takes it there with the network sources too, so what is left is float32 rounding over
+    a march of ~100 segments: measured 3e-7, bound 1e-5 (100x the rounding of a float32 sum of
+    that length), far inside the 1% target."""
+    r = clvol.Renderer(_scene(phase=phase), ms=ms).render()
     tot = r.layers["total"].astype(np.float64)
     assert (r.layers["alpha"] > 0.9).mean() > 0.2          # the cloud covers the image
     assert r.layers["multiple"].max() > 0.1 * max(SKY)       # and scatters many times
@@ -156,3 +158,79 @@ def test_bad_environment_options_are_refused_when_the_renderer_is_made(opts, tex
     from clvol.errors import ClvolError
     with pytest.raises(ClvolError, match=text.replace(".", r"\.")):
         clvol.Renderer(sc, ms="none", **opts)
+
+
+def test_network_sky_beats_the_escape_model_against_the_path_tracer():
+    """The sky's multiple scattering from the network (the default with --ms network) on a
+    sky-only cloud (24^3, albedo 0.9, HG 0.857) against the path tracer at 2 x 128 spp,
+    noise-corrected as above. Measured: network rmse x100 1.11, mean +0.1%; the escape model
+    4.11, -3.8% (reference noise 1.06). Bounds: the issue's targets, RMSE x100 <= 2.0 and the
+    mean within 5%; and the network below the escape model, measured in the same run."""
+    scene = _scene(albedo=0.9, size=(32, 32))
+    r = clvol.Renderer(scene, "pathtrace", spp=128)
+    p1 = r.render(seed=5).layers["total"].astype(np.float64)
+    p2 = r.render(seed=6).layers["total"].astype(np.float64)
+    pt = 0.5 * (p1 + p2)
+    noise = ((p1 - p2) ** 2).mean() / 4
+    err = {}
+    for how in ("network", "escape"):
+        res = clvol.Renderer(scene, env_ms=how).render()
+        assert res.header["raymarch.env_ms"] == how
+        rm = res.layers["total"].astype(np.float64)
+        err[how] = (rm.mean() / pt.mean() - 1,
+                    100 * np.sqrt(max(((rm - pt) ** 2).mean() - noise, 0.0)))
+    print(err)
+    assert abs(err["network"][0]) < 0.05 and err["network"][1] <= 2.0
+    assert err["network"][1] < err["escape"][1]
+
+
+def test_network_sky_is_the_irradiance_weighted_sum_of_the_networks_f_ms():
+    """environment.network_ms against the network's own point evaluations: every cell's F_ms
+    toward the camera, weighted by that cell's (distinct, coloured) irradiance; 0 at the
+    points left out."""
+    from clvol.render.ms.network import NetworkSource, shipped_weights
+    scene = _scene(albedo=0.8, size=(8, 8))
+    grid = scene.volume.load()
+    net = NetworkSource(shipped_weights(), grid, scene.medium)
+    dirs = np.array([[0.0, 1.0, 0.0], [0.6, 0.0, 0.8], [0.0, -0.6, -0.8]])
+    E = np.array([[1.0, 2.0, 3.0], [0.5, 0.25, 0.0], [0.0, 0.0, 0.0]])   # one black cell
+    cells = env.Sky(dirs, E, (1.0, 1.0, 1.0), 3, np.full(3, 4 * np.pi / 3))
+    rs = np.random.default_rng(2)
+    lo, hi = np.asarray(grid.bbox_min), np.asarray(grid.bbox_max)
+    pts = lo + rs.random((40, 3)) * (hi - lo)
+    active = np.arange(1, 40, 2)
+    origin = np.array([0.1, 0.3, 1.7])
+    got = env.network_ms(net, cells, scene.medium, pts, active, origin)
+    assert got.shape == (3, 40) and np.all(got[:, ::2] == 0.0)
+    toward = origin - pts[active]
+    toward /= np.linalg.norm(toward, axis=1, keepdims=True)
+    want = np.zeros((3, len(active)))
+    for w, e in zip(dirs[:2], E[:2]):
+        f, _ = net.evaluate(pts[active], toward, w, scene.medium)
+        want += np.asarray(e)[:, None] * np.asarray(f, np.float64)[None, :]   # grey medium
+    assert want.max() > 0
+    np.testing.assert_allclose(got[:, active], want, rtol=1e-5, atol=1e-7)
+
+
+def test_network_sky_recomputes_per_camera_and_keeps_its_graded_fields():
+    """With the network for the sky: a camera move refills the field (F_ms looks toward the
+    camera) but builds no graded transmittance again (kept per cell); a new sky colour makes
+    new cells and a new field, with the same network."""
+    scene = _scene(albedo=0.9, size=(12, 10))
+    r = clvol.Renderer(scene, env_ms_directions=4)
+    r.render()
+    assert r.counts["env_field"] == 1 and r.counts["env_ms_sky"] == 1
+    net = r._marcher._env_net.net
+    assert net.graded_builds == 4
+    r.render()
+    assert r.counts["env_field"] == 1                        # nothing changed
+    cam = dataclasses.replace(scene.camera, origin=(0.3, 0.15, 1.6))
+    r.render(camera=cam)
+    assert r.counts["env_field"] == 2 and net.graded_builds == 4
+    blue = dataclasses.replace(scene.light, environment=(0.1, 0.2, 0.6))
+    a = r.render(camera=cam, light=blue)
+    assert r.counts["env_ms_sky"] == 2 and r.counts["env_field"] == 3
+    assert r.counts["env_network_setup"] == 1 and net.graded_builds == 4
+    fresh = clvol.Renderer(dataclasses.replace(scene, light=blue, camera=cam),
+                           env_ms_directions=4).render()
+    np.testing.assert_array_equal(a.layers["total"], fresh.layers["total"])
