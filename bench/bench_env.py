@@ -11,14 +11,16 @@ timed frames of each motion:
 
     static   the same frame again: the static sky's cost is the march's extra lookups
     camera   an orbit, 3 degrees per frame (an anisotropic phase rebuilds the sky's source
-             field per camera position: clvol/render/environment.py)
+             field per camera position: clvol/render/environment.py; with --ms network the
+             sky's multiple scattering is the network's, one call per sky cell per position)
 
 Printed per row: median wall and CPU ms per frame and the ratio to the same source without
 an environment (target: a static sky adds <= 30%), and the median of the header's
 ``seconds.environment`` (the environment's host precomputation inside the frame). Then the
 precomputation of an environment change, median over ``--frames`` changes, by what changed:
 a new sky colour (cells + source field), a new map rotation (the map's cells + field), a new
-density scale (K transmittance sweeps + field).
+density scale (K transmittance sweeps + field), for each --ms (network: the network's sky
+multiple scattering is part of the field).
 """
 from __future__ import annotations
 
@@ -109,11 +111,13 @@ def main(argv=None) -> int:
                                     f"wall, {(c / bc - 1) * 100:+.0f}% cpu (target <= +30%): "
                                     f"wall {'met' if w / bw <= 1.3 else 'NOT met'}, cpu "
                                     f"{'met' if c / bc <= 1.3 else 'NOT met'}")
-    # Precomputation of an environment change (ms none: nothing else is recomputed).
-    print("\nprecomputation of an environment change (header seconds.environment, --ms none):")
-    for what in ("sky colour", "map rotation", "density scale"):
+    # Precomputation of an environment change, per source: with --ms none the escape model's
+    # (nothing else is recomputed), with --ms network the network's sky cells too.
+    print("\nprecomputation of an environment change (header seconds.environment):")
+    for ms, what in [(ms, w) for ms in args.ms
+                     for w in ("sky colour", "map rotation", "density scale")]:
         sc = scene_with("map" if what == "map rotation" else "constant", args.size)
-        r = Renderer(sc, grid=grid, ms="none", **env_opts)
+        r = Renderer(sc, grid=grid, ms=ms, **env_opts)
         r.render()
         before = dict(r.counts)
         env = []
@@ -127,8 +131,8 @@ def main(argv=None) -> int:
                                                     density_scale=sc.medium.density_scale * (1 + 0.05 * i))}
             env.append(r.render(**ch).header["seconds.environment"])
         grew = sorted(k for k in r.counts if k.startswith("env_") and r.counts[k] != before.get(k, 0))
-        print(f"  {what:14s} {np.median(env) * 1e3:8.1f} ms  (recomputed: {', '.join(grew)})",
-              flush=True)
+        print(f"  --ms {ms:8s} {what:14s} {np.median(env) * 1e3:8.1f} ms  (sky multiple "
+              f"scattering: {r.plan().env_ms}; recomputed: {', '.join(grew)})", flush=True)
     print("\n".join(verdicts))
     print(machine(rt))
     return 0

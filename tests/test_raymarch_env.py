@@ -185,31 +185,63 @@ def test_network_sky_beats_the_escape_model_against_the_path_tracer():
 
 
 def test_network_sky_is_the_irradiance_weighted_sum_of_the_networks_f_ms():
-    """environment.network_ms against the network's own point evaluations: every cell's F_ms
-    toward the camera, weighted by that cell's (distinct, coloured) irradiance; 0 at the
-    points left out."""
+    """environment.SkyNetwork against the network's own point evaluations: every lit cell's
+    F_ms toward the camera at the field's voxel centres within reach, weighted by that cell's
+    (distinct, coloured) irradiance; 0 at the voxels out of reach. A new sky over the same
+    directions re-weights the cells without a network call."""
     from clvol.render.ms.network import NetworkSource, shipped_weights
     scene = _scene(albedo=0.8, size=(8, 8))
     grid = scene.volume.load()
-    net = NetworkSource(shipped_weights(), grid, scene.medium)
+    sky_net = env.SkyNetwork(None, grid, scene.medium, None, None)
     dirs = np.array([[0.0, 1.0, 0.0], [0.6, 0.0, 0.8], [0.0, -0.6, -0.8]])
     E = np.array([[1.0, 2.0, 3.0], [0.5, 0.25, 0.0], [0.0, 0.0, 0.0]])   # one black cell
     cells = env.Sky(dirs, E, (1.0, 1.0, 1.0), 3, np.full(3, 4 * np.pi / 3))
-    rs = np.random.default_rng(2)
-    lo, hi = np.asarray(grid.bbox_min), np.asarray(grid.bbox_max)
-    pts = lo + rs.random((40, 3)) * (hi - lo)
-    active = np.arange(1, 40, 2)
+    lo, size, n = np.asarray(grid.bbox_min) - 0.05, float(np.max(np.asarray(grid.bbox_max)
+                                                               - grid.bbox_min)) + 0.1, 8
     origin = np.array([0.1, 0.3, 1.7])
-    got = env.network_ms(net, cells, scene.medium, pts, active, origin)
-    assert got.shape == (3, 40) and np.all(got[:, ::2] == 0.0)
-    toward = origin - pts[active]
+    got = sky_net.field(cells, scene.medium, lo, size, n, origin, reach=0.05)
+    assert sky_net.evaluated == 2 and sky_net.pending == 0       # the black cell is skipped
+    act = sky_net.active(lo, size, n, 0.05)
+    assert 0 < act.sum() < n ** 3 and np.all(got[:, ~act] == 0.0)
+    pts = env.voxel_centres(lo, size, n)[act]
+    toward = origin - pts
     toward /= np.linalg.norm(toward, axis=1, keepdims=True)
-    want = np.zeros((3, len(active)))
+    net = NetworkSource(shipped_weights(), grid, scene.medium)
+    want = np.zeros((3, len(pts)))
     for w, e in zip(dirs[:2], E[:2]):
-        f, _ = net.evaluate(pts[active], toward, w, scene.medium)
+        f, _ = net.evaluate(pts, toward, w, scene.medium)
         want += np.asarray(e)[:, None] * np.asarray(f, np.float64)[None, :]   # grey medium
     assert want.max() > 0
-    np.testing.assert_allclose(got[:, active], want, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(got[:, act], want, rtol=1e-5, atol=1e-7)
+    E2 = E[::-1].copy()                                         # a new sky: the third cell lit
+    got2 = sky_net.field(env.Sky(dirs, E2, (1.0, 1.0, 1.0), 3, cells.solid_angles),
+                         scene.medium, lo, size, n, origin, reach=0.05)
+    assert sky_net.evaluated == 1                               # only the newly lit cell
+    f3, _ = net.evaluate(pts, toward, dirs[2], scene.medium)
+    f2, _ = net.evaluate(pts, toward, dirs[1], scene.medium)
+    want2 = E2[2][:, None] * np.asarray(f3, np.float64) + E2[1][:, None] * np.asarray(f2, np.float64)
+    np.testing.assert_allclose(got2[:, act], want2, rtol=1e-5, atol=1e-7)
+
+
+def test_network_sky_refreshes_a_few_cells_per_frame_when_asked():
+    """--env-ms-per-frame 1: after a camera move, one stale cell per frame, the header saying
+    the view still refines; once every cell is current the image is the all-at-once one."""
+    scene = _scene(albedo=0.9, size=(12, 10))
+    r = clvol.Renderer(scene, env_ms_directions=3, env_ms_per_frame=1)
+    first = [r.render().header for _ in range(3)]
+    assert [h["raymarch.env_ms_cells_evaluated"] for h in first] == [1, 1, 1]
+    assert [h["raymarch.env_refining"] for h in first] == [True, True, False]
+    h = r.render().header                                      # settled: nothing to do
+    assert h["raymarch.env_ms_cells_evaluated"] == 0 and h["raymarch.env_refining"] is False
+    cam = dataclasses.replace(scene.camera, origin=(0.3, 0.15, 1.6))
+    frames = [r.render(camera=cam) for _ in range(3)]
+    assert [f.header["raymarch.env_refining"] for f in frames] == [True, True, False]
+    whole = clvol.Renderer(dataclasses.replace(scene, camera=cam),
+                           env_ms_directions=3).render()
+    assert whole.header["raymarch.env_ms_cells_evaluated"] == 3
+    np.testing.assert_allclose(frames[-1].layers["total"], whole.layers["total"], rtol=1e-6,
+                               atol=1e-7)
+    assert np.abs(frames[0].layers["total"] - whole.layers["total"]).max() > 1e-5
 
 
 def test_network_sky_recomputes_per_camera_and_keeps_its_graded_fields():

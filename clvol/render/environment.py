@@ -34,7 +34,7 @@ irradiance:
 
 over J cells of their own (``DEFAULT_ENV_MS_DIRECTIONS``; E_j from ``make_sky`` with J cells,
 so a map's energy is kept exactly), u toward the camera: the network's queries at the field's
-voxel centres within reach of the density (``network_ms``), one network call per cell, the
+voxel centres within reach of the density (``SkyNetwork``), one network call per cell, the
 graded transmittance toward every cell kept between camera moves.
 
 Multiple scattering, the escape model (an approximation; the plan uses it where the network
@@ -236,7 +236,7 @@ def source_field(T, sky: Sky, albedo, lobes, cube_min, cube_size, origin,
                  ms: np.ndarray | None = None, escape: bool = True) -> np.ndarray:
     """(2 C, n, n, n) float32: the single (planes 0..C-1) and multiple (C..2C-1) in-scattered
     radiance per unit extinction (module doc), from T (K, n, n, n). ``ms``: the network's
-    (C, n^3) sum_j E_j F_ms (``network_ms``) for the multiple planes instead of the escape
+    (C, n^3) sum_j E_j F_ms (``SkyNetwork.field``) for the multiple planes instead of the escape
     model; ``escape=False`` without it: no multiple scattering (--max-order 1)."""
     k, n = T.shape[0], T.shape[1]
     C = sky.channels
@@ -274,16 +274,24 @@ def source_field(T, sky: Sky, albedo, lobes, cube_min, cube_size, origin,
 
 
 class SkyNetwork:
-    """The network's share of the sky (``network_ms``): one NetworkSource (weights and the
+    """The network's share of the sky (the module doc): one NetworkSource (weights and the
     pyramid of the medium's DeviceMedium) that keeps the graded transmittance toward each of
-    the sky's cells, and the field voxels it evaluates (those within reach of the density)."""
+    the sky's cells, and the field voxels it evaluates (those within reach of the density).
+
+    Each cell's F_ms is kept with the camera position it was evaluated for: a new sky (colour,
+    map, scale, rotation) re-weights them without a network call, since the J directions are
+    fixed; a camera move makes them stale. ``per_frame`` > 0 refreshes at most that many stale
+    cells per call, the oldest first (MRPNN's few directions per frame, accumulated); the
+    others keep their last positions' values and ``pending`` counts them."""
 
     def __init__(self, weights, grid, medium, runtime, device_medium):
         from .ms.network import NetworkSource, shipped_weights
         self.net = NetworkSource(shipped_weights() if weights is None else weights, grid,
                                  medium, runtime, device_medium=device_medium)
         self._active = None
-        self.queries = 0          # network queries of the last field (points x cells)
+        self._cells = None        # (key, F (J, P, Cf) float32, origin per cell, order)
+        self.pending = 0          # stale cells left after the last call
+        self.evaluated = 0        # cells evaluated by the last call
 
     def active(self, cube_min, cube_size, n, reach) -> np.ndarray:
         """The field voxels the march can read where there is density (the network lattice's
@@ -296,33 +304,44 @@ class SkyNetwork:
                                                     box=(lo, lo + cube_size)))
         return self._active[1]
 
-    def field(self, cells: Sky, medium, cube_min, cube_size, n, origin, reach) -> np.ndarray:
+    def field(self, cells: Sky, medium, cube_min, cube_size, n, origin, reach,
+              per_frame: int = 0) -> np.ndarray:
         """(C, n^3) float32 sum_j E_j,c F_ms,c(x, w_j, toward ``origin``) at the field's voxel
-        centres (0 at voxels out of reach)."""
+        centres (0 at voxels out of reach), refreshing the stale cells (all, or ``per_frame``)."""
         act = np.flatnonzero(self.active(cube_min, cube_size, n, reach))
-        self.net.graded_keep = len(cells.directions)
         pts = voxel_centres(cube_min, cube_size, n)
-        return network_ms(self.net, cells, medium, pts, act, origin)
-
-
-def network_ms(net, cells: Sky, medium, points, active, origin) -> np.ndarray:
-    """(C, P) float32: sum_j E_j,c F_ms,c(x, w_j, u) at ``points`` (P, 3) (the module doc),
-    evaluated by ``net`` (a NetworkSource) at the indices ``active`` only (0 elsewhere), u the
-    unit direction from each point toward ``origin``. C = ``cells.channels``: a grey medium's
-    one F_ms per point serves every channel of E."""
-    C = cells.channels
-    out = np.zeros((C, len(points)), np.float64)
-    if len(active) == 0:
+        J = len(cells.directions)
+        self.net.graded_keep = J
+        key = (cells.directions.tobytes(), medium.density_scale, tuple(medium.albedo),
+               medium.phase, act.tobytes())
+        if self._cells is None or self._cells[0] != key:
+            self._cells = (key, [None] * J, [None] * J, list(range(J)))
+        _, F, at, order = self._cells
+        origin = tuple(float(v) for v in origin)
+        # a black cell adds nothing: it is evaluated once the sky lights it
+        stale = [j for j in order if at[j] != origin and np.any(cells.irradiance[j] > 0)]
+        todo = stale if per_frame <= 0 else stale[:per_frame]
+        for j in todo:
+            F[j] = per_cell_f_ms(self.net, cells.directions[j], medium, pts, act, origin)
+            at[j] = origin
+            order.remove(j)
+            order.append(j)                                  # now the newest
+        self.evaluated, self.pending = len(todo), len(stale) - len(todo)
+        out = np.zeros((cells.channels, len(pts)), np.float64)
+        for j in range(J):
+            if F[j] is not None and np.any(cells.irradiance[j] > 0):
+                out[:, act] += cells.irradiance[j][:, None] * F[j].T
         return out.astype(np.float32)
+
+
+def per_cell_f_ms(net, direction, medium, points, active, origin) -> np.ndarray:
+    """(len(active), Cf) float64 F_ms at ``points[active]`` for a light toward
+    ``direction``, toward ``origin`` (Cf = 1 for a grey medium, else 3)."""
     pts = np.asarray(points, np.float64)[active]
     om = np.asarray(origin, np.float64) - pts
     norm = np.linalg.norm(om, axis=1, keepdims=True)
     # A point at the camera sees every direction alike: any unit vector will do there (+z).
     om = np.where(norm > 0, om / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
-    for w, e in zip(cells.directions, cells.irradiance):
-        if not np.any(e > 0):
-            continue                      # a black cell adds nothing
-        F, _ = net.evaluate(pts, om, w, medium)
-        F = np.asarray(F, np.float64)
-        out[:, active] += e[:, None] * (F[None, :] if F.ndim == 1 else F.T)
-    return out.astype(np.float32)
+    F, _ = net.evaluate(pts, om, direction, medium)
+    F = np.asarray(F, np.float64)
+    return F[:, None] if F.ndim == 1 else F

@@ -120,6 +120,7 @@ class FramePlan:
     env_resolution: int
     env_ms: str                     # the sky's multiple scattering: network, escape or none
     env_ms_directions: int          # sky cells the network is evaluated for (network only)
+    env_ms_per_frame: int           # at most this many cells refreshed per frame (0: all)
     env_weights: object             # the network's weight file (network only; None: shipped)
     env_reach: float | None         # the network's active-voxel rule (None: every voxel)
     step_voxels: float
@@ -308,6 +309,7 @@ def _environment(medium, light, o, shortcuts, choice, sim, skip) -> dict:
         env_background="map" if env_map else "constant" if light.environment is not None
         else "none",
         env_directions=dirs, env_resolution=res, env_ms=env_ms, env_ms_directions=ms_dirs,
+        env_ms_per_frame=int(o["env_ms_per_frame"] or 0) if env_ms == "network" else 0,
         env_weights=o["weights"] if env_ms == "network" else None)
 
 

@@ -281,6 +281,10 @@ class RayMarcher:
             return self.rt.upload(env_device_layout(E.source_field(
                 self._env_T.T, sky, alb, plan.lobes, pyr.cube_min, pyr.cube_size,
                 camera.origin, ms=ms, escape=plan.env_ms == "escape")))
+        if self._env_net is not None:
+            self._env_net.evaluated = 0        # this frame's count (0 unless the field is made)
+            if self._env_net.pending:
+                self._env_field.drop()  # cells left stale by the last frame: refresh more now
         out.update(env=self._env_field.get(keys["env_field"], field), env_min=pyr.cube_min,
                    env_size=pyr.cube_size, env_colour=sky.colour)
         return out
@@ -298,7 +302,16 @@ class RayMarcher:
         cells = self._env_ms_sky.get(plan.keys["env_ms_sky"], lambda: E.make_sky(
             light, plan.env_ms_directions, self.medium.is_grey))
         return self._env_net.field(cells, self.medium, pyr.cube_min, pyr.cube_size,
-                                   self.env_resolution, camera.origin, plan.env_reach)
+                                   self.env_resolution, camera.origin, plan.env_reach,
+                                   plan.env_ms_per_frame)
+
+    def env_header(self, plan) -> dict:
+        """This frame's network sky entries: cells evaluated, and whether some are still
+        stale (a caller that renders the same view again refines it)."""
+        if plan.env_ms != "network" or self._env_net is None:
+            return {}
+        return {"raymarch.env_ms_cells_evaluated": self._env_net.evaluated,
+                "raymarch.env_refining": self._env_net.pending > 0}
 
 
 def make_source(ms: str, options: dict | None = None, runtime=None) -> MsSource:
@@ -415,6 +428,10 @@ def _march_arguments(group) -> None:
     group.add_argument("--env-ms-directions", type=int, default=None, metavar="J",
                        help="environment light: sky cells the network is evaluated for "
                             "(default 32; each is one network call per camera position)")
+    group.add_argument("--env-ms-per-frame", type=int, default=0, metavar="M",
+                       help="environment light: after a camera move, evaluate the network "
+                            "for at most M sky cells per frame, the others keeping earlier "
+                            "positions' values until their turn (default 0 = all at once)")
     group.add_argument("--supersample", type=int, default=1,
                        help="S x S rays per pixel (default 1)")
     group.add_argument("--no-skip-empty", dest="skip_empty", action="store_false",

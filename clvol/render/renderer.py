@@ -179,6 +179,10 @@ class Renderer:
         # by argparse's choices or below for every scene)
         if o["env_ms"] not in (None, "network", "escape"):
             raise ClvolError(f"raymarch option env_ms = {o['env_ms']!r}: choose network or escape")
+        pf = o["env_ms_per_frame"]
+        if isinstance(pf, bool) or not isinstance(pf, (int, np.integer)) or not 0 <= pf <= 256:
+            raise ClvolError(f"raymarch option env_ms_per_frame = {pf!r}: an integer from 0 "
+                             f"(every sky cell at once) to 256")
         for always in ("shortcuts", "skip_empty", "majorant_block"):
             o[always]
         self.source = make_source(o["ms"], o, self.rt)
@@ -271,6 +275,7 @@ class Renderer:
             "device": self.rt.entry.label,
         })
         header.update(source.header())
+        header.update(rm.env_header(plan))
         return RenderResult(layers, header)
 
     # ------------------------------------------------------------------ pathtrace

@@ -93,10 +93,12 @@ class FrameMaker:
     def refines(frame: ViewFrame) -> bool:
         """Whether rendering the same state again improves ``frame``: the path tracer adds
         a pass; the stochastic source says whether it still draws (its own rule: a still
-        view draws STILL_SAMPLES times, then stops; an empty or unlit view never refines)."""
+        view draws STILL_SAMPLES times, then stops; an empty or unlit view never refines);
+        the network's sky says whether some of its cells are stale."""
         if frame.state.method == "pathtrace":
             return True
-        return frame.header.get("raymarch.view_refining") is True
+        return (frame.header.get("raymarch.view_refining") is True
+                or frame.header.get("raymarch.env_refining") is True)   # sky cells stale
 
     def volume_for(self, method: str, frame: int | None) -> dict:
         """``render`` keywords that switch ``method``'s renderer to a sequence's ``frame``

@@ -27,12 +27,12 @@ class ViewerMessageError(ClvolError):
 # the view is still and reprojected while it moves (clvol/render/ms/view.py). Chosen over the
 # lattice (clvol render's default) because a camera move costs it no refill: measured in
 # docs/accuracy.md ("Defaults").
-# The interactive methods take the sky's multiple scattering from the escape model: the
-# network's costs one call per sky cell at every camera position (about 1.8 s on 2 CPU cores,
-# docs/raymarch.md "Environment light"); `clvol render` uses the network.
+# The interactive methods refresh the network's sky for one sky cell per frame after a camera
+# move (all 32 at once cost about 1 s on 2 CPU cores, docs/raymarch.md "Environment light");
+# a still view refines until every cell is current.
 METHODS: dict[str, dict] = {
-    "stochastic": {"method": "raymarch", "ms": "stochastic", "env_ms": "escape"},
-    "network": {"env_ms": "escape"},                          # the 32^3 network lattice
+    "stochastic": {"method": "raymarch", "ms": "stochastic", "env_ms_per_frame": 1},
+    "network": {"env_ms_per_frame": 1},                       # the 32^3 network lattice
     "wrenninge": {"method": "raymarch", "ms": "wrenninge"},
     "single": {"method": "raymarch", "ms": "none"},
     "pathtrace": {"method": "pathtrace"},
