@@ -2,6 +2,7 @@
 
     python bench/bench_env.py [--frames 5] [--size 256] [--ms network none]
                               [--env-directions K] [--env-resolution N]
+                              [--env-ms-per-frame M]
 
 Scene: the examples' cloud (tests/data/scenes/cloud.toml, 96^3, sun on) at size x size.
 Skies: ``none`` (no environment), ``constant`` (a blue sky, [light] environment) and ``map``
@@ -52,6 +53,14 @@ def scene_with(sky: str, size: int):
     return dataclasses.replace(sc, light=li)
 
 
+def warm_up(r) -> None:
+    """Untimed frames until nothing is left to refine (kernel builds, sweeps, and with
+    --env-ms-per-frame every stale sky cell), so that "static" is a settled frame."""
+    for _ in range(300):
+        if not r.render().header.get("raymarch.env_refining"):
+            return
+
+
 def timed_interleaved(renderers: dict, changes: list[dict]) -> dict:
     """{name: (median wall, median cpu, median env prep)} over ``changes``, the renderers
     taking turns frame by frame, so that a change of the machine's load during the run falls
@@ -75,9 +84,12 @@ def main(argv=None) -> int:
     ap.add_argument("--ms", nargs="+", default=["network", "none"])
     ap.add_argument("--env-directions", type=int, default=None)
     ap.add_argument("--env-resolution", type=int, default=None)
+    ap.add_argument("--env-ms-per-frame", type=int, default=None,
+                    help="the network sky's cells refreshed per frame (default: all)")
     args = ap.parse_args(argv)
     env_opts = {k: v for k, v in (("env_directions", args.env_directions),
-                                  ("env_resolution", args.env_resolution)) if v is not None}
+                                  ("env_resolution", args.env_resolution),
+                                  ("env_ms_per_frame", args.env_ms_per_frame)) if v is not None}
     rt = get_runtime()
     print(machine(rt))
     print(f"cloud 96^3 (tests/data/scenes/cloud.toml, sun on), {args.size}^2, medians over "
@@ -90,10 +102,11 @@ def main(argv=None) -> int:
     verdicts = []
     for ms in args.ms:
         scenes = {sky: scene_with(sky, args.size) for sky in ("none", "constant", "map")}
-        renderers = {sky: Renderer(sc, grid=grid, ms=ms, **(env_opts if sky != "none" else {}))
+        opts = {k: v for k, v in env_opts.items() if ms == "network" or k != "env_ms_per_frame"}
+        renderers = {sky: Renderer(sc, grid=grid, ms=ms, **(opts if sky != "none" else {}))
                      for sky, sc in scenes.items()}
         for r in renderers.values():
-            r.render()                                           # warm-up
+            warm_up(r)
         cam = scenes["none"].camera                              # the same camera in all three
         for motion in ("static", "camera"):
             if motion == "static":
@@ -117,8 +130,9 @@ def main(argv=None) -> int:
     for ms, what in [(ms, w) for ms in args.ms
                      for w in ("sky colour", "map rotation", "density scale")]:
         sc = scene_with("map" if what == "map rotation" else "constant", args.size)
-        r = Renderer(sc, grid=grid, ms=ms, **env_opts)
-        r.render()
+        r = Renderer(sc, grid=grid, ms=ms, **{k: v for k, v in env_opts.items()
+                                              if ms == "network" or k != "env_ms_per_frame"})
+        warm_up(r)
         before = dict(r.counts)
         env = []
         for i in range(1, args.frames + 1):

@@ -1,6 +1,7 @@
 """Environment light in the ray marcher against the path tracer: sky-only and sun + sky clouds.
 
-    python bench/env_accuracy.py [--spp 512] [--size 64] [--cases ...] [--env K:N ...] [--order1]
+    python bench/env_accuracy.py [--spp 512] [--size 64] [--cases ...] [--env K:N[:J] ...]
+                                 [--env-ms network|escape] [--order1]
 
 Scene: the cloud generator (seed 1) at --volume^3 voxels, HG 0.857, density scale and albedo
 per case, under the constant blue sky (0.3, 0.5, 0.9) with the sun off (irradiance 0) or on
@@ -8,8 +9,9 @@ per case, under the constant blue sky (0.3, 0.5, 0.9) with the sun off (irradian
 size x size. Reference: the path tracer, two runs of --spp samples per pixel with seeds 11
 and 12; their mean is the reference and their difference its noise (subtracted from the
 squared error: "noise-corrected"). The ray marcher runs with the default --ms network (which
-serves the sun light; the sky is the environment source of clvol/render/environment.py) for
-each K:N (sky directions : field resolution). Printed per case: image means, their relative
+serves the sun light; the sky is the environment source of clvol/render/environment.py, its
+multiple scattering the network's or, with --env-ms escape, the escape model's) for each K:N
+(sky directions : field resolution) or K:N:J (J: the network's sky cells). Printed per case: image means, their relative
 difference, and rmse100: the metric of bench/neural_quality.py's tables (RMSE x 100 of
 tonemapped luminance, the reference's noise removed; ``neural_quality.scores``), with the
 score before noise removal beside it.
@@ -57,13 +59,17 @@ def main(argv=None) -> int:
     ap.add_argument("--volume", type=int, default=96)
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     ap.add_argument("--env", nargs="+", default=["64:32", "64:64"],
-                    help="K:N pairs (sky directions : field resolution)")
+                    help="K:N pairs (sky directions : field resolution), or K:N:J with J "
+                         "the network's sky cells")
+    ap.add_argument("--env-ms", choices=["network", "escape"], default=None,
+                    help="the sky's multiple scattering (default: the plan's, the network)")
     ap.add_argument("--order1", action="store_true",
                     help="also compare single scattering alone with the path tracer's order 1")
     args = ap.parse_args(argv)
     rt = get_runtime()
     print(machine(rt))
-    print(f"cloud {args.volume}^3, {args.size}^2, path tracer 2 x {args.spp} spp (seeds 11, 12)")
+    print(f"cloud {args.volume}^3, {args.size}^2, path tracer 2 x {args.spp} spp (seeds 11, 12); "
+          f"sky multiple scattering: {args.env_ms or 'the plan default (network)'}")
     print(f"{'case':14s} {'K:N':6s} {'mean rm':>8s} {'mean pt':>8s} {'rel':>7s} "
           f"{'rmse100':>8s} {'raw':>7s}")
     for name in args.cases:
@@ -74,8 +80,10 @@ def main(argv=None) -> int:
         p2 = r.render(seed=12).layers["total"].astype(np.float64)
         pt = 0.5 * (p1 + p2)
         for kn in args.env:
-            k, n = (int(x) for x in kn.split(":"))
-            a = Renderer(sc, env_directions=k, env_resolution=n).render().layers["total"]
+            k, n, *j = (int(x) for x in kn.split(":"))
+            opts = {"env_ms_directions": j[0]} if j else {}
+            a = Renderer(sc, env_directions=k, env_resolution=n, env_ms=args.env_ms,
+                         **opts).render().layers["total"]
             s = scores(a.astype(np.float64), p1, p2, with_flip=False)
             print(f"{name:14s} {kn:6s} {a.mean():8.4f} {pt.mean():8.4f} "
                   f"{a.mean() / pt.mean() - 1:+7.3f} {s['rmse100']:8.2f} "

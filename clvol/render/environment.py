@@ -78,8 +78,8 @@ from .sphere import fibonacci_directions
 
 DEFAULT_ENV_DIRECTIONS = 64
 DEFAULT_ENV_RESOLUTION = 32
-# Sky cells the network is evaluated for: the cloud_sky_only scene (bench/neural_quality.py)
-# measured rmse100 3.44 / 1.98 / 1.52 / 1.44 with 8 / 16 / 32 / 64 cells (docs/raymarch.md).
+# Sky cells the network is evaluated for (docs/raymarch.md "Environment light": the error
+# against the number of cells, bench/env_accuracy.py).
 DEFAULT_ENV_MS_DIRECTIONS = 32
 INV_4PI = 1.0 / (4.0 * math.pi)
 # The escape model's R is raised to this power (fitted: docs/raymarch.md "Environment light").
