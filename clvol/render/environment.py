@@ -295,9 +295,12 @@ class SkyNetwork:
 
     def active(self, cube_min, cube_size, n, reach) -> np.ndarray:
         """The field voxels the march can read where there is density (the network lattice's
-        rule, clvol/render/ms/network.py ``lattice_reach_mask``, over the field's cube)."""
+        rule, clvol/render/ms/network.py ``lattice_reach_mask``, over the field's cube); all
+        of them for ``reach`` None (the plan's rule with shortcuts off)."""
         from .ms.network import lattice_reach_mask
         key = (tuple(cube_min), float(cube_size), n, reach)
+        if reach is None:                   # shortcuts off: every voxel
+            return np.ones(n ** 3, bool)
         if self._active is None or self._active[0] != key:
             lo = np.asarray(cube_min, np.float64)
             self._active = (key, lattice_reach_mask(self.net.grid, n, reach,
