@@ -53,6 +53,12 @@ def scene_with(sky: str, size: int):
     return dataclasses.replace(sc, light=li)
 
 
+def options_for(ms: str, env_opts: dict) -> dict:
+    """The environment options a source takes: --env-ms-per-frame only where the network
+    takes the sky (the escape model of an analytic source has no cells to refresh)."""
+    return {k: v for k, v in env_opts.items() if ms == "network" or k != "env_ms_per_frame"}
+
+
 def warm_up(r) -> None:
     """Untimed frames until nothing is left to refine (kernel builds, sweeps, and with
     --env-ms-per-frame every stale sky cell), so that "static" is a settled frame."""
@@ -102,7 +108,7 @@ def main(argv=None) -> int:
     verdicts = []
     for ms in args.ms:
         scenes = {sky: scene_with(sky, args.size) for sky in ("none", "constant", "map")}
-        opts = {k: v for k, v in env_opts.items() if ms == "network" or k != "env_ms_per_frame"}
+        opts = options_for(ms, env_opts)
         renderers = {sky: Renderer(sc, grid=grid, ms=ms, **(opts if sky != "none" else {}))
                      for sky, sc in scenes.items()}
         for r in renderers.values():
@@ -130,11 +136,10 @@ def main(argv=None) -> int:
     for ms, what in [(ms, w) for ms in args.ms
                      for w in ("sky colour", "map rotation", "density scale")]:
         sc = scene_with("map" if what == "map rotation" else "constant", args.size)
-        r = Renderer(sc, grid=grid, ms=ms, **{k: v for k, v in env_opts.items()
-                                              if ms == "network" or k != "env_ms_per_frame"})
+        r = Renderer(sc, grid=grid, ms=ms, **options_for(ms, env_opts))
         warm_up(r)
         before = dict(r.counts)
-        env = []
+        env, res = [], None
         for i in range(1, args.frames + 1):
             if what == "sky colour":
                 ch = {"light": dataclasses.replace(sc.light, environment=(0.3, 0.5, 0.9 - 0.05 * i))}
@@ -143,10 +148,13 @@ def main(argv=None) -> int:
             else:
                 ch = {"medium": dataclasses.replace(sc.medium,
                                                     density_scale=sc.medium.density_scale * (1 + 0.05 * i))}
-            env.append(r.render(**ch).header["seconds.environment"])
+            res = r.render(**ch)
+            env.append(res.header["seconds.environment"])
         grew = sorted(k for k in r.counts if k.startswith("env_") and r.counts[k] != before.get(k, 0))
+        pts = res.header.get("raymarch.env_ms_points")
         print(f"  --ms {ms:8s} {what:14s} {np.median(env) * 1e3:8.1f} ms  (sky multiple "
-              f"scattering: {r.plan().env_ms}; recomputed: {', '.join(grew)})", flush=True)
+              f"scattering: {r.plan().env_ms}" + (f", network at {pts} voxels" if pts else "")
+              + f"; recomputed: {', '.join(grew)})", flush=True)
     print("\n".join(verdicts))
     print(machine(rt))
     return 0

@@ -150,6 +150,11 @@ def test_environment_change_recomputes_only_what_depends_on_it():
     ({"env_resolution": 0}, "env_resolution = 0"),
     ({"env_directions": 0}, "environment directions = 0"),
     ({"env_directions": 2.5}, "environment directions = 2.5"),
+    ({"env_ms": "diffusion"}, "env_ms = 'diffusion'"),
+    ({"env_ms_directions": 0}, "env_ms_directions = 0"),
+    ({"env_ms_directions": 300}, "env_ms_directions = 300"),
+    ({"env_ms_per_frame": -1}, "env_ms_per_frame = -1"),
+    ({"env_ms_per_frame": True}, "env_ms_per_frame = True"),
 ])
 def test_bad_environment_options_are_refused_when_the_renderer_is_made(opts, text):
     """Refused at Renderer(...), with the option named, even for a scene without a sky (which

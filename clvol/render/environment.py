@@ -292,6 +292,7 @@ class SkyNetwork:
         self._cells = None        # (key, F (J, P, Cf) float32, origin per cell, order)
         self.pending = 0          # stale cells left after the last call
         self.evaluated = 0        # cells evaluated by the last call
+        self.points = 0           # field voxels the network is queried at
 
     def active(self, cube_min, cube_size, n, reach) -> np.ndarray:
         """The field voxels the march can read where there is density (the network lattice's
@@ -312,11 +313,11 @@ class SkyNetwork:
         """(C, n^3) float32 sum_j E_j,c F_ms,c(x, w_j, toward ``origin``) at the field's voxel
         centres (0 at voxels out of reach), refreshing the stale cells (all, or ``per_frame``)."""
         act = np.flatnonzero(self.active(cube_min, cube_size, n, reach))
-        pts = voxel_centres(cube_min, cube_size, n)
+        self.points = len(act)
         J = len(cells.directions)
         self.net.graded_keep = J
         key = (cells.directions.tobytes(), medium.density_scale, tuple(medium.albedo),
-               medium.phase, act.tobytes())
+               medium.phase, (tuple(cube_min), float(cube_size), n, reach))
         if self._cells is None or self._cells[0] != key:
             self._cells = (key, [None] * J, [None] * J, list(range(J)))
         _, F, at, order = self._cells
@@ -324,13 +325,14 @@ class SkyNetwork:
         # a black cell adds nothing: it is evaluated once the sky lights it
         stale = [j for j in order if at[j] != origin and np.any(cells.irradiance[j] > 0)]
         todo = stale if per_frame <= 0 else stale[:per_frame]
+        pts = voxel_centres(cube_min, cube_size, n) if todo else None
         for j in todo:
             F[j] = per_cell_f_ms(self.net, cells.directions[j], medium, pts, act, origin)
             at[j] = origin
             order.remove(j)
             order.append(j)                                  # now the newest
         self.evaluated, self.pending = len(todo), len(stale) - len(todo)
-        out = np.zeros((cells.channels, len(pts)), np.float64)
+        out = np.zeros((cells.channels, n ** 3), np.float64)
         for j in range(J):
             if F[j] is not None and np.any(cells.irradiance[j] > 0):
                 out[:, act] += cells.irradiance[j][:, None] * F[j].T
@@ -340,11 +342,8 @@ class SkyNetwork:
 def per_cell_f_ms(net, direction, medium, points, active, origin) -> np.ndarray:
     """(len(active), Cf) float64 F_ms at ``points[active]`` for a light toward
     ``direction``, toward ``origin`` (Cf = 1 for a grey medium, else 3)."""
+    from .ms.grid import toward
     pts = np.asarray(points, np.float64)[active]
-    om = np.asarray(origin, np.float64) - pts
-    norm = np.linalg.norm(om, axis=1, keepdims=True)
-    # A point at the camera sees every direction alike: any unit vector will do there (+z).
-    om = np.where(norm > 0, om / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
-    F, _ = net.evaluate(pts, om, direction, medium)
+    F, _ = net.evaluate(pts, toward(origin, pts), direction, medium)
     F = np.asarray(F, np.float64)
     return F[:, None] if F.ndim == 1 else F

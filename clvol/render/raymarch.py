@@ -41,7 +41,7 @@ MAX_SUPERSAMPLE = 8
 
 
 def check_march_options(step, threshold, light_resolution, supersample, light_interp,
-                        env_directions=None, env_resolution=None, env_ms_directions=None):
+                        env=None):
     """Refuse bad ray-marcher options when the Renderer is made, not at its first frame (the
     environment options included: a scene without a sky never reads them, but a bad value is
     still a mistake worth one line now)."""
@@ -59,15 +59,22 @@ def check_march_options(step, threshold, light_resolution, supersample, light_in
         raise bad("supersample", supersample, f"must be an integer from 1 to {MAX_SUPERSAMPLE}")
     if light_interp not in LIGHT_QUANTITIES:
         raise bad("light_interp", light_interp, f"choose one of {list(LIGHT_QUANTITIES)}")
-    check_env_options(env_directions, env_resolution, env_ms_directions)
+    check_env_options(**(env or {}))
 
 
-def check_env_options(env_directions, env_resolution, env_ms_directions=None) -> None:
+def check_env_options(env_directions, env_resolution, env_ms_directions=None, env_ms=None,
+                      env_ms_per_frame=0) -> None:
     """The environment source's sky directions (1..1024) and field resolution (a power of two
     from 4 to 256); None: the default."""
     from .environment import sky_directions
     if env_directions is not None:
         sky_directions(env_directions)                    # refuses a bad count
+    if env_ms not in (None, "network", "escape"):
+        raise ClvolError(f"raymarch option env_ms = {env_ms!r}: choose network or escape")
+    pf = env_ms_per_frame
+    if isinstance(pf, bool) or not isinstance(pf, (int, np.integer)) or not 0 <= pf <= 256:
+        raise ClvolError(f"raymarch option env_ms_per_frame = {pf!r}: an integer from 0 "
+                         f"(every sky cell at once) to 256")
     if env_ms_directions is not None and not (
             isinstance(env_ms_directions, (int, np.integer)) and
             not isinstance(env_ms_directions, bool) and 1 <= env_ms_directions <= 256):
@@ -310,7 +317,8 @@ class RayMarcher:
         stale (a caller that renders the same view again refines it)."""
         if plan.env_ms != "network" or self._env_net is None:
             return {}
-        return {"raymarch.env_ms_cells_evaluated": self._env_net.evaluated,
+        return {"raymarch.env_ms_points": self._env_net.points,
+                "raymarch.env_ms_cells_evaluated": self._env_net.evaluated,
                 "raymarch.env_refining": self._env_net.pending > 0}
 
 

@@ -172,17 +172,12 @@ class Renderer:
                 raise ClvolError(f"option --max-order 1 asks for single scattering, but --ms "
                                  f"{given['ms']} adds multiple scattering; drop one of them")
         source_class(o["ms"])                     # an unknown name is refused here
+        # the environment's options are read (and checked) for every scene: one with no sky
+        # never uses them, but a bad value is still a mistake worth one line now
+        env = {k: o[k] for k in ("env_directions", "env_resolution", "env_ms_directions",
+                                 "env_ms", "env_ms_per_frame")}
         check_march_options(o["step"], o["threshold"], o["light_resolution"], o["supersample"],
-                            o["light_interp"], o["env_directions"], o["env_resolution"],
-                            o["env_ms_directions"])
-        # read by every frame (env_ms: by every frame with a sky; a bad value is refused
-        # by argparse's choices or below for every scene)
-        if o["env_ms"] not in (None, "network", "escape"):
-            raise ClvolError(f"raymarch option env_ms = {o['env_ms']!r}: choose network or escape")
-        pf = o["env_ms_per_frame"]
-        if isinstance(pf, bool) or not isinstance(pf, (int, np.integer)) or not 0 <= pf <= 256:
-            raise ClvolError(f"raymarch option env_ms_per_frame = {pf!r}: an integer from 0 "
-                             f"(every sky cell at once) to 256")
+                            o["light_interp"], env)
         for always in ("shortcuts", "skip_empty", "majorant_block"):
             o[always]
         self.source = make_source(o["ms"], o, self.rt)

@@ -74,11 +74,16 @@ def ms_lattice(scene, resolution, bbox_min=None, bbox_max=None, origin=None):
     axes = [lo[a] + (np.arange(res[a]) + 0.5) * (hi[a] - lo[a]) / res[a] for a in range(3)]
     z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     pts = np.stack([x, y, z], axis=-1).reshape(-1, 3)
-    om = np.asarray(scene.camera.origin if origin is None else origin, np.float64) - pts
+    om = toward(scene.camera.origin if origin is None else origin, pts)
+    return res, lo, hi, pts, om
+
+
+def toward(origin, points) -> np.ndarray:
+    """(N, 3) unit directions from ``points`` toward ``origin`` (omega, toward the camera)."""
+    om = np.asarray(origin, np.float64) - np.asarray(points, np.float64)
     norm = np.linalg.norm(om, axis=1, keepdims=True)
     # A point at the camera has no direction toward it: any unit vector will do (+z).
-    om = np.where(norm > 0, om / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
-    return res, lo, hi, pts, om
+    return np.where(norm > 0, om / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
 
 
 def fill_ms_grid(scene, resolution, query, bbox_min=None, bbox_max=None) -> MsGrid:
