@@ -273,10 +273,19 @@ def _cmd_dataset_make(args) -> int:
                        optical_thickness=_parse_pair("--optical-thickness", args.optical_thickness),
                        albedo=_parse_pair("--albedo", args.albedo), g=_parse_pair("--g", args.g),
                        max_lobes=args.max_lobes, per_order_labels=args.per_order_labels,
-                       families=tuple(f for f in args.families.split(",") if f))
+                       families=tuple(f for f in args.families.split(",") if f),
+                       augment=args.augment)
+    part = None
+    if args.part is not None:
+        try:
+            part = tuple(int(x) for x in args.part.split("/"))
+            if len(part) != 2:
+                raise ValueError
+        except ValueError:
+            raise ClvolError(f"--part {args.part!r}: expected I/N, e.g. 0/4") from None
     t0 = time.perf_counter()
     r = generate(spec, args.out, address=args.address, serial=args.serial, workers=args.workers,
-                 progress=not args.no_progress)
+                 progress=not args.no_progress, part=part)
     dt = time.perf_counter() - t0
     print(f"{args.out}: made {r['made']} shards ({r['made'] * spec.points_per_config} labels), "
           f"skipped {r['skipped']} finished ones, {spec.n_shards} in the spec, {dt:.1f} s "
@@ -316,7 +325,11 @@ def add_dataset_make_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--g", default=_pair(d.g), help="low,high HG g of every lobe")
     p.add_argument("--max-lobes", type=int, default=d.max_lobes)
     p.add_argument("--families", default=",".join(d.families),
-                   help="volume families, cycled through (docs/neural.md)")
+                   help="volume families, cycled through (docs/neural.md); the out-of-family "
+                        "clouds nubis and sphere_cumulus make evaluation sets only")
+    p.add_argument("--augment", type=float, default=d.augment, metavar="FRACTION",
+                   help="fraction of the volumes whose density structure is randomised "
+                        "(remap and modulation; docs/neural.md)")
     p.add_argument("--per-order-labels", action="store_true",
                    help="trace labels at albedo 1 and store them per scattering order, so "
                         "training can label every point at any albedo (docs/pathtrace.md)")
@@ -325,6 +338,8 @@ def add_dataset_make_arguments(p: argparse.ArgumentParser) -> None:
                    help="join a running Ray cluster instead of starting a local one")
     g.add_argument("--workers", type=int, metavar="N", help="CPUs of the local Ray (default all)")
     g.add_argument("--serial", action="store_true", help="no Ray: one shard after another here")
+    g.add_argument("--part", metavar="I/N", help="with --serial: make only volumes v %% N == I, so "
+                   "N processes can share one device and folder (e.g. one GPU)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

@@ -18,9 +18,10 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 
 def main(argv=None) -> int:
-    import numpy as np
     import torch
 
     from clvol.errors import ClvolError
@@ -64,8 +65,25 @@ def main(argv=None) -> int:
                     help="start from this weight file's parameters (same architecture)")
     ap.add_argument("--export", default=None, help="weight file to write at the end")
     ap.add_argument("--evaluate", metavar="WEIGHTS.npz", default=None,
-                    help="no training: held-out losses of a weight file, per held-out group")
+                    help="no training: held-out losses of a weight file, per held-out group, "
+                         "in-family and out-of-family rows (also OUT/evaluation.json)")
+    ap.add_argument("--exclude-families", default="", metavar="F[,F...]",
+                    help="train without these families: their shards are held out and reported "
+                         "as out-of-family (leave-one-family-out, scripts/lofo.py)")
+    ap.add_argument("--device", default="cpu",
+                    help="torch device of the training (cpu, cuda); the data stays on the host")
+    rg = ap.add_argument_group("data-parallel training on Ray Train (docs/dataset.md)")
+    rg.add_argument("--ray", action="store_true",
+                    help="train with N data-parallel workers (Ray Train's TorchTrainer)")
+    rg.add_argument("--address", default=None, metavar="auto|HOST:PORT",
+                    help="with --ray: a running cluster (default: a local Ray)")
+    rg.add_argument("--workers", type=int, default=2, metavar="N", help="with --ray: workers")
+    rg.add_argument("--gpu", action="store_true", help="with --ray: one GPU per worker")
     args = ap.parse_args(argv)
+    if not args.ray and (args.address or args.gpu):
+        ap.error("--address and --gpu are options of --ray")
+    if args.ray and (args.evaluate or args.workers < 1):
+        ap.error("--ray trains (not with --evaluate) with --workers >= 1")
     torch.set_num_threads(args.threads)
     cfg = tr.RunConfig(steps=args.steps, batch=args.batch, lr=args.lr, seed=args.seed,
                        floor=args.floor,
@@ -86,20 +104,42 @@ def main(argv=None) -> int:
             print(f"error: {f[0].path.parent}: [contract] differs from {shards[0].path.parent}'s "
                   f"(other base resolution, lambda or templates)", file=sys.stderr)
             return 2
-    splits = [tr.split_shards(f, cfg) for f in folders]
-    train_sh = [s for t, _ in splits for s in t]
-    held_sh = [s for _, h in splits for s in h]
-    train = tr.shard_samples(train_sh, cfg.floor, albedo_draws=args.albedo_draws, seed=cfg.seed)
-    held = tr.shard_samples(held_sh, cfg.floor, albedo_draws=args.albedo_draws and 2,
+    try:
+        splits = [tr.split_shards(f, cfg) for f in folders]
+    except ClvolError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    excluded = tuple(f for f in args.exclude_families.split(",") if f)
+    fam = (lambda sh: sh.meta.get("volume", {}).get("family"))
+    train_sh = [s for t, _ in splits for s in t if fam(s) not in excluded]
+    held_sh = [s for _, h in splits for s in h] + [s for t, _ in splits for s in t if fam(s) in excluded]
+    if not train_sh and not args.evaluate:
+        print("error: no training shards (every volume is held out or out of family)", file=sys.stderr)
+        return 2
+    if not held_sh:
+        print("error: no held-out shards (a data set with --heldout volumes, or more "
+              "configurations per volume, gives some)", file=sys.stderr)
+        return 2
+    if args.ray:
+        return train_ray(args, folders, train_sh, held_sh, cfg, out, excluded)
+    # --evaluate needs the training samples only for the mean predictor: a bounded subset
+    # (every k-th shard) keeps evaluating a large data set's weights cheap
+    use = train_sh[::max(1, len(train_sh) // EVAL_TRAIN_SHARDS)] if args.evaluate else train_sh
+    train = tr.shard_samples(use, cfg.floor, albedo_draws=args.albedo_draws, seed=cfg.seed)
+    # the held-out loss printed during training is a monitor: a bounded subset of the held-out
+    # shards (every k-th); --evaluate reports on all of them by group
+    mon = held_sh if args.evaluate else held_sh[::max(1, -(-len(held_sh) // MONITOR_SHARDS))]
+    held = tr.shard_samples(mon, cfg.floor, albedo_draws=args.albedo_draws and 2,
                             seed=cfg.seed + 1)
     spec = shards[0].meta["spec"]
     print(f"data: {len(shards)} shards ({len(train_sh)} train, {len(held_sh)} held out), "
           f"{len(train)} / {len(held)} samples; base {spec['base_resolution']}, {spec['n_paths']} paths")
-    base_loss = tr.mean_predictor_loss(train, held)
+    base_loss = tr.mean_predictor_loss(train, held) if len(train) else float("nan")
     noise = float(np.mean(held.var))
     print(f"held-out loss of the mean predictor {base_loss:.5f}; label noise (mean var_y) {noise:.5f}")
     if args.evaluate:
-        return evaluate_weights(args.evaluate, train, held_sh, cfg, base_loss)
+        return evaluate_weights(args.evaluate, train, held_sh, cfg, base_loss, out, excluded,
+                                device=args.device)
     try:
         arch = Architecture(n_levels=train.levels.shape[1], module_width=args.module_width,
                             head_widths=tuple(int(w) for w in args.head_widths.split(",") if w),
@@ -110,7 +150,7 @@ def main(argv=None) -> int:
     print(f"architecture: module width {arch.module_width}, head {arch.head_widths}, SE hidden "
           f"{arch.se_hidden}: {arch.n_params()} parameters, {arch.n_macs()['total']} multiply-adds "
           f"per evaluation")
-    trainer = tr.Trainer(train, cfg, arch)
+    trainer = tr.Trainer(train, cfg, arch, device=args.device)
     if args.init:
         from clvol.neural.export import load_weights
         w0 = load_weights(args.init)
@@ -129,7 +169,7 @@ def main(argv=None) -> int:
     ckpt = out / tr.CHECKPOINT
     if ckpt.exists():
         try:
-            trainer.load_state_dict(torch.load(ckpt, weights_only=False))
+            trainer.load_state_dict(torch.load(ckpt, weights_only=False, map_location=args.device))
         except ValueError as exc:
             print(f"error: {ckpt}: {exc}", file=sys.stderr)
             return 2
@@ -139,6 +179,7 @@ def main(argv=None) -> int:
     secs = time.perf_counter() - t0
     final = trainer.history["eval"][-1] if trainer.history["eval"] else {}
     report = {"data": str(args.data), "spec": spec, "run": cfg.to_dict(), "threads": args.threads,
+              "device": args.device, "excluded_families": list(excluded),
               "albedo_draws": args.albedo_draws, "init": args.init,
               "architecture": arch.to_dict(), "macs": arch.n_macs(), "params": arch.n_params(),
               "shards": {"train": len(train_sh), "held_out": len(held_sh),
@@ -156,8 +197,64 @@ def main(argv=None) -> int:
                                          "held_out_label_noise", "final")}
         notes["seconds_training"] = final.get("seconds")
         from clvol.neural.dataset import dataset_domain
-        trainer.model.export(args.export, contract, training=notes,
+        trainer.model.cpu().export(args.export, contract, training=notes,
                              domain=union_domain([dataset_domain(f[0].meta["spec"]) for f in folders]))
+        print(f"exported {args.export}")
+    return 0
+
+
+def _architecture(args, n_levels):
+    from clvol.neural.export import Architecture
+    return Architecture(n_levels=n_levels, module_width=args.module_width,
+                        head_widths=tuple(int(w) for w in args.head_widths.split(",") if w),
+                        se_hidden=args.se_hidden, albedo_input=args.albedo_input)
+
+
+def train_ray(args, folders, train_sh, held_sh, cfg, out, excluded) -> int:
+    """--ray: the same run on Ray Train's data-parallel workers (clvol/neural/raytrain.py); the
+    same checkpoint file, report and export as one process."""
+    import json
+    import time
+    from clvol.neural.dataset import dataset_domain
+    from clvol.neural.export import gather_contract, load_weights
+    from clvol.neural.model import Model
+    from clvol.neural.raytrain import train_on_ray
+    try:
+        import ray.train  # noqa: F401
+    except ImportError as exc:
+        print(f"error: --ray needs Ray Train: pip install -e '.[scale]' ({exc})", file=sys.stderr)
+        return 2
+    arch = _architecture(args, np.asarray(train_sh[0].arrays["levels"]).shape[1])
+    init = None
+    if args.init:
+        w0 = load_weights(args.init)
+        if w0.arch.to_dict() != arch.to_dict():
+            print(f"error: --init {args.init}: another architecture (or albedo input)", file=sys.stderr)
+            return 2
+        init = w0.params
+    t0 = time.perf_counter()
+    state = train_on_ray(args.data.split(","), out, cfg, arch, albedo_draws=args.albedo_draws,
+                         excluded=excluded, init_params=init, until=args.until,
+                         workers=args.workers, address=args.address, gpu=args.gpu)
+    secs = time.perf_counter() - t0
+    spec = folders[0][0].meta["spec"]
+    final = state["history"]["eval"][-1] if state["history"]["eval"] else {}
+    report = {"data": str(args.data), "spec": spec, "run": cfg.to_dict(), "engine": "ray",
+              "workers": args.workers, "gpu": args.gpu, "excluded_families": list(excluded),
+              "albedo_draws": args.albedo_draws, "init": args.init, "architecture": arch.to_dict(),
+              "step": state["step"], "seconds_this_session": round(secs, 1), "final": final,
+              "history": state["history"]["eval"]}
+    (out / "report.json").write_text(json.dumps(report, indent=1))
+    for row in state["history"]["eval"]:
+        print("  ".join(f"{k} {v:.5f}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()))
+    print(f"ray: {args.workers} workers, step {state['step']}, {secs:.1f} s")
+    if args.export and state["step"] >= cfg.steps:
+        model = Model(arch)
+        model.load_state_dict(state["model"])
+        notes = {k: report[k] for k in ("spec", "run", "step", "final", "engine", "workers")}
+        model.export(args.export, gather_contract(spec["base_resolution"], spec["lam"]),
+                     training=notes,
+                     domain=union_domain([dataset_domain(f[0].meta["spec"]) for f in folders]))
         print(f"exported {args.export}")
     return 0
 
@@ -173,27 +270,58 @@ def union_domain(domains):
     return out
 
 
-def evaluate_weights(path, train, held_sh, cfg, base_loss) -> int:
+# --evaluate: at most about this many training shards for the mean predictor, and this many
+# shards per out-of-family family (every k-th: a leave-one-family-out run holds a whole
+# training family out, far more than an evaluation needs).
+EVAL_TRAIN_SHARDS = 200
+MONITOR_SHARDS = 400
+EVAL_FAMILY_SHARDS = 240
+
+
+def evaluate_weights(path, train, held_sh, cfg, base_loss, out=None, excluded=(),
+                     device="cpu") -> int:
     """Held-out eq. 20 loss of a weight file, split into unseen volumes and unseen configurations
     of seen volumes, with the mean predictor's loss and the labels' noise, and the median
-    relative error of the decoded F against the labels."""
+    relative error of the decoded F against the labels. Volumes are in family (a training
+    family's held-out stream) or out of family (clvol.neural.dataset.OUT_OF_FAMILY, and the
+    ``excluded`` families of a leave-one-family-out run); the albedo bias is reported for both
+    and their difference (the generalisation gap). Writes OUT/evaluation.json."""
     import numpy as np
     from clvol.neural import train as tr
+    from clvol.neural.dataset import OUT_OF_FAMILY
     from clvol.neural.export import load_weights
     from clvol.neural.model import Model
-    model = Model.from_weights(load_weights(path))
+    model = Model.from_weights(load_weights(path)).to(device)
     vid = (lambda s: (str(s.path.parent), s.volume))
+    fam = (lambda s: s.meta["volume"].get("family", ""))
+    outside = set(OUT_OF_FAMILY) | set(excluded)
+    thin = []
+    for f in sorted({fam(s) for s in held_sh if fam(s) in outside}):
+        mine = [s for s in held_sh if fam(s) == f]
+        thin += mine[::max(1, -(-len(mine) // EVAL_FAMILY_SHARDS))]
+    held_sh = [s for s in held_sh if fam(s) not in outside] + thin
+    count = {}
+    for s in held_sh:
+        count[vid(s)] = count.get(vid(s), 0) + 1
+    seen = [s for s in held_sh if count[vid(s)] == 1 and fam(s) not in outside]
+    keep = set(map(id, seen[::max(1, -(-len(seen) // EVAL_FAMILY_SHARDS))]))
+    held_sh = [s for s in held_sh if not (count[vid(s)] == 1 and fam(s) not in outside) or id(s) in keep]
     count = {}
     for s in held_sh:
         count[vid(s)] = count.get(vid(s), 0) + 1
     hv = {k for k, n in count.items() if n > 1}
+    hv |= {vid(s) for s in held_sh if fam(s) in outside}
+    in_fam = [s for s in held_sh if vid(s) in hv and fam(s) not in outside]
+    out_fam = [s for s in held_sh if fam(s) in outside]
     groups = {"all held out": held_sh,
-              "unseen volumes": [s for s in held_sh if vid(s) in hv],
-              "unseen configurations of seen volumes": [s for s in held_sh if vid(s) not in hv]}
-    fams = sorted({s.meta["volume"].get("family", "") for s in held_sh} - {""})
-    for f in fams:     # version-2 data: unseen volumes per family
-        groups[f"  unseen {f}"] = [s for s in held_sh if vid(s) in hv and s.meta["volume"].get("family") == f]
-    m = float(np.average(train.y, weights=train.weight))
+              "in family: unseen volumes": in_fam,
+              "unseen configurations of seen volumes": [s for s in held_sh if vid(s) not in hv],
+              "out of family": out_fam}
+    for f in sorted({fam(s) for s in held_sh} - {""}):     # version-2 data: unseen volumes per family
+        tag = "out of family" if f in outside else "in family"
+        groups[f"  {tag}: {f}"] = [s for s in held_sh if vid(s) in hv and fam(s) == f]
+    m = float(np.average(train.y, weights=train.weight)) if len(train) else float("nan")
+    report = {"weights": str(path), "excluded_families": list(excluded), "groups": {}, "bias": {}}
     for name, shards in groups.items():
         if not shards:
             continue
@@ -202,22 +330,77 @@ def evaluate_weights(path, train, held_sh, cfg, base_loss) -> int:
         a4 = h.config[:, tr.ALBEDO].astype(np.float64) ** 4
         F_hat, F_lab = a4 * np.expm1(y), a4 * np.expm1(h.y.astype(np.float64))
         rel = np.abs(F_hat - F_lab) / np.maximum(F_lab, 1e-12)
-        print(f"{name:40s} {len(shards):4d} shards {len(h):7d} samples  loss {np.mean((y - h.y) ** 2):.3e}"
-              f"  mean predictor {np.mean((m - h.y) ** 2):.3e}  label noise {np.mean(h.var):.3e}"
-              f"  median |F - label| / label {np.median(rel):.3f}")
-    # Bias by albedo on unseen volumes: the labels are unbiased in the mean (path-traced), the
-    # loss is in log space, so sum(predicted F) / sum(label F) shows a systematic under- or
-    # over-prediction (the raw labels: the targets' +var/2 correction taken off again).
+        row = {"shards": len(shards), "samples": len(h), "loss": float(np.mean((y - h.y) ** 2)),
+               "mean_predictor": float(np.mean((m - h.y) ** 2)), "label_noise": float(np.mean(h.var)),
+               "median_rel_error": float(np.median(rel))}
+        report["groups"][name.strip()] = row
+        print(f"{name:44s} {len(shards):4d} shards {len(h):7d} samples  loss {row['loss']:.3e}"
+              f"  mean predictor {row['mean_predictor']:.3e}  label noise {row['label_noise']:.3e}"
+              f"  median |F - label| / label {row['median_rel_error']:.3f}")
+    # Bias by albedo: the labels are unbiased in the mean (path-traced), the loss is in log
+    # space, so sum(predicted F) / sum(label F) shows a systematic under- or over-prediction.
     # Per-order data: every held-out query at every albedo of EVAL_ALBEDOS.
-    unseen = groups["unseen volumes"]
-    if unseen:
-        print_albedo_bias(model, unseen, cfg.floor, "unseen volumes")
-        solids = [s for s in unseen if s.meta["volume"].get("family") in SOLIDS]
-        if solids and len(solids) < len(unseen):
-            print_albedo_bias(model, [s for s in unseen if s not in solids], cfg.floor,
-                              "unseen clouds (non-solid families)")
-            print_albedo_bias(model, solids, cfg.floor, "unseen solids")
+    clouds = (lambda sh: [s for s in sh if fam(s) not in SOLIDS])
+    parts = {"in-family clouds (unseen volumes)": clouds(in_fam),
+             "in-family solids (unseen volumes)": [s for s in in_fam if fam(s) in SOLIDS],
+             "out-of-family clouds": clouds(out_fam),
+             "out-of-family solids": [s for s in out_fam if fam(s) in SOLIDS]}
+    boots = {}
+    for name, shards in parts.items():
+        if shards:
+            report["bias"][name], boots[name] = print_albedo_bias(model, shards, cfg.floor, name)
+    a, b = "out-of-family clouds", "in-family clouds (unseen volumes)"
+    if a in boots and b in boots:
+        print("generalisation gap (out-of-family minus in-family ratio; 95% bootstrap interval):")
+        report["gap"] = {}
+        for k in boots[a]:
+            if k in boots[b]:
+                d = boots[a][k] - boots[b][k]
+                gap = report["bias"][a][k][0] - report["bias"][b][k][0]
+                lo_ci, hi_ci = np.percentile(d, 2.5), np.percentile(d, 97.5)
+                report["gap"][k] = (gap, float(lo_ci), float(hi_ci))
+                print(f"  albedo {k}: {gap:+.3f} ({lo_ci:+.3f} .. {hi_ci:+.3f})")
+    for name in (a, b):
+        shards = parts.get(name)
+        if shards and all(s.meta["spec"].get("per_order_labels") for s in shards):
+            report.setdefault("albedo_response", {})[name] = albedo_response(model, shards, name)
+    if out is not None:
+        import json
+        (Path(out) / "evaluation.json").write_text(json.dumps(report, indent=1))
     return 0
+
+
+# Albedos of the albedo-response table (issue "the network on clouds it has never seen").
+RESPONSE_ALBEDOS = (0.8, 0.9, 0.96, 0.99, 1.0)
+
+
+def albedo_response(model, shards, name) -> dict:
+    """The network against the path-traced labels at the same points, at RESPONSE_ALBEDOS:
+    sum ratio per albedo, and the albedo response d log F / d log a near 1 (the labels': their
+    mean albedo exponent, sum M / sum S at albedo 1; the network's: from its F at 0.99 and 1)."""
+    import numpy as np
+    from clvol.neural import train as tr
+    h = tr.shard_samples(shards, 0.05, albedos=RESPONSE_ALBEDOS)
+    y = tr.predict(model, h).astype(np.float64)
+    alb = h.config[:, tr.ALBEDO].astype(np.float64)
+    F_hat = alb ** 4 * np.expm1(y)
+    F_lab = alb ** 4 * np.expm1(h.y.astype(np.float64) - 0.5 * h.var)
+    out = {"ratio": {}}
+    sums = {}
+    for a in RESPONSE_ALBEDOS:
+        k = np.isclose(alb, a)
+        sums[a] = (F_hat[k].sum(), F_lab[k].sum())
+        out["ratio"][str(a)] = float(sums[a][0] / max(sums[a][1], 1e-30))
+    S = np.concatenate([np.asarray(s.arrays["S"], np.float64) for s in shards])
+    M = np.concatenate([np.asarray(s.arrays["M"], np.float64) for s in shards])
+    out["label_mean_exponent"] = float(M.sum() / max(S.sum(), 1e-30))
+    out["label_slope_099_1"] = float(np.log(sums[1.0][1] / sums[0.99][1]) / -np.log(0.99))
+    out["network_slope_099_1"] = float(np.log(sums[1.0][0] / sums[0.99][0]) / -np.log(0.99))
+    print(f"{name}: albedo response, network / labels at " +
+          ", ".join(f"{a}: {out['ratio'][str(a)]:.3f}" for a in RESPONSE_ALBEDOS) +
+          f"; d log F / d log a over 0.99..1: labels {out['label_slope_099_1']:.1f}, network "
+          f"{out['network_slope_099_1']:.1f} (labels' mean exponent at 1: {out['label_mean_exponent']:.1f})")
+    return out
 
 
 SOLIDS = ("sphere", "blob", "torus", "box", "union")
@@ -228,8 +411,9 @@ ALBEDO_BINS = ((0.0, 0.9), (0.9, 0.97), (0.97, 0.99), (0.99, 0.997), (0.997, 0.9
 
 
 def print_albedo_bias(model, shards, floor, name) -> dict:
-    """Print (and return) sum(predicted F) / sum(label F) per albedo bin with a 95% bootstrap
-    interval over configurations (a configuration's points are correlated)."""
+    """Print and return sum(predicted F) / sum(label F) per albedo bin with a 95% bootstrap
+    interval over configurations (a configuration's points are correlated), and the bootstrap
+    draws (for the gap between two groups)."""
     import numpy as np
     from clvol.neural import train as tr
     per_order = all(s.meta["spec"].get("per_order_labels") for s in shards)
@@ -242,7 +426,7 @@ def print_albedo_bias(model, shards, floor, name) -> dict:
           f"({'at ' + ' '.join(map(str, EVAL_ALBEDOS)) if per_order else 'the configurations'}; "
           f"95% interval: bootstrap over configurations):")
     rng = np.random.default_rng(0)
-    out = {}
+    out, boots = {}, {}
     for lo, hi in ALBEDO_BINS:
         k = np.flatnonzero((alb >= lo) & (alb < hi))
         if not len(k):
@@ -252,10 +436,11 @@ def print_albedo_bias(model, shards, floor, name) -> dict:
         boot = [ratio(np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))]))
                 for _ in range(1000)]
         lo_ci, hi_ci = np.percentile(boot, 2.5), np.percentile(boot, 97.5)
-        out[f"[{lo:g}, {min(hi, 1.0):g}]"] = (ratio(k), lo_ci, hi_ci)
+        out[f"[{lo:g}, {min(hi, 1.0):g}]"] = (float(ratio(k)), float(lo_ci), float(hi_ci))
+        boots[f"[{lo:g}, {min(hi, 1.0):g}]"] = np.asarray(boot)
         print(f"  albedo [{lo:g}, {min(hi, 1.0):g}{']' if hi > 1 else ')'}: {len(k):7d} samples  "
               f"ratio {ratio(k):.3f}  ({lo_ci:.3f}-{hi_ci:.3f} over {len(groups)} configurations)")
-    return out
+    return out, boots
 
 
 if __name__ == "__main__":

@@ -62,8 +62,15 @@ ORDER_ARRAYS = ("S", "M", "se")
 # Volume families, each a generator with a random parameter draw (``volume_params``). Volumes
 # cycle through ``spec.families`` so every family is equally represented, held-out ones too.
 FAMILIES = ("cumulus", "flat_cumulus", "stratus", "plume", "noise",
-            "sphere", "blob", "torus", "box", "union")
+            "sphere", "blob", "torus", "box", "union", "nubis", "sphere_cumulus")
 SOLID_FAMILIES = ("sphere", "blob", "torus", "box", "union")
+# Out-of-family clouds: generators written from published descriptions that no training set
+# may use (clvol/neural/train.py split_shards holds every shard of theirs out). They measure how
+# the network does on density structure it never saw: the training families above come from
+# our own generators, so a held-out volume of theirs cannot show that gap (docs/neural.md).
+OUT_OF_FAMILY = ("nubis", "sphere_cumulus")
+# The default spec's families: every family a model may train on.
+TRAINING_FAMILIES = tuple(f for f in FAMILIES if f not in OUT_OF_FAMILY)
 RESOLUTIONS = (32, 48, 64, 96, 128)
 
 
@@ -83,7 +90,7 @@ class DatasetSpec:
     seed: int = 0
     n_volumes: int = 30
     n_heldout_volumes: int = 10
-    families: tuple = FAMILIES
+    families: tuple = TRAINING_FAMILIES
     resolution: tuple = (32, 128)       # voxels per side, drawn per volume from RESOLUTIONS in range
     base_resolution: int = 64           # pyramid base of the gather (goes into the weight contract)
     lam: float = layout.DEFAULT_LAMBDA
@@ -102,6 +109,10 @@ class DatasetSpec:
     # Labels from one set of albedo-1 paths, binned by scattering order (docs/pathtrace.md):
     # training may then label every query at any albedo, 1.0 included.
     per_order_labels: bool = False
+    # Domain randomisation of density structure: this fraction of the volumes gets a density
+    # remap and a low-frequency modulation (clvol.volume.generators.restructure), drawn from a
+    # stream of its own so the other draws of a spec are unchanged (0: none, as before).
+    augment: float = 0.0
 
     def __post_init__(self):
         def bad(name, value, allowed):
@@ -124,6 +135,8 @@ class DatasetSpec:
         b = self.base_resolution
         if not (isinstance(b, int) and 2 <= b <= 512 and b & (b - 1) == 0):
             raise bad("base_resolution", b, "must be a power of two from 2 to 512")
+        if not (isinstance(self.augment, (int, float)) and 0.0 <= self.augment <= 1.0):
+            raise bad("augment", self.augment, "must be a fraction in [0, 1]")
         if not 0.0 <= self.uniform_fraction <= 1.0:
             raise bad("uniform_fraction", self.uniform_fraction, "must be in [0, 1]")
         if not 0.0 < self.lam <= 1.0:
@@ -257,17 +270,34 @@ def volume_params(spec: DatasetSpec, v: int) -> dict:
         gen, prm = "box", {"width": w, "height": h, "depth": d,
                            "rounding": round(0.5 * min(w, h, d) * rng.uniform(0.0, 0.8), 4),
                            "edge": _u(rng, 0.25, 1.5)}
+    elif fam == "nubis":          # out of family: Perlin-Worley after the Nubis talks
+        gen, prm = "perlin_worley", {"coverage": _u(rng, 0.55, 0.95), "cloud_type": _u(rng, 0.3, 1.0),
+                                     "scale": _u(rng, 0.2, 0.5), "erosion": _u(rng, 0.2, 0.9),
+                                     "width": _u(rng, 0.6, 0.95)}
+    elif fam == "sphere_cumulus":  # out of family: displaced sphere unions
+        gen, prm = "sphere_cumulus", {"count": int(rng.integers(5, 15)), "size": _u(rng, 0.12, 0.24),
+                                      "displacement": _u(rng, 0.2, 1.0), "erosion": _u(rng, 0.0, 0.6),
+                                      "base": _u(rng, 0.05, 0.3)}
     else:                         # union
         gen, prm = "union", {"count": int(rng.integers(2, 7)), "size": _u(rng, 0.1, 0.22),
                              "blend": _u(rng, 0.0, 0.06) if rng.uniform() < 0.5 else 0.0,
                              "edge": _u(rng, 0.25, 1.5)}
-    return {"family": fam, "generator": gen, "seed": gseed, "resolution": resolution, "params": prm}
+    out = {"family": fam, "generator": gen, "seed": gseed, "resolution": resolution, "params": prm}
+    arng = _rng(spec, base + 5, idx)       # a stream of its own: the draws above are unchanged
+    if spec.augment > 0 and arng.uniform() < spec.augment:
+        out["restructure"] = {"gamma": round(float(np.exp(arng.uniform(np.log(0.5), np.log(2.5)))), 4),
+                              "modulation": _u(arng, 0.0, 0.7), "scale": _u(arng, 0.08, 0.4)}
+    return out
 
 
 def make_volume(spec: DatasetSpec, v: int):
     from ..volume.generators import generate
+    from ..volume.generators import restructure
     p = volume_params(spec, v)
-    return generate(p["generator"], seed=p["seed"], resolution=p["resolution"], **p["params"])
+    grid = generate(p["generator"], seed=p["seed"], resolution=p["resolution"], **p["params"])
+    if "restructure" in p:
+        grid = restructure(grid, p["seed"], **p["restructure"])
+    return grid
 
 
 def unit_optical_thickness(grid) -> float:
@@ -523,17 +553,33 @@ def check_spec_file(out_dir: Path, spec: DatasetSpec) -> None:
         _write_json_atomic(path, want)
 
 
-def pending_shards(spec: DatasetSpec, out_dir) -> list[tuple[int, int]]:
+def check_part(part) -> tuple[int, int] | None:
+    """``part`` = (i, n): this process makes the volumes v with v % n == i (None: all)."""
+    if part is None:
+        return None
+    try:
+        i, n = (int(x) for x in part)
+    except (TypeError, ValueError):
+        raise DatasetError(f"part {part!r}: expected I/N with 0 <= I < N") from None
+    if not 0 <= i < n:
+        raise DatasetError(f"part {i}/{n}: expected I/N with 0 <= I < N")
+    return i, n
+
+
+def pending_shards(spec: DatasetSpec, out_dir, part=None) -> list[tuple[int, int]]:
     """Prepare ``out_dir`` for a (resumed) run and list the shards still to make: checks or
     creates spec.json, removes temporary files of a run killed mid-write, skips finished
-    shards."""
+    shards. With ``part`` (i, n) only volumes v % n == i, and temporary files are left alone:
+    the other parts may be writing theirs into the same folder (the loader never reads them)."""
+    part = check_part(part)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     check_spec_file(out, spec)
-    for stale in out.glob(".shard_*.tmp"):     # a previous run killed mid-write
-        stale.unlink()
+    if part is None:
+        for stale in out.glob(".shard_*.tmp"):     # a previous run killed mid-write
+            stale.unlink()
     return [(v, c) for v in range(spec.n_volumes) for c in range(spec.configs_per_volume)
-            if not (out / shard_name(v, c)).exists()]
+            if (part is None or v % part[1] == part[0]) and not (out / shard_name(v, c)).exists()]
 
 
 class ShardMaker:
@@ -578,12 +624,14 @@ def shard_progress(n_shards: int, spec: DatasetSpec, progress: bool):
 
 
 def make_dataset(spec: DatasetSpec, out_dir, runtime=None, progress: bool = True,
-                 max_shards: int | None = None, on_shard=None) -> dict:
+                 max_shards: int | None = None, on_shard=None, part=None) -> dict:
     """Make every missing shard of ``spec`` in ``out_dir``, serially in this process (Ray:
     clvol/neural/distributed.py). Returns {"made", "skipped"} counts. ``max_shards``: stop after
-    making this many (tests); ``on_shard(v, c)`` is called after each shard is written."""
+    making this many (tests); ``on_shard(v, c)`` is called after each shard is written.
+    ``part`` (i, n): only volumes v % n == i, so n processes can share one folder (one
+    device, several host processes: docs/dataset.md)."""
     out = Path(out_dir)
-    todo = pending_shards(spec, out)
+    todo = pending_shards(spec, out, part)
     made = 0
     maker = ShardMaker(runtime)
     with shard_progress(len(todo), spec, progress) as bar:
@@ -596,7 +644,9 @@ def make_dataset(spec: DatasetSpec, out_dir, runtime=None, progress: bool = True
             bar.update(1)
             if on_shard is not None:
                 on_shard(v, c)
-    return {"made": made, "skipped": spec.n_shards - len(todo)}
+    mine = spec.n_shards if part is None else sum(
+        spec.configs_per_volume for v in range(spec.n_volumes) if v % part[1] == part[0])
+    return {"made": made, "skipped": mine - len(todo)}
 
 
 class ShardArrays(Mapping):

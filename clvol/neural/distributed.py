@@ -204,13 +204,17 @@ def _result(ray, ref, v, c, retries) -> dict:
 
 
 def generate(spec: ds.DatasetSpec, out_dir, address: str | None = None, serial: bool = False,
-             workers: int | None = None, progress: bool = True, log=None) -> dict:
+             workers: int | None = None, progress: bool = True, log=None, part=None) -> dict:
     """What `clvol dataset make` runs: Ray if installed (local, or ``address``), else the
-    serial path with a note on how to get Ray. Adds "engine" to the returned counts."""
+    serial path with a note on how to get Ray. Adds "engine" to the returned counts.
+    ``part`` (i, n) needs ``serial``: n such processes share one device and one folder."""
+    if part is not None and not serial:
+        raise DistributedError("--part splits the serial engine across processes: add --serial "
+                               "(Ray already spreads the shards over its workers)")
     if serial:
         if address is not None or workers is not None:
             raise DistributedError("--serial runs in this process: drop --address/--workers")
-        return {**ds.make_dataset(spec, out_dir, progress=progress), "engine": "serial"}
+        return {**ds.make_dataset(spec, out_dir, progress=progress, part=part), "engine": "serial"}
     if not ray_available():
         if address is not None or workers is not None:
             raise DistributedError(f"--address/--workers need Ray, which is not installed: "

@@ -191,11 +191,16 @@ def set_normalisation(model: Model, samples: Samples) -> None:
         model.feature_scale.copy_(torch.tensor(1.0 / np.maximum(std, 1e-3), dtype=torch.float32))
 
 
-def _tensors(s: Samples, idx=slice(None)):
-    pick = (lambda a, i: None if a is None else torch.from_numpy(np.ascontiguousarray(a[i])))
+def _tensors(s: Samples, idx=slice(None), device=None):
+    pick = (lambda a, i: None if a is None else
+            torch.from_numpy(np.ascontiguousarray(a[i])).to(device or "cpu"))
     rows = s.rows(idx)
     return (pick(s.features, rows), pick(s.config, idx), pick(s.levels, rows), pick(s.y, idx),
             pick(s.weight, idx))
+
+
+def _device(model: Model):
+    return next(model.parameters()).device
 
 
 def evaluate(model: Model, s: Samples, batch: int = 4096, weighted: bool = False) -> float:
@@ -204,7 +209,7 @@ def evaluate(model: Model, s: Samples, batch: int = 4096, weighted: bool = False
     total, norm = 0.0, 0.0
     with torch.no_grad():
         for i in range(0, len(s), batch):
-            f, c, lv, y, w = _tensors(s, slice(i, i + batch))
+            f, c, lv, y, w = _tensors(s, slice(i, i + batch), _device(model))
             err = (model(f, c, lv) - y) ** 2
             ww = w if weighted else torch.ones_like(y)
             total += float((ww * err).sum())
@@ -217,8 +222,8 @@ def predict(model: Model, s: Samples, batch: int = 4096) -> np.ndarray:
     out = []
     with torch.no_grad():
         for i in range(0, len(s), batch):
-            f, c, lv, _, _ = _tensors(s, slice(i, i + batch))
-            out.append(model(f, c, lv).numpy())
+            f, c, lv, _, _ = _tensors(s, slice(i, i + batch), _device(model))
+            out.append(model(f, c, lv).cpu().numpy())
     return np.concatenate(out) if out else np.zeros(0, np.float32)
 
 
@@ -304,8 +309,14 @@ def split_shards(shards, cfg: RunConfig):
         if spec.get("n_solids", 0) > 0:
             hv.add(spec["n_volumes"] - spec["n_solids"])
     hc = cfg.holdout_config % n_cfg
+    from .dataset import OUT_OF_FAMILY
+    # out-of-family volumes are never trained on, whatever the split (they measure generalisation)
+    oof = {s.volume for s in shards if s.meta.get("volume", {}).get("family") in OUT_OF_FAMILY}
+    hv |= oof
     held = [s for s in shards if s.volume in hv or s.config_index == hc]
     train = [s for s in shards if not (s.volume in hv or s.config_index == hc)]
+    if not train and held and {s.volume for s in held} <= oof:
+        return [], held        # an evaluation-only set: every volume out of family
     if not 0.0 < cfg.train_fraction <= 1.0:
         raise ClvolError(f"train_fraction {cfg.train_fraction}: must be in (0, 1]")
     if cfg.train_fraction < 1.0:
@@ -314,10 +325,10 @@ def split_shards(shards, cfg: RunConfig):
         vols = sorted({s.volume for s in train})
         keep = set(vols[:max(1, round(cfg.train_fraction * len(vols)))])
         train = [s for s in train if s.volume in keep]
-    if not train or not held:
+    if not train and not held:
         raise ClvolError(f"held-out split of {len(shards)} shards leaves {len(train)} for training "
                          f"and {len(held)} held out (held-out volumes {sorted(hv)}, configuration "
-                         f"{hc}); both must be non-empty")
+                         f"{hc}): nothing to train on or to evaluate")
     return train, held
 
 
@@ -399,17 +410,22 @@ class Trainer:
     generator's state, the step, the loss history) is in ``state_dict()``; a run restored from a
     checkpoint continues exactly as the uninterrupted run would have (tests/test_dataset.py)."""
 
-    def __init__(self, train: Samples, cfg: RunConfig, arch=None):
+    def __init__(self, train: Samples, cfg: RunConfig, arch=None, device: str = "cpu",
+                 generator_seed: int | None = None):
         from .export import Architecture
         self.cfg = cfg
+        self.device = torch.device(device)
         self.train = train
         torch.manual_seed(cfg.seed)
         L = train.levels.shape[1] if train.levels is not None else layout.N_LEVELS
         self.model = Model(arch or Architecture(n_levels=L))
         set_normalisation(self.model, train)
+        self.model.to(self.device)      # after the normalisation (computed in NumPy on the host)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         self.sched = torch.optim.lr_scheduler.CosineAnnealingLR(self.opt, T_max=max(cfg.steps, 1))
-        self.gen = torch.Generator().manual_seed(cfg.seed)
+        # a data-parallel worker draws its own batches (clvol/neural/raytrain.py: seed + rank)
+        self.gen = torch.Generator().manual_seed(cfg.seed if generator_seed is None else generator_seed)
+        self.net = self.model     # what the steps run: the model, or a DDP wrapper of it
         self.step = 0
         self.history = {"train": [], "eval": []}
 
@@ -431,26 +447,28 @@ class Trainer:
             diff = sorted(k for k in have if have[k] != self.model.arch.to_dict().get(k))
             raise ValueError(f"checkpoint was made with another architecture ({diff}); use the same "
                              f"settings or another output folder")
-        self.model.load_state_dict(st["model"])
+        self.model.load_state_dict({k: v.to(self.device) for k, v in st["model"].items()})
         self.opt.load_state_dict(st["opt"])
         self.sched.load_state_dict(st["sched"])
         self.gen.set_state(st["gen"])
         self.step = int(st["step"])
         self.history = st["history"]
 
-    def run(self, until: int, checkpoint=None, held: Samples | None = None, log=print) -> None:
+    def run(self, until: int, checkpoint=None, held: Samples | None = None, log=print,
+            on_checkpoint=None) -> None:
         """Train to step ``until`` (<= cfg.steps), writing ``checkpoint`` every
-        cfg.checkpoint_every steps and at the end, evaluating ``held`` every cfg.eval_every."""
+        cfg.checkpoint_every steps and at the end, evaluating ``held`` every cfg.eval_every.
+        ``on_checkpoint(trainer)`` is called at each of those steps (after the write, if any)."""
         until = min(int(until), self.cfg.steps)
         n = len(self.train)
         window = []
         t0 = time.perf_counter()
         done_before = self.history["eval"][-1].get("seconds", 0.0) if self.history["eval"] else 0.0
         while self.step < until:
-            self.model.train()
+            self.net.train()
             idx = torch.randint(0, n, (min(self.cfg.batch, n),), generator=self.gen).numpy()
-            f, c, lv, y, w = _tensors(self.train, idx)
-            loss = weighted_loss(self.model(f, c, lv), y, w)
+            f, c, lv, y, w = _tensors(self.train, idx, self.device)
+            loss = weighted_loss(self.net(f, c, lv), y, w)
             self.opt.zero_grad()
             loss.backward()
             self.opt.step()
@@ -470,8 +488,11 @@ class Trainer:
                 if log:
                     log("  ".join(f"{k} {v:.5f}" if isinstance(v, float) else f"{k} {v}"
                                   for k, v in row.items()))
-            if checkpoint is not None and (self.step % self.cfg.checkpoint_every == 0 or last):
-                save_checkpoint(checkpoint, self.state_dict())
+            if self.step % self.cfg.checkpoint_every == 0 or last:
+                if checkpoint is not None:
+                    save_checkpoint(checkpoint, self.state_dict())
+                if on_checkpoint is not None:
+                    on_checkpoint(self)
 
 
 def mean_predictor_loss(train: Samples, held: Samples) -> float:

@@ -513,6 +513,88 @@ def _union(dom: _Domain, seed: int, *, count, size, blend, density, edge) -> np.
     return _solid_density(dom, sdf, density, edge)
 
 
+# The two generators below exist to MEASURE generalisation: the data sets keep their families
+# (clvol/neural/dataset.py OUT_OF_FAMILY) out of every training set. They follow published
+# descriptions rather than our own cloud generator, so their density structure differs: soft,
+# graded interiors (Perlin-Worley) and pyroclastic, displaced surfaces (sphere unions).
+
+def _remap(x, lo0, hi0, lo1, hi1):
+    """Linear remap of x from [lo0, hi0] to [lo1, hi1] (the Nubis talks' workhorse); lo0 and
+    hi0 may be arrays. The span is kept away from zero."""
+    return lo1 + (x - lo0) * (hi1 - lo1) / np.maximum(hi0 - lo0, np.float32(1e-4))
+
+
+def _perlin_worley(dom: _Domain, seed: int, *, coverage, cloud_type, scale, erosion, width,
+                   density) -> np.ndarray:
+    """A cloud after Schneider's Nubis (SIGGRAPH 2015/2017 Advances talks): low-frequency
+    Perlin-Worley noise (gradient fBm dilated by cellular fBm), shaped by a height gradient
+    chosen by the cloud type (stratus ... cumulus), cut by a coverage footprint, then eroded by
+    high-frequency cellular noise that is wispy at the base and billowy above. Unlike
+    ``cloud``, density is not saturated: it grows gradually into the interior."""
+    h = dom.frac[1]
+    # height gradient: a trapezoid whose top rises with the type (stratus low and thin,
+    # cumulus tall); the base is a quick rise, as in the talks' three blended gradients
+    top = 0.3 + 0.65 * cloud_type
+    grad = _smoothstep(0.05, 0.05 + 0.1 * (0.4 + cloud_type), h) * _smoothstep(top, top - 0.25 * (0.4 + cloud_type), h)
+    grad = dom.axis(np.clip(grad, 0.0, 1.0), 1)
+    # footprint (the weather map of one cloud): radial falloff in x-z, wobbled by 2-D-ish noise
+    qx = dom.axis(2 * dom.frac[0] - 1, 0)
+    qz = dom.axis(2 * dom.frac[2] - 1, 2)
+    wob = _fbm(dom, seed, 4, 2.0 * scale, 2) * np.float32(1 / 0.11)
+    foot = np.clip(1.0 - np.sqrt(qx * qx + qz * qz) / np.float32(width) + np.float32(0.12) * wob, 0.0, 1.0)
+    cov = np.float32(coverage) * np.sqrt(foot)
+    # Perlin-Worley: perlin in [0, 1], dilated by the inverted Worley fBm
+    perlin = np.clip(0.5 + 0.5 * _fbm(dom, seed, 1, scale, 4) * np.float32(1 / 0.3), 0.0, 1.0)
+    w1 = _worley_fbm(dom, seed, 2, scale, 1)
+    w2 = _worley_fbm(dom, seed, 3, scale / 2.0, 1)
+    w3 = _worley_fbm(dom, seed, 5, scale / 4.0, 1)
+    wfbm = np.float32(0.625) * w1 + np.float32(0.25) * w2 + np.float32(0.125) * w3
+    base = np.clip(_remap(perlin, -(1.0 - wfbm), 1.0, 0.0, 1.0), 0.0, 1.0)
+    base = np.clip(_remap(base * grad, 1.0 - cov, 1.0, 0.0, 1.0), 0.0, 1.0) * cov
+    # erosion: high-frequency cellular fBm, wispy (inverted) near the base, billowy above
+    hf = _worley_fbm(dom, seed, 6, scale / 4.0, 3)
+    mix = dom.axis(np.clip(h * 6.0, 0.0, 1.0), 1)
+    detail = hf * mix + (1.0 - hf) * (1.0 - mix)
+    d = np.clip(_remap(base, np.float32(erosion) * detail * np.float32(0.35), 1.0, 0.0, 1.0), 0.0, 1.0)
+    d *= _box_taper(dom)
+    peak = float(d.max())
+    return (np.float32(density / peak if peak > 0 else 0.0) * d).astype(np.float32)
+
+
+def _sphere_cumulus(dom: _Domain, seed: int, *, count, size, displacement, erosion, base,
+                    density) -> np.ndarray:
+    """A cumulus modelled as a union of spheres (a wide cluster on a flat base, smaller ones
+    stacked above, as in the classic particle/implicit cloud modelling), its signed distance
+    displaced outward by billowed fBm (|gradient noise|: pyroclastic puffs), a flat base, and
+    its soft edge eroded by finer billowed noise."""
+    rng = _rng(seed, 0)
+    x, y, z = _centred(dom)
+    y0 = float(dom.bbox_min[1] + base * dom.extent[1])     # the flat base
+    sdf = None
+    for i in range(count):
+        tier = i / max(count - 1, 1)                         # 0: bottom ring, 1: top
+        r = size * (1.0 - 0.45 * tier) * rng.uniform(0.75, 1.15)
+        spread = (0.42 - 0.25 * tier) * rng.uniform(0.3, 1.0)
+        ang = rng.uniform(0.0, 2.0 * np.pi)
+        cx, cz = spread * np.cos(ang), spread * np.sin(ang)
+        cy = y0 + 0.6 * r + tier * rng.uniform(0.25, 0.55) * dom.extent[1]
+        cy = min(cy, float(dom.bbox_max[1]) - 1.05 * r)
+        d = np.sqrt((x - np.float32(cx)) ** 2 + (y - np.float32(cy)) ** 2 + (z - np.float32(cz)) ** 2) - np.float32(r)
+        sdf = d if sdf is None else np.minimum(sdf, d)
+    billow = np.abs(_fbm(dom, seed, 1, 1.5 * size, 4)) * np.float32(1 / 0.11)
+    sdf = sdf - np.float32(displacement * size * 0.5) * billow
+    # soft edge a few percent of the cloud's size, density ramping in over it
+    edge = np.float32(0.12 * size)
+    d = _smoothstep(float(edge), float(-edge), sdf)
+    d *= dom.axis(_smoothstep(y0 - 0.01, y0 + 0.03, dom.world[1]), 1)   # flat base
+    if erosion > 0:
+        fine = np.abs(_fbm(dom, seed, 2, 0.4 * size, 3)) * np.float32(1 / 0.11)
+        ero = np.clip(np.float32(erosion) * np.float32(0.5) * fine, 0.0, 0.95)
+        d = np.clip((d - ero) / (1.0 - ero), 0.0, 1.0)
+    d *= _box_taper(dom)
+    return (np.float32(density) * d).astype(np.float32)
+
+
 _DENSITY = Param(1.0, 1e-3, 1e3, "peak density (extinction = density x density_scale)")
 _EDGE = Param(1.5, 0.25, 16.0, "width of the soft surface in voxels (smoothstep of the signed distance)")
 
@@ -631,6 +713,35 @@ GENERATORS: dict[str, GeneratorInfo] = {g.name: g for g in [
             "edge": _EDGE,
         },
         _union),
+    GeneratorInfo(
+        "perlin_worley",
+        "A cloud after the Nubis talks (Schneider): low-frequency Perlin-Worley noise shaped by a "
+        "height gradient of the cloud type, cut by a coverage footprint and eroded by cellular noise "
+        "(wispy at the base, billowy above); graded, unsaturated interior. Kept out of training: "
+        "it measures generalisation (docs/neural.md).",
+        {
+            "coverage": Param(0.7, 0.05, 1.0, "coverage at the footprint's centre (the weather map's value)"),
+            "cloud_type": Param(0.8, 0.0, 1.0, "height gradient: 0 stratus (low, thin) .. 1 cumulus (tall)"),
+            "scale": Param(0.35, 0.05, 1.0, "size of the largest Perlin-Worley features, world units"),
+            "erosion": Param(0.6, 0.0, 1.0, "strength of the high-frequency erosion"),
+            "width": Param(0.85, 0.2, 1.0, "footprint radius, fraction of the box's half-width"),
+            "density": Param(1.0, 1e-3, 1e3, "peak density (the field is normalised to this)"),
+        },
+        _perlin_worley),
+    GeneratorInfo(
+        "sphere_cumulus",
+        "A cumulus as a union of spheres (a wide cluster on a flat base, smaller ones stacked "
+        "above) displaced by billowed fBm (pyroclastic puffs), with its soft edge eroded by finer "
+        "billowed noise. Kept out of training: it measures generalisation (docs/neural.md).",
+        {
+            "count": Param(9, 2, 24, "number of spheres"),
+            "size": Param(0.2, 0.05, 0.35, "radius of the base spheres, world units (upper ones smaller)"),
+            "displacement": Param(0.5, 0.0, 1.5, "outward displacement by billowed noise, in sphere radii / 2"),
+            "erosion": Param(0.3, 0.0, 1.0, "erosion of the soft edge by finer billowed noise"),
+            "base": Param(0.15, 0.0, 0.5, "height of the flat base, fraction of the box height"),
+            "density": _DENSITY,
+        },
+        _sphere_cumulus),
 ]}
 
 
@@ -700,3 +811,22 @@ def generate(name: str, seed: int = 0, resolution: int | tuple[int, int, int] = 
     density = np.ascontiguousarray(np.broadcast_to(density, dom.empty().shape), dtype=np.float32)
     # The shaping keeps values finite and >= 0; Grid re-checks, so a bug cannot pass silently.
     return Grid(density, dom.bbox_min.copy(), dom.bbox_max.copy())
+
+
+def restructure(grid: Grid, seed: int, *, gamma: float, modulation: float, scale: float) -> Grid:
+    """Domain randomisation of a generated grid's density structure (training data sets,
+    clvol/neural/dataset.py ``augment``): a remap d -> peak * (d / peak)^gamma (gamma > 1 grades
+    saturated interiors and thins soft edges, gamma < 1 saturates them) times a low-frequency
+    modulation 1 + modulation * fBm (heterogeneous interiors: our generators' clouds and solids are
+    homogeneous inside, real clouds are not). Same arguments -> bit-identical grid."""
+    d = grid.density.astype(np.float32)
+    peak = float(d.max())
+    if peak <= 0:
+        return grid
+    nz, ny, nx = d.shape
+    dom = _Domain((nx, ny, nz))
+    out = np.float32(peak) * np.power(d * np.float32(1.0 / peak), np.float32(gamma))
+    if modulation > 0:
+        n = _fbm(dom, seed, 7, scale, 3) * np.float32(1 / 0.11)
+        out *= np.clip(1.0 + np.float32(modulation) * n, 0.05, 3.0)
+    return Grid(np.ascontiguousarray(out, dtype=np.float32), grid.bbox_min.copy(), grid.bbox_max.copy())
