@@ -114,17 +114,23 @@ def train_on_ray(data: list[str], out: Path, cfg, arch, *, albedo_draws: int = 0
                  held_shards: int = 400, log=print):
     """Run the data-parallel training to step ``until`` (default cfg.steps); returns the final
     state dict (the checkpoint's contents) and writes OUT/checkpoint.pt."""
-    import ray
     import torch
+
+    from .distributed import connect_error_message, import_ray, local_init_kwargs
+    ray = import_ray(local=address is None)    # a local Ray stays on loopback (docs/dataset.md)
     from ray.train import RunConfig, ScalingConfig
     from ray.train.torch import TorchTrainer
 
     out = Path(out).resolve()
     if not ray.is_initialized():
-        kw = {"address": address} if address else {"num_cpus": max(workers, 1)}
+        kw = {"address": address} if address else local_init_kwargs(workers)
         # the workers' own logs (Ray Train's per-report lines) stay in Ray's log folder; the
         # driver prints the run's evaluation rows from the final checkpoint
-        ray.init(logging_level="ERROR", log_to_driver=False, **kw)
+        kw.update(logging_level="ERROR", log_to_driver=False)
+        try:
+            ray.init(**kw)
+        except Exception as exc:      # one line, as `clvol dataset make` says it
+            raise RuntimeError(connect_error_message(address, exc)) from None
     resume, step = newest_checkpoint(out)
     if resume is not None:
         log(f"resuming from {resume} at step {step}")
