@@ -56,7 +56,16 @@ DEFAULT_PAD = 64
 @functools.lru_cache(maxsize=None)
 def cl_source_dir() -> Path:
     """Folder holding the ``.cl`` sources (``cl/`` in a checkout, ``clvol/_cl`` installed);
-    where the package lies does not change in a process, and every launch asks."""
+    where the package lies does not change in a process, and every launch asks.
+
+    A clvol imported from a checkout takes the ``cl/`` beside it: ``clvol._cl`` is mapped
+    by setup.cfg's ``package_dir`` only in an installed copy, so from a checkout it would
+    resolve to whatever clvol is installed (another worktree's kernels, or none: running
+    from a checkout with clvol installed by ``pip install --target`` elsewhere on the path
+    found no ``clvol._cl`` at all)."""
+    checkout = Path(__file__).resolve().parents[1] / "cl"
+    if (checkout / "include").is_dir() and (checkout / "raymarch.cl").is_file():
+        return checkout
     return Path(str(importlib.resources.files("clvol._cl")))
 
 
