@@ -321,6 +321,7 @@ def t_raymarch(ctx) -> list[dict]:
 
 def _network_setup(ctx):
     if "net" not in ctx:
+        ctx["wait_warm"](("network",))
         from clvol.render.ms import network as rnet
         from clvol.scene import Medium, Phase
         from clvol.volume.generators import generate
@@ -437,8 +438,9 @@ def t_transmittance(ctx) -> list[dict]:
     return rows
 
 
-def pathtrace_setup(ctx):
-    """Build the path tracer's render and query programs (run in a background thread)."""
+def pathtrace_setup(ctx, parts=("render", "query")):
+    """The path tracer's scene and its render and query programs (``parts``: which to build;
+    a warm-up process builds one each)."""
     from clvol.kernels.pathtrace import PathTracer
     from clvol.render.pathtrace import _medium
     from clvol.scene import Camera, Light, Phase, Scene, VolumeSpec
@@ -452,30 +454,31 @@ def pathtrace_setup(ctx):
                   camera=Camera((0.0, 0.3, 2.4), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 35.0,
                                 s.pt_size, s.pt_size))
     grid = scene.volume.load()
-    t0 = time.perf_counter()
-    pt = PathTracer(_medium(scene, grid, None, scene.light.irradiance, None), 8, runtime=rt)
-    t_render = time.perf_counter() - t0
-    tiny = dataclasses.replace(scene.camera, width=2, height=2)
-    pt.render_batch(tiny, 0, 0, 1)
-    t0 = time.perf_counter()
-    pq = PathTracer(_medium(scene, grid, None, (1.0, 1.0, 1.0), None), 8, runtime=rt)
-    pq.query_program()
-    t_query = time.perf_counter() - t0
-    return dict(scene=scene, grid=grid, pt=pt, build_render_s=round(t_render, 2),
-                build_query_s=round(t_query, 2))
+    out = dict(scene=scene, grid=grid)
+    if "render" in parts:
+        t0 = time.perf_counter()
+        out["pt"] = pt = PathTracer(_medium(scene, grid, None, scene.light.irradiance, None),
+                                    8, runtime=rt)
+        pt.render_batch(dataclasses.replace(scene.camera, width=2, height=2), 0, 0, 1)
+        out["build_render_s"] = round(time.perf_counter() - t0, 2)
+    if "query" in parts:
+        from clvol.kernels.pathtrace import QUERY_LANES, specialisation
+        t0 = time.perf_counter()
+        # the program point_query builds (its PathTracer: the scene's medium, a unit sun)
+        med = _medium(scene, grid, None, (1.0, 1.0, 1.0), None)
+        defines = specialisation(med, True)[0]
+        rt.program("pathtrace", {"PT_LANES": QUERY_LANES, **defines})
+        out["build_query_s"] = round(time.perf_counter() - t0, 2)
+    return out
 
 
 def t_pathtrace(ctx) -> list[dict]:
     """Samples/s of a frame (one launch of spl samples per pixel) and point-query labels/s."""
     from clvol.render.pathtrace import point_query
     s, rt = ctx["settings"], ctx["rt"]
-    bg = ctx["pt_thread"]
-    bg.join(timeout=max(1.0, ctx["budget_left"]()))
-    if bg.is_alive():
+    if not ctx["wait_warm"](("pt-render", "pt-query")):
         return [{"skipped": "path tracer programs still building at the budget"}]
-    if "error" in ctx["pt"]:
-        raise RuntimeError(ctx["pt"]["error"])
-    p = ctx["pt"]
+    p = pathtrace_setup(ctx)
     pt, scene = p["pt"], p["scene"]
     cam = scene.camera
     n = cam.width * cam.height * s.pt_spl
@@ -505,6 +508,27 @@ def t_pathtrace(ctx) -> list[dict]:
     log(f"  path tracer labels: {ms} ms")
     return rows
 
+
+def warm(name: str, ctx) -> None:
+    """What a warm-up process builds (``--warm NAME``): the same programs the timings build,
+    so that the driver's on-disk program cache (NVIDIA's ComputeCache, PoCL's kernel cache)
+    holds them when the timings ask; processes, not threads, so a driver that builds one
+    program at a time per process still builds these side by side."""
+    if name == "pt-render":
+        pathtrace_setup(ctx, ("render",))
+    elif name == "pt-query":
+        pathtrace_setup(ctx, ("query",))
+    elif name == "network":
+        _network_setup(ctx)
+        from clvol.kernels.mlp import MlpKernel
+        from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract
+        arch = Architecture()
+        MlpKernel(MlpWeights(arch, default_params(arch, np.random.default_rng(0)),
+                             feature_contract()), runtime=ctx["rt"])
+    ctx["rt"].finish()
+
+
+WARM = ("pt-render", "pt-query", "network")
 
 TIMINGS = [("raymarch", t_raymarch), ("fused gather+MLP", t_fused), ("MLP", t_mlp),
            ("gather", t_gather), ("transmittance", t_transmittance),
@@ -584,6 +608,10 @@ def main(argv=None) -> int:
                     help="twin test files run at once (default: cores / 2, at least 1)")
     ap.add_argument("--sizes", type=int, nargs="+", default=None,
                     help="default-method image sides (default 256 512 1024; --quick 32 64)")
+    ap.add_argument("--warm", choices=WARM, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--no-warm", action="store_true",
+                    help="build every program in this process when first used (no warm-up "
+                         "processes)")
     ap.add_argument("--only", nargs="+", default=None, choices=[n for n, _ in TIMINGS],
                     help="run only these timings")
     args = ap.parse_args(argv)
@@ -596,9 +624,14 @@ def main(argv=None) -> int:
     settings = dataclasses.replace(QUICK if args.quick else FULL)
     if args.sizes:
         settings.sizes = args.sizes
+    if args.warm:
+        warm(args.warm, {"rt": get_runtime(spec), "settings": settings, "quick": args.quick,
+                         "wait_warm": lambda names: True})
+        return 0
     report = {"machine": machine(entry), "device_reason": why, "quick": args.quick,
               "budget_s": args.budget_s, "settings": dataclasses.asdict(settings),
-              "twins_mode": args.twins, "twins": {}, "timings": {}, "notes": []}
+              "twins_mode": args.twins, "twins": {}, "timings": {}, "warm_up": {},
+              "notes": []}
     d = report["machine"]["device"]
     log(f"device {spec} {entry.label} ({why}): {d['kind']}, {d['compute_units']} CUs, "
         f"{d['global_mem_gib']} GiB, vector width {d['preferred_vector_width_float']}, "
@@ -621,6 +654,9 @@ def main(argv=None) -> int:
                             Twins._kill(p)
                             report["twins"].setdefault(f, {"status": "stopped by the watchdog"})
                     report["twins"].update(twins.results)
+                for p, _ in warmers.values():
+                    if p.poll() is None:
+                        Twins._kill(p)
                 write(report, args.out, tmp)
             finally:
                 os._exit(3)
@@ -629,30 +665,52 @@ def main(argv=None) -> int:
     watchdog.daemon = True
     watchdog.start()
 
-    twins = None
+    twins, warmers = None, {}
     if args.twins != "none":
         jobs = args.jobs or max(1, (os.cpu_count() or 2) // 2)
         twins = Twins(spec, args.twins, jobs, tmp, deadline=args.budget_s)
         log(f"twins: {len(twins.files)} files ({args.twins}), {jobs} at a time")
         twins.start()
 
+    todo = [(n, f) for n, f in TIMINGS if not args.only or n in args.only]
+    names = {n for n, _ in todo}
+    if not args.no_warm:
+        want = [w for w, needs in (("pt-render", "path tracer"), ("pt-query", "path tracer"),
+                                   ("network", "fused gather+MLP")) if needs in names]
+        for w in want:
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--warm", w, "--out",
+                   str(tmp / "warm"), "--device", spec] + (["--quick"] if args.quick else [])
+            warmers[w] = (subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL,
+                                           stderr=open(tmp / f"warm-{w}.err", "w"),
+                                           start_new_session=True), now())
+        if warmers:
+            log(f"warm-up processes building programs: {', '.join(warmers)}")
+
+    def wait_warm(which) -> bool:
+        """Wait for the warm-up processes ``which``; False if the budget ran out first."""
+        for w in which:
+            if w not in warmers:
+                continue
+            p, t0 = warmers[w]
+            try:
+                p.wait(timeout=max(0.1, args.budget_s - now()))
+            except subprocess.TimeoutExpired:
+                Twins._kill(p)
+                report["warm_up"][w] = "still building at the budget"
+                return False
+            if w not in report["warm_up"]:
+                err = (tmp / f"warm-{w}.err").read_text(errors="replace").strip()
+                report["warm_up"][w] = (f"exit {p.returncode} after {now() - t0:.1f} s"
+                                        + (f": {err.splitlines()[-1][:300]}" if err and
+                                           p.returncode else ""))
+                log(f"warm-up {w}: {report['warm_up'][w]}")
+        return True
+
     rt = get_runtime(spec)
-    ctx = {"rt": rt, "settings": settings, "quick": args.quick, "pt": {},
+    ctx = {"wait_warm": wait_warm, "rt": rt, "settings": settings, "quick": args.quick,
            "over": lambda: now() > args.budget_s,
            "budget_left": lambda: args.budget_s - now(),
            "overlap": lambda: bool(twins is not None and twins.running())}
-
-    def pt_bg():
-        try:
-            ctx["pt"].update(pathtrace_setup(ctx))
-            log(f"path tracer programs built (render {ctx['pt']['build_render_s']} s, query "
-                f"{ctx['pt']['build_query_s']} s)")
-        except Exception as exc:  # noqa: BLE001
-            ctx["pt"]["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0][:500]
-    todo = [(n, f) for n, f in TIMINGS if not args.only or n in args.only]
-    ctx["pt_thread"] = threading.Thread(target=pt_bg, daemon=True)
-    if any(n == "path tracer" for n, _ in todo):
-        ctx["pt_thread"].start()
 
     failed = False
     for name, fn in todo:
@@ -692,6 +750,10 @@ def main(argv=None) -> int:
             for t in r.get("tests", []):
                 if t["status"] in ("failed", "error"):
                     log(f"    {t['status']}: {t['name']}: {t['message'][:200]}")
+    for w, (p, _) in warmers.items():
+        if p.poll() is None:
+            Twins._kill(p)
+            report["warm_up"].setdefault(w, "stopped at the end")
     if any(isinstance(v, dict) and "skipped" in v for v in report["timings"].values()):
         report["notes"].append("some timings were skipped: the budget was spent")
     with lock:
