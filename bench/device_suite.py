@@ -150,9 +150,10 @@ def twin_files() -> list[str]:
 class Twins:
     """The twin test files run as pytest subprocesses, ``jobs`` at a time, in a thread."""
 
-    def __init__(self, spec: str, mode: str, jobs: int, tmp: Path, deadline: float):
+    def __init__(self, spec: str, mode: str, jobs: int, tmp: Path, deadline: float,
+                 files: list[str] | None = None):
         self.spec, self.mode, self.jobs, self.tmp, self.deadline = spec, mode, jobs, tmp, deadline
-        self.files = twin_files()
+        self.files = list(files) if files else twin_files()
         self.results: dict[str, dict] = {}
         self.procs: dict[str, subprocess.Popen] = {}
         self.lock = threading.Lock()
@@ -604,6 +605,8 @@ def main(argv=None) -> int:
                     help="no timing starts past this many seconds (default 140)")
     ap.add_argument("--quick", action="store_true", help="tiny sizes (a dry run on a CPU)")
     ap.add_argument("--twins", choices=["tiny", "full", "none"], default="tiny")
+    ap.add_argument("--twin-files", nargs="+", default=None, metavar="FILE",
+                    help="only these test files (default: every kernel's, see twin_files)")
     ap.add_argument("--jobs", type=int, default=None,
                     help="twin test files run at once (default: cores / 2, at least 1)")
     ap.add_argument("--sizes", type=int, nargs="+", default=None,
@@ -668,7 +671,8 @@ def main(argv=None) -> int:
     twins, warmers = None, {}
     if args.twins != "none":
         jobs = args.jobs or max(1, (os.cpu_count() or 2) // 2)
-        twins = Twins(spec, args.twins, jobs, tmp, deadline=args.budget_s)
+        twins = Twins(spec, args.twins, jobs, tmp, deadline=args.budget_s,
+                      files=args.twin_files)
         log(f"twins: {len(twins.files)} files ({args.twins}), {jobs} at a time")
         twins.start()
 
