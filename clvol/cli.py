@@ -19,11 +19,72 @@ from pathlib import Path
 from .errors import BuildError, ClvolError
 
 
+def _code_paths(kind: str, cus: int) -> list[str]:
+    """Which code path each kernel takes on a device of ``kind`` with ``cus`` compute units:
+    its work per work-item and launch shape (the places the host code asks the device type)."""
+    from .kernels.gather import GATHER_LOCAL
+    from .kernels.mlp import QUERIES_PER_ITEM
+    from .kernels.pathtrace import QUERY_LANES, RENDER_LANES, launch_shape
+    from .kernels.raymarch import LOCAL_SIZE, TILE
+    from .kernels.transmittance import SWEEP_GROUP
+    items, local = launch_shape(kind, cus, 256 * 256, RENDER_LANES)
+    cpu = kind == "cpu"
+    return [
+        f"raymarch: {TILE}x{TILE} pixel tile per work-item (float16 lanes), groups of "
+        f"{LOCAL_SIZE} tiles",
+        f"pathtrace: {RENDER_LANES} paths per work-item (render), {QUERY_LANES} (point "
+        f"queries); {'CPU' if kind != 'gpu' else 'GPU'} launch: a 256^2 frame runs {items} "
+        f"work-items in groups of {local[0]}",
+        f"mlp, gather_mlp: {QUERIES_PER_ITEM} queries per work-item (float16 lanes, ~105 KB "
+        f"private arrays), groups of {'1 (PoCL stack)' if cpu else 'the driver’s choice'}",
+        f"gather: one query per work-item, groups of {GATHER_LOCAL if cpu else 'the driver’s choice'}",
+        f"transmittance sweep: groups of {SWEEP_GROUP}",
+    ]
+
+
+def _check_builds(entry) -> list[str]:
+    """Render a tiny scene with the default method and with the path tracer on ``entry``'s
+    device: one line per method, "ok" or the failing kernel and its build log's first error."""
+    from .render.renderer import Renderer
+    from .runtime import get_runtime
+    from .scenefile import scene_from_dict
+    out = []
+    for method, kw in (("default (raymarch + network MS)", {}),
+                       ("pathtrace", {"method": "pathtrace", "spp": 1})):
+        try:
+            sc = scene_from_dict({   # examples/cloud.toml, small
+                "volume": {"generator": "cloud", "seed": 1, "resolution": 32},
+                "medium": {"preset": "cloud", "density_scale": 64.0},
+                "light": {"direction": [0.45, 0.4, -0.8]},
+                "camera": {"origin": [0.0, 0.15, 1.6], "target": [0.0, 0.06, 0.0], "fov_y": 35.0,
+                           "width": 8, "height": 8}}, "<clvol info --check>")
+            rt = get_runtime(entry.spec)
+            Renderer(sc, runtime=rt, **kw).render()
+            out.append(f"{method}: ok")
+        except BuildError as exc:
+            out.append(f"{method}: BUILD FAILED: {exc.one_line()}")
+        except Exception as exc:  # noqa: BLE001 - a diagnosis reports, it does not stop
+            out.append(f"{method}: FAILED: {type(exc).__name__}: {str(exc).splitlines()[0][:200]}")
+    return out
+
+
 def _cmd_info(args) -> int:
     from . import __version__
-    from .runtime import describe_devices
+    from .runtime import choose_device, describe_devices, list_devices
     print(f"clvol {__version__}")
     print(describe_devices(args.device))
+    entries = list_devices()
+    if args.check:
+        entries = [choose_device(args.device)[0]] if args.device else entries
+    for e in entries:
+        print(f"code paths on {e.spec} ({e.kind}):")
+        for ln in _code_paths(e.kind, e.device.max_compute_units):
+            print(f"  {ln}")
+        if args.check:
+            print(f"build check on {e.spec} {e.label} (8x8 renders of a 32^3 cloud):",
+                  flush=True)
+            for ln in _check_builds(e):
+                print(f"  {ln}", flush=True)
     return 0
 
 
@@ -359,6 +420,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_info(sub) -> None:
     p = sub.add_parser("info", help="list OpenCL platforms and devices, and which one is chosen")
     p.add_argument("--device", help="device spec to try: P:D, gpu, cpu or a name substring")
+    p.add_argument("--check", action="store_true",
+                   help="build and run the default method and the path tracer on a tiny render "
+                        "on each device (or the --device one); a kernel that fails to build is "
+                        "named with its build log's first error")
     p.set_defaults(func=_cmd_info)
 
 

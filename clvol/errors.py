@@ -26,7 +26,19 @@ class DeviceError(ClvolError):
 
 
 class BuildError(ClvolError):
-    """An OpenCL program failed to compile; the message carries the file and compiler log."""
+    """An OpenCL program failed to compile; the message carries the file and compiler log.
+    ``stem`` (the kernel file's stem), ``device`` and ``first_error`` (the log's first error
+    line) give the one-line form, ``one_line()``."""
+
+    def __init__(self, message: str, stem: str | None = None, device: str | None = None,
+                 first_error: str | None = None):
+        super().__init__(message)
+        self.stem, self.device, self.first_error = stem, device, first_error
+
+    def one_line(self) -> str:
+        if self.stem is None:
+            return str(self).splitlines()[0] if str(self) else "build failed"
+        return f"{self.stem}.cl failed to build on {self.device}: {self.first_error}"
 
 
 class WeightsError(ClvolError):

@@ -56,7 +56,16 @@ DEFAULT_PAD = 64
 @functools.lru_cache(maxsize=None)
 def cl_source_dir() -> Path:
     """Folder holding the ``.cl`` sources (``cl/`` in a checkout, ``clvol/_cl`` installed);
-    where the package lies does not change in a process, and every launch asks."""
+    where the package lies does not change in a process, and every launch asks.
+
+    A clvol imported from a checkout takes the ``cl/`` beside it: ``clvol._cl`` is mapped
+    by setup.cfg's ``package_dir`` only in an installed copy, so from a checkout it would
+    resolve to whatever clvol is installed (another worktree's kernels, or none: running
+    from a checkout with clvol installed by ``pip install --target`` elsewhere on the path
+    found no ``clvol._cl`` at all)."""
+    checkout = Path(__file__).resolve().parents[1] / "cl"
+    if (checkout / "include").is_dir() and (checkout / "raymarch.cl").is_file():
+        return checkout
     return Path(str(importlib.resources.files("clvol._cl")))
 
 
@@ -157,8 +166,30 @@ def choose_device(device: str | None = None) -> tuple[DeviceEntry, str]:
     return entries[0], "default: first device"
 
 
-def describe_devices(device: str | None = None) -> str:
-    """Human-readable listing for ``clvol info``."""
+def device_details(e: DeviceEntry) -> list[str]:
+    """What ``clvol info`` prints under a device: its type, compute units and clock, memory,
+    preferred and native float vector widths, driver."""
+    d = e.device
+
+    def q(name, default="?"):
+        try:
+            return getattr(d, name)
+        except (cl.Error, AttributeError):   # a driver may not answer every query
+            return default
+
+    return [f"type {e.kind}, {q('max_compute_units')} compute units at {q('max_clock_frequency')} "
+            f"MHz, max work-group {q('max_work_group_size')}",
+            f"memory {q('global_mem_size', 0) / 2**30:.1f} GiB global (one buffer up to "
+            f"{q('max_mem_alloc_size', 0) / 2**30:.1f} GiB), {q('local_mem_size', 0) / 1024:.0f} "
+            f"KiB local",
+            f"float vector width preferred {q('preferred_vector_width_float')}, native "
+            f"{q('native_vector_width_float')}; driver {str(q('driver_version')).strip()}, "
+            f"{str(q('version')).strip()}"]
+
+
+def describe_devices(device: str | None = None, details: bool = True) -> str:
+    """Human-readable listing for ``clvol info`` (with ``details``: each device's type,
+    compute units, memory, vector widths and driver)."""
     entries = list_devices()
     lines = []
     try:
@@ -177,6 +208,8 @@ def describe_devices(device: str | None = None) -> str:
             f" {mark} {e.spec}  {e.kind:<4} {d.name.strip()}  "
             f"{d.max_compute_units} CUs, {d.global_mem_size / 2**30:.1f} GiB, "
             f"OpenCL C {d.opencl_c_version.strip()}")
+        if details:
+            lines += [f"        {ln}" for ln in device_details(e)]
     if not entries:
         lines.append("no OpenCL platforms found")
     lines.append(f"chosen: {chosen.spec + ' ' + chosen.label if chosen else 'none'} ({why})")
@@ -185,6 +218,16 @@ def describe_devices(device: str | None = None) -> str:
 
 
 # --------------------------------------------------------------------------- programs
+
+def first_build_error(log: str) -> str:
+    """The first error line of a compiler log (clang's ``file:line:col: error: ...``,
+    NVIDIA's ``<kernel>:line:col: error: ...``), else its first non-empty line."""
+    lines = [ln.strip() for ln in (log or "").splitlines() if ln.strip()]
+    for ln in lines:
+        if "error" in ln.lower():
+            return ln[:300]
+    return lines[0][:300] if lines else "(empty build log)"
+
 
 class Program:
     """A built program; hands out Kernel objects that are created once and reused."""
@@ -369,7 +412,9 @@ class Runtime:
                     log = str(exc)
                 raise BuildError(
                     f"{path.name} failed to build on {self.entry.label} with options "
-                    f"{' '.join(options)}:\n{(log or str(exc)).strip()}") from None
+                    f"{' '.join(options)}:\n{(log or str(exc)).strip()}", stem=stem,
+                    device=self.entry.label, first_error=first_build_error(log or str(exc))
+                ) from None
             prog = Program(self, stem, program, options)
             self._programs[key] = prog
         return prog

@@ -460,3 +460,25 @@ def test_shared_device_medium_gives_the_same_rows_and_refuses_a_mismatch():
         PathTracer(make_medium(density=_spiky()), majorant_block=2, device_medium=dm)
     with pytest.raises(ClvolError, match="3-D"):
         PathTracer(make_medium(density=np.ones((4, 4), np.float32)))
+
+
+def test_gpu_launch_shape_gives_the_same_rows(monkeypatch):
+    """A GPU's launch (many work-items in groups of 64, more than there are paths) takes the
+    same paths from the counter as a CPU's: bit-identical rows, render and point queries."""
+    from clvol.kernels import pathtrace as kpt
+    med = make_medium(lobes=[(0.5, 1.0)], max_order=3)
+    p = np.array([[0.0, 0.0, 0.0], [0.1, -0.2, 0.05], [2.0, 0.0, 0.0]], np.float32)
+    w = np.array([[0, 0, 1], [0, 1, 0], [1, 0, 0]], np.float32)
+
+    def rows(kind):
+        monkeypatch.setattr(kpt, "launch_shape",
+                            lambda _k, cus, n, lanes, real=kpt.launch_shape: real(kind, cus, n,
+                                                                                 lanes))
+        pt = PathTracer(med, majorant_block=2)
+        return (pt.render_batch(CAM, 5, 0, 3),
+                pt.query_batch(pt.rt.to_device(p), pt.rt.to_device(w), 3, 5, 0, 7))
+
+    assert kpt.launch_shape("gpu", 132, 100_000, 8) == (12544, (64,))
+    assert kpt.launch_shape("cpu", 2, 100_000, 8) == (8, (1,))
+    for a, b in zip(rows("cpu"), rows("gpu")):
+        np.testing.assert_array_equal(a, b)

@@ -53,6 +53,9 @@ def test_build_error_names_file_and_carries_log(tmp_path, monkeypatch):
         rt.program("broken")
     msg = str(exc.value)
     assert "broken.cl failed to build" in msg and "y" in msg and "undeclared" in msg.lower()
+    line = exc.value.one_line()     # what clvol info --check prints: one line, kernel + error
+    assert "\n" not in line and line.startswith("broken.cl failed to build on ")
+    assert "error" in line.lower() and "undeclared" in line.lower()
     with pytest.raises(BuildError, match="no OpenCL source"):
         rt.program("missing")
 

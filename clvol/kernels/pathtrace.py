@@ -170,6 +170,25 @@ def specialisation(med: PathMedium, specialise: bool = True) -> tuple[dict, list
     return defines, simulated, skipped
 
 
+# Work-items per compute unit of a GPU launch, and its work-group size (see launch_shape).
+GPU_ITEMS_PER_CU, GPU_GROUP = 1024, 64
+
+
+def launch_shape(kind: str, compute_units: int, n_paths: int, lanes: int) -> tuple:
+    """(work-items, local size) of a launch of ``n_paths`` paths, ``lanes`` per work-item.
+    Every work-item takes the next path of the launch from a shared counter, and a path's
+    result depends only on its index, so the shape changes the speed, never the rows. A CPU
+    (kind "cpu", "accelerator", ...) gets a few work-items per core in groups of one (each core
+    runs its lanes until the launch runs out); a GPU compute unit needs many threads in flight
+    to hide memory latency: up to GPU_ITEMS_PER_CU each, in groups of GPU_GROUP (a group of
+    one would fill one thread of a 32-wide warp)."""
+    need = max(1, -(-int(n_paths) // int(lanes)))
+    if kind == "gpu":
+        items = min(need, GPU_ITEMS_PER_CU * int(compute_units))
+        return -(-items // GPU_GROUP) * GPU_GROUP, (GPU_GROUP,)
+    return min(need, 4 * int(compute_units)), (1,)
+
+
 class PathTracer:
     """A medium on the device and the kernels specialised for it."""
 
@@ -249,10 +268,10 @@ class PathTracer:
         work-items per compute unit keep every core busy until the launch runs out."""
         rt = self.rt
         lanes = int(self.defines.get("PT_LANES", lanes))
-        items = max(1, min(-(-n_paths // lanes), 4 * rt.device.max_compute_units))
+        items, local = launch_shape(rt.entry.kind, rt.device.max_compute_units, n_paths, lanes)
         # Word 0: next path; 1-4: loop counts with -D PT_STATS (benchmarks).
         counter = rt.to_device(np.zeros(5, np.uint32), writable=True)
-        rt.launch(kernel, items, args + (counter,), local_size=(1,), pad=1)
+        rt.launch(kernel, items, args + (counter,), local_size=local, pad=1)
         if "PT_STATS" in self.defines:
             c = rt.from_device(counter, (5,), np.uint32)
             self.stats = {"tracking_iterations": int(c[1]), "lane_iterations_busy": int(c[2]),
