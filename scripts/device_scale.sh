@@ -50,12 +50,18 @@ echo "data: $(( $(date +%s) - t0 )) s"
 for d in gx_cloud gx_all gx_ho gx_oof; do
   echo "$d: $(ls "$R/$d" | grep -c '^shard_') shards"
 done
+# comma list of the folders that hold shards (a time-boxed set may have none yet)
+have() { local out=""; for d in "$@"; do
+  ls "$R/$d" 2>/dev/null | grep -q '^shard_' && out="$out${out:+,}$R/$d"; done; echo "$out"; }
+TRAIN_SETS=$(have gx_cloud gx_all gx_ho); ALL_SETS=$(have gx_cloud gx_all gx_ho gx_oof)
+EVAL_SETS=$(have gx_ho gx_oof)
 # the final model: fine-tuned from the shipped one on everything in family
 PY=${PYTHON:-python}
 train="$PY $HERE/scripts/train.py"
 opts="--albedo-draws 4 --albedo-input log1m --floor inf --device $DEVICE --eval-every 2000 --checkpoint-every 1000"
-lopts="--albedo-draws 4 --albedo-input log1m --floor inf --device cpu --threads 1 --eval-every 1000 --checkpoint-every 1000"
-timeout -s INT -k 10 "$TRAIN_S" $train "$R/gx_cloud,$R/gx_all,$R/gx_ho" "$R/final" --steps $STEPS --batch $BATCH \
+lopts="--albedo-draws 4 --albedo-input log1m --floor inf --device cpu --threads 1 --eval-every 1000000 --checkpoint-every 1000"
+timeout -s INT -k 60 "$TRAIN_S" $train "$TRAIN_SETS" "$R/final" --steps $STEPS --batch $BATCH \
+  --time-budget $(( TRAIN_S - 30 )) \
   --lr 5e-4 --init "$HERE/clvol/data/weights/full_albedo.npz" $opts --export "$R/final/w.npz" \
   > "$R/log_final.txt" 2>&1 &
 fpid=$!
@@ -64,16 +70,17 @@ fpid=$!
 lofo=(none cumulus flat_cumulus stratus plume noise sphere blob torus box union)
 for F in "${lofo[@]}"; do
   ex=""; [ "$F" != none ] && ex="--exclude-families $F"
-  ( timeout -s INT -k 10 "$TRAIN_S" $train "$R/gx_cloud,$R/gx_all,$R/gx_ho,$R/gx_oof" "$R/lofo_$F" --steps $LSTEPS \
-      --batch 256 --train-fraction 0.25 $lopts $ex --export "$R/lofo_$F/w.npz" > "$R/log_lofo_$F.txt" 2>&1 &&
-    $train "$R/gx_cloud,$R/gx_all,$R/gx_ho,$R/gx_oof" "$R/lofo_$F" $ex --evaluate "$R/lofo_$F/w.npz" \
-      --threads 1 > "$R/eval_lofo_$F.txt" 2>&1 ) &
+  ( timeout -s INT -k 60 "$TRAIN_S" $train "$ALL_SETS" "$R/lofo_$F" --steps $LSTEPS \
+      --time-budget $(( TRAIN_S - 60 )) \
+      --batch 256 --train-fraction 0.25 $lopts $ex --export "$R/lofo_$F/w.npz" > "$R/log_lofo_$F.txt" 2>&1
+    [ -f "$R/lofo_$F/w.npz" ] && $train "$ALL_SETS" "$R/lofo_$F" $ex --evaluate "$R/lofo_$F/w.npz" \
+      --threads 1 --device $DEVICE > "$R/eval_lofo_$F.txt" 2>&1 ) &
 done
 wait $fpid
 echo "final: rc $?"
 if [ -f "$R/final/w.npz" ]; then
-  $train "$R/gx_ho,$R/gx_oof" "$R/final" --evaluate "$R/final/w.npz" --device $DEVICE > "$R/eval_final.txt" 2>&1
-  $train "$R/gx_ho,$R/gx_oof" "$R/shipped" --evaluate "$HERE/clvol/data/weights/full_albedo.npz" \
+  $train "$EVAL_SETS" "$R/final" --evaluate "$R/final/w.npz" --device $DEVICE > "$R/eval_final.txt" 2>&1
+  $train "$EVAL_SETS" "$R/shipped" --evaluate "$HERE/clvol/data/weights/full_albedo.npz" \
     --device $DEVICE > "$R/eval_shipped.txt" 2>&1
 fi
 wait

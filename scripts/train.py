@@ -23,6 +23,7 @@ import numpy as np
 
 def main(argv=None) -> int:
     import torch
+    started = time.perf_counter()      # --time-budget counts from here (loading included)
 
     from clvol.errors import ClvolError
     from clvol.neural import train as tr
@@ -48,6 +49,10 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1,
                     help="torch threads (default 1: the machine is shared; results depend on it)")
     ap.add_argument("--until", type=int, default=None, help="stop at this step (resume later)")
+    ap.add_argument("--time-budget", type=float, default=None, metavar="S",
+                    help="stop S seconds after the start, data loading included (checkpointed; "
+                         "rerun to go on), and export what was reached, saying so in the weight "
+                         "file's notes")
     from clvol.neural.export import Architecture
     da = Architecture()
     ap.add_argument("--module-width", type=int, default=da.module_width,
@@ -128,7 +133,7 @@ def main(argv=None) -> int:
     train = tr.shard_samples(use, cfg.floor, albedo_draws=args.albedo_draws, seed=cfg.seed)
     # the held-out loss printed during training is a monitor: a bounded subset of the held-out
     # shards (every k-th); --evaluate reports on all of them by group
-    mon = held_sh if args.evaluate else held_sh[::max(1, -(-len(held_sh) // MONITOR_SHARDS))]
+    mon = held_sh if args.evaluate else thin_to_queries(held_sh, MONITOR_QUERIES)
     held = tr.shard_samples(mon, cfg.floor, albedo_draws=args.albedo_draws and 2,
                             seed=cfg.seed + 1)
     spec = shards[0].meta["spec"]
@@ -175,8 +180,12 @@ def main(argv=None) -> int:
             return 2
         print(f"resumed from {ckpt} at step {trainer.step}")
     t0 = time.perf_counter()
-    trainer.run(args.until or cfg.steps, checkpoint=ckpt, held=held)
+    deadline = started + args.time_budget if args.time_budget else None
+    trainer.run(args.until or cfg.steps, checkpoint=ckpt, held=held, deadline=deadline)
     secs = time.perf_counter() - t0
+    budget_stop = trainer.step < (args.until or cfg.steps)
+    if budget_stop:
+        print(f"stopped by --time-budget {args.time_budget:g} s at step {trainer.step} of {cfg.steps}")
     final = trainer.history["eval"][-1] if trainer.history["eval"] else {}
     report = {"data": str(args.data), "spec": spec, "run": cfg.to_dict(), "threads": args.threads,
               "device": args.device, "excluded_families": list(excluded),
@@ -191,11 +200,15 @@ def main(argv=None) -> int:
               "held_out_mean_predictor": base_loss, "held_out_label_noise": noise,
               "final": final, "history": trainer.history["eval"]}
     (out / "report.json").write_text(json.dumps(report, indent=1))
-    if args.export and trainer.step >= cfg.steps:
+    report["stopped_by_time_budget"] = budget_stop
+    (out / "report.json").write_text(json.dumps(report, indent=1))
+    if args.export and (trainer.step >= cfg.steps or budget_stop):
         contract = gather_contract(spec["base_resolution"], spec["lam"])
         notes = {k: report[k] for k in ("spec", "run", "samples", "step", "held_out_mean_predictor",
                                          "held_out_label_noise", "final")}
         notes["seconds_training"] = final.get("seconds")
+        if budget_stop:       # the cosine schedule did not reach its end
+            notes["stopped_by_time_budget"] = f"step {trainer.step} of {cfg.steps}"
         from clvol.neural.dataset import dataset_domain
         trainer.model.cpu().export(args.export, contract, training=notes,
                              domain=union_domain([dataset_domain(f[0].meta["spec"]) for f in folders]))
@@ -271,11 +284,20 @@ def union_domain(domains):
 
 
 # --evaluate: at most about this many training shards for the mean predictor, and this many
-# shards per out-of-family family (every k-th: a leave-one-family-out run holds a whole
-# training family out, far more than an evaluation needs).
+# queries per out-of-family family (every k-th shard: a leave-one-family-out run holds a whole
+# training family out, far more than an evaluation needs); the monitor set printed during
+# training: at most about MONITOR_QUERIES held-out queries.
 EVAL_TRAIN_SHARDS = 200
-MONITOR_SHARDS = 400
-EVAL_FAMILY_SHARDS = 240
+MONITOR_QUERIES = 40_000
+EVAL_FAMILY_QUERIES = 30_000
+
+
+def thin_to_queries(shards, n_queries):
+    """Every k-th shard, k the smallest that keeps at most about ``n_queries`` queries."""
+    if not shards:
+        return shards
+    per = max(1, int(shards[0].meta["spec"]["points_per_config"]))
+    return shards[::max(1, -(-len(shards) * per // n_queries))]
 
 
 def evaluate_weights(path, train, held_sh, cfg, base_loss, out=None, excluded=(),
@@ -297,14 +319,13 @@ def evaluate_weights(path, train, held_sh, cfg, base_loss, out=None, excluded=()
     outside = set(OUT_OF_FAMILY) | set(excluded)
     thin = []
     for f in sorted({fam(s) for s in held_sh if fam(s) in outside}):
-        mine = [s for s in held_sh if fam(s) == f]
-        thin += mine[::max(1, -(-len(mine) // EVAL_FAMILY_SHARDS))]
+        thin += thin_to_queries([s for s in held_sh if fam(s) == f], EVAL_FAMILY_QUERIES)
     held_sh = [s for s in held_sh if fam(s) not in outside] + thin
     count = {}
     for s in held_sh:
         count[vid(s)] = count.get(vid(s), 0) + 1
     seen = [s for s in held_sh if count[vid(s)] == 1 and fam(s) not in outside]
-    keep = set(map(id, seen[::max(1, -(-len(seen) // EVAL_FAMILY_SHARDS))]))
+    keep = set(map(id, thin_to_queries(seen, EVAL_FAMILY_QUERIES)))
     held_sh = [s for s in held_sh if not (count[vid(s)] == 1 and fam(s) not in outside) or id(s) in keep]
     count = {}
     for s in held_sh:

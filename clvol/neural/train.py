@@ -455,10 +455,12 @@ class Trainer:
         self.history = st["history"]
 
     def run(self, until: int, checkpoint=None, held: Samples | None = None, log=print,
-            on_checkpoint=None) -> None:
+            on_checkpoint=None, deadline: float | None = None) -> None:
         """Train to step ``until`` (<= cfg.steps), writing ``checkpoint`` every
         cfg.checkpoint_every steps and at the end, evaluating ``held`` every cfg.eval_every.
-        ``on_checkpoint(trainer)`` is called at each of those steps (after the write, if any)."""
+        ``on_checkpoint(trainer)`` is called at each of those steps (after the write, if any).
+        ``deadline`` (time.perf_counter): the step that reaches it is the last one, evaluated
+        and checkpointed as a last step is (a time-boxed run; rerun to go on)."""
         until = min(int(until), self.cfg.steps)
         n = len(self.train)
         window = []
@@ -475,6 +477,8 @@ class Trainer:
             self.sched.step()
             self.step += 1
             window.append(float(loss.detach()))
+            if deadline is not None and time.perf_counter() >= deadline:
+                until = self.step
             last = self.step == until
             if self.cfg.eval_every and (self.step % self.cfg.eval_every == 0 or last):
                 row = {"step": self.step, "train": float(np.mean(window)),
