@@ -292,6 +292,10 @@ class Renderer:
         cam = _checked("camera", camera, self.scene.camera)
         light = _checked("light", light, self.scene.light)
         medium = _checked("medium", medium, self.scene.medium)
+        from .memory import check_frame_memory
+        check_frame_memory(self.method, cam.width, cam.height,
+                           self.options["supersample"] if self.method == "raymarch" else 1,
+                           self.rt.device)
         if grid is not None:
             self.set_density(grid, emission)
         elif emission is not None:
