@@ -21,9 +21,15 @@ from .errors import BuildError, ClvolError
 
 def _cmd_info(args) -> int:
     from . import __version__
-    from .runtime import describe_devices
+    from .runtime import choose_device, describe_devices
     print(f"clvol {__version__}")
     print(describe_devices(args.device))
+    try:
+        entry, _ = choose_device(args.device)
+    except ClvolError:
+        return 0                # describe_devices said why
+    from .render.memory import describe_limits
+    print(describe_limits(entry.device))
     return 0
 
 

@@ -180,9 +180,6 @@ def describe_devices(device: str | None = None) -> str:
     if not entries:
         lines.append("no OpenCL platforms found")
     lines.append(f"chosen: {chosen.spec + ' ' + chosen.label if chosen else 'none'} ({why})")
-    if chosen is not None:
-        from .render.memory import describe_limits
-        lines.append(describe_limits(chosen.device))
     lines.append("select with --device P:D|gpu|cpu|NAME, or $CLVOL_DEVICE / $PYOPENCL_CTX")
     return "\n".join(lines)
 

@@ -89,3 +89,13 @@ def test_bad_limit_values_are_refused_in_one_line(text):
     with pytest.raises(ClvolError, match=r"\$CLVOL_MEMORY_LIMIT = .*: must be a number of "
                                          r"bytes >= 1"):
         memory.parse_limit(text)
+
+
+def test_info_prints_the_devices_limits_and_the_budget(capsys, monkeypatch):
+    monkeypatch.setenv(memory.LIMIT_ENV, "3G")
+    assert main(["info"]) == 0
+    out = capsys.readouterr().out
+    line = [x for x in out.splitlines() if x.startswith("render memory:")]
+    assert len(line) == 1, out
+    for text in ("host ", "per buffer", "budget 3.00 GiB ($CLVOL_MEMORY_LIMIT)", "128 (raymarch)"):
+        assert text in line[0], (text, line[0])
