@@ -166,3 +166,26 @@ def test_validated_parts_are_the_parsers(renderers):
                               width=np.int64(16))
     got = check_part("camera", cam, "x")
     assert got.origin == (0.0, 0.5, 2.5) and got.width == 16
+
+
+def test_fuzz_found_tiny_vectors_render(renderers):
+    """Found by tests/test_fuzz.py's long run: the scene file accepts an ``up`` as short as
+    1e-259 (it normalises after scaling), but Camera.basis crossed the raw vector, the cross
+    product underflowed to 0, the basis was NaN and the march never ended. Tiny and huge
+    vectors now give the basis of their direction, in well under 5 s."""
+    import numpy as np
+    scene = _scene()
+    cams = [dataclasses.replace(scene.camera, up=(0.0, 2.4e-259, 1.4e-285)),
+            dataclasses.replace(scene.camera, up=(0.0, 1e200, 0.0)),
+            dataclasses.replace(scene.camera, origin=(0.0, 0.0, 1e-200), target=(0.0, 0.0, 0.0),
+                                fov_y=35.0)]
+    want = scene.camera.basis()
+    for cam in cams[:2]:
+        for a, b in zip(cam.basis(), want):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-15)
+    for cam in cams:
+        for method, r in renderers.items():
+            t0 = time.perf_counter()
+            img = r.render(camera=cam)
+            assert time.perf_counter() - t0 < 5.0, method
+            assert all(np.isfinite(v).all() for v in img.layers.values()), method
