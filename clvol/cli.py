@@ -73,9 +73,15 @@ def _cmd_info(args) -> int:
     from .runtime import choose_device, describe_devices, list_devices
     print(f"clvol {__version__}")
     print(describe_devices(args.device))
+    try:
+        chosen, _ = choose_device(args.device)
+    except ClvolError:
+        return 0                # describe_devices said why
+    from .render.memory import describe_limits
+    print(describe_limits(chosen.device))
     entries = list_devices()
     if args.check:
-        entries = [choose_device(args.device)[0]] if args.device else entries
+        entries = [chosen] if args.device else entries
     for e in entries:
         print(f"code paths on {e.spec} ({e.kind}):")
         for ln in _code_paths(e.kind, e.device.max_compute_units):

@@ -85,26 +85,8 @@ class Scene:
         if v.bbox_min is not None:
             vol["bbox_min"] = list(v.bbox_min)
             vol["bbox_max"] = list(v.bbox_max)
-        m = self.medium
-        med: dict[str, Any] = {}
-        if m.preset is not None:
-            med["preset"] = m.preset
-        med["density_scale"] = m.density_scale
-        med["albedo"] = list(m.albedo)
-        med["phase"] = _phase_to_dict(m.phase)
-        li = self.light
-        light: dict[str, Any] = {"direction": list(li.direction),
-                                 "irradiance": list(li.irradiance)}
-        if li.environment is not None:
-            light["environment"] = list(li.environment)
-        if li.environment_map is not None:
-            light["environment_map"] = str(li.environment_map)
-            light["environment_scale"] = list(li.environment_scale)
-            light["environment_rotation"] = li.environment_rotation
-        c = self.camera
-        cam = {"origin": list(c.origin), "target": list(c.target), "up": list(c.up),
-               "fov_y": c.fov_y, "width": c.width, "height": c.height}
-        out = {"volume": vol, "medium": med, "light": light, "camera": cam}
+        out = {"volume": vol, "medium": _medium_to_dict(self.medium),
+               "light": _light_to_dict(self.light), "camera": _camera_to_dict(self.camera)}
         if self.emission is not None:
             e = self.emission
             out["emission"] = {"grid": e.grid, "kind": e.kind, "scale": e.scale}
@@ -142,6 +124,39 @@ class Scene:
         s = scene_from_dict(data, source=source)
         return dataclasses.replace(s, path=self.path)
 
+
+
+def _medium_to_dict(m: Medium) -> dict:
+    med: dict[str, Any] = {}
+    if m.preset is not None:
+        med["preset"] = m.preset
+    med["density_scale"] = m.density_scale
+    med["albedo"] = _listed(m.albedo)
+    med["phase"] = _phase_to_dict(m.phase)
+    return med
+
+
+def _light_to_dict(li: Light) -> dict:
+    light: dict[str, Any] = {"direction": _listed(li.direction),
+                             "irradiance": _listed(li.irradiance)}
+    if li.environment is not None:
+        light["environment"] = _listed(li.environment)
+    if li.environment_map is not None:
+        light["environment_map"] = str(li.environment_map)
+        light["environment_scale"] = _listed(li.environment_scale)
+        light["environment_rotation"] = li.environment_rotation
+    return light
+
+
+def _camera_to_dict(c: Camera) -> dict:
+    return {"origin": _listed(c.origin), "target": _listed(c.target), "up": _listed(c.up),
+            "fov_y": c.fov_y, "width": c.width, "height": c.height}
+
+
+def _listed(v):
+    """A vector field as a list (a tuple, list or array); anything else as it is, for the
+    parser to refuse with the field's own message."""
+    return list(v) if isinstance(v, (tuple, list, np.ndarray)) else v
 
 
 def _phase_to_dict(p: Phase) -> dict:
@@ -197,6 +212,63 @@ def scene_from_dict(data: dict, source: str = "<scene>", base_dir: Path | None =
         emission=_parse_emission(ctx, data["emission"], data["volume"])
         if "emission" in data else None,
     )
+
+
+def check_part(name: str, value, source: str):
+    """A ``Camera``, ``Light`` or ``Medium`` made in code (``dataclasses.replace(scene.camera,
+    ...)``, the viewer's state) validated by the scene file's own rules: the same fields,
+    ranges and one-line messages (``<source>: [camera.fov_y] = 0.0: must be in (0, 180)``),
+    since it is read back through the parser (``name``: "camera", "light" or "medium").
+
+    Returns the validated part: ``value`` itself when the parser leaves it unchanged, else the
+    parser's (a unit light direction, MHG weights renormalised, plain floats for arrays)."""
+    cls, to_dict, parse = _PARTS[name]
+    if not isinstance(value, cls):
+        raise SceneError(f"{source}: expected a clvol.scene.{cls.__name__} (e.g. "
+                         f"dataclasses.replace(scene.{name}, ...)), got {type(value).__name__}")
+    ctx = _Ctx(source)
+    data = _plain(to_dict(value) if name != "medium" else _medium_to_check(ctx, value))
+    parsed = parse(ctx, data)
+    try:
+        same = bool(value == parsed)
+    except (TypeError, ValueError):       # arrays inside: use the parser's plain tuples
+        same = False
+    return value if same else parsed
+
+
+def _medium_to_check(ctx: "_Ctx", m: Medium) -> dict:
+    """``_medium_to_dict`` with the phase checked first: a ``Phase`` whose type and lobes agree."""
+    p = m.phase
+    kinds = {"isotropic": 1, "hg": 1, "mhg": MHG_MAX_LOBES}
+    lobes = getattr(p, "lobes", None)
+    if not (isinstance(p, Phase) and p.type in kinds and isinstance(lobes, (tuple, list))
+            and all(isinstance(lo, Lobe) for lo in lobes)):
+        raise SceneError(f"{ctx.source}: [medium.phase] = {p!r}: must be a clvol.scene.Phase: "
+                         "Phase.isotropic(), Phase.hg(g) or Phase.mhg([(g, weight), ...])")
+    if p.type != "mhg" and (len(lobes) != 1 or lobes[0].weight != 1.0 or
+                            (p.type == "isotropic" and lobes[0].g != 0.0)):
+        raise SceneError(f"{ctx.source}: [medium.phase] = {p!r}: {'an' if p.type[0] in 'im' else 'a'} {p.type} phase has one "
+                         "lobe of weight 1" + (" and g = 0" if p.type == "isotropic" else "")
+                         + f" (Phase.{p.type}({'' if p.type == 'isotropic' else 'g'}) makes it)")
+    med = _medium_to_dict(m)
+    if p.type == "mhg":
+        med["phase"] = {"type": "mhg", "lobes": [{"g": lo.g, "weight": lo.weight}
+                                                 for lo in lobes]}
+    return med
+
+
+def _plain(v):
+    """Plain Python values of a part's dict (NumPy scalars and arrays, tuples, paths), as
+    TOML would give them to the parser."""
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, Path):
+        return str(v)
+    return v
 
 
 def _parse_emission(ctx: "_Ctx", t, volume: dict) -> EmissionSpec:
@@ -402,8 +474,8 @@ def _parse_medium(ctx: "_Ctx", t: dict) -> Medium:
         raise ctx.error("medium.preset", preset, "unknown preset; allowed: " + ", ".join(PRESETS))
     if "density_scale" not in t:
         raise ctx.error("medium.density_scale", None,
-                        "missing; sigma_t = density * density_scale, a number > 0")
-    ds = _number(ctx, "medium.density_scale", t["density_scale"], lo=0.0, lo_open=True)
+                        "missing; sigma_t = density * density_scale, a number >= 0")
+    ds = _number(ctx, "medium.density_scale", t["density_scale"], lo=0.0)
     albedo, phase = PRESETS[preset] if preset else (None, None)
     hint = "; give it or pick a preset (" + ", ".join(PRESETS) + ")"
     if "albedo" in t:
@@ -554,6 +626,11 @@ def _parse_camera(ctx: "_Ctx", t: dict) -> Camera:
                         f"{_fmt([b - a for a, b in zip(origin, target)])}; pick an up vector "
                         "that is not along the view direction")
     return Camera(origin=origin, target=target, up=up, fov_y=fov, width=width, height=height)
+
+
+_PARTS = {"camera": (Camera, _camera_to_dict, _parse_camera),
+          "light": (Light, _light_to_dict, lambda ctx, t: _parse_light(ctx, t, Path.cwd())),
+          "medium": (Medium, _medium_to_dict, _parse_medium)}
 
 
 # --------------------------------------------------------------------------- validation helpers

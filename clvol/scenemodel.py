@@ -246,7 +246,7 @@ class Camera:
         up = cross(right, forward) (the ``up`` field only picks the roll).
         """
         fwd = _unit(np.subtract(self.target, self.origin, dtype=np.float64))
-        right = _unit(np.cross(fwd, np.asarray(self.up, dtype=np.float64)))
+        right = _unit(np.cross(fwd, _in_range(np.asarray(self.up, dtype=np.float64))))
         return fwd, right, np.cross(right, fwd)
 
     def pixel_directions(self, jitter: np.ndarray | None = None) -> np.ndarray:
@@ -303,7 +303,18 @@ class Camera:
         return np.where(ahead, col, np.nan), np.where(ahead, row, np.nan), z
 
 
+def _in_range(v: np.ndarray) -> np.ndarray:
+    """``v`` itself, or scaled by its largest component where its squares would underflow or
+    overflow: the scene file accepts vectors as short as 1e-300 (issue 41's fuzzing: up =
+    (0, -2e-259, 1e-285) gave a NaN basis and a march that never ended). Ordinary vectors
+    pass untouched, so their images stay bit-identical."""
+    with np.errstate(over="ignore", under="ignore"):
+        n = np.linalg.norm(v)
+    return v if 1e-150 < n < 1e150 else v / np.max(np.abs(v))
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
+    v = _in_range(v)
     return v / np.linalg.norm(v)
 
 

@@ -154,11 +154,45 @@ def _coarse_level_plus_one(text: str) -> str:
     return replace_once(text, span, r"(return max\(0, .*\))\n", r"\1 + 1\n")
 
 
+def _furnace_any(text: str) -> str:
+    # The white furnace (escape model for the sky) at albedo 1 in *any* channel.
+    return _exactly_once(text, r"furnace = all\(a == 1\.0 for a in medium\.albedo\)",
+                         "furnace = any(a == 1.0 for a in medium.albedo)")
+
+
+def _lit_all(text: str) -> str:
+    # Lit only when *every* channel has albedo * irradiance > 0.
+    span = function_span(text, r"^def is_lit\(", r"^(def |class |@)")
+    return replace_once(text, span, r"np\.any\(", "np.all(")
+
+
+def _blackbody_hot(text: str) -> str:
+    # The blackbody table read at a temperature 1% high.
+    span = function_span(text, r"^def map_blackbody\(", r"^(def |class |@|# ---)")
+    return replace_once(text, span, r"temperature\.astype\(np\.float64\)\.ravel\(\) \*",
+                        "temperature.astype(np.float64).ravel() * 1.01 *")
+
+
+def _vdb_affine_translation(text: str) -> str:
+    # An AffineMap's (or UnitaryMap's) translation dropped.
+    return _exactly_once(text, r"scale, trans = np\.diag\(m\)\[:3\]\.copy\(\), m\[3, :3\]\.copy\(\)",
+                         "scale, trans = np.diag(m)[:3].copy(), np.zeros(3)")
+
+
+def _sky_newest_first(text: str) -> str:
+    # The network sky refreshes its stale cells newest first.
+    return _exactly_once(text, r"stale = \[j for j in order if",
+                         "stale = [j for j in reversed(order) if")
+
+
 PATCHES = {"mirrored-frame": _mirrored_frame, "lattice-corners": _lattice_corners,
            "shadow-bias": _shadow_rate_bias, "shadow-bias-ratio": _shadow_sigma_bias,
            "c-nx-ny": _c_nx_ny, "c-octave-ab": _c_octave_ab,
            "backward-limit": _backward_limit, "backward-albedo": _backward_albedo,
-           "coarse-level": _coarse_level_plus_one}
+           "coarse-level": _coarse_level_plus_one, "furnace-any": _furnace_any,
+           "lit-all": _lit_all, "blackbody-hot": _blackbody_hot,
+           "vdb-affine-translation": _vdb_affine_translation,
+           "sky-newest-first": _sky_newest_first}
 C_TESTS = ("tests/test_c_host.py::test_c_render_matches_python",
            "tests/test_c_host.py::test_c_render_matches_python_on_a_non_cubic_volume_and_image",
            "tests/test_c_host.py::test_c_octaves_with_distinct_parameters_match_python",
@@ -184,6 +218,22 @@ BUGS = [
         "network fallback: BACKWARD_ALBEDO 0.9 -> 0.8", FALLBACK_TESTS),
     Bug("coarse-level", "clvol/kernels/gather.py",
         "gather: coarse_level one level too coarse (+ 1)", ("tests/test_gather.py",)),
+    # issue 41's survivors: the test written for each, then the older files it passed
+    Bug("furnace-any", "clvol/render/plan.py",
+        "white furnace with any channel at albedo 1 instead of all",
+        ("tests/test_survivors.py", "tests/test_plan.py")),
+    Bug("lit-all", "clvol/render/plan.py",
+        "is_lit with all channels instead of any", ("tests/test_survivors.py",
+                                                    "tests/test_plan.py")),
+    Bug("blackbody-hot", "clvol/emission.py", "map_blackbody at a temperature 1% high",
+        ("tests/test_survivors.py", "tests/test_emission.py")),
+    Bug("vdb-affine-translation", "clvol/volume/vdb.py",
+        "AffineMap/UnitaryMap translation dropped", ("tests/test_survivors.py",
+                                                     "tests/test_vdb.py")),
+    Bug("sky-newest-first", "clvol/render/environment.py",
+        "network sky refreshes stale cells newest first",
+        ("tests/test_survivors.py", "tests/test_raymarch_env.py::"
+         "test_network_sky_refreshes_a_few_cells_per_frame_when_asked")),
 ]
 
 

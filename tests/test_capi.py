@@ -409,3 +409,75 @@ def test_a_bundle_without_domain_keys_takes_light_changes_only(lib, bundle, tmp_
         assert "write the bundle again" in lib.clvol_last_error(r).decode()
     finally:
         lib.clvol_destroy(r)
+
+
+# The C setter and argument for each scene field it takes (tests/test_doors.py's table of
+# bad values drives them): the library refuses what the scene file and Renderer.render refuse.
+_C_FIELDS = {"camera.origin": ("camera", 0), "camera.target": ("camera", 1),
+             "camera.up": ("camera", 2), "camera.fov_y": ("camera", 3),
+             "camera.width": ("camera", 4), "camera.height": ("camera", 5),
+             "light.direction": ("light", 0), "light.irradiance": ("light", 1),
+             "medium.albedo": ("medium", 0), "medium.density_scale": ("medium", 1)}
+
+
+def _c_set(lib, r, kind, args):
+    keep = []
+    if kind == "camera":
+        (o, po), (t, pt), (u, pu) = (_f32(x) for x in args[:3])
+        keep += [po, pt, pu]
+        return lib.clvol_set_camera(r, o, t, u, args[3], args[4], args[5])
+    if kind == "light":
+        (d, pd), (e, pe) = _f32(args[0]), _f32(args[1])
+        keep += [pd, pe]
+        return lib.clvol_set_light(r, d, e)
+    a, pa = _f32(args[0])
+    keep.append(pa)
+    return lib.clvol_set_medium(r, a, args[1])
+
+
+def test_setters_refuse_what_the_scene_file_refuses(lib, bundle):
+    """Every bad value of tests/test_doors.py that a C setter can carry (three numbers where a
+    vector goes, an integer size) returns CLVOL_ERROR_ARGUMENT with a message naming the
+    setter; the valid scene's values return OK; density_scale 0 is in range for the library
+    as for the scene file (the jade bundle's network then refuses it as UNSUPPORTED: an empty
+    medium would run --ms none); the largest image side is the scene file's."""
+    from clvol.scenemodel import MAX_IMAGE_SIZE
+    from test_doors import BAD
+    header = (ROOT / "capi" / "include" / "clvol.h").read_text()
+    assert f"#define CLVOL_MAX_IMAGE_SIZE {MAX_IMAGE_SIZE}\n" in header
+    sc = _scene()
+    c, li, m = sc.camera, sc.light, sc.medium
+    good = {"camera": [c.origin, c.target, c.up, c.fov_y, c.width, c.height],
+            "light": [li.direction, li.irradiance], "medium": [m.albedo, m.density_scale]}
+    r = ctypes.c_void_p()
+    assert lib.clvol_create(str(bundle).encode(), None, None, None, ctypes.byref(r)) == OK
+    tried = 0
+    try:
+        for kind, args in good.items():
+            assert _c_set(lib, r, kind, args) == OK, lib.clvol_last_error(r).decode()
+        for dotted, value in BAD:
+            if dotted not in _C_FIELDS:
+                continue
+            kind, i = _C_FIELDS[dotted]
+            if isinstance(value, list) and len(value) != 3 or isinstance(value, float) and \
+                    kind == "camera" and i >= 4:
+                continue                      # C's types cannot carry it
+            args = list(good[kind])
+            args[i] = value
+            if dotted == "camera.origin" and value == [0.0, 0.0, 0.0]:
+                args[1] = value               # at its target (the bundle's target differs)
+            if dotted == "camera.up" and value == [0.0, 0.0, 1.0]:
+                args[2] = np.subtract(c.target, c.origin)    # along this camera's view
+            st = _c_set(lib, r, kind, args)
+            msg = lib.clvol_last_error(r).decode()
+            assert st == ARGUMENT, (dotted, value, st, msg)
+            assert msg.startswith(f"clvol_set_{kind}: ") and "\n" not in msg, msg
+            tried += 1
+        assert tried >= 20
+        args = list(good["camera"])
+        args[4] = args[5] = MAX_IMAGE_SIZE            # the largest side is in range
+        assert _c_set(lib, r, "camera", args) == OK, lib.clvol_last_error(r).decode()
+        st = _c_set(lib, r, "medium", [m.albedo, 0.0])
+        assert st == UNSUPPORTED and "--ms none" in lib.clvol_last_error(r).decode()
+    finally:
+        lib.clvol_destroy(r)

@@ -163,8 +163,7 @@ BAD = [
     # [medium]
     ("medium.preset", "jadee", "medium.preset", "allowed: cloud, fog, smoke, milk, jade, wax, skin"),
     ("medium.density_scale", DELETE, "medium.density_scale", "missing"),
-    ("medium.density_scale", 0.0, "medium.density_scale", "> 0"),
-    ("medium.density_scale", -1.0, "medium.density_scale", "> 0"),
+    ("medium.density_scale", -1.0, "medium.density_scale", ">= 0"),
     ("medium.density_scale", NAN, "medium.density_scale", "finite"),
     ("medium.density_scale", INF, "medium.density_scale", "finite"),
     ("medium.density_scale", "64", "medium.density_scale", "must be a number"),

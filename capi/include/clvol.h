@@ -49,7 +49,13 @@ CLVOL_API clvol_status clvol_create(const char *bundle_dir, cl_context context,
                                     cl_device_id device, cl_command_queue queue,
                                     clvol_renderer **out);
 
-/* Pinhole camera: fov_y_degrees in (0, 180), width and height >= 1. */
+/* The largest image side, as clvol's scene files and Renderer.render take it
+ * (clvol.scenemodel.MAX_IMAGE_SIZE; tests/test_capi.py holds the two equal). */
+#define CLVOL_MAX_IMAGE_SIZE 16384
+
+/* Pinhole camera: origin, target and up finite, target != origin, up not parallel to
+ * target - origin (sine of the angle >= 1e-6, as a scene file's [camera]); fov_y_degrees in
+ * (0, 180); width and height in [1, CLVOL_MAX_IMAGE_SIZE]. */
 CLVOL_API clvol_status clvol_set_camera(clvol_renderer *r, const float origin[3],
                                         const float target[3], const float up[3],
                                         float fov_y_degrees, int width, int height);

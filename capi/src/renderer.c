@@ -985,14 +985,19 @@ static void set_camera_basis(clvol_host *h, const double origin[3], const double
         nf += f[a] * f[a];
     }
     nf = sqrt(nf);
-    if (!(nf > 0)) fail(CLVOL_ERROR_ARGUMENT, "%s: origin and target are the same point", fn);
+    if (!(nf > 0)) fail(CLVOL_ERROR_ARGUMENT, "%s: target equals origin; the camera needs target != origin to have a view direction", fn);
     for (int a = 0; a < 3; ++a) f[a] /= nf;
+    double nu = sqrt(up[0] * up[0] + up[1] * up[1] + up[2] * up[2]);
+    if (!(nu > 0)) fail(CLVOL_ERROR_ARGUMENT, "%s: up = (0, 0, 0): must not be the zero vector", fn);
     r[0] = f[1] * up[2] - f[2] * up[1];
     r[1] = f[2] * up[0] - f[0] * up[2];
     r[2] = f[0] * up[1] - f[1] * up[0];
     for (int a = 0; a < 3; ++a) nr += r[a] * r[a];
     nr = sqrt(nr);
-    if (!(nr > 0)) fail(CLVOL_ERROR_ARGUMENT, "%s: up is zero or parallel to the view direction", fn);
+    /* the scene file's rule (clvol/scenefile.py _parse_camera): |forward x unit(up)| >= 1e-6 */
+    if (!(nr / nu >= 1e-6))
+        fail(CLVOL_ERROR_ARGUMENT, "%s: up = (%g, %g, %g): is parallel to target - origin; pick "
+             "an up vector that is not along the view direction", fn, up[0], up[1], up[2]);
     for (int a = 0; a < 3; ++a) r[a] /= nr;
     u[0] = r[1] * f[2] - r[2] * f[1];
     u[1] = r[2] * f[0] - r[0] * f[2];
@@ -1016,9 +1021,9 @@ clvol_status clvol_set_camera(clvol_renderer *r, const float origin[3], const fl
     need_finite3(up, fn, "up");
     if (!(fov_y_degrees > 0 && fov_y_degrees < 180))
         fail(CLVOL_ERROR_ARGUMENT, "%s: fov_y_degrees = %g: must be in (0, 180)", fn, (double)fov_y_degrees);
-    if (width < 1 || height < 1 || width > 32768 || height > 32768)
-        fail(CLVOL_ERROR_ARGUMENT, "%s: %d x %d pixels: width and height must be in [1, 32768]",
-             fn, width, height);
+    if (width < 1 || height < 1 || width > CLVOL_MAX_IMAGE_SIZE || height > CLVOL_MAX_IMAGE_SIZE)
+        fail(CLVOL_ERROR_ARGUMENT, "%s: %d x %d pixels: width and height must be in [1, %d]",
+             fn, width, height, CLVOL_MAX_IMAGE_SIZE);
     double o[3] = {origin[0], origin[1], origin[2]}, t[3] = {target[0], target[1], target[2]},
            u[3] = {up[0], up[1], up[2]};
     set_camera_basis(r, o, t, u, fov_y_degrees, fn);

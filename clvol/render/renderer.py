@@ -42,7 +42,6 @@ frame of a sequence) recomputes what depends on it and nothing else:
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 from collections import Counter
 
@@ -55,20 +54,14 @@ from .options import DEFAULT_METHOD, bind, option_label
 
 
 
-def _check_arg(value, cls, name):
-    if value is not None and not isinstance(value, cls):
-        raise ClvolError(f"Renderer.render({name}=...): expected a clvol.scene.{cls.__name__} "
-                         f"(e.g. dataclasses.replace(scene.{name}, ...)), got {type(value).__name__}")
-    return value
-
-
-def _check_medium(m):
-    s = m.density_scale
-    if not (isinstance(s, (int, float)) and math.isfinite(s) and s >= 0):
-        raise ClvolError(f"[medium.density_scale] = {s!r}: must be a finite number >= 0")
-    a = np.asarray(m.albedo, np.float64)
-    if a.shape != (3,) or not (np.all(np.isfinite(a)) and np.all(a >= 0) and np.all(a <= 1)):
-        raise ClvolError(f"[medium.albedo] = {list(m.albedo)!r}: three values in [0, 1]")
+def _checked(name: str, value, scene_value):
+    """The ``camera``, ``light`` or ``medium`` of a frame, validated by the scene file's rules
+    (clvol/scenefile.py ``check_part``: the same fields, ranges and messages) whether given
+    to ``render`` or taken from the scene (which may have been made with dataclasses.replace)."""
+    from ..scenefile import check_part
+    if value is None:
+        return check_part(name, scene_value, "Renderer(scene)")
+    return check_part(name, value, f"Renderer.render({name}=...)")
 
 
 class Renderer:
@@ -196,9 +189,9 @@ class Renderer:
         camera, light and medium or those given; a domain warning is printed once per
         distinct reason."""
         from .plan import plan_frame
-        scene = dataclasses.replace(self.scene, camera=camera or self.scene.camera,
-                                    light=light or self.scene.light,
-                                    medium=medium or self.scene.medium)
+        scene = dataclasses.replace(self.scene, camera=_checked("camera", camera, self.scene.camera),
+                                    light=_checked("light", light, self.scene.light),
+                                    medium=_checked("medium", medium, self.scene.medium))
         if self._facts is None or self._facts_grid is not self.grid:
             from .plan import VolumeFacts
             self._facts, self._facts_grid = VolumeFacts(self.grid), self.grid
@@ -296,11 +289,13 @@ class Renderer:
 
         ``seed`` (path tracer only) replaces the ``seed`` option for this frame, so the passes
         of a progressive render draw independent samples from one Renderer."""
-        from ..scene import Camera, Light, Medium
-        cam = _check_arg(camera, Camera, "camera") or self.scene.camera
-        light = _check_arg(light, Light, "light") or self.scene.light
-        medium = _check_arg(medium, Medium, "medium") or self.scene.medium
-        _check_medium(medium)
+        cam = _checked("camera", camera, self.scene.camera)
+        light = _checked("light", light, self.scene.light)
+        medium = _checked("medium", medium, self.scene.medium)
+        from .memory import check_frame_memory
+        check_frame_memory(self.method, cam.width, cam.height,
+                           self.options["supersample"] if self.method == "raymarch" else 1,
+                           self.rt.device)
         if grid is not None:
             self.set_density(grid, emission)
         elif emission is not None:
