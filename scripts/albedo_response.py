@@ -1,0 +1,150 @@
+#!/usr/bin/env python
+"""The network's albedo response at the points a camera sees, against path-traced labels.
+
+    python scripts/albedo_response.py SCENE.toml [SCENE.toml ...] [--weights W.npz] [--pixels 24]
+        [--paths 256] [--tau 1.0]
+
+For each scene: one point per pixel of a --pixels^2 grid of camera rays, at optical depth --tau
+from the camera along the ray (what the image is made of: single scattering is weighted by the
+transmittance to the camera); omega toward the camera. At those points the path tracer's
+per-order labels (one set of albedo-1 paths, docs/pathtrace.md) give F at any albedo, and the
+network predicts F from the train-mode gather (what the data sets store), for a unit sun. Printed,
+per albedo 0.8 / 0.9 / 0.96 / 0.99 / 1: sum of predicted F over sum of labels; the response
+d log F / d log a over 0.99..1 of both; and the same split by the labels' mean albedo exponent
+(low- and high-order halves). The same quantities for the data sets' own point distribution
+come from `scripts/train.py DATA X --evaluate W` (docs/neural.md).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+ALBEDOS = (0.8, 0.9, 0.96, 0.99, 1.0)
+
+
+def visible_points(scene, grid, n: int, tau: float):
+    """[m][3] points at optical depth ``tau`` along a n x n grid of camera rays (rays that never
+    reach it are skipped) and their directions toward the camera."""
+    cam = scene.camera
+    o = np.asarray(cam.origin, np.float64)
+    f = np.asarray(cam.target, np.float64) - o
+    f /= np.linalg.norm(f)
+    r = np.cross(f, np.asarray(cam.up, np.float64))
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    h = np.tan(np.radians(cam.fov_y) / 2)
+    aspect = cam.width / cam.height
+    lo, hi = np.asarray(grid.bbox_min, np.float64), np.asarray(grid.bbox_max, np.float64)
+    d = grid.density.astype(np.float64) * scene.medium.density_scale     # [z][y][x]
+    shape = np.array(d.shape[::-1])                                      # (nx, ny, nz)
+    cell = (hi - lo) / shape
+    step = 0.25 * cell.min()
+    pts = []
+    for j in range(n):
+        for i in range(n):
+            sx = (2 * (i + 0.5) / n - 1) * h * aspect
+            sy = (1 - 2 * (j + 0.5) / n) * h
+            dirn = f + sx * r + sy * u
+            dirn /= np.linalg.norm(dirn)
+            # entry and exit of the box (slabs)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t0 = (lo - o) / dirn
+                t1 = (hi - o) / dirn
+            tn = np.nanmax(np.minimum(t0, t1))
+            tf = np.nanmin(np.maximum(t0, t1))
+            if not tf > max(tn, 0):
+                continue
+            t = max(tn, 0) + 0.5 * step
+            acc = 0.0
+            while t < tf:
+                p = o + t * dirn
+                k = np.clip(((p - lo) / cell).astype(int), 0, shape - 1)
+                acc += d[k[2], k[1], k[0]] * step
+                if acc >= tau:
+                    pts.append(p)
+                    break
+                t += step
+    pts = np.asarray(pts, np.float64).reshape(-1, 3)
+    om = o - pts
+    om /= np.linalg.norm(om, axis=1, keepdims=True)
+    return pts, om
+
+
+def response(scene_path: Path, weights: Path, pixels: int, paths: int, tau: float, seed: int) -> dict:
+    from clvol.kernels.gather import gather
+    from clvol.kernels.pyramid import build_pyramid
+    from clvol.kernels.transmittance import graded_transmittance
+    from clvol.neural import train as tr
+    from clvol.neural.export import load_weights
+    from clvol.neural.model import Model
+    from clvol.render.pathtrace import point_query_orders
+    from clvol.scene import load_scene
+
+    scene = load_scene(scene_path)
+    # a unit sun, as the labels and the network's F are defined
+    scene = dataclasses.replace(scene, light=dataclasses.replace(scene.light, irradiance=(1.0, 1.0, 1.0)))
+    grid = scene.volume.load()
+    w = load_weights(weights)
+    base = int(w.meta.get("contract", {}).get("base_resolution", 64))
+    pts, om = visible_points(scene, grid, pixels, tau)
+    o = point_query_orders(scene, pts, om, paths, seed=seed, grid=grid)
+    pyramid = build_pyramid(grid, base)
+    l = np.asarray(scene.light.direction, np.float64)
+    lam = float(w.meta.get("contract", {}).get("lambda", 0.6))
+    graded = graded_transmittance(pyramid, scene.medium.density_scale, l, lam=lam)
+    g = gather(pyramid, graded, pts, om, l, scene.medium, scene.medium.albedo[0], mode="train")
+    arrays = {"features": g["features"], "levels": g["levels"], "config": g["config"],
+              "S": o["S"], "M": o["M"], "se": o["se"]}
+    S, M = np.asarray(o["S"], np.float64), np.asarray(o["M"], np.float64)
+    ebar = np.divide(M.sum(1), S.sum(1), out=np.zeros(len(S)), where=S.sum(1) > 0)
+    h = tr.order_samples(arrays, np.tile(np.asarray(ALBEDOS), (len(pts), 1)))
+    model = Model.from_weights(w)
+    y = tr.predict(model, h).astype(np.float64)
+    a = h.config[:, tr.ALBEDO].astype(np.float64)
+    F_hat = a ** 4 * np.expm1(y)
+    F_lab = a ** 4 * np.expm1(h.y.astype(np.float64) - 0.5 * h.var)
+    rows = np.asarray(h.row)
+    out = {"scene": scene_path.stem, "points": int(len(pts)), "groups": {}}
+    lit = S.sum(1) > 0
+    med = float(np.median(ebar[lit])) if lit.any() else 0.0
+    for name, keep in (("all", lit), (f"low order (mean exponent < {med:.0f})", lit & (ebar < med)),
+                       (f"high order (mean exponent >= {med:.0f})", lit & (ebar >= med))):
+        k = keep[rows]
+        sums = {x: (F_hat[k & np.isclose(a, x)].sum(), F_lab[k & np.isclose(a, x)].sum()) for x in ALBEDOS}
+        ratio = {x: sums[x][0] / max(sums[x][1], 1e-30) for x in ALBEDOS}
+        slope = (lambda i: np.log(sums[1.0][i] / max(sums[0.99][i], 1e-30)) / -np.log(0.99))
+        out["groups"][name] = {"ratio": ratio, "label_slope": slope(1), "network_slope": slope(0),
+                               "points": int(keep.sum())}
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("scenes", nargs="+")
+    ap.add_argument("--weights", default=str(ROOT / "clvol" / "data" / "weights" / "full_albedo.npz"))
+    ap.add_argument("--pixels", type=int, default=24)
+    ap.add_argument("--paths", type=int, default=256)
+    ap.add_argument("--tau", type=float, default=1.0)
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args(argv)
+    print(f"weights {args.weights}; {args.pixels}^2 camera rays, points at optical depth {args.tau} "
+          f"from the camera; {args.paths} paths per label")
+    print("| scene | points | group | " + " | ".join(f"a = {x}" for x in ALBEDOS) +
+          " | d log F / d log a (0.99..1): labels / network |")
+    print("|---|---|---|" + "---|" * len(ALBEDOS) + "---|")
+    for s in args.scenes:
+        r = response(Path(s), Path(args.weights), args.pixels, args.paths, args.tau, args.seed)
+        for name, gr in r["groups"].items():
+            print(f"| {r['scene']} | {gr['points']} | {name} | " +
+                  " | ".join(f"{gr['ratio'][x]:.3f}" for x in ALBEDOS) +
+                  f" | {gr['label_slope']:.1f} / {gr['network_slope']:.1f} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
