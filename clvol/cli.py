@@ -338,7 +338,27 @@ def build_parser() -> argparse.ArgumentParser:
     for add in (_add_info, _add_volume, _add_render, _add_view, _add_bundle_and_goldens,
                 _add_compare, _add_dataset):
         add(sub)
+    _add_verbose(parser)
     return parser
+
+
+VERBOSE_HELP = ("show the OpenCL compiler's output when a kernel is built (as "
+                "PYOPENCL_COMPILER_OUTPUT=1; hidden otherwise)")
+
+
+def _add_verbose(parser) -> None:
+    """``--verbose`` before or after any sub-command: the sub-commands' copies default to
+    SUPPRESS so that ``clvol --verbose render ...`` is not reset by the sub-parser."""
+    parser.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
+    todo = [parser]
+    while todo:
+        p = todo.pop()
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for child in action.choices.values():
+                    child.add_argument("--verbose", action="store_true",
+                                       default=argparse.SUPPRESS, help=VERBOSE_HELP)
+                    todo.append(child)
 
 
 def _add_info(sub) -> None:
@@ -466,6 +486,8 @@ def _add_dataset(sub) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.verbose:    # read by clvol/runtime.py (compiler_output_shown) and by pyopencl
+        os.environ["PYOPENCL_COMPILER_OUTPUT"] = "1"
     try:
         return args.func(args)
     except ClvolError as exc:
