@@ -81,10 +81,12 @@ def _cmd_volume_generate(args) -> int:
 
 
 def _cmd_volume_convert(args) -> int:
-    from .volume.io import read_volume, write_volume
-    write_volume(args.output, read_volume(args.input, grid=args.grid,
-                                          max_resolution=args.max_resolution))
-    print(f"wrote {args.output}")
+    """Every grid of the input is written, or the conversion is refused with one line."""
+    from .volume.io import read_volume_grids, write_volume_grids
+    density, extras = read_volume_grids(args.input, grid=args.grid,
+                                        max_resolution=args.max_resolution)
+    write_volume_grids(args.output, density, extras, source=str(args.input))
+    print(f"wrote {args.output}" + (f" (grids: density, {', '.join(extras)})" if extras else ""))
     return 0
 
 
