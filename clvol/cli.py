@@ -125,10 +125,21 @@ def parse_exposure(text):
     return stops
 
 
-def check_render_outputs(output: str, png: str | None, exposure):
+def _frame_field(name: str) -> bool:
+    """Whether ``name`` holds a ``{frame}`` field (``{frame}``, ``{frame:04d}``, ...)."""
+    import string
+    try:
+        return any(field == "frame" or (field or "").startswith(("frame.", "frame["))
+                   for _, field, _, _ in string.Formatter().parse(name))
+    except ValueError:          # an unmatched brace: no field (format would fail anyway)
+        return False
+
+
+def check_render_outputs(output: str, png: str | None, exposure, frames: str | None = None):
     """Refuse, before any rendering, outputs that would be lost or mislabelled: the EXR must
-    be named .exr, the preview .png and not the EXR's own path; both folders must exist and
-    the exposure be finite. Returns the preview's path (None: no preview)."""
+    be named .exr, the preview .png and not the EXR's own path; both folders must exist, no
+    output may be a folder, a ``{frame}`` field needs --frames, and the exposure must be
+    finite. Returns the preview's path (None: no preview)."""
     out = Path(output)
     if out.suffix.lower() != ".exr":
         raise ClvolError(f"-o {output}: the output is an OpenEXR image; name it .exr (the "
@@ -140,7 +151,14 @@ def check_render_outputs(output: str, png: str | None, exposure):
         if Path(png).resolve() == out.resolve():
             raise ClvolError(f"--png {png}: the same file as -o; the preview would overwrite the EXR")
     parse_exposure(exposure)
+    if frames is None:          # a single image: a {frame} field would be written literally
+        for opt, name in (("-o", output), ("--png", png)):
+            if name is not None and _frame_field(name):
+                raise ClvolError(f"{opt} {name}: {{frame}} names the files of a volume "
+                                 f"sequence; give --frames (e.g. --frames 1-48), or drop it")
     for p in (out, Path(png) if png is not None else None):
+        if p is not None and p.is_dir():     # found only when the temporary file is renamed
+            raise ClvolError(f"{p}: is a folder; name the image file to write")
         folder = p.resolve().parent if p is not None else None
         if folder is not None and not folder.is_dir():
             raise ClvolError(f"{p}: cannot write, folder {folder} does not exist")
@@ -160,7 +178,7 @@ def _cmd_render(args) -> int:
         for name in ("exposure", "tone"):
             if getattr(args, name) is not None:
                 raise ClvolError(f"--{name} sets the PNG preview: give --png too")
-    png = check_render_outputs(args.output, args.png, args.exposure)
+    png = check_render_outputs(args.output, args.png, args.exposure, args.frames)
     exposure = parse_exposure(args.exposure)
     tone = args.tone or "filmic"
     configure(device=args.device, profiling=args.profile)
