@@ -167,6 +167,16 @@ def check_render_outputs(output: str, png: str | None, exposure, frames: str | N
     return png
 
 
+def preview_alpha(scene, layers):
+    """The PNG preview's alpha: the image's coverage when nothing is behind the medium (a
+    black background: the beauty is then premultiplied by it); None with a sky, which the
+    beauty already shows through the medium, so the preview stays opaque."""
+    light = scene.light
+    sky = (light.environment_map is not None
+           or (light.environment is not None and max(light.environment) > 0))
+    return None if sky else layers.get("alpha")
+
+
 def _cmd_render(args) -> int:
     from .image import choose_exposure, write_exr, write_png_preview
     from .render import METHODS
@@ -203,7 +213,8 @@ def _cmd_render(args) -> int:
     write_exr(args.output, result.layers, header)
     print(f"wrote {args.output}", file=sys.stderr)
     if png is not None:
-        used = write_png_preview(png, result.layers["total"], exposure=stops, curve=tone)
+        used = write_png_preview(png, result.layers["total"], exposure=stops, curve=tone,
+                                 alpha=preview_alpha(scene, result.layers))
         print(f"wrote {png} (exposure {used:+.2f} stops, {how}; {tone} tone curve)",
               file=sys.stderr)
     if not args.quiet:
@@ -254,7 +265,7 @@ def _render_frames(args, scene, renderer, png, exposure, tone) -> int:
         written.append(out)
         if png:
             write_png_preview(frame_path(png, n), result.layers["total"], exposure=stops,
-                              curve=tone)
+                              curve=tone, alpha=preview_alpha(scene, result.layers))
 
     with Progress(len(frames), label="frames", unit=" frames") as bar:
         stats = render_sequence(scene, renderer, frames, on_frame, progress=bar)
