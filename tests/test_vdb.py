@@ -365,6 +365,17 @@ def test_volume_info_lists_every_grid(vdbdir, capsys):
     assert "voxel size: (0.25, 0.25, 0.25)" in out
 
 
+def test_volume_info_warns_of_a_grid_that_cannot_be_rendered(vdbdir, capsys):
+    """A level set is listed with the reason a scene would refuse it (before: listed as any
+    grid, the refusal came only at render time); a fog grid gets no such line."""
+    code, out, err = cli(["volume", "info", vdbdir / "levelset.vdb"], capsys)
+    assert code == 0, err
+    line = [l for l in out.splitlines() if "cannot be rendered" in l]
+    assert len(line) == 1 and "level set" in line[0], out
+    code, out, err = cli(["volume", "info", vdbdir / "float.vdb"], capsys)
+    assert code == 0 and "cannot be rendered" not in out
+
+
 def test_convert_vdb_to_npz_and_back(vdbdir, tmp_path, capsys):
     """vdb -> npz keeps the grid and box; npz -> vdb is read back by OpenVDB itself with the
     same values at the same world positions."""

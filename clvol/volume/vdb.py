@@ -962,4 +962,12 @@ def format_vdb_info(path) -> str:
                          f"{vec(g.translation)}")
             if g.transform_problem:
                 lines.append(f"    not readable as a density: {g.transform_problem}")
+            elif g.is_scalar and not g.instance_of:
+                # what a scene naming this grid would be refused for (a level set, a
+                # background other than 0, no active voxel), said before anyone tries
+                try:
+                    vf._check_density_grid(g, allow_empty=vf.stored_layout(g) is not None)
+                except VolumeError as e:
+                    why = str(e).split(f"grid {g.name!r} ", 1)[-1]
+                    lines.append(f"    cannot be rendered as a density: {why}")
     return "\n".join(lines)
