@@ -187,19 +187,6 @@ def describe_devices(device: str | None = None) -> str:
 
 # --------------------------------------------------------------------------- programs
 
-def compiler_output_shown() -> bool:
-    """Whether pyopencl's CompilerWarning ("Non-empty compiler output encountered", or with
-    PYOPENCL_COMPILER_OUTPUT=1 the log itself) reaches the user: only when asked for, by
-    pyopencl's own PYOPENCL_COMPILER_OUTPUT=1 or the CLI's --verbose (which sets it). The
-    kernels build without warnings (tests/test_kernel_warnings.py); a build log on another
-    driver (notes, remarks) would otherwise print on every first render, --quiet or not."""
-    from pytools import strtobool
-    try:
-        return bool(strtobool(os.environ.get("PYOPENCL_COMPILER_OUTPUT", "False")))
-    except ValueError:
-        return False
-
-
 class Program:
     """A built program; hands out Kernel objects that are created once and reused."""
 
@@ -271,6 +258,19 @@ def _define_flags(defines: dict | None) -> list[str]:
         else:
             flags.append(f"-D{key}={value}")
     return flags
+
+
+def compiler_output_shown() -> bool:
+    """Whether pyopencl's CompilerWarning ("Non-empty compiler output encountered", or with
+    PYOPENCL_COMPILER_OUTPUT=1 the log itself) reaches the user: only when asked for, by
+    pyopencl's own PYOPENCL_COMPILER_OUTPUT=1 or the CLI's --verbose (which sets it). The
+    kernels build without warnings (tests/test_kernel_warnings.py); a build log on another
+    driver (notes, remarks) would otherwise print on every first render, --quiet or not."""
+    from pytools import strtobool
+    try:
+        return bool(strtobool(os.environ.get("PYOPENCL_COMPILER_OUTPUT", "False")))
+    except ValueError:
+        return False
 
 
 UPLOAD, READBACK = "upload", "readback"
