@@ -53,6 +53,7 @@
  * Indices are int: the largest pyramid (1024^3) has 1.23e9 voxels, 2.45e9 floats as pairs, so
  * the host refuses render mode above 2^31 floats (kernels/gather.py).
  */
+#include "psabi.h"   /* first: see there */
 #include "gather_core.h"   /* the device functions, shared with cl/gather_mlp.cl */
 
 #ifndef GATHER_RENDER

@@ -28,6 +28,7 @@
  * state and three 16 x 16 blocks: the host launches groups of one work-item on CPUs, as
  * for mlp_forward.
  */
+#include "psabi.h"   /* first: see there */
 #include "gather_core.h"
 #include "mlp_core.h"
 

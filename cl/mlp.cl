@@ -38,6 +38,7 @@
  * head on [merged x3, c]. Output per seed eq. 20's normalised log space.
  */
 
+#include "psabi.h"   /* first: see there */
 #include "mlp_core.h"   /* the device functions, shared with cl/gather_mlp.cl */
 
 __kernel void mlp_forward(__global const float *features, __global const float *config,

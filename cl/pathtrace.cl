@@ -80,6 +80,7 @@
  * Any number of work-items (local size 1) runs all paths of a launch: each takes paths
  * from *next until none are left.
  */
+#include "psabi.h"   /* first: see there */
 #include "rng.h"
 #include "grid.h"
 #include "phase.h"

@@ -88,6 +88,7 @@
  *              active lane-segments
  * Global size: ceil(width / 4) * ceil(height / 4) work-items (padded; guarded here).
  */
+#include "psabi.h"   /* first: see there */
 #include "grid.h"
 #include "phase.h"
 

@@ -47,6 +47,7 @@
  *
  * Twin: reference/transmittance.py. Host wrapper: clvol/kernels/transmittance.py.
  */
+#include "psabi.h"   /* first: see there */
 #include "grid.h"
 
 __kernel void transmittance_brute(__global const float *pyr, const int off, const int n,

@@ -89,11 +89,11 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     is rendered. ``runtime``: the OpenCL runtime it is built on (default: clvol's).
     ``octaves``: an ``Octaves`` for the Wrenninge fallback (default the renderer's: 3 octaves,
     a = b = c = 0.5); used only where the renderer falls back to it."""
+    out = check_out_dir(out_dir)
     b = _plan(scene, dict(weights=weights, ms_resolution=ms_resolution, step=step,
                           threshold=threshold, majorant_block=block,
                           light_resolution=light_resolution, light_interp=light_interp,
                           skip_empty=skip_empty), runtime, octaves)
-    out = Path(out_dir)
     m = _Manifest()
     _write_sources(m, scene, out)
     _write_programs(m, b)
@@ -176,10 +176,26 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
                     majorant_block(o["majorant_block"], grid.density.shape))
 
 
+def check_out_dir(out_dir) -> Path:
+    """The bundle folder, refused before anything is planned or written (one line): a file of
+    that name, or a missing parent folder (as clvol render and the viewer refuse one: a typo
+    in the path must not create folders from the root down). An existing folder is written
+    into."""
+    from .errors import ClvolError
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ClvolError(f"{out}: exists and is not a folder; a bundle is a folder "
+                         f"(manifest.txt, cl/, arrays): name a new or existing folder")
+    parent = out.resolve().parent
+    if not parent.is_dir():
+        raise ClvolError(f"{out}: cannot write, folder {parent} does not exist")
+    return out
+
+
 def _write_sources(m: "_Manifest", scene, out: Path) -> None:
     """The OpenCL sources the programs build from, copied, and the manifest's head."""
     from .runtime import cl_source_dir, include_dir
-    out.mkdir(parents=True, exist_ok=True)
+    out.mkdir(exist_ok=True)                    # its parent exists: check_out_dir
     (out / "cl" / "include").mkdir(parents=True, exist_ok=True)
     src = cl_source_dir()
     cl_files = sorted(p.name for p in src.glob("*.cl"))
@@ -452,6 +468,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from .errors import ClvolError
     from .scene import load_scene
+    check_out_dir(args.dir)
     if args.ms != "network":
         raise ClvolError(f"clvol bundle: --ms {args.ms} is not implemented by the C host, which "
                          f"renders the network on the world lattice (--ms network); the "

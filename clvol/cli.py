@@ -148,10 +148,12 @@ def _cmd_volume_generate(args) -> int:
 
 
 def _cmd_volume_convert(args) -> int:
-    from .volume.io import read_volume, write_volume
-    write_volume(args.output, read_volume(args.input, grid=args.grid,
-                                          max_resolution=args.max_resolution))
-    print(f"wrote {args.output}")
+    """Every grid of the input is written, or the conversion is refused with one line."""
+    from .volume.io import read_volume_grids, write_volume_grids
+    density, extras = read_volume_grids(args.input, grid=args.grid,
+                                        max_resolution=args.max_resolution)
+    write_volume_grids(args.output, density, extras, source=str(args.input))
+    print(f"wrote {args.output}" + (f" (grids: density, {', '.join(extras)})" if extras else ""))
     return 0
 
 
@@ -190,10 +192,21 @@ def parse_exposure(text):
     return stops
 
 
-def check_render_outputs(output: str, png: str | None, exposure):
+def _frame_field(name: str) -> bool:
+    """Whether ``name`` holds a ``{frame}`` field (``{frame}``, ``{frame:04d}``, ...)."""
+    import string
+    try:
+        return any(field == "frame" or (field or "").startswith(("frame.", "frame["))
+                   for _, field, _, _ in string.Formatter().parse(name))
+    except ValueError:          # an unmatched brace: no field (format would fail anyway)
+        return False
+
+
+def check_render_outputs(output: str, png: str | None, exposure, frames: str | None = None):
     """Refuse, before any rendering, outputs that would be lost or mislabelled: the EXR must
-    be named .exr, the preview .png and not the EXR's own path; both folders must exist and
-    the exposure be finite. Returns the preview's path (None: no preview)."""
+    be named .exr, the preview .png and not the EXR's own path; both folders must exist, no
+    output may be a folder, a ``{frame}`` field needs --frames, and the exposure must be
+    finite. Returns the preview's path (None: no preview)."""
     out = Path(output)
     if out.suffix.lower() != ".exr":
         raise ClvolError(f"-o {output}: the output is an OpenEXR image; name it .exr (the "
@@ -205,13 +218,30 @@ def check_render_outputs(output: str, png: str | None, exposure):
         if Path(png).resolve() == out.resolve():
             raise ClvolError(f"--png {png}: the same file as -o; the preview would overwrite the EXR")
     parse_exposure(exposure)
+    if frames is None:          # a single image: a {frame} field would be written literally
+        for opt, name in (("-o", output), ("--png", png)):
+            if name is not None and _frame_field(name):
+                raise ClvolError(f"{opt} {name}: {{frame}} names the files of a volume "
+                                 f"sequence; give --frames (e.g. --frames 1-48), or drop it")
     for p in (out, Path(png) if png is not None else None):
+        if p is not None and p.is_dir():     # found only when the temporary file is renamed
+            raise ClvolError(f"{p}: is a folder; name the image file to write")
         folder = p.resolve().parent if p is not None else None
         if folder is not None and not folder.is_dir():
             raise ClvolError(f"{p}: cannot write, folder {folder} does not exist")
         if folder is not None and not os.access(folder, os.W_OK):
             raise ClvolError(f"{p}: cannot write, folder {folder} is not writable")
     return png
+
+
+def preview_alpha(scene, layers):
+    """The PNG preview's alpha: the image's coverage when nothing is behind the medium (a
+    black background: the beauty is then premultiplied by it); None with a sky, which the
+    beauty already shows through the medium, so the preview stays opaque."""
+    light = scene.light
+    sky = (light.environment_map is not None
+           or (light.environment is not None and max(light.environment) > 0))
+    return None if sky else layers.get("alpha")
 
 
 def _cmd_render(args) -> int:
@@ -225,7 +255,7 @@ def _cmd_render(args) -> int:
         for name in ("exposure", "tone"):
             if getattr(args, name) is not None:
                 raise ClvolError(f"--{name} sets the PNG preview: give --png too")
-    png = check_render_outputs(args.output, args.png, args.exposure)
+    png = check_render_outputs(args.output, args.png, args.exposure, args.frames)
     exposure = parse_exposure(args.exposure)
     tone = args.tone or "filmic"
     configure(device=args.device, profiling=args.profile)
@@ -250,7 +280,8 @@ def _cmd_render(args) -> int:
     write_exr(args.output, result.layers, header)
     print(f"wrote {args.output}", file=sys.stderr)
     if png is not None:
-        used = write_png_preview(png, result.layers["total"], exposure=stops, curve=tone)
+        used = write_png_preview(png, result.layers["total"], exposure=stops, curve=tone,
+                                 alpha=preview_alpha(scene, result.layers))
         print(f"wrote {png} (exposure {used:+.2f} stops, {how}; {tone} tone curve)",
               file=sys.stderr)
     if not args.quiet:
@@ -301,7 +332,7 @@ def _render_frames(args, scene, renderer, png, exposure, tone) -> int:
         written.append(out)
         if png:
             write_png_preview(frame_path(png, n), result.layers["total"], exposure=stops,
-                              curve=tone)
+                              curve=tone, alpha=preview_alpha(scene, result.layers))
 
     with Progress(len(frames), label="frames", unit=" frames") as bar:
         stats = render_sequence(scene, renderer, frames, on_frame, progress=bar)
@@ -420,7 +451,27 @@ def build_parser() -> argparse.ArgumentParser:
     for add in (_add_info, _add_volume, _add_render, _add_view, _add_bundle_and_goldens,
                 _add_compare, _add_dataset):
         add(sub)
+    _add_verbose(parser)
     return parser
+
+
+VERBOSE_HELP = ("show the OpenCL compiler's output when a kernel is built (as "
+                "PYOPENCL_COMPILER_OUTPUT=1; hidden otherwise)")
+
+
+def _add_verbose(parser) -> None:
+    """``--verbose`` before or after any sub-command: the sub-commands' copies default to
+    SUPPRESS so that ``clvol --verbose render ...`` is not reset by the sub-parser."""
+    parser.add_argument("--verbose", action="store_true", help=VERBOSE_HELP)
+    todo = [parser]
+    while todo:
+        p = todo.pop()
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for child in action.choices.values():
+                    child.add_argument("--verbose", action="store_true",
+                                       default=argparse.SUPPRESS, help=VERBOSE_HELP)
+                    todo.append(child)
 
 
 def _add_info(sub) -> None:
@@ -552,6 +603,8 @@ def _add_dataset(sub) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.verbose:    # read by clvol/runtime.py (compiler_output_shown) and by pyopencl
+        os.environ["PYOPENCL_COMPILER_OUTPUT"] = "1"
     try:
         return args.func(args)
     except ClvolError as exc:

@@ -8,12 +8,18 @@ EXR layout (one scanline part, ZIP compression, lossless, every channel FLOAT)
   channels so every viewer shows it.
 * any other name with an (H, W, 3) array: channels ``name.R``, ``name.G``, ``name.B``
   (the OpenEXR layer convention; viewers list it as layer ``name``).
-* any name with an (H, W) array (``alpha``, ``depth``, ...): one channel named ``name`` exactly
-  (no ``.Y`` suffix, so tools show ``depth`` rather than a luminance layer).
+* ``alpha`` and ``depth`` (H, W): the channels ``A`` and ``Z``, the names compositors read
+  as the beauty's coverage and depth (Nuke's rgba.alpha and depth.Z, Blender's Alpha and Depth
+  sockets). With a black background the beauty is premultiplied by ``A`` (over a plate:
+  ``RGB + (1 - A) plate``); with a sky the beauty already holds the sky seen through.
+* any other name with an (H, W) array: one channel named ``name`` exactly (no ``.Y``
+  suffix, so tools do not show it as a luminance layer).
 
-``read_exr`` inverts this: ``R``, ``G``, ``B`` -> layer ``"total"``; ``name.R/G/B`` -> (H, W, 3)
-layer ``name``; every other channel -> an (H, W) layer under its full channel name. HALF and UINT
-channels of foreign files are converted to float32.
+``read_exr`` inverts this: ``R``, ``G``, ``B`` -> layer ``"total"``; ``A`` -> ``"alpha"`` and
+``Z`` -> ``"depth"`` (files of earlier versions name those channels ``alpha`` and ``depth``,
+read as they are); ``name.R/G/B`` -> (H, W, 3) layer ``name``; every other channel -> an
+(H, W) layer under its full channel name. HALF and UINT channels of foreign files are
+converted to float32.
 
 Layer names are letters, digits, ``_`` and ``-`` (no ``.``, which would make ``a.b.R`` ambiguous).
 
@@ -47,6 +53,9 @@ from .errors import ImageError
 
 HEADER_PREFIX = "clvol."
 _TOTAL_NAMES = ("", "total")
+# Single-channel layers written under the channel names compositors read (module docstring).
+_CHANNEL_OF = {"alpha": "A", "depth": "Z"}
+_LAYER_OF = {c: n for n, c in _CHANNEL_OF.items()}
 _LAYER_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
 _HEADER_KEY = re.compile(r"^[A-Za-z0-9_\-.]+$")
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
@@ -183,10 +192,11 @@ def write_exr(path, layers: dict[str, np.ndarray],
         if a.ndim == 2:
             if name in _TOTAL_NAMES:
                 raise ImageError(f"{path}: layer 'total' must be (H, W, 3) RGB, got shape {a.shape}")
-            if name in ("R", "G", "B"):
+            if name in ("R", "G", "B", "A", "Z"):
                 raise ImageError(
-                    f"{path}: single-channel layer {name!r} would collide with the total layer's channels")
-            names = [name]
+                    f"{path}: single-channel layer {name!r} would collide with the channels of "
+                    f"the total, alpha or depth layers")
+            names = [_CHANNEL_OF.get(name, name)]
         else:
             names = ["R", "G", "B"] if name in _TOTAL_NAMES else [f"{name}.{c}" for c in "RGB"]
         for i, ch in enumerate(names):
@@ -247,9 +257,12 @@ def read_exr(path) -> ExrImage:
             layers["total" if prefix == "" else prefix] = np.stack([planes[c] for c in rgb], axis=-1)
             used.update(rgb)
     for name in sorted(set(planes) - used):
-        if name in layers:
+        layer = _LAYER_OF.get(name, name)
+        if layer != name and layer in planes:     # a foreign file with both: keep each name
+            layer = name
+        if layer in layers:
             raise ImageError(f"{path}: channel {name!r} collides with the RGB layer of the same name")
-        layers[name] = planes[name]
+        layers[layer] = planes[name]
 
     header = {k[len(HEADER_PREFIX):]: (v if isinstance(v, str) else str(v))
               for k, v in hdr.items() if k.startswith(HEADER_PREFIX)}
@@ -304,14 +317,16 @@ def _png_chunk(kind: bytes, data: bytes) -> bytes:
 
 
 def encode_png_rgb8(pixels: np.ndarray) -> bytes:
-    """(H, W, 3) uint8 -> PNG bytes: 8-bit RGB, no interlace, filter type 0 on every row."""
+    """(H, W, 3) uint8 -> PNG bytes: 8-bit RGB, no interlace, filter type 0 on every row;
+    (H, W, 4) -> 8-bit RGBA (colour type 6: straight, not premultiplied, alpha)."""
     p = np.asarray(pixels)
-    if p.dtype != np.uint8 or p.ndim != 3 or p.shape[2] != 3 or p.shape[0] == 0 or p.shape[1] == 0:
-        raise ImageError(f"PNG pixels must be (H, W, 3) uint8, got {p.shape} {p.dtype}")
-    h, w = p.shape[:2]
+    if (p.dtype != np.uint8 or p.ndim != 3 or p.shape[2] not in (3, 4) or p.shape[0] == 0
+            or p.shape[1] == 0):
+        raise ImageError(f"PNG pixels must be (H, W, 3) or (H, W, 4) uint8, got {p.shape} {p.dtype}")
+    h, w, c = p.shape
     # Every scanline starts with its filter-type byte (0 = None).
-    raw = np.concatenate([np.zeros((h, 1), np.uint8), np.ascontiguousarray(p).reshape(h, 3 * w)], axis=1)
-    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)  # depth 8, colour type 2 (RGB)
+    raw = np.concatenate([np.zeros((h, 1), np.uint8), np.ascontiguousarray(p).reshape(h, c * w)], axis=1)
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2 if c == 3 else 6, 0, 0, 0)   # depth 8, RGB(A)
     return (_PNG_SIGNATURE
             + _png_chunk(b"IHDR", ihdr)
             + _png_chunk(b"sRGB", b"\x00")  # the data is sRGB-encoded (perceptual intent)
@@ -419,12 +434,17 @@ def tonemap_srgb8(rgb: np.ndarray, exposure: float | None = 0.0,
 
 
 def write_png_preview(path, rgb: np.ndarray, exposure: float | None = 0.0,
-                      curve: str = "linear") -> float:
+                      curve: str = "linear", alpha: np.ndarray | None = None) -> float:
     """Tonemapped 8-bit sRGB preview of a linear (H, W, 3) image, written atomically.
 
     Pixel = ``to_srgb8(rgb * 2**exposure)`` for the linear curve (clamp to [0, 1], sRGB
     curve, round half up), or through ``filmic`` first; ``exposure=None`` chooses it from
     the image. Returns the exposure used.
+
+    ``alpha`` (H, W) in [0, 1]: an RGBA preview of an image premultiplied by it (a medium over
+    a black background). PNG alpha is straight, so the colour is divided by alpha before the
+    tone curve (the exposure is still the whole image's); where alpha rounds to 0 in 8 bits
+    the colour is 0 (invisible, and the division would only amplify noise).
     """
     path = Path(path)
     a = np.asarray(rgb)
@@ -435,7 +455,20 @@ def write_png_preview(path, rgb: np.ndarray, exposure: float | None = 0.0,
     bad = int(np.count_nonzero(~np.isfinite(a)))
     if bad:
         raise ImageError(f"{path}: {bad} non-finite value(s) (NaN/Inf) in the image; refusing to write")
+    if exposure is None:
+        exposure = auto_exposure(np.asarray(a, np.float64))   # from the premultiplied image
+    if alpha is not None:
+        al = np.asarray(alpha, np.float64)
+        if al.shape != a.shape[:2] or not np.all(np.isfinite(al)):
+            raise ImageError(f"{path}: alpha must be a finite (H, W) = {a.shape[:2]} array, "
+                             f"got shape {al.shape}")
+        al = np.clip(al, 0.0, 1.0)
+        seen = al >= 0.5 / 255.0
+        a = np.where(seen[..., None], np.asarray(a, np.float64) / np.where(seen, al, 1.0)[..., None], 0.0)
     pixels, used = tonemap_srgb8(a, exposure, curve)
+    if alpha is not None:
+        a8 = np.floor(al * 255.0 + 0.5).astype(np.uint8)
+        pixels = np.concatenate([pixels, a8[..., None]], axis=-1)
     data = encode_png_rgb8(pixels)
     _check_folder(path)
     try:

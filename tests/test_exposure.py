@@ -16,21 +16,24 @@ from clvol.scene import Light
 from scene_toml import SMALL_CLOUD, write_scene
 
 
-def png_pixels(path) -> np.ndarray:
-    """(H, W, 3) uint8 of the 8-bit RGB, filter-0 PNGs that clvol.image writes."""
+def png_pixels(path, with_alpha: bool = False) -> np.ndarray:
+    """(H, W, 3) uint8 of the 8-bit RGB or RGBA, filter-0 PNGs that clvol.image writes (the
+    colour channels; with ``with_alpha``, all channels as stored: 3 or 4)."""
     data = Path(path).read_bytes()
-    pos, idat, w, h = 8, b"", 0, 0
+    pos, idat, w, h, c = 8, b"", 0, 0, 3
     while pos < len(data):
         n = int.from_bytes(data[pos:pos + 4], "big")
         kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]
         if kind == b"IHDR":
             w, h = int.from_bytes(body[:4], "big"), int.from_bytes(body[4:8], "big")
+            c = {2: 3, 6: 4}[body[9]]                 # colour type: RGB or RGBA
         elif kind == b"IDAT":
             idat += body
         pos += 12 + n
-    rows = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + 3 * w)
+    rows = np.frombuffer(zlib.decompress(idat), np.uint8).reshape(h, 1 + c * w)
     assert not rows[:, 0].any()                     # filter type 0 on every row
-    return rows[:, 1:].reshape(h, w, 3)
+    px = rows[:, 1:].reshape(h, w, c)
+    return px if with_alpha else px[..., :3]
 
 
 def render(tmp_path, capsys, name, medium, *args, light=None):
@@ -117,3 +120,25 @@ def test_choose_exposure_modes():
     for bad in ("scenes", float("nan"), float("inf")):
         with pytest.raises(ClvolError, match="finite number of stops"):
             choose_exposure(bad, rgb, light)
+
+
+def test_preview_has_the_images_alpha_over_a_black_background(tmp_path, capsys):
+    """The PNG preview carries the EXR's coverage as straight alpha (before: RGB only), and
+    stays opaque with a sky behind the medium (the beauty already shows it)."""
+    from clvol.image import tonemap_srgb8
+    px, _, header = render(tmp_path, capsys, "black", SMALL_CLOUD["medium"])
+    rgba = png_pixels(tmp_path / "black.png", with_alpha=True)
+    img = read_exr(tmp_path / "black.exr")
+    a = img.layers["alpha"].astype(np.float64)
+    assert rgba.shape[2] == 4
+    np.testing.assert_array_equal(rgba[..., 3], np.floor(a * 255 + 0.5).astype(np.uint8))
+    assert 0 < a.max() and a.min() == 0.0                   # medium and empty background
+    # straight colour: the premultiplied beauty divided by alpha, then the same tone curve
+    stops = float(header["preview.exposure"])
+    seen = a >= 0.5 / 255
+    straight = np.where(seen[..., None], img.rgb / np.where(seen, a, 1)[..., None], 0)
+    want, _ = tonemap_srgb8(straight, stops, header["preview.tone"])
+    np.testing.assert_array_equal(rgba[..., :3], want)
+    sky = dict(SMALL_CLOUD["light"], environment=[0.2, 0.3, 0.5])
+    render(tmp_path, capsys, "sky", SMALL_CLOUD["medium"], light=sky)
+    assert png_pixels(tmp_path / "sky.png", with_alpha=True).shape[2] == 3

@@ -62,9 +62,32 @@ def test_exr_channel_names_follow_the_layer_convention(tmp_path, rng):
     write_exr(path, {"": rng.random((H, W, 3)), "direct": rng.random((H, W, 3)),
                      "alpha": rng.random((H, W))}, {"spp": 4})
     f = OpenEXR.File(str(path), separate_channels=True)
-    assert sorted(f.channels()) == ["B", "G", "R", "alpha", "direct.B", "direct.G", "direct.R"]
+    assert sorted(f.channels()) == ["A", "B", "G", "R", "direct.B", "direct.G", "direct.R"]
     assert f.header()["clvol.spp"] == "4"
     assert sorted(read_exr(path).layers) == ["alpha", "direct", "total"]
+
+
+def test_alpha_and_depth_are_the_channels_compositors_read(tmp_path, rng):
+    """Nuke and Blender read coverage from A and depth from Z; before, they were channels
+    named alpha and depth, which compositors show as unrelated data. Read back under the layer
+    names, and a file of an earlier version (channels alpha, depth) still reads the same."""
+    import OpenEXR
+    a, z = rng.random((H, W)), rng.random((H, W))
+    write_exr(tmp_path / "n.exr", {"total": rng.random((H, W, 3)), "alpha": a, "depth": z,
+                                    "single": rng.random((H, W, 3))})
+    f = OpenEXR.File(str(tmp_path / "n.exr"), separate_channels=True)
+    assert sorted(f.channels()) == ["A", "B", "G", "R", "Z", "single.B", "single.G", "single.R"]
+    img = read_exr(tmp_path / "n.exr")
+    assert sorted(img.layers) == ["alpha", "depth", "single", "total"]
+    np.testing.assert_array_equal(img.layers["alpha"], a.astype(np.float32))
+    np.testing.assert_array_equal(img.layers["depth"], z.astype(np.float32))
+    old = {"R": a, "G": a, "B": a, "alpha": a, "depth": z}       # an earlier version's file
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+                 {k: np.ascontiguousarray(v, np.float32) for k, v in old.items()}
+                 ).write(str(tmp_path / "old.exr"))
+    assert sorted(read_exr(tmp_path / "old.exr").layers) == ["alpha", "depth", "total"]
+    with pytest.raises(ImageError, match="collide"):
+        write_exr(tmp_path / "c.exr", {"total": rng.random((H, W, 3)), "A": a})
 
 
 def test_exr_refuses_nan_and_inf_naming_layer_and_count(tmp_path, rng):

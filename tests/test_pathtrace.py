@@ -358,9 +358,11 @@ def test_render_pathtrace_layers_header_and_budget():
     scene, grid = _scene(environment=(0.1, 0.2, 0.3))
     res = render_pathtrace(scene, spp=8, seed=3, grid=grid, progress=False)
     L = res.layers
-    assert set(L) == {"total", "single", "multiple", "total_se"}
-    for v in L.values():
-        assert v.shape == (4, 4, 3) and v.dtype == np.float32 and np.all(np.isfinite(v))
+    assert set(L) == {"total", "single", "multiple", "total_se", "alpha"}
+    for k, v in L.items():
+        shape = (4, 4) if k == "alpha" else (4, 4, 3)       # coverage: one channel
+        assert v.shape == shape and v.dtype == np.float32 and np.all(np.isfinite(v))
+    assert np.all((L["alpha"] >= 0) & (L["alpha"] <= 1))
     h = res.header
     assert h["spp"] == 8 and h["seconds"] > 0 and "environment" in h["simulated"]
     assert "PT_ENV=1" in h["defines"] and h["paths_truncated"] == 0

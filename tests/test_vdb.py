@@ -365,6 +365,17 @@ def test_volume_info_lists_every_grid(vdbdir, capsys):
     assert "voxel size: (0.25, 0.25, 0.25)" in out
 
 
+def test_volume_info_warns_of_a_grid_that_cannot_be_rendered(vdbdir, capsys):
+    """A level set is listed with the reason a scene would refuse it (before: listed as any
+    grid, the refusal came only at render time); a fog grid gets no such line."""
+    code, out, err = cli(["volume", "info", vdbdir / "levelset.vdb"], capsys)
+    assert code == 0, err
+    line = [l for l in out.splitlines() if "cannot be rendered" in l]
+    assert len(line) == 1 and "level set" in line[0], out
+    code, out, err = cli(["volume", "info", vdbdir / "float.vdb"], capsys)
+    assert code == 0 and "cannot be rendered" not in out
+
+
 def test_convert_vdb_to_npz_and_back(vdbdir, tmp_path, capsys):
     """vdb -> npz keeps the grid and box; npz -> vdb is read back by OpenVDB itself with the
     same values at the same world positions."""
@@ -387,6 +398,29 @@ def test_convert_vdb_to_npz_and_back(vdbdir, tmp_path, capsys):
     c = read_volume(out)
     np.testing.assert_array_equal(c.density, a.density)
     np.testing.assert_allclose(c.bbox_min, a.bbox_min, rtol=0, atol=1e-12)
+
+
+def test_convert_keeps_every_grid_and_openvdb_reads_them(vdbdir, tmp_path, capsys):
+    """npz (density + temperature) -> vdb: OpenVDB itself reads both grids with the values
+    written (before, the temperature was dropped); a .vdb with a grid clvol cannot keep (the
+    vec3s 'vel' of multi.vdb) is refused in one line rather than converted without it."""
+    rng = np.random.default_rng(2)
+    d = rng.random((6, 7, 9), dtype=np.float32)
+    t = np.where(d > 0.5, 1500.0 * d, 0).astype(np.float32)
+    np.savez(tmp_path / "f.npz", density=d, temperature=t, bbox_min=np.zeros(3),
+             bbox_max=np.array([0.9, 0.7, 0.6]))                    # cubic voxels of 0.1
+    assert cli(["volume", "convert", tmp_path / "f.npz", tmp_path / "f.vdb"], capsys)[0] == 0
+    run_openvdb(EXPECT + f"expect({str(tmp_path / 'f.vdb')!r}, 'density', 'd.npz')\n"
+                f"expect({str(tmp_path / 'f.vdb')!r}, 'temperature', 't.npz')\n", tmp_path)
+    for name, want in (("d", d), ("t", t)):
+        e, lo, _, _, count = expected(tmp_path, name)
+        assert count == np.count_nonzero(want)
+        hi = lo + np.array(e.shape[::-1])
+        np.testing.assert_array_equal(e, want[lo[2]:hi[2], lo[1]:hi[1], lo[0]:hi[0]])
+    code, out, err = cli(["volume", "convert", vdbdir / "multi.vdb", tmp_path / "m.npz"], capsys)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "'vel'" in lines[0] and "keeps every grid" in lines[0]
+    assert not (tmp_path / "m.npz").exists()
 
 
 def test_write_vdb_refuses_non_cubic_voxels(tmp_path):

@@ -249,6 +249,11 @@ def test_server_protocol_errors_frames_and_save(server):
                 await ws.send_str(json.dumps({"type": "state", "state": {"exposure": None}}))
                 meta4, _ = await _next_frame(ws)
                 assert meta4["exposure_from"] == "chosen from the image"
+                # An exposure-only change (no new render) is what a save records (before:
+                # the last render's state, exposure null).
+                await ws.send_str(json.dumps({"type": "state", "state": {"exposure": 1.5}}))
+                meta5, _ = await _next_frame(ws)
+                assert meta5["exposure"] == 1.5 and meta5["exposure_from"] == "given"
                 await ws.send_str(json.dumps({"type": "save"}))
                 while True:
                     msg = await ws.receive()
@@ -264,6 +269,7 @@ def test_server_protocol_errors_frames_and_save(server):
     img = read_exr(path)
     assert np.isfinite(img.rgb).all() and img.rgb.shape == (64, 64, 3)
     assert img.header.get("viewer.method") == "network" and "viewer.state" in img.header
+    assert json.loads(img.header["viewer.state"])["exposure"] == 1.5
     assert img.header.get("method") == "raymarch"      # the render header is kept
 
 

@@ -284,8 +284,10 @@ class Renderer:
     def render(self, camera=None, light=None, medium=None, seed: int | None = None,
                grid=None, emission=None) -> RenderResult:
         """Render with the scene's camera, light and medium, or the ones given (instances of
-        clvol.scene.Camera, Light, Medium). Returns a RenderResult. ``grid`` (and, with
-        ``[emission]``, ``emission``): a new density from this frame on (``set_density``).
+        clvol.scene.Camera, Light, Medium) for this frame only: the next plain ``render()``
+        uses the scene's again. ``grid`` (and, with ``[emission]``, ``emission``): a new
+        density from this frame on (``set_density``), kept until the next one (README,
+        "What persists between calls").
 
         ``seed`` (path tracer only) replaces the ``seed`` option for this frame, so the passes
         of a progressive render draw independent samples from one Renderer."""

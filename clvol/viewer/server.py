@@ -17,6 +17,7 @@ so the metadata and the image of a frame cannot be split. Text messages (JSON) c
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import ipaddress
 import json
 import os
@@ -244,7 +245,9 @@ class Connection:
             last = self.last
             if (last is not None and not self.maker.refines(last)
                     and last.state.accumulation_key() == state.accumulation_key()):
-                frame = last                  # only the exposure changed: re-tone-map
+                # only the exposure changed: re-tone-map, under the new state (a save then
+                # records the exposure shown, not the last render's)
+                frame = dataclasses.replace(last, state=state)
             else:
                 try:
                     frame = await loop.run_in_executor(self.maker.executor, self.maker.render,

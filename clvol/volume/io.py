@@ -237,3 +237,95 @@ def _read_npz(path: Path) -> Grid:
         raise _unreadable(path, ".npz", e) from None
     lo, hi = check_bbox(bbox_min, bbox_max, str(path))
     return Grid(density_to_float32(density, str(path)), lo, hi)
+
+
+# --------------------------------------------------------------------------- every grid
+
+def read_volume_grids(path: str | os.PathLike, grid: str | None = None,
+                      max_resolution: int | None = None) -> tuple[Grid, dict[str, Grid]]:
+    """The density (as ``read_volume``) and every further grid of the file, for
+    ``clvol volume convert``, which keeps them all or refuses (docs/volumes.md).
+
+    ``.npz``: each further 3-D array, on its own ``<name>_bbox_min/_max`` or else the
+    density's box (then it must have the density's shape); ``.vdb``: every other grid, read
+    as the density is (a scalar fog grid: one that cannot be is refused with its reason);
+    ``.vol`` and ``.npy`` hold none. Further grids' values are checked and stored as the
+    density's are (float, finite, >= 0, float32)."""
+    path = Path(path)
+    density = read_volume(path, grid=grid, max_resolution=max_resolution)
+    ext = _extension(path)
+    extras: dict[str, Grid] = {}
+    if ext == ".npz":
+        with np.load(path, allow_pickle=False) as npz:
+            keys = set(npz.files)
+            for name in sorted(keys - set(_NPZ_KEYS)):
+                a = npz[name]
+                if a.ndim != 3:
+                    continue            # a box of a grid (read_volume checked the keys)
+                lo_k, hi_k = f"{name}_bbox_min", f"{name}_bbox_max"
+                if (lo_k in keys) != (hi_k in keys):
+                    raise VolumeError(f"{path}: grid {name!r}: give both {lo_k} and {hi_k} "
+                                      f"or neither")
+                if lo_k in keys:
+                    lo, hi = npz[lo_k], npz[hi_k]
+                elif a.shape != density.density.shape:
+                    raise VolumeError(f"{path}: grid {name!r} of shape {a.shape} has no box of "
+                                      f"its own and not the density's shape "
+                                      f"{density.density.shape}")
+                else:
+                    lo, hi = density.bbox_min, density.bbox_max
+                extras[name] = _as_grid(a, lo, hi, f"{path}: grid {name!r}")
+    elif ext == ".vdb":
+        from .vdb import VdbFile
+        with VdbFile(path) as vf:
+            chosen = vf.choose(grid)
+            for g in vf.grids:
+                if g is chosen:
+                    continue
+                if g.name in extras or g.name == "density":
+                    raise VolumeError(f"{path}: a second grid named {g.name!r}; clvol volume "
+                                      f"convert keeps every grid and names them uniquely")
+                try:
+                    extras[g.name] = vf.read(g, max_resolution)
+                except VolumeError as e:
+                    raise VolumeError(f"{e}; clvol volume convert keeps every grid of a file "
+                                      f"or converts none (this one cannot be kept)") from None
+    return density, extras
+
+
+def _as_grid(a: np.ndarray, lo, hi, source: str) -> Grid:
+    """A further grid under the density's rules (float, finite, >= 0, float64 rounded to
+    float32 only when it fits), so that every format clvol writes can hold it."""
+    return Grid(density_to_float32(a, source), *check_bbox(lo, hi, source))
+
+
+def write_volume_grids(path: str | os.PathLike, density: Grid, extras: dict[str, Grid],
+                       source: str = "the input") -> None:
+    """Write the density and every further grid (``read_volume_grids``): ``.npz`` and
+    ``.vdb`` hold them all (bit-equal on reading back); ``.vol`` and ``.npy`` hold one, so a
+    file with further grids is refused there, naming them, rather than losing them."""
+    path = Path(path)
+    ext = _extension(path)
+    if extras and ext in (".vol", ".npy"):
+        names = ", ".join(repr(n) for n in extras)
+        raise VolumeError(f"{path}: {source} has grid(s) {names} beside the density, and a "
+                          f"{ext} file holds one grid; convert to .npz or .vdb to keep them")
+    if not extras:
+        write_volume(path, density)
+        return
+    density.validate(f"{path} (writing)")
+    if ext == ".vdb":
+        from .vdb import write_vdb
+        write_vdb(path, density, extra=extras)
+        return
+    arrays = {"density": density.density, "bbox_min": density.bbox_min,
+              "bbox_max": density.bbox_max}
+    for name, g in extras.items():
+        arrays[name] = g.density
+        on_density = (g.density.shape == density.density.shape
+                      and np.array_equal(g.bbox_min, density.bbox_min)
+                      and np.array_equal(g.bbox_max, density.bbox_max))
+        if not on_density:
+            arrays[f"{name}_bbox_min"], arrays[f"{name}_bbox_max"] = g.bbox_min, g.bbox_max
+    with open(path, "wb") as f:
+        np.savez_compressed(f, **arrays)

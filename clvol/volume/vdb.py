@@ -65,6 +65,10 @@ _VALUE_TYPES = {"float": ("<f4", 1), "double": ("<f8", 1), "half": ("<f2", 1),
                 "vec3s": ("<f4", 3), "vec3d": ("<f8", 3), "vec3i": ("<i4", 3),
                 "int32": ("<i4", 1), "int64": ("<i8", 1)}
 SCALAR_TYPES = ("float", "double", "half")
+# Grid metadata clvol writes (a JSON string: "shape" [nx, ny, nz], "bbox_min", "bbox_max"):
+# the dense array and box the grid was written from, so that reading it back gives them
+# again (clvol volume convert's round trips; docs/volumes.md). Other readers ignore it.
+STORED_BOX_KEY = "clvol_dense_box"
 _TREE_PREFIX = "Tree_"
 _TREE_SUFFIX = "_5_4_3"
 
@@ -114,6 +118,25 @@ class _Stream:
     def array(self, dtype, count: int, what: str) -> np.ndarray:
         dt = np.dtype(dtype)
         return np.frombuffer(self.read(dt.itemsize * count, what), dtype=dt)
+
+
+def _parse_stored_box(text: str | None) -> dict | None:
+    """clvol's dense-box metadata, or None when absent or not well formed (then the grid is
+    read as any other: the active box plus a border)."""
+    if text is None:
+        return None
+    import json
+    try:
+        d = json.loads(text)
+        shape = [int(v) for v in d["shape"]]
+        lo = [float(v) for v in d["bbox_min"]]
+        hi = [float(v) for v in d["bbox_max"]]
+    except (ValueError, KeyError, TypeError):
+        return None
+    if not (len(shape) == len(lo) == len(hi) == 3 and min(shape) >= 1
+            and all(math.isfinite(a) and math.isfinite(b) and a < b for a, b in zip(lo, hi))):
+        return None
+    return {"shape": shape, "bbox_min": lo, "bbox_max": hi}
 
 
 def _skip_metadata(s: _Stream, what: str) -> dict:
@@ -187,6 +210,7 @@ class VdbGrid:
     index_min: np.ndarray | None    # inclusive index box of the active voxels, or None if empty
     index_max: np.ndarray | None
     instance_of: str = ""       # the grid whose tree this one shares, if any
+    stored_box: dict | None = None  # clvol's dense shape and box, when clvol wrote the grid
 
     @property
     def is_scalar(self) -> bool:
@@ -546,6 +570,7 @@ class VdbFile:
         base["compression"] = comp
         meta = _skip_metadata(s, f"{what} metadata")
         base["grid_class"] = meta.get("class", "unknown")
+        base["stored_box"] = _parse_stored_box(meta.get(STORED_BOX_KEY))
         (base["voxel_size"], base["translation"],
          base["transform_problem"]) = _read_transform(s, f"{what} transform")
         if parent:      # its tree is another grid's: listed, never read
@@ -589,9 +614,27 @@ class VdbFile:
 
     # ------------------------------------------------------------------ dense grid
 
+    def stored_layout(self, g: VdbGrid, max_resolution: int | None = None):
+        """The dense shape (nx, ny, nz) clvol wrote ``g`` from (index 0 .. n - 1), when its
+        metadata says so, every active voxel lies inside and no box filter is asked for;
+        else None. Reading it back gives the array that was written (``write_vdb``)."""
+        sb = g.stored_box
+        if sb is None:
+            return None
+        n = np.asarray(sb["shape"], np.int64)
+        if g.index_min is not None and (np.any(g.index_min < 0) or np.any(g.index_max >= n)):
+            return None
+        if box_factor(n, max_resolution, border=0) != 1:
+            return None
+        return n
+
     def dense_layout(self, g: VdbGrid, max_resolution: int | None = None):
-        """(factor, base (3,), shape (mx, my, mz)) of the dense grid ``read`` builds: the active
-        index box plus one cell of background on every side, box-filtered by ``factor``."""
+        """(factor, base (3,), shape (mx, my, mz)) of the dense grid ``read`` builds: the
+        stored layout of a grid clvol wrote (``stored_layout``), else the active index box plus
+        one cell of background on every side, box-filtered by ``factor``."""
+        stored = self.stored_layout(g, max_resolution)
+        if stored is not None:
+            return 1, np.zeros(3, np.int64), stored
         n = g.index_max - g.index_min + 1
         f = box_factor(n, max_resolution)
         shape = -(-n // f) + 2
@@ -601,11 +644,14 @@ class VdbFile:
              max_bytes: int | None = None) -> Grid:
         """The dense density grid of ``g`` (see docs/volumes.md for the box and the border)."""
         path = self.path
-        self._check_density_grid(g)
+        stored = self.stored_layout(g, max_resolution)
+        self._check_density_grid(g, allow_empty=stored is not None)
         f, base, shape = self.dense_layout(g, max_resolution)
         nbytes = 4 * int(np.prod(shape, dtype=np.int64))
         if max_bytes is not None and nbytes > max_bytes:
             raise VolumeError(self._too_big(g, shape, nbytes, max_bytes, max_resolution))
+        if g.index_min is None:         # a stored grid of zeros (allowed above)
+            return self._stored_grid(g, np.zeros(tuple(shape[::-1]), np.float32), shape)
         acc = BoxAccumulator(base, shape, f, keep_lo=g.index_min, keep_hi=g.index_max + 1)
         bg = float(g.background)
         for origin, value, _ in g.root_tiles:
@@ -623,12 +669,28 @@ class VdbFile:
                 for block, origin in self._lower_blocks(g, vals, low, bg):
                     acc.add_block(block, origin)
         density = acc.density()
+        if stored is not None:
+            return self._stored_grid(g, density, shape)
         vs = g.voxel_size[0] * f
         lo = (base - 0.5) * g.voxel_size + g.translation
         hi = lo + np.asarray(shape) * vs
         return Grid(density, lo, hi)
 
-    def _check_density_grid(self, g: VdbGrid) -> None:
+    def _stored_grid(self, g: VdbGrid, density: np.ndarray, shape) -> Grid:
+        """A grid clvol wrote, with the box it was written with: the float64 bounds are kept
+        in the metadata because the transform's round trip (translation = min + h / 2, then
+        back) can move them by an ulp. The transform still rules where the two disagree by
+        more (the file was edited elsewhere)."""
+        lo = -0.5 * g.voxel_size + g.translation
+        hi = lo + np.asarray(shape) * g.voxel_size[0]
+        slo = np.asarray(g.stored_box["bbox_min"], np.float64)
+        shi = np.asarray(g.stored_box["bbox_max"], np.float64)
+        tol = 1e-6 * float(g.voxel_size[0])
+        if np.all(np.abs(slo - lo) <= tol) and np.all(np.abs(shi - hi) <= tol):
+            lo, hi = slo, shi
+        return Grid(density, lo, hi)
+
+    def _check_density_grid(self, g: VdbGrid, allow_empty: bool = False) -> None:
         path, name = self.path, g.name
         if g.value_type.startswith("vec3"):
             raise VolumeError(f"{path}: grid {name!r} is a vector grid ({g.type_label}); a "
@@ -645,7 +707,7 @@ class VdbFile:
             raise VolumeError(f"{path}: grid {name!r} has background value "
                               f"{float(g.background)!r}; a density grid needs background 0 "
                               f"(clvol's medium is empty outside its box)")
-        if g.index_min is None:
+        if g.index_min is None and not allow_empty:
             raise VolumeError(f"{path}: grid {name!r} has no active voxels")
 
     def _tile(self, g: VdbGrid, value, origin) -> float:
@@ -760,20 +822,50 @@ def _string(s: str) -> bytes:
     return struct.pack("<I", len(b)) + b
 
 
-def write_vdb(path, grid: Grid, name: str = "density") -> None:
-    """Write ``grid`` as a one-grid .vdb file (float, zip + active-mask compression).
+def write_vdb(path, grid: Grid, name: str = "density",
+              extra: dict[str, Grid] | None = None) -> None:
+    """Write ``grid`` as a .vdb file (float, zip + active-mask compression), as the grid
+    ``name``, then each grid of ``extra`` under its key (``[emission]`` grids beside a density).
 
-    Voxels with density > 0 are active, the background is 0; voxel ``[z][y][x]`` gets index
+    Voxels with a value > 0 are active, the background is 0; voxel ``[z][y][x]`` gets index
     ``(x, y, z)`` and the transform puts its centre where clvol has it. The voxels must be cubic
-    (OpenVDB transforms with different sizes per axis are what clvol refuses to read).
+    (OpenVDB transforms with different sizes per axis are what clvol refuses to read). Each
+    grid's metadata keeps its dense shape and float64 box (``STORED_BOX_KEY``), so clvol reads
+    back the very array and box it wrote.
     """
     import uuid
     path = Path(path)
-    cell = grid.cell_size
-    if np.abs(cell - cell.mean()).max() > 1e-9 * cell.mean():
-        raise VolumeError(f"{path}: .vdb needs cubic voxels; this grid's voxel size is "
-                          f"{cell.tolist()} (x, y, z); resample it or change its box")
-    h = float(cell.mean())
+    grids = [(name, grid)] + list((extra or {}).items())
+    names = [n for n, _ in grids]
+    if len(set(names)) != len(names):
+        raise VolumeError(f"{path}: two grids named {sorted(n for n in names if names.count(n) > 1)[0]!r}")
+    for n, g in grids:
+        cell = g.cell_size
+        if np.abs(cell - cell.mean()).max() > 1e-9 * cell.mean():
+            raise VolumeError(f"{path}: .vdb needs cubic voxels; grid {n!r} has voxel size "
+                              f"{cell.tolist()} (x, y, z); resample it or change its box")
+    header = (struct.pack("<qIII", VDB_MAGIC, _WRITE_VERSION, *_WRITE_LIBRARY) + b"\x01"
+              + str(uuid.uuid4()).encode() + struct.pack("<I", 0)
+              + struct.pack("<i", len(grids)))
+    parts, pos = [header], len(header)
+    for n, g in grids:
+        body_head, buffers = _grid_body(g, n)
+        desc = _string(n) + _string("Tree_float_5_4_3") + _string("")
+        grid_pos = pos + len(desc) + 24
+        block_pos = grid_pos + len(body_head)
+        end_pos = block_pos + len(buffers)
+        parts += [desc + struct.pack("<3q", grid_pos, block_pos, end_pos), body_head, buffers]
+        pos = end_pos
+    from ..atomic import atomic_open
+    with atomic_open(path) as f:
+        for part in parts:
+            f.write(part)
+
+
+def _grid_body(grid: Grid, name: str) -> tuple[bytes, bytes]:
+    """(compression, metadata, transform and topology; leaf buffers) of one float grid."""
+    import json
+    h = float(grid.cell_size.mean())
     t = grid.bbox_min + 0.5 * h                     # world position of index (0, 0, 0)
     nz, ny, nx = grid.density.shape
     pad = [(0, -n % LEAF_DIM) for n in (nz, ny, nx)]
@@ -820,22 +912,15 @@ def write_vdb(path, grid: Grid, name: str = "density") -> None:
     xform = (_string("UniformScaleTranslateMap") + struct.pack("<3d", *t)
              + struct.pack("<3d", h, h, h) * 2 + struct.pack("<3d", *([1 / h] * 3))
              + struct.pack("<3d", *([1 / (h * h)] * 3)) + struct.pack("<3d", *([0.5 / h] * 3)))
-    meta = (struct.pack("<I", 2) + _string("class") + _string("string") + _string("fog volume")
-            + _string("name") + _string("string") + _string(name))
+    # json writes floats with repr: the float64 bounds come back exactly
+    box = json.dumps({"shape": [nx, ny, nz], "bbox_min": grid.bbox_min.tolist(),
+                      "bbox_max": grid.bbox_max.tolist()})
+    meta = (struct.pack("<I", 3) + _string("class") + _string("string") + _string("fog volume")
+            + _string("name") + _string("string") + _string(name)
+            + _string(STORED_BOX_KEY) + _string("string") + _string(box))
     body_head = (struct.pack("<I", COMPRESS_ZIP | COMPRESS_ACTIVE_MASK) + meta + xform
                  + struct.pack("<i", 1) + b"".join(topo))
-    buffers = b"".join(bufs)
-    header = (struct.pack("<qIII", VDB_MAGIC, _WRITE_VERSION, *_WRITE_LIBRARY) + b"\x01"
-              + str(uuid.uuid4()).encode() + struct.pack("<I", 0) + struct.pack("<i", 1))
-    desc = _string(name) + _string("Tree_float_5_4_3") + _string("")
-    grid_pos = len(header) + len(desc) + 24
-    block_pos = grid_pos + len(body_head)
-    end_pos = block_pos + len(buffers)
-    from ..atomic import atomic_open
-    with atomic_open(path) as f:
-        f.write(header + desc + struct.pack("<3q", grid_pos, block_pos, end_pos))
-        f.write(body_head)
-        f.write(buffers)
+    return body_head, b"".join(bufs)
 
 
 def format_vdb_info(path) -> str:
@@ -869,10 +954,20 @@ def format_vdb_info(path) -> str:
                 if g.is_scalar:
                     n = [int(v) for v in vf.dense_layout(g)[2]]
                     gib = 4 * n[0] * n[1] * n[2] / 2**30
-                    lines.append(f"    clvol dense grid: {n[0]} x {n[1]} x {n[2]} voxels with its "
-                                 f"1-voxel border ({gib:.3g} GiB float32 at full resolution)")
+                    how = ("as clvol wrote it" if vf.stored_layout(g) is not None
+                           else "with its 1-voxel border")
+                    lines.append(f"    clvol dense grid: {n[0]} x {n[1]} x {n[2]} voxels {how} "
+                                 f"({gib:.3g} GiB float32 at full resolution)")
             lines.append(f"    voxel size: {vec(g.voxel_size)}, index (0, 0, 0) at world "
                          f"{vec(g.translation)}")
             if g.transform_problem:
                 lines.append(f"    not readable as a density: {g.transform_problem}")
+            elif g.is_scalar and not g.instance_of:
+                # what a scene naming this grid would be refused for (a level set, a
+                # background other than 0, no active voxel), said before anyone tries
+                try:
+                    vf._check_density_grid(g, allow_empty=vf.stored_layout(g) is not None)
+                except VolumeError as e:
+                    why = str(e).split(f"grid {g.name!r} ", 1)[-1]
+                    lines.append(f"    cannot be rendered as a density: {why}")
     return "\n".join(lines)

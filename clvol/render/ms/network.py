@@ -574,14 +574,19 @@ class NetworkMs(GridMs):
     def _network_header(self) -> dict:
         """The entries every network-backed source writes: weights, evaluations, time split."""
         info = self.info
+        # Fused (the default), the gather runs inside the network's kernel and has no time of
+        # its own: no seconds.gather (it read 0.0 in every header and the viewer), and
+        # seconds.network is both, as network_fused says.
+        fused = self.net.fused if self.net else FUSED_DEFAULT
         return {
             "raymarch.weights": str(self.net.weights.path) if self.net else str(self.weights_path),
             "raymarch.network_base_resolution": self.net.base if self.net else 0,
             "raymarch.network_evaluations_per_point": info["evaluations"] if info else 0,
             "raymarch.network_points": info["points"] if info else 0,
+            "raymarch.network_fused": fused,
             "seconds.network_setup": round(self.setup_seconds, 4) if info else 0.0,
             "seconds.graded_transmittance": round(info["light"], 4) if info else 0.0,
-            "seconds.gather": round(info["gather"], 4) if info else 0.0,
+            **({} if fused else {"seconds.gather": round(info["gather"], 4) if info else 0.0}),
             "seconds.network": round(info["network"], 4) if info else 0.0,
             **({"seconds.ms_interpolate": round(info["interpolate"], 4)}
                if info and "interpolate" in info else {}),
