@@ -59,7 +59,8 @@ def test_kernels_do_not_import_the_render_layer():
 
 
 def test_torch_only_in_the_training_modules():
-    training = {CLVOL / "neural" / "model.py", CLVOL / "neural" / "train.py"}
+    training = {CLVOL / "neural" / "model.py", CLVOL / "neural" / "train.py",
+                CLVOL / "neural" / "raytrain.py"}
     users = {p.relative_to(ROOT).as_posix() for p in modules(CLVOL)
              if any(m == "torch" or m.startswith("torch.") for m in imports(p))}
     assert users == {p.relative_to(ROOT).as_posix() for p in training}
@@ -75,7 +76,7 @@ LAYERS = [
     ("kernels", ["kernels"]),
     ("render", ["render"]),
     ("training", ["neural.dataset", "neural.distributed", "neural.labels", "neural.model",
-                  "neural.train"]),
+                  "neural.train", "neural.raytrain"]),
     ("applications", ["cli", "__main__", "viewer", "bundle", "goldens", "sequence"]),
 ]
 
