@@ -372,7 +372,7 @@ def _cmd_dataset_make(args) -> int:
                        albedo=_parse_pair("--albedo", args.albedo), g=_parse_pair("--g", args.g),
                        max_lobes=args.max_lobes, per_order_labels=args.per_order_labels,
                        families=tuple(f for f in args.families.split(",") if f),
-                       augment=args.augment)
+                       augment=args.augment, visible_fraction=args.visible_fraction)
     part = None
     if args.part is not None:
         try:
@@ -428,6 +428,9 @@ def add_dataset_make_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--augment", type=float, default=d.augment, metavar="FRACTION",
                    help="fraction of the volumes whose density structure is randomised "
                         "(remap and modulation; docs/neural.md)")
+    p.add_argument("--visible-fraction", type=float, default=d.visible_fraction, metavar="FRACTION",
+                   help="fraction of each shard's points drawn where its camera looks (optical "
+                        "depth 0.3-4 from the camera; docs/neural.md)")
     p.add_argument("--per-order-labels", action="store_true",
                    help="trace labels at albedo 1 and store them per scattering order, so "
                         "training can label every point at any albedo (docs/pathtrace.md)")

@@ -211,3 +211,31 @@ def test_ray_train_on_a_two_node_loopback_cluster_checkpoints_and_resumes(tiny_s
     import torch
     st = torch.load(out / "checkpoint.pt", weights_only=False)
     assert set(st) >= {"model", "opt", "sched", "gen", "step", "history", "config", "architecture"}
+
+
+def test_visible_points_replace_density_draws_only_and_lie_at_their_depth():
+    plain = ds.DatasetSpec(seed=3, n_volumes=2, n_heldout_volumes=0, resolution=(32, 32))
+    vis = ds.DatasetSpec(seed=3, n_volumes=2, n_heldout_volumes=0, resolution=(32, 32),
+                         visible_fraction=0.5)
+    g = ds.make_volume(plain, 0)
+    a, b = ds.sample_points(plain, g, 0, 1), ds.sample_points(vis, g, 0, 1)
+    changed = ~np.all(a == b, axis=1)
+    # the first half of the density draws may change (rays that miss keep theirs); the rest,
+    # and the uniform draws, are the plain spec's
+    assert changed[:64].sum() >= 48 and not changed[64:].any()
+    # each visible point lies at optical depth 0.3-4 from the camera (nearest-voxel sums)
+    cp = ds.config_params(vis, 0, 1, g)
+    origin = np.asarray(cp["camera_dir"]) * cp["camera_distance"]
+    d = g.density.astype(np.float64) * cp["density_scale"]
+    lo, hi = np.asarray(g.bbox_min), np.asarray(g.bbox_max)
+    cell = (hi - lo) / np.array(d.shape[::-1])
+    for p in b[:64][changed[:64]].astype(np.float64)[:12]:
+        ts = np.linspace(0.0, 1.0, 4001)[:, None]
+        seg = origin + ts * (p - origin)
+        inside = np.all((seg >= lo) & (seg < hi), axis=1)
+        k = np.clip(((seg - lo) / cell).astype(int), 0, np.array(d.shape[::-1]) - 1)
+        tau = float((d[k[:, 2], k[:, 1], k[:, 0]] * inside).sum() * np.linalg.norm(p - origin) / 4000)
+        # a coarser quadrature than the draw's: 25% slack around the drawn range
+        assert 0.3 * 0.75 <= tau <= 4.0 * 1.25, tau
+    with pytest.raises(ds.DatasetError, match="visible_fraction"):
+        ds.DatasetSpec(visible_fraction=0.9, uniform_fraction=0.2)

@@ -113,6 +113,11 @@ class DatasetSpec:
     # remap and a low-frequency modulation (clvol.volume.generators.restructure), drawn from a
     # stream of its own so the other draws of a spec are unchanged (0: none, as before).
     augment: float = 0.0
+    # This fraction of the density-drawn points is instead drawn where the configuration's
+    # camera looks: along a ray from the camera through a uniform point of the box, at an
+    # optical depth log-uniform in VISIBLE_TAU from the camera (what images are made of,
+    # deep high-order regions of thick clouds included; docs/neural.md). 0: none, as before.
+    visible_fraction: float = 0.0
 
     def __post_init__(self):
         def bad(name, value, allowed):
@@ -137,6 +142,11 @@ class DatasetSpec:
             raise bad("base_resolution", b, "must be a power of two from 2 to 512")
         if not (isinstance(self.augment, (int, float)) and 0.0 <= self.augment <= 1.0):
             raise bad("augment", self.augment, "must be a fraction in [0, 1]")
+        if not (isinstance(self.visible_fraction, (int, float)) and 0.0 <= self.visible_fraction <= 1.0):
+            raise bad("visible_fraction", self.visible_fraction, "must be a fraction in [0, 1]")
+        if self.visible_fraction + self.uniform_fraction > 1.0:
+            raise bad("visible_fraction", self.visible_fraction,
+                      f"plus uniform_fraction {self.uniform_fraction} must be at most 1")
         if not 0.0 <= self.uniform_fraction <= 1.0:
             raise bad("uniform_fraction", self.uniform_fraction, "must be in [0, 1]")
         if not 0.0 < self.lam <= 1.0:
@@ -439,7 +449,53 @@ def sample_points(spec: DatasetSpec, grid, v: int, c: int) -> np.ndarray:
     zyx = np.stack(np.unravel_index(idx_v, (nz, ny, nx)), axis=1)
     inside = lo + (zyx[:, ::-1] + rng.uniform(0, 1, (len(idx_v), 3))) * np.asarray(grid.cell_size)
     uni = lo + rng.uniform(0, 1, (n_uni, 3)) * (hi - lo)
+    n_vis = int(round(spec.visible_fraction * n)) if total > 0 else 0
+    if n_vis:
+        # a stream of its own: the draws above are those of a spec without visible points
+        cp = config_params(spec, v, c, grid)
+        origin = np.asarray(cp["camera_dir"], np.float64) * cp["camera_distance"]
+        vis = visible_points(grid, scale, origin, n_vis, _rng(spec, base + 6, idx, c))
+        inside[:len(vis)] = vis          # rays that reach no depth keep their density draw
     return np.concatenate([inside, uni]).astype(np.float32)
+
+
+VISIBLE_TAU = (0.3, 4.0)
+VISIBLE_STEPS = 2048    # ~60 per voxel at 32^3: one step of a dense voxel stays a small optical depth
+
+
+def visible_points(grid, density_scale: float, origin, n: int, rng) -> np.ndarray:
+    """Up to n points where a camera at ``origin`` looks into the medium: on rays through
+    uniform points of the box, at optical depth log-uniform in VISIBLE_TAU from the camera
+    (nearest-voxel density, VISIBLE_STEPS steps along the chord). Rays that never reach their
+    depth are dropped (fewer than n may come back)."""
+    lo, hi = np.asarray(grid.bbox_min, np.float64), np.asarray(grid.bbox_max, np.float64)
+    d = grid.density.astype(np.float64) * density_scale
+    shape = np.array(d.shape[::-1])
+    cell = (hi - lo) / shape
+    m = 4 * n                                        # candidates: many rays miss thin media
+    tgt = lo + rng.uniform(0, 1, (m, 3)) * (hi - lo)
+    tau = np.exp(rng.uniform(*np.log(VISIBLE_TAU), m))
+    jitter = rng.uniform(0, 1, m)
+    dirs = tgt - origin
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (lo - origin) / dirs, (hi - origin) / dirs
+    tn = np.nanmax(np.minimum(t0, t1), axis=1).clip(0)
+    tf = np.nanmin(np.maximum(t0, t1), axis=1)
+    dt = np.maximum(tf - tn, 0) / VISIBLE_STEPS
+    ts = tn[:, None] + (np.arange(VISIBLE_STEPS)[None, :] + jitter[:, None]) * dt[:, None]
+    p = origin + ts[..., None] * dirs[:, None, :]
+    k = np.clip(((p - lo) / cell).astype(np.int64), 0, shape - 1)
+    inc = d[k[..., 2], k[..., 1], k[..., 0]] * dt[:, None]    # step j covers ts[j] +- dt/2
+    cum = np.cumsum(inc, axis=1)
+    hit = cum[:, -1] >= tau
+    first = np.argmax(cum >= tau[:, None], axis=1)
+    rows = np.flatnonzero(hit)[:n]
+    j = first[rows]
+    # within the crossing step, where the optical depth reaches tau (density constant there)
+    f = (tau[rows] - (cum[rows, j] - inc[rows, j])) / np.maximum(inc[rows, j], 1e-30)
+    t = ts[rows, j] + (np.clip(f, 0, 1) - 0.5) * dt[rows]
+    return origin + t[:, None] * dirs[rows]
 
 
 def _code_contract(spec: DatasetSpec) -> dict:
