@@ -143,8 +143,12 @@ def main(argv=None) -> int:
     noise = float(np.mean(held.var))
     print(f"held-out loss of the mean predictor {base_loss:.5f}; label noise (mean var_y) {noise:.5f}")
     if args.evaluate:
-        return evaluate_weights(args.evaluate, train, held_sh, cfg, base_loss, out, excluded,
-                                device=args.device)
+        try:
+            return evaluate_weights(args.evaluate, train, held_sh, cfg, base_loss, out, excluded,
+                                    device=args.device)
+        except ClvolError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     try:
         arch = Architecture(n_levels=train.levels.shape[1], module_width=args.module_width,
                             head_widths=tuple(int(w) for w in args.head_widths.split(",") if w),
@@ -308,7 +312,8 @@ def evaluate_weights(path, train, held_sh, cfg, base_loss, out=None, excluded=()
     family's held-out stream) or out of family (clvol.neural.dataset.OUT_OF_FAMILY, and the
     ``excluded`` families of a leave-one-family-out run); the albedo bias is reported for both
     and their difference (the generalisation gap). Writes OUT/evaluation.json."""
-    import numpy as np
+    from collections import Counter
+
     from clvol.neural import train as tr
     from clvol.neural.dataset import OUT_OF_FAMILY
     from clvol.neural.export import load_weights
@@ -321,15 +326,12 @@ def evaluate_weights(path, train, held_sh, cfg, base_loss, out=None, excluded=()
     for f in sorted({fam(s) for s in held_sh if fam(s) in outside}):
         thin += thin_to_queries([s for s in held_sh if fam(s) == f], EVAL_FAMILY_QUERIES)
     held_sh = [s for s in held_sh if fam(s) not in outside] + thin
-    count = {}
-    for s in held_sh:
-        count[vid(s)] = count.get(vid(s), 0) + 1
-    seen = [s for s in held_sh if count[vid(s)] == 1 and fam(s) not in outside]
-    keep = set(map(id, thin_to_queries(seen, EVAL_FAMILY_QUERIES)))
-    held_sh = [s for s in held_sh if not (count[vid(s)] == 1 and fam(s) not in outside) or id(s) in keep]
-    count = {}
-    for s in held_sh:
-        count[vid(s)] = count.get(vid(s), 0) + 1
+    # a seen volume has one held-out shard (its held-out configuration), an unseen one several
+    count = Counter(map(vid, held_sh))
+    is_seen = (lambda s: count[vid(s)] == 1 and fam(s) not in outside)
+    keep = set(map(id, thin_to_queries([s for s in held_sh if is_seen(s)], EVAL_FAMILY_QUERIES)))
+    held_sh = [s for s in held_sh if not is_seen(s) or id(s) in keep]
+    count = Counter(map(vid, held_sh))
     hv = {k for k, n in count.items() if n > 1}
     hv |= {vid(s) for s in held_sh if fam(s) in outside}
     in_fam = [s for s in held_sh if vid(s) in hv and fam(s) not in outside]
