@@ -30,6 +30,7 @@ ALBEDOS = (0.8, 0.9, 0.96, 0.99, 1.0)
 def visible_points(scene, grid, n: int, tau: float):
     """[m][3] points at optical depth ``tau`` along a n x n grid of camera rays (rays that never
     reach it are skipped) and their directions toward the camera."""
+    from clvol.neural.dataset import depth_points
     cam = scene.camera
     o = np.asarray(cam.origin, np.float64)
     f = np.asarray(cam.target, np.float64) - o
@@ -38,38 +39,11 @@ def visible_points(scene, grid, n: int, tau: float):
     r /= np.linalg.norm(r)
     u = np.cross(r, f)
     h = np.tan(np.radians(cam.fov_y) / 2)
-    aspect = cam.width / cam.height
-    lo, hi = np.asarray(grid.bbox_min, np.float64), np.asarray(grid.bbox_max, np.float64)
-    d = grid.density.astype(np.float64) * scene.medium.density_scale     # [z][y][x]
-    shape = np.array(d.shape[::-1])                                      # (nx, ny, nz)
-    cell = (hi - lo) / shape
-    step = 0.25 * cell.min()
-    pts = []
-    for j in range(n):
-        for i in range(n):
-            sx = (2 * (i + 0.5) / n - 1) * h * aspect
-            sy = (1 - 2 * (j + 0.5) / n) * h
-            dirn = f + sx * r + sy * u
-            dirn /= np.linalg.norm(dirn)
-            # entry and exit of the box (slabs)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t0 = (lo - o) / dirn
-                t1 = (hi - o) / dirn
-            tn = np.nanmax(np.minimum(t0, t1))
-            tf = np.nanmin(np.maximum(t0, t1))
-            if not tf > max(tn, 0):
-                continue
-            t = max(tn, 0) + 0.5 * step
-            acc = 0.0
-            while t < tf:
-                p = o + t * dirn
-                k = np.clip(((p - lo) / cell).astype(int), 0, shape - 1)
-                acc += d[k[2], k[1], k[0]] * step
-                if acc >= tau:
-                    pts.append(p)
-                    break
-                t += step
-    pts = np.asarray(pts, np.float64).reshape(-1, 3)
+    s = (2 * (np.arange(n) + 0.5) / n - 1) * h
+    sx, sy = np.meshgrid(s * cam.width / cam.height, -s)
+    dirs = f + sx.reshape(-1, 1) * r + sy.reshape(-1, 1) * u
+    pts, hit = depth_points(grid, scene.medium.density_scale, o, dirs, tau)
+    pts = pts[hit]
     om = o - pts
     om /= np.linalg.norm(om, axis=1, keepdims=True)
     return pts, om

@@ -28,7 +28,6 @@ def main(argv=None) -> int:
     from clvol.errors import ClvolError
     from clvol.neural import train as tr
     from clvol.neural.dataset import load_shards
-    from clvol.neural.export import gather_contract
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data", help="data set folder (scripts/make_dataset.py), or several, comma-separated "
@@ -150,9 +149,7 @@ def main(argv=None) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
     try:
-        arch = Architecture(n_levels=train.levels.shape[1], module_width=args.module_width,
-                            head_widths=tuple(int(w) for w in args.head_widths.split(",") if w),
-                            se_hidden=args.se_hidden, albedo_input=args.albedo_input)
+        arch = _architecture(args, train.levels.shape[1])
     except ValueError as exc:
         print(f"error: architecture: {exc}", file=sys.stderr)
         return 2
@@ -207,17 +204,24 @@ def main(argv=None) -> int:
     report["stopped_by_time_budget"] = budget_stop
     (out / "report.json").write_text(json.dumps(report, indent=1))
     if args.export and (trainer.step >= cfg.steps or budget_stop):
-        contract = gather_contract(spec["base_resolution"], spec["lam"])
         notes = {k: report[k] for k in ("spec", "run", "samples", "step", "held_out_mean_predictor",
                                          "held_out_label_noise", "final")}
         notes["seconds_training"] = final.get("seconds")
         if budget_stop:       # the cosine schedule did not reach its end
             notes["stopped_by_time_budget"] = f"step {trainer.step} of {cfg.steps}"
-        from clvol.neural.dataset import dataset_domain
-        trainer.model.cpu().export(args.export, contract, training=notes,
-                             domain=union_domain([dataset_domain(f[0].meta["spec"]) for f in folders]))
-        print(f"exported {args.export}")
+        export(trainer.model.cpu(), args.export, folders, notes)
     return 0
+
+
+def export(model, path, folders, notes) -> None:
+    """Write ``model``'s weight file with the contract of the gather that made the data and the
+    union of the data sets' domains."""
+    from clvol.neural.dataset import dataset_domain
+    from clvol.neural.export import gather_contract
+    spec = folders[0][0].meta["spec"]
+    model.export(path, gather_contract(spec["base_resolution"], spec["lam"]), training=notes,
+                 domain=union_domain([dataset_domain(f[0].meta["spec"]) for f in folders]))
+    print(f"exported {path}")
 
 
 def _architecture(args, n_levels):
@@ -232,8 +236,7 @@ def train_ray(args, folders, train_sh, held_sh, cfg, out, excluded) -> int:
     same checkpoint file, report and export as one process."""
     import json
     import time
-    from clvol.neural.dataset import dataset_domain
-    from clvol.neural.export import gather_contract, load_weights
+    from clvol.neural.export import load_weights
     from clvol.neural.model import Model
     from clvol.neural.raytrain import train_on_ray
     try:
@@ -268,11 +271,8 @@ def train_ray(args, folders, train_sh, held_sh, cfg, out, excluded) -> int:
     if args.export and state["step"] >= cfg.steps:
         model = Model(arch)
         model.load_state_dict(state["model"])
-        notes = {k: report[k] for k in ("spec", "run", "step", "final", "engine", "workers")}
-        model.export(args.export, gather_contract(spec["base_resolution"], spec["lam"]),
-                     training=notes,
-                     domain=union_domain([dataset_domain(f[0].meta["spec"]) for f in folders]))
-        print(f"exported {args.export}")
+        export(model, args.export, folders,
+               {k: report[k] for k in ("spec", "run", "step", "final", "engine", "workers")})
     return 0
 
 

@@ -12,12 +12,12 @@ from __future__ import annotations
 import ipaddress
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import ray_cluster
 
 from clvol import cli
 from clvol.neural import dataset as ds
@@ -163,34 +163,8 @@ def test_progress_bar_shows_shards_labels_per_second_and_eta(monkeypatch):
     assert rate <= 24 / elapsed + 0.5 and rate > 0
 
 
-# -- a two-node cluster on loopback --------------------------------------------------------------
-# Runs in its own network, process and mount namespaces (unshare): the only interface is
-# loopback, so Ray's servers cannot listen on or reach any other address; `ray stop` inside sees
-# (and stops) only this cluster's processes, never another Ray on the machine; and a private
-# /tmp/ray keeps the cluster's address file (what `--address auto` reads) and logs to itself.
+# -- a two-node cluster on loopback (tests/ray_cluster.py) ---------------------------------------
 CLUSTER = r"""
-set -eu
-"$PY" -c '
-import fcntl, socket, struct                  # `ip link set lo up` without iproute2
-SIOCSIFFLAGS, IFF_UP, IFF_LOOPBACK, IFF_RUNNING = 0x8914, 0x1, 0x8, 0x40
-fcntl.ioctl(socket.socket(), SIOCSIFFLAGS,
-            struct.pack("16sH22x", b"lo", IFF_UP | IFF_LOOPBACK | IFF_RUNNING))
-'
-mkdir -p /tmp/ray && mount -t tmpfs tmpfs /tmp/ray
-stop() {
-    rc=$?
-    if [ $rc != 0 ]; then
-        cp -r /tmp/ray/session_latest/logs "$LOGS/ray" 2>/dev/null || true
-        tail -n 5 /tmp/ray/session_latest/logs/*.err 2>/dev/null | tail -n 60 >&2
-    fi
-    ray stop --force >/dev/null 2>&1 || true
-    exit $rc
-}
-trap stop EXIT
-ray start --head --node-ip-address 127.0.0.2 --port 6379 --num-cpus 1 \
-    --include-dashboard false --disable-usage-stats > "$LOGS/head.log" 2>&1
-ray start --address 127.0.0.2:6379 --node-ip-address 127.0.0.3 --num-cpus 1 \
-    --disable-usage-stats > "$LOGS/worker.log" 2>&1
 "$PY" -c '
 import json, ray
 ray.init(address="127.0.0.2:6379", logging_level="WARNING")
@@ -201,40 +175,19 @@ print("NODES " + json.dumps([[n["NodeManagerAddress"], n["Alive"]] for n in ray.
 """
 
 
-def _unshare_works() -> bool:
-    if shutil.which("unshare") is None:
-        return False
-    return subprocess.run(["unshare", "--net", "--pid", "--fork", "--mount-proc", "true"],
-                          capture_output=True).returncode == 0
-
-
-@pytest.mark.skipif(not _unshare_works(), reason="needs unshare (net+pid namespaces) to keep "
-                    "the cluster on loopback and its `ray stop` away from other Ray processes")
+@pytest.mark.skipif(not ray_cluster.unshare_works(), reason=ray_cluster.SKIP_REASON)
 def test_two_node_loopback_cluster_makes_the_serial_bytes(serial, tmp_path):
     """`ray start` a head on 127.0.0.2 and a worker node on 127.0.0.3, then `clvol dataset
     make` through the GCS address and through Ray Client (ray://)."""
     pytest.importorskip("ray")
-    out, out_client, logs = tmp_path / "data", tmp_path / "data_client", tmp_path / "logs"
-    logs.mkdir()
-    env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0",
-           # The Ray Client proxy (started by `ray start --head`) forks a server process per
-           # client with a preexec_fn, so the child runs the at-fork hooks, gRPC's fork
-           # support among them; it starts threads in the child before exec, which can segfault
-           # (strace: the child "killed by SIGSEGV" before exec, no log; the proxy then waits
-           # out its channel timeout and answers "Initialization failure from server").
-           # It happened in 2 of 2 cold tries and 0 of 3 with gRPC's fork support off (the
-           # proxy only forks to exec, so it needs none). docs/dataset.md says the same.
-           "GRPC_ENABLE_FORK_SUPPORT": "0",
-           # A bound on how long the proxy waits for a healthy server process to answer
-           # (import ray + gRPC start-up: ~3-6 s here; the default 30 s leaves little room on
-           # two busy cores). It is not a retry: a crashed server still fails the test.
-           "RAY_CLIENT_SERVER_CHECK_CHANNEL_TIMEOUT_S": "150",
-           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
-           "PY": sys.executable, "OUT": str(out), "OUT_CLIENT": str(out_client), "LOGS": str(logs)}
-    env.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)     # a real (multi-node) cluster
-    p = subprocess.run(["unshare", "--net", "--pid", "--fork", "--mount-proc", "bash", "-c",
-                        CLUSTER, "cluster", *SPEC_ARGS], env=env, cwd=tmp_path,
-                       capture_output=True, text=True, timeout=420)
+    out, out_client = tmp_path / "data", tmp_path / "data_client"
+    p = ray_cluster.run(CLUSTER, *SPEC_ARGS, cwd=tmp_path, logs=tmp_path / "logs", timeout=420,
+                        env={"OUT": str(out), "OUT_CLIENT": str(out_client),
+                             # A bound on how long the Ray Client proxy waits for a healthy
+                             # server process to answer (import ray + gRPC start-up: ~3-6 s
+                             # here; the default 30 s leaves little room on two busy cores).
+                             # It is not a retry: a crashed server still fails the test.
+                             "RAY_CLIENT_SERVER_CHECK_CHANNEL_TIMEOUT_S": "150"})
     assert p.returncode == 0, (p.stdout + p.stderr)[-3000:]
     nodes = json.loads(next(line for line in p.stdout.splitlines()
                             if line.startswith("NODES "))[6:])

@@ -10,15 +10,14 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import ray_cluster
 
-from clvol.errors import ClvolError
 from clvol.neural import dataset as ds
 from clvol.neural import train as tr
 from clvol.volume.generators import generate, restructure
@@ -153,30 +152,9 @@ def test_evaluate_reports_in_and_out_of_family_rows_and_the_gap(tiny_sets, tmp_p
     assert ev["excluded_families"] == ["cumulus"] and "out of family: cumulus" in ev["groups"]
 
 
-def _unshare_works() -> bool:
-    if shutil.which("unshare") is None:
-        return False
-    return subprocess.run(["unshare", "--net", "--pid", "--fork", "--mount-proc", "true"],
-                          capture_output=True).returncode == 0
-
-
-# Two Ray nodes on loopback (head 127.0.0.2, worker 127.0.0.3, one CPU each), as in
-# tests/test_dataset_ray.py; then `scripts/train.py --ray` with one worker per node: to step 4,
-# then resumed to step 8, then exported.
+# `scripts/train.py --ray` on a two-node loopback cluster (tests/ray_cluster.py), one worker
+# per node: to step 4, then resumed to step 8, then exported.
 CLUSTER = r"""
-set -eu
-"$PY" -c '
-import fcntl, socket, struct                  # `ip link set lo up` without iproute2
-SIOCSIFFLAGS, IFF_UP, IFF_LOOPBACK, IFF_RUNNING = 0x8914, 0x1, 0x8, 0x40
-fcntl.ioctl(socket.socket(), SIOCSIFFLAGS,
-            struct.pack("16sH22x", b"lo", IFF_UP | IFF_LOOPBACK | IFF_RUNNING))
-'
-mkdir -p /tmp/ray && mount -t tmpfs tmpfs /tmp/ray
-trap 'ray stop --force >/dev/null 2>&1 || true' EXIT
-ray start --head --node-ip-address 127.0.0.2 --port 6379 --num-cpus 1 \
-    --include-dashboard false --disable-usage-stats > "$LOGS/head.log" 2>&1
-ray start --address 127.0.0.2:6379 --node-ip-address 127.0.0.3 --num-cpus 1 \
-    --disable-usage-stats > "$LOGS/worker.log" 2>&1
 T="$PY $ROOT/scripts/train.py $DATA $OUT --ray --address 127.0.0.2:6379 --workers 2 --steps 8 --batch 16 --eval-every 4 --checkpoint-every 4"
 $T --until 4
 echo "FIRST $("$PY" -c 'import sys, torch; print(torch.load(sys.argv[1], weights_only=False)["step"])' "$OUT/checkpoint.pt")"
@@ -184,21 +162,12 @@ $T --export "$OUT/w.npz"
 """
 
 
-@pytest.mark.skipif(not _unshare_works(), reason="needs unshare (net+pid namespaces) to keep "
-                    "the cluster on loopback and its `ray stop` away from other Ray processes")
+@pytest.mark.skipif(not ray_cluster.unshare_works(), reason=ray_cluster.SKIP_REASON)
 def test_ray_train_on_a_two_node_loopback_cluster_checkpoints_and_resumes(tiny_sets, tmp_path):
     pytest.importorskip("ray.train")
-    out, logs = tmp_path / "run", tmp_path / "logs"
-    logs.mkdir()
-    env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0",
-           "GRPC_ENABLE_FORK_SUPPORT": "0",     # see tests/test_dataset_ray.py
-           "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
-           "PY": sys.executable, "ROOT": str(ROOT), "DATA": str(tiny_sets / "in"),
-           "OUT": str(out), "LOGS": str(logs)}
-    env.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)
-    p = subprocess.run(["unshare", "--net", "--pid", "--fork", "--mount-proc", "bash", "-c",
-                        CLUSTER], env=env, cwd=tmp_path, capture_output=True, text=True,
-                       timeout=600)
+    out = tmp_path / "run"
+    p = ray_cluster.run(CLUSTER, cwd=tmp_path, logs=tmp_path / "logs",
+                        env={"DATA": str(tiny_sets / "in"), "OUT": str(out)})
     assert p.returncode == 0, (p.stdout + p.stderr)[-3000:]
     assert "FIRST 4" in p.stdout and "resuming from" in p.stdout
     rep = json.loads((out / "report.json").read_text())

@@ -465,19 +465,33 @@ VISIBLE_STEPS = 2048    # ~60 per voxel at 32^3: one step of a dense voxel stays
 
 def visible_points(grid, density_scale: float, origin, n: int, rng) -> np.ndarray:
     """Up to n points where a camera at ``origin`` looks into the medium: on rays through
-    uniform points of the box, at optical depth log-uniform in VISIBLE_TAU from the camera
-    (nearest-voxel density, VISIBLE_STEPS steps along the chord). Rays that never reach their
-    depth are dropped (fewer than n may come back)."""
+    uniform points of the box, at optical depth log-uniform in VISIBLE_TAU from the camera.
+    Rays that never reach their depth are dropped (fewer than n may come back)."""
     lo, hi = np.asarray(grid.bbox_min, np.float64), np.asarray(grid.bbox_max, np.float64)
-    d = grid.density.astype(np.float64) * density_scale
-    shape = np.array(d.shape[::-1])
-    cell = (hi - lo) / shape
     m = 4 * n                                        # candidates: many rays miss thin media
     tgt = lo + rng.uniform(0, 1, (m, 3)) * (hi - lo)
     tau = np.exp(rng.uniform(*np.log(VISIBLE_TAU), m))
     jitter = rng.uniform(0, 1, m)
-    dirs = tgt - origin
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    pts, hit = depth_points(grid, density_scale, origin, tgt - origin, tau, jitter)
+    return pts[hit][:n]
+
+
+def depth_points(grid, density_scale: float, origin, dirs, tau, jitter=0.5):
+    """(points [m][3], reached [m]): along each ray from ``origin`` in direction ``dirs`` [m][3],
+    the point at optical depth ``tau`` (scalar or [m]) from ``origin``: nearest-voxel density,
+    VISIBLE_STEPS steps along the ray's chord of the box (``jitter`` in [0, 1): the steps'
+    offset), interpolated within the crossing step. Rays that miss the box or never reach
+    ``tau`` are not reached (their point is meaningless)."""
+    lo, hi = np.asarray(grid.bbox_min, np.float64), np.asarray(grid.bbox_max, np.float64)
+    d = grid.density.astype(np.float64) * density_scale
+    shape = np.array(d.shape[::-1])
+    cell = (hi - lo) / shape
+    origin = np.asarray(origin, np.float64)
+    dirs = np.asarray(dirs, np.float64)
+    dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    m = len(dirs)
+    tau = np.broadcast_to(np.asarray(tau, np.float64), (m,))
+    jitter = np.broadcast_to(np.asarray(jitter, np.float64), (m,))
     with np.errstate(divide="ignore", invalid="ignore"):
         t0, t1 = (lo - origin) / dirs, (hi - origin) / dirs
     tn = np.nanmax(np.minimum(t0, t1), axis=1).clip(0)
@@ -489,13 +503,12 @@ def visible_points(grid, density_scale: float, origin, n: int, rng) -> np.ndarra
     inc = d[k[..., 2], k[..., 1], k[..., 0]] * dt[:, None]    # step j covers ts[j] +- dt/2
     cum = np.cumsum(inc, axis=1)
     hit = cum[:, -1] >= tau
-    first = np.argmax(cum >= tau[:, None], axis=1)
-    rows = np.flatnonzero(hit)[:n]
-    j = first[rows]
+    j = np.argmax(cum >= tau[:, None], axis=1)
+    r = np.arange(m)
     # within the crossing step, where the optical depth reaches tau (density constant there)
-    f = (tau[rows] - (cum[rows, j] - inc[rows, j])) / np.maximum(inc[rows, j], 1e-30)
-    t = ts[rows, j] + (np.clip(f, 0, 1) - 0.5) * dt[rows]
-    return origin + t[:, None] * dirs[rows]
+    f = (tau - (cum[r, j] - inc[r, j])) / np.maximum(inc[r, j], 1e-30)
+    t = ts[r, j] + (np.clip(f, 0, 1) - 0.5) * dt
+    return origin + t[:, None] * dirs, hit
 
 
 def _code_contract(spec: DatasetSpec) -> dict:
