@@ -11,7 +11,7 @@
 # A record of the run of 2026-11-27, not a recipe to repeat as is: it made 26 shards in 220 s,
 # because 16 processes time-slice one GPU and each builds the path tracer's program (~60 s).
 # On one GPU make the training sets with one process and large shards (docs/dataset.md,
-# "On a GPU"); NPROC=1 does that here.
+# "On a GPU"): one `clvol dataset make` per data set, without --part.
 #
 #   DATA_S=270 TRAIN_S=150 NPROC=14 DEVICE=cuda scripts/device_scale.sh RUNS_DIR
 # Environment: DATA_S, TRAIN_S (seconds), NPROC (dataset processes), DEVICE (torch), SMALL=1
