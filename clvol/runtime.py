@@ -218,6 +218,46 @@ def describe_devices(device: str | None = None, details: bool = True) -> str:
     return "\n".join(lines)
 
 
+# --------------------------------------------------------------------------- lanes
+
+LANE_WIDTHS = (16, 8, 4)
+
+
+def lanes_for(kind: str, native_float_width: int) -> int:
+    """Vector lanes per work-item (cl/include/lanes.h LANES) for a device: a CPU's native float
+    vector width (512-bit registers: 16, 256: 8, 128: 4), since a call passing a wider vector
+    changes the CPU's calling convention (clang's -Wpsabi, docs/opencl.md); 16 elsewhere (a
+    GPU scalarises the lanes, and a CPU that reports no SIMD width is not one PoCL targets)."""
+    w = int(native_float_width or 0)
+    if kind == "cpu" and w in (4, 8):
+        return w
+    return 16
+
+
+def forced_lanes() -> int | None:
+    """``$CLVOL_LANES`` (16, 8 or 4) if set: run the kernels at that width on any device (the
+    tests compare widths on one machine)."""
+    v = os.environ.get("CLVOL_LANES", "").strip()
+    if not v:
+        return None
+    if not v.isdigit() or int(v) not in LANE_WIDTHS:
+        raise DeviceError(f"CLVOL_LANES={v!r}: expected one of {', '.join(map(str, LANE_WIDTHS))}")
+    return int(v)
+
+
+def device_lanes(e: DeviceEntry) -> int:
+    """The lane width the kernels are built with on this device: ``$CLVOL_LANES``, else
+    ``lanes_for`` its type and native float vector width. The one place it is decided."""
+    forced = forced_lanes()
+    if forced is not None:
+        return forced
+    try:
+        width = e.device.native_vector_width_float
+    except (cl.Error, AttributeError):
+        width = 0
+    return lanes_for(e.kind, width)
+
+
 # --------------------------------------------------------------------------- programs
 
 def first_build_error(log: str) -> str:
@@ -385,6 +425,7 @@ class Runtime:
         self.entry = entry
         self.device = entry.device
         self.reason = why
+        self.lanes = device_lanes(entry)   # -D LANES of every program (cl/include/lanes.h)
         self.profiling = profiling
         self.context = cl.Context([self.device])
         props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
@@ -411,7 +452,8 @@ class Runtime:
         if not path.is_file():
             raise BuildError(f"no OpenCL source {path}")
         src_hash = _sources_hash(path)
-        options = tuple(["-I", str(include_dir()), f"-DCLVOL_SOURCES_HASH=0x{src_hash}"]
+        options = tuple(["-I", str(include_dir()), f"-DCLVOL_SOURCES_HASH=0x{src_hash}",
+                         f"-DLANES={self.lanes}"]
                         + _define_flags(defines) + list(extra_options))
         key = (src_hash, options, self.entry.spec)
         prog = self._programs.get(key)
@@ -620,7 +662,7 @@ def get_runtime(device: str | None = None, profiling: bool | None = None) -> Run
     device = device if device is not None else _DEFAULTS["device"]
     profiling = profiling if profiling is not None else _DEFAULTS["profiling"]
     entry, _ = choose_device(device)
-    key = (entry.spec, profiling)
+    key = (entry.spec, profiling, device_lanes(entry))
     rt = _RUNTIMES.get(key)
     if rt is None:
         rt = _RUNTIMES[key] = Runtime(device, profiling)

@@ -31,7 +31,7 @@ CL_SOURCES = sorted((ROOT / "cl").glob("*.cl")) + sorted((ROOT / "cl" / "include
 
 # The host's name of a kernel's number, where the two differ (Python name -> kernel name).
 KERNEL_NAME = {
-    "PT_OUT": "PT_OUT_NO_EMISSION", "QUERIES_PER_ITEM": "MLP_QUERIES_PER_ITEM",
+    "PT_OUT": "PT_OUT_NO_EMISSION",
     "MAX_VIEW_K": "VIEW_MAX_K", "MAX_VIEW_RAYS": "VIEW_MAX_RAYS", "MAX_OCTAVES": "MS_MAX_OCTAVES",
     "RR_START": "PT_RR_START", "MAX_VERTICES": "PT_MAX_VERTICES", "T_RR": "PT_T_RR",
     "ORDER_EXACT": "PT_ORDER_EXACT", "ORDER_EXACT_LOG2": "PT_ORDER_EXACT_LOG2",
@@ -208,7 +208,7 @@ def test_a_program_sees_the_header_values_the_python_host_uses():
     host = {  # kernel name -> the values the Python wrappers launch with
         "TILE": [raymarch.TILE], "MS_MAX_OCTAVES": [raymarch.MAX_OCTAVES],
         "SWEEP_PAD": [transmittance.SWEEP_PAD], "SWEEP_BLOCK": [transmittance.SWEEP_BLOCK],
-        "BAKE_SPAN": [gather.BAKE_SPAN], "MLP_QUERIES_PER_ITEM": [mlp.QUERIES_PER_ITEM],
+        "BAKE_SPAN": [gather.BAKE_SPAN],
         "PT_OUT_NO_EMISSION": [pathtrace.PT_OUT, pathtrace.ROW_EM_DIRECT.start],
         "PT_OUT_EMISSION": [pathtrace.PT_OUT_EMISSION, pathtrace.ROW_EM_SCATTERED.stop],
         "PT_ORDER_EXACT": [pathtrace.ORDER_EXACT], "PT_ORDER_EXACT_LOG2": [pathtrace.ORDER_EXACT_LOG2],
