@@ -185,8 +185,9 @@ def test_the_header_is_read_strictly():
 
 def _probe(header: str, ints: list[str], floats: list[str], defines: dict) -> tuple[list, list]:
     """Build ``#include header`` and a kernel that writes the listed macros, with the host's
-    -D options for ``defines``; returns the values the program saw."""
+    -D options for ``defines`` (and the runtime's LANES); returns the values the program saw."""
     rt = get_runtime()
+    defines = dict(defines, LANES=rt.lanes)
     src = (f'#include "{header}"\n__kernel void probe(__global long *i, __global float *f) {{\n'
            + "".join(f"    i[{j}] = {n};\n" for j, n in enumerate(ints))
            + "".join(f"    f[{j}] = {n};\n" for j, n in enumerate(floats)) + "}\n")

@@ -9,8 +9,7 @@
 
 #ifndef LANES
 #error "needs -D LANES (16, 8 or 4: clvol/runtime.py device_lanes)"
-#endif
-#if LANES != 16 && LANES != 8 && LANES != 4
+#elif LANES != 16 && LANES != 8 && LANES != 4
 #error "LANES must be 16, 8 or 4"
 #endif
 
