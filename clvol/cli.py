@@ -19,7 +19,7 @@ from pathlib import Path
 from .errors import BuildError, ClvolError
 
 
-def _code_paths(kind: str, cus: int, lanes: int) -> list[str]:
+def _code_paths(kind: str, cus: int, lanes: int, lanes_line: str = "") -> list[str]:
     """Which code path each kernel takes on a device of ``kind`` with ``cus`` compute units
     and lane width ``lanes`` (clvol/runtime.py device_lanes): its work per work-item and launch
     shape (the places the host code asks the device)."""
@@ -31,7 +31,7 @@ def _code_paths(kind: str, cus: int, lanes: int) -> list[str]:
     items, local = launch_shape(kind, cus, 256 * 256, render_lanes)
     cpu = kind == "cpu"
     return [
-        f"lanes: {lanes} (float{lanes} vectors; -D LANES of every program)",
+        lanes_line or f"lanes: {lanes} per work-item",
         f"raymarch: {TILE}x{tile_rows(lanes)} pixel tile per work-item (one pixel a lane), "
         f"groups of {LOCAL_SIZE} tiles",
         f"pathtrace: {render_lanes} paths per work-item (render), {query_lanes} (point "
@@ -74,7 +74,8 @@ def _check_builds(entry) -> list[str]:
 
 def _cmd_info(args) -> int:
     from . import __version__
-    from .runtime import choose_device, describe_devices, device_lanes, list_devices
+    from .runtime import (choose_device, describe_devices, describe_lanes, device_lanes,
+                          list_devices)
     print(f"clvol {__version__}")
     print(describe_devices(args.device))
     try:
@@ -88,7 +89,8 @@ def _cmd_info(args) -> int:
         entries = [chosen] if args.device else entries
     for e in entries:
         print(f"code paths on {e.spec} ({e.kind}):")
-        for ln in _code_paths(e.kind, e.device.max_compute_units, device_lanes(e)):
+        for ln in _code_paths(e.kind, e.device.max_compute_units, device_lanes(e),
+                              describe_lanes(e)):
             print(f"  {ln}")
         if args.check:
             print(f"build check on {e.spec} {e.label} (8x8 renders of a 32^3 cloud):",

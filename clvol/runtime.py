@@ -248,14 +248,26 @@ def forced_lanes() -> int | None:
 def device_lanes(e: DeviceEntry) -> int:
     """The lane width the kernels are built with on this device: ``$CLVOL_LANES``, else
     ``lanes_for`` its type and native float vector width. The one place it is decided."""
+    return _lanes_and_why(e)[0]
+
+
+def _lanes_and_why(e: DeviceEntry) -> tuple[int, str]:
     forced = forced_lanes()
     if forced is not None:
-        return forced
+        return forced, "forced by $CLVOL_LANES"
     try:
-        width = e.device.native_vector_width_float
+        width = int(e.device.native_vector_width_float)
     except (cl.Error, AttributeError):
         width = 0
-    return lanes_for(e.kind, width)
+    why = (f"the CPU's native float vector width {width}" if e.kind == "cpu"
+           else f"a {e.kind} scalarises the lanes")
+    return lanes_for(e.kind, width), why
+
+
+def describe_lanes(e: DeviceEntry) -> str:
+    """``clvol info``'s line: the width and why."""
+    lanes, why = _lanes_and_why(e)
+    return f"lanes: {lanes} per work-item ({why}; -D LANES of every program)"
 
 
 # --------------------------------------------------------------------------- programs

@@ -63,3 +63,17 @@ def test_a_scene_renders_the_same_bits_at_16_8_and_4_lanes(monkeypatch, method, 
         assert set(got) == set(want)
         for name in want:
             np.testing.assert_array_equal(got[name], want[name], err_msg=f"{name} at {lanes}")
+
+
+def test_clvol_info_prints_each_devices_width_with_its_code_paths(monkeypatch, capsys):
+    from clvol.cli import main
+    monkeypatch.delenv("CLVOL_LANES", raising=False)
+    assert main(["info"]) == 0
+    out = capsys.readouterr().out
+    rt = get_runtime()
+    assert f"lanes: {rt.lanes} per work-item (" in out
+    monkeypatch.setenv("CLVOL_LANES", "8")
+    assert main(["info"]) == 0
+    out = capsys.readouterr().out
+    assert "lanes: 8 per work-item (forced by $CLVOL_LANES" in out
+    assert "raymarch: 4x2 pixel tile" in out and "mlp, gather_mlp: 8 queries" in out
