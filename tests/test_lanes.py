@@ -77,3 +77,19 @@ def test_clvol_info_prints_each_devices_width_with_its_code_paths(monkeypatch, c
     out = capsys.readouterr().out
     assert "lanes: 8 per work-item (forced by $CLVOL_LANES" in out
     assert "raymarch: 4x2 pixel tile" in out and "mlp, gather_mlp: 8 queries" in out
+
+
+def test_kernels_refuse_a_missing_or_unknown_width_and_wider_path_lanes(monkeypatch):
+    import pyopencl as cl
+
+    from clvol.errors import BuildError
+    from clvol.runtime import include_dir
+    rt = get_runtime()
+    src = '#include "lanes.h"\n__kernel void k(__global float *o) { vstoreL((vL)(1.0f), 0, o); }\n'
+    for opts, msg in (([], "needs -D LANES"), (["-DLANES=6"], "LANES must be 16, 8 or 4")):
+        with pytest.raises(cl.RuntimeError, match=msg):
+            cl.Program(rt.context, src).build(options=["-I", str(include_dir())] + opts,
+                                              devices=[rt.device])
+    monkeypatch.setenv("CLVOL_LANES", "8")
+    with pytest.raises(BuildError, match="PT_LANES must be at most"):
+        get_runtime().program("pathtrace", {"PHASE_ISOTROPIC": 1, "PHASE_LOBES": 1, "PT_LANES": 16})
