@@ -23,8 +23,8 @@
  *   phase     log1p of seed eq. 5: j = 0 (centre) evaluates f(dot(-l, omega)) exactly; other
  *             points read the per-frame table ptab[NA][NPAD] linearly in alpha = acos(dot(-l, omega)).
  *
- * Speed (docs/conventions.md, PoCL on the CPU): one work-item per query, the template points in float16
- * lanes (17 chunks of 16 for NP = 266), so the table reads and the output stores are
+ * Speed (docs/conventions.md, PoCL on the CPU): one work-item per query, the template points in
+ * vector lanes (cl/include/lanes.h; 17 chunks of 16 for NP = 266 at LANES 16), so the table reads and the output stores are
  * contiguous vector operations and only the grid reads are per-lane gathers. Render mode reads
  * (tau, C) pairs interleaved: one 16-byte load per lane and row serves both features and both
  * x corners (x0, y0, z0 stop at n - 2, so a weight of 1 at the top face replaces grid.h's
