@@ -14,7 +14,8 @@ Device choice (first that applies): the ``device`` argument, ``$CLVOL_DEVICE``,
 ``"gpu"``/``"cpu"``/``"accelerator"``, or a case-insensitive substring of
 "platform name / device name".
 
-Programs are built with ``-I cl/include``, the caller's ``-D`` defines and a hash of
+Programs are built with ``-I cl/include``, the caller's ``-D`` defines, the device's lane
+width ``-D LANES`` (``device_lanes``; ``Runtime.lanes`` for launch sizes) and a hash of
 every source they could include, so no driver-side cache can serve a stale header.
 They are cached in-process on (source hash, options, device).
 
@@ -459,7 +460,8 @@ class Runtime:
     # -- programs
     def program(self, stem: str, defines: dict | None = None,
                 extra_options: tuple[str, ...] = ()) -> Program:
-        """Build (or fetch from cache) ``cl/<stem>.cl`` with the given ``-D`` defines."""
+        """Build (or fetch from cache) ``cl/<stem>.cl`` with the given ``-D`` defines and the
+        device's ``-D LANES``."""
         path = cl_source_dir() / f"{stem}.cl"
         if not path.is_file():
             raise BuildError(f"no OpenCL source {path}")
