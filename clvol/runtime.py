@@ -242,7 +242,8 @@ def forced_lanes() -> int | None:
     if not v:
         return None
     if not v.isdigit() or int(v) not in LANE_WIDTHS:
-        raise DeviceError(f"CLVOL_LANES={v!r}: expected one of {', '.join(map(str, LANE_WIDTHS))}")
+        raise DeviceError(
+            f"CLVOL_LANES={v!r}: expected one of {', '.join(map(str, LANE_WIDTHS))}")
     return int(v)
 
 
@@ -261,7 +262,7 @@ def _lanes_and_why(e: DeviceEntry) -> tuple[int, str]:
     except (cl.Error, AttributeError):
         width = 0
     why = (f"the CPU's native float vector width {width}" if e.kind == "cpu"
-           else f"a {e.kind} scalarises the lanes")
+           else f"16 on a {e.kind}")
     return lanes_for(e.kind, width), why
 
 

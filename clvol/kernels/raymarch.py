@@ -23,14 +23,14 @@ LIGHT_QUANTITIES = ("transmittance", "optical_depth")
 MAX_OCTAVES = kernel_constant("MS_MAX_OCTAVES")
 MAX_VIEW_K = kernel_constant("VIEW_MAX_K")  # knots per block of the view-space table
 TILE = kernel_constant("TILE")  # pixels per row of the tile one work-item marches
+LOCAL_SIZE = 16  # tiles per work-group
+LAYERS = (("total", 3), ("single", 3), ("multiple", 3), ("alpha", 1), ("depth", 1))
 
 
 def tile_rows(lanes: int) -> int:
     """Rows of a tile: one pixel per lane (cl/raymarch.cl TILE_ROWS; LANES is the device's,
     ``Runtime.lanes``)."""
     return lanes // TILE
-LOCAL_SIZE = 16  # tiles per work-group
-LAYERS = (("total", 3), ("single", 3), ("multiple", 3), ("alpha", 1), ("depth", 1))
 
 
 def _device(x, rt) -> DeviceArray:
