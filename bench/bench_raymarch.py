@@ -10,7 +10,7 @@ ms = none (a) and wrenninge (b); reading the layers back to the host is reported
 The light-field update (the exact optical depth toward the light, recomputed when the light
 moves) is timed separately, for three light directions. Also printed: process CPU time per
 frame (all threads), a load-independent measure of the work (CPU time / cores estimates the
-frame time on an idle machine), and lookups/s: trilinear lookups issued (16 lanes per
+frame time on an idle machine), and lookups/s: trilinear lookups issued (LANES lanes per
 density or light-field lookup, counted by the kernel) per second of kernel time, next to the
 ~0.7-0.8 G/s measured peak (docs/raymarch.md, Speed).
 
@@ -80,7 +80,7 @@ def bench_frames(args, rt):
             for ms in ("none", "wrenninge"):
                 res_ = rm.march_with(cam, scene.light, ms, step=args.step, stats=True)[0]
                 st = res_["stats"].astype(np.int64).sum(axis=0)
-                lane_lookups = 16 * (int(st[0]) + int(st[1]))
+                lane_lookups = rt.lanes * (int(st[0]) + int(st[1]))
                 k_times, c_times, r_times = [], [], []
                 for _ in range(args.repeat + 1):
                     c0 = cpu_seconds()
@@ -99,15 +99,15 @@ def bench_frames(args, rt):
                 ct = float(np.median(c_times[1:]))
                 target = TARGET_MS.get(size)
                 tgt = f"<= {target:.0f}" if target else "-"
-                active = 100.0 * st[3] / max(16 * st[0], 1)
+                active = 100.0 * st[3] / max(rt.lanes * st[0], 1)
                 print(f"  {size:>5}^2 {'(' + ms[0] + ')':>4} {kt * 1e3:>10.1f} {tgt:>8} "
                       f"{ct / cores * 1e3:>12.1f} {np.median(r_times[1:]) * 1e3:>12.1f} "
                       f"{lane_lookups / kt / 1e9:>12.3f} {active:>9.0f}")
     print(f"\nPeak measured with PoCL on 2 AVX-512 cores for a plain two-lookup march: "
           f"{PEAK_LOOKUPS[0] / 1e9:.1f}-{PEAK_LOOKUPS[1] / 1e9:.1f} G lookups/s "
           f"(docs/raymarch.md). "
-          "Lookups here = 16 lanes x (density lookups + light-field lookups) issued, idle lanes "
-          "included; 'active %' = lane-segments doing work / lanes issued.")
+          f"Lookups here = {rt.lanes} lanes x (density lookups + light-field lookups) issued, "
+          "idle lanes included; 'active %' = lane-segments doing work / lanes issued.")
 
 
 def _pt_reference(scene, spp, cache: Path, name: str, size: int):

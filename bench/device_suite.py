@@ -463,12 +463,12 @@ def pathtrace_setup(ctx, parts=("render", "query")):
         pt.render_batch(dataclasses.replace(scene.camera, width=2, height=2), 0, 0, 1)
         out["build_render_s"] = round(time.perf_counter() - t0, 2)
     if "query" in parts:
-        from clvol.kernels.pathtrace import QUERY_LANES, specialisation
+        from clvol.kernels.pathtrace import QUERY_LANES, path_lanes, specialisation
         t0 = time.perf_counter()
         # the program point_query builds (its PathTracer: the scene's medium, a unit sun)
         med = _medium(scene, grid, None, (1.0, 1.0, 1.0), None)
         defines = specialisation(med, True)[0]
-        rt.program("pathtrace", {"PT_LANES": QUERY_LANES, **defines})
+        rt.program("pathtrace", {"PT_LANES": path_lanes(rt, QUERY_LANES), **defines})
         out["build_query_s"] = round(time.perf_counter() - t0, 2)
     return out
 

@@ -23,8 +23,8 @@
  *   phase     log1p of seed eq. 5: j = 0 (centre) evaluates f(dot(-l, omega)) exactly; other
  *             points read the per-frame table ptab[NA][NPAD] linearly in alpha = acos(dot(-l, omega)).
  *
- * Speed (docs/conventions.md, PoCL on the CPU): one work-item per query, the template points in float16
- * lanes (17 chunks of 16 for NP = 266), so the table reads and the output stores are
+ * Speed (docs/conventions.md, PoCL on the CPU): one work-item per query, the template points in
+ * vector lanes (cl/include/lanes.h; 17 chunks of 16 for NP = 266 at LANES 16), so the table reads and the output stores are
  * contiguous vector operations and only the grid reads are per-lane gathers. Render mode reads
  * (tau, C) pairs interleaved: one 16-byte load per lane and row serves both features and both
  * x corners (x0, y0, z0 stop at n - 2, so a weight of 1 at the top face replaces grid.h's
@@ -53,7 +53,6 @@
  * Indices are int: the largest pyramid (1024^3) has 1.23e9 voxels, 2.45e9 floats as pairs, so
  * the host refuses render mode above 2^31 floats (kernels/gather.py).
  */
-#include "psabi.h"   /* first: see there */
 #include "gather_core.h"   /* the device functions, shared with cl/gather_mlp.cl */
 
 #ifndef GATHER_RENDER
@@ -63,46 +62,46 @@
 __attribute__((always_inline))
 void gather_train_chunk(__global const float *dens, __global const float *tlev,
                         __global const float *taufac, __global const int *loff, const int L,
-                        const int n0, const int c, const i16 lvl, const i16 n, const i16 off,
-                        const i16 inside, const v16 gx, const v16 gy, const v16 gz,
+                        const int n0, const int c, const iL lvl, const iL n, const iL off,
+                        const iL inside, const vL gx, const vL gy, const vL gz,
                         __global float *o, __global float *lv) {
-    const i16 nm1 = n - (i16)(1);
-    const i16 x0 = convert_int16(gx), y0 = convert_int16(gy), z0 = convert_int16(gz);
-    const i16 x1 = min(x0 + (i16)(1), nm1), y1 = min(y0 + (i16)(1), nm1);
-    const i16 z1 = min(z0 + (i16)(1), nm1);
-    const v16 wx = gx - convert_float16(x0), wy = gy - convert_float16(y0);
-    const v16 wz = gz - convert_float16(z0);
+    const iL nm1 = n - (iL)(1);
+    const iL x0 = convert_iL(gx), y0 = convert_iL(gy), z0 = convert_iL(gz);
+    const iL x1 = min(x0 + (iL)(1), nm1), y1 = min(y0 + (iL)(1), nm1);
+    const iL z1 = min(z0 + (iL)(1), nm1);
+    const vL wx = gx - convert_vL(x0), wy = gy - convert_vL(y0);
+    const vL wz = gz - convert_vL(z0);
     {
-        const i16 r00 = off + (z0 * n + y0) * n, r01 = off + (z0 * n + y1) * n;
-        const i16 r10 = off + (z1 * n + y0) * n, r11 = off + (z1 * n + y1) * n;
-        const v16 d00 = mix(gather16(dens, r00 + x0), gather16(dens, r00 + x1), wx);
-        const v16 d01 = mix(gather16(dens, r01 + x0), gather16(dens, r01 + x1), wx);
-        const v16 d10 = mix(gather16(dens, r10 + x0), gather16(dens, r10 + x1), wx);
-        const v16 d11 = mix(gather16(dens, r11 + x0), gather16(dens, r11 + x1), wx);
-        const v16 rho = mix(mix(d00, d01, wy), mix(d10, d11, wy), wz);
-        const v16 tau = rho * gather16(taufac, lvl);
-        store_chunk(o, c, log1p(select((v16)(0.0f), tau, inside)));
-        store_chunk(o + NP, c, (v16)(0.0f));
+        const iL r00 = off + (z0 * n + y0) * n, r01 = off + (z0 * n + y1) * n;
+        const iL r10 = off + (z1 * n + y0) * n, r11 = off + (z1 * n + y1) * n;
+        const vL d00 = mix(gatherL(dens, r00 + x0), gatherL(dens, r00 + x1), wx);
+        const vL d01 = mix(gatherL(dens, r01 + x0), gatherL(dens, r01 + x1), wx);
+        const vL d10 = mix(gatherL(dens, r10 + x0), gatherL(dens, r10 + x1), wx);
+        const vL d11 = mix(gatherL(dens, r11 + x0), gatherL(dens, r11 + x1), wx);
+        const vL rho = mix(mix(d00, d01, wy), mix(d10, d11, wy), wz);
+        const vL tau = rho * gatherL(taufac, lvl);
+        store_chunk(o, c, log1p(select((vL)(0.0f), tau, inside)));
+        store_chunk(o + NP, c, (vL)(0.0f));
     }
     /* Every graded level m, sampled at level lvl's centres around s (trilinear weights).
      * Level-lvl centre i sits at level-m coordinate (i + 0.5) nm / n - 0.5 (exact ratio). */
-    const v16 cx0 = convert_float16(x0) + 0.5f, cx1 = convert_float16(x1) + 0.5f;
-    const v16 cy0 = convert_float16(y0) + 0.5f, cy1 = convert_float16(y1) + 0.5f;
-    const v16 cz0 = convert_float16(z0) + 0.5f, cz1 = convert_float16(z1) + 0.5f;
-    const v16 nf = convert_float16(n);
+    const vL cx0 = convert_vL(x0) + 0.5f, cx1 = convert_vL(x1) + 0.5f;
+    const vL cy0 = convert_vL(y0) + 0.5f, cy1 = convert_vL(y1) + 0.5f;
+    const vL cz0 = convert_vL(z0) + 0.5f, cz1 = convert_vL(z1) + 0.5f;
+    const vL nf = convert_vL(n);
     for (int m = 0; m < L; ++m) {
         const int nmi = n0 >> m;
         __global const float *tm = tlev + loff[m];
-        const v16 r = (float)nmi / nf;
-        const v16 ax0 = cx0 * r - 0.5f, ax1 = cx1 * r - 0.5f;
-        const v16 ay0 = cy0 * r - 0.5f, ay1 = cy1 * r - 0.5f;
-        const v16 az0 = cz0 * r - 0.5f, az1 = cz1 * r - 0.5f;
-        const v16 e00 = mix(lookup16(tm, nmi, ax0, ay0, az0), lookup16(tm, nmi, ax1, ay0, az0), wx);
-        const v16 e01 = mix(lookup16(tm, nmi, ax0, ay1, az0), lookup16(tm, nmi, ax1, ay1, az0), wx);
-        const v16 e10 = mix(lookup16(tm, nmi, ax0, ay0, az1), lookup16(tm, nmi, ax1, ay0, az1), wx);
-        const v16 e11 = mix(lookup16(tm, nmi, ax0, ay1, az1), lookup16(tm, nmi, ax1, ay1, az1), wx);
-        const v16 val = mix(mix(e00, e01, wy), mix(e10, e11, wy), wz);
-        store_chunk(lv + (size_t)m * NP, c, select((v16)(1.0f), val, inside));
+        const vL r = (float)nmi / nf;
+        const vL ax0 = cx0 * r - 0.5f, ax1 = cx1 * r - 0.5f;
+        const vL ay0 = cy0 * r - 0.5f, ay1 = cy1 * r - 0.5f;
+        const vL az0 = cz0 * r - 0.5f, az1 = cz1 * r - 0.5f;
+        const vL e00 = mix(lookupL(tm, nmi, ax0, ay0, az0), lookupL(tm, nmi, ax1, ay0, az0), wx);
+        const vL e01 = mix(lookupL(tm, nmi, ax0, ay1, az0), lookupL(tm, nmi, ax1, ay1, az0), wx);
+        const vL e10 = mix(lookupL(tm, nmi, ax0, ay0, az1), lookupL(tm, nmi, ax1, ay0, az1), wx);
+        const vL e11 = mix(lookupL(tm, nmi, ax0, ay1, az1), lookupL(tm, nmi, ax1, ay1, az1), wx);
+        const vL val = mix(mix(e00, e01, wy), mix(e10, e11, wy), wz);
+        store_chunk(lv + (size_t)m * NP, c, select((vL)(1.0f), val, inside));
     }
 }
 #endif
@@ -137,12 +136,12 @@ __kernel void gather(__global const float *dens, __global const float *tlev,
 #endif
 
     for (int c = 0; c < CHUNKS; ++c) {
-        i16 lvl, n, off, inside;
-        v16 gx, gy, gz;
+        iL lvl, n, off, inside;
+        vL gx, gy, gz;
         gather_chunk_points(&s, c, l, cmin, csize, n0, tpl, pinfo, loff, &lvl, &n, &off,
                             &inside, &gx, &gy, &gz);
 #ifdef GATHER_RENDER
-        v16 fd, ft;
+        vL fd, ft;
         gather_render_chunk(baked, n, off, inside, gx, gy, gz, c_out, &fd, &ft);
         store_chunk(o, c, fd);
         store_chunk(o + NP, c, ft);
@@ -162,7 +161,7 @@ __kernel void gather(__global const float *dens, __global const float *tlev,
  * That lookup is separable at these regular positions, so levels with n >= 16 are baked as:
  *   bake_xpass (per coarser m > lvl): X_m[zm][ym][x] = T_m row (zm, ym) interpolated in x at the
  *              n_lvl centres (the c00..c11 row values of grid_lookup);
- *   bake_rows  (per level): 16 consecutive x of one row per work-item; for m > lvl the y and z
+ *   bake_rows  (per level): up to BAKE_SPAN consecutive x of one row per work-item; for m > lvl the y and z
  *              lerps of four X_m rows (grid_lookup's order), m == lvl the voxel itself, m < lvl
  *              the 2x2x2 fine block around the centre (coordinates fall exactly halfway), so the
  *              result equals the direct lookups up to float rounding (tested against train mode).
@@ -183,7 +182,7 @@ __kernel void bake_xpass(__global const float *tlev, const int src_off, const in
 }
 
 /* One level with n >= 16: a work-item bakes span = min(n, BAKE_SPAN) consecutive x of row
- * (y, z) as span / 16 float16 chunks, so the per-level row set-up is shared by up to four
+ * (y, z) as span / LANES vector chunks, so the per-level row set-up is shared by the
  * chunks. xoff[m]: offset of X_m in xbuf (m > lvl). */
 #include "constants.h"   /* BAKE_SPAN */
 __kernel void bake_rows(__global const float *dens, __global const float *tlev,
@@ -192,21 +191,21 @@ __kernel void bake_rows(__global const float *dens, __global const float *tlev,
                         const int log2n, const float taufac_lvl, __global const float *weights,
                         const float bias, __global float *baked) {
     const int n = n0 >> lvl;
-    const int span = min(n, BAKE_SPAN), ns = span >> 4;
+    const int span = min(n, BAKE_SPAN), ns = span / LANES;
     const int i = get_global_id(0);           /* row segment index */
     if (i >= (n * n * n) / span) return;
     const int v = i * span;                   /* voxel index of the first lane in the level */
     const int x = v & (n - 1);
     const int zy = v >> log2n;
     const int y = zy & (n - 1), z = zy >> log2n;
-    v16 acc[BAKE_SPAN / 16];
-    for (int s = 0; s < ns; ++s) acc[s] = (v16)(0.0f);
+    vL acc[BAKE_SPAN / LANES];
+    for (int s = 0; s < ns; ++s) acc[s] = (vL)(0.0f);
     for (int m = 0; m < L; ++m) {
         const int nmi = n0 >> m;
         __global const float *tm = tlev + loff[m];
         const float wm = weights[m];
         if (m == lvl) {
-            for (int s = 0; s < ns; ++s) acc[s] += wm * vload16(s, tm + v);
+            for (int s = 0; s < ns; ++s) acc[s] += wm * vloadL(s, tm + v);
         } else if (m < lvl) {
             /* centre of v at level m: x 2^k + 2^(k-1) - 1/2 per axis, k = lvl - m: the mean
              * of the 2x2x2 block from b = x 2^k + 2^(k-1) - 1, lerped at 1/2 like grid.h */
@@ -215,13 +214,11 @@ __kernel void bake_rows(__global const float *dens, __global const float *tlev,
             const int r00 = (bz * nmi + by) * nmi, r01 = r00 + nmi;
             const int r10 = r00 + nmi * nmi, r11 = r10 + nmi;
             for (int s = 0; s < ns; ++s) {
-                const i16 bx = (((i16)(x + 16 * s)
-                                 + (i16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)) << k)
-                               + (i16)(h);
-                const v16 c00 = mix(gather16(tm, bx + (i16)(r00)), gather16(tm, bx + (i16)(r00 + 1)), 0.5f);
-                const v16 c01 = mix(gather16(tm, bx + (i16)(r01)), gather16(tm, bx + (i16)(r01 + 1)), 0.5f);
-                const v16 c10 = mix(gather16(tm, bx + (i16)(r10)), gather16(tm, bx + (i16)(r10 + 1)), 0.5f);
-                const v16 c11 = mix(gather16(tm, bx + (i16)(r11)), gather16(tm, bx + (i16)(r11 + 1)), 0.5f);
+                const iL bx = (((iL)(x + LANES * s) + LANE_IOTA) << k) + (iL)(h);
+                const vL c00 = mix(gatherL(tm, bx + (iL)(r00)), gatherL(tm, bx + (iL)(r00 + 1)), 0.5f);
+                const vL c01 = mix(gatherL(tm, bx + (iL)(r01)), gatherL(tm, bx + (iL)(r01 + 1)), 0.5f);
+                const vL c10 = mix(gatherL(tm, bx + (iL)(r10)), gatherL(tm, bx + (iL)(r10 + 1)), 0.5f);
+                const vL c11 = mix(gatherL(tm, bx + (iL)(r11)), gatherL(tm, bx + (iL)(r11 + 1)), 0.5f);
                 acc[s] += wm * mix(mix(c00, c01, 0.5f), mix(c10, c11, 0.5f), 0.5f);
             }
         } else {
@@ -237,16 +234,16 @@ __kernel void bake_rows(__global const float *dens, __global const float *tlev,
             __global const float *q10 = xm + (size_t)(z1 * nmi + y0) * n;
             __global const float *q11 = xm + (size_t)(z1 * nmi + y1) * n;
             for (int s = 0; s < ns; ++s)
-                acc[s] += wm * mix(mix(vload16(s, q00), vload16(s, q01), fy),
-                                   mix(vload16(s, q10), vload16(s, q11), fy), fz);
+                acc[s] += wm * mix(mix(vloadL(s, q00), vloadL(s, q01), fy),
+                                   mix(vloadL(s, q10), vloadL(s, q11), fy), fz);
         }
     }
     __global float *b = baked + 2 * ((size_t)loff[lvl] + v);
     for (int s = 0; s < ns; ++s) {
-        const v16 tau = vload16(s, dens + loff[lvl] + v) * taufac_lvl;
-        const v16 cc = acc[s] + bias;
-        vstore16(shuffle2(tau, cc, (uint16)(0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23)), 2 * s, b);
-        vstore16(shuffle2(tau, cc, (uint16)(8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31)), 2 * s + 1, b);
+        const vL tau = vloadL(s, dens + loff[lvl] + v) * taufac_lvl;
+        const vL cc = acc[s] + bias;
+        vstoreL(shuffle2(tau, cc, LANE_ZIP_LO), 2 * s, b);
+        vstoreL(shuffle2(tau, cc, LANE_ZIP_HI), 2 * s + 1, b);
     }
 }
 

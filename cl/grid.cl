@@ -5,7 +5,6 @@
  * camera_rays:       dir[row][col] for pixel centres
  * Points and directions are packed float3 (3 floats). Twin: reference/grid.py.
  */
-#include "psabi.h"   /* first: see there */
 #include "grid.h"
 
 __kernel void grid_density_many(__global const float *density, const int nx, const int ny,

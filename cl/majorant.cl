@@ -23,7 +23,6 @@
  *   seg       float [n][max_seg][4] out: (t_a, t_b, majorant, 0) per segment
  *   count     int [n]              out: number of segments (0 for a miss)
  */
-#include "psabi.h"   /* first: see there */
 #include "majorant.h"
 
 __kernel void majorant_build(__global const float *density, const int nx, const int ny,

@@ -2,9 +2,10 @@
  * {density, transmittance, phase} x {diffuse, highlight}, the per-type merges and the MLP head
  * in one kernel (seed III.C; architecture in clvol/neural/export.py, twin reference/mlp.py).
  *
- * Work split: one work-item evaluates 16 queries, one per lane of a float16; every layer is a
- * loop over its inputs with 16 (or 8) output accumulators (float16 each) fed by scalar weights. Weights
- * are shared by all lanes, so every weight load serves 16 queries, no layer width needs padding
+ * Work split: one work-item evaluates LANES queries (cl/include/lanes.h: 16, 8 or 4 by device),
+ * one per vector lane; every layer is a loop over its inputs with 16 (or 8) output accumulators
+ * (a vector each) fed by scalar weights. Weights are shared by all lanes, so every weight load
+ * serves LANES queries, no layer width needs padding
  * to 16, and ReLU/sigmoid/pooling are vector operations. (docs/conventions.md: explicit vectors are what
  * makes PoCL fast; local-memory tiling is slow there.)
  *
@@ -38,17 +39,16 @@
  * head on [merged x3, c]. Output per seed eq. 20's normalised log space.
  */
 
-#include "psabi.h"   /* first: see there */
 #include "mlp_core.h"   /* the device functions, shared with cl/gather_mlp.cl */
 
 __kernel void mlp_forward(__global const float *features, __global const float *config,
                           __global const float *params, const float4 channel_albedo,
                           const int n, __global float *out) {
-    const int q0 = get_global_id(0) * MLP_QUERIES_PER_ITEM;
+    const int q0 = get_global_id(0) * LANES;
     if (q0 >= n) return;
 
-    int foff[MLP_QUERIES_PER_ITEM], coff[MLP_QUERIES_PER_ITEM], dst[MLP_QUERIES_PER_ITEM];
-    for (int j = 0; j < MLP_QUERIES_PER_ITEM; ++j) {
+    int foff[LANES], coff[LANES], dst[LANES];
+    for (int j = 0; j < LANES; ++j) {
         const int q = min(q0 + j, n - 1);  // tail lanes recompute the last query, never stored
         foff[j] = q * (N_TYPES * N_POINTS);
         coff[j] = q * CONFIG_DIM;
@@ -58,5 +58,5 @@ __kernel void mlp_forward(__global const float *features, __global const float *
     mlp_config(config, coff, params, cfg, &albedo_cfg);
     V x[N_TYPES * N_POINTS];
     load_features(features, foff, x);
-    mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, min(MLP_QUERIES_PER_ITEM, n - q0), 1);
+    mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, min(LANES, n - q0), 1);
 }

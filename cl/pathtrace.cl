@@ -48,7 +48,7 @@
  * PHASE_LOBES / PHASE_ISOTROPIC (phase.h); PT_GREY (scalar throughput);
  * PT_ENV (a constant environment); PT_ENVMAP (a lat-long environment map); PT_NO_SUN (no sun); PT_SINGLE_ONLY (stop after vertex
  * 1); PT_RR_START, PT_MAX_VERTICES; PT_TEST_BIAS (tests only: scales sun NEE by its value);
- * PT_LANES (8 or 16 paths per work-item), PT_BATCH (lanes waiting before the vertex code
+ * PT_LANES (4, 8 or 16 paths per work-item, at most LANES), PT_BATCH (lanes waiting before the vertex code
  * runs), PT_STATS (loop counts in next[1..4], benchmarks only), PT_ORDER_BINS (point
  * queries: per-order bins after each row, below).
  *
@@ -80,7 +80,6 @@
  * Any number of work-items (local size 1) runs all paths of a launch: each takes paths
  * from *next until none are left.
  */
-#include "psabi.h"   /* first: see there */
 #include "rng.h"
 #include "grid.h"
 #include "phase.h"
@@ -185,8 +184,11 @@ typedef pt_rgb spec_t;
 #ifndef PT_LANES
 #error "pathtrace.cl needs -D PT_LANES (clvol/kernels/pathtrace.py RENDER_LANES, QUERY_LANES)"
 #endif
-#if PT_LANES != 8 && PT_LANES != 16
-#error "PT_LANES must be 8 or 16"
+#if PT_LANES != 4 && PT_LANES != 8 && PT_LANES != 16
+#error "PT_LANES must be 4, 8 or 16"
+#endif
+#if PT_LANES > LANES
+#error "PT_LANES must be at most the device's LANES (lanes.h: no wider vector in a call)"
 #endif
 #define PT_CAT_(a, b) a##b
 #define PT_CAT(a, b) PT_CAT_(a, b)

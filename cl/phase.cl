@@ -4,7 +4,6 @@
  * phase_sample_many: out[i] = phase_sample(w[i], lobe_g, lobe_w, u[i])   (float3 packed as 3 floats)
  * Define PHASE_LOBES (1..3) or PHASE_ISOTROPIC. Twin: reference/phase.py.
  */
-#include "psabi.h"   /* first: see there */
 #include "phase.h"
 
 __kernel void phase_eval_many(__global const float *mu, const float4 lobe_g, const float4 lobe_w,

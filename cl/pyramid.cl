@@ -16,7 +16,6 @@
  * Twin: reference/pyramid.py (mip_chain). Host wrapper: clvol/kernels/pyramid.py.
  */
 
-#include "psabi.h"   /* first: see there */
 
 __kernel void mip_reduce(__global float *data, const int src_off, const int dst_off,
                          const int n_dst) {

@@ -1,7 +1,7 @@
 /* Ray marcher: exact single scattering plus a pluggable multiple-scattering source.
  *
- * One work-item marches 16 camera rays (a 4 x 4 pixel tile) as float16 lanes: the explicit
- * vector style that makes ray marching fast on PoCL (docs/conventions.md, docs/raymarch.md).
+ * One work-item marches LANES camera rays (a tile of 4 x LANES/4 pixels) as vector lanes
+ * (cl/include/lanes.h, LANES = 16, 8 or 4 by device): the explicit vector style that makes ray marching fast on PoCL (docs/conventions.md, docs/raymarch.md).
  * Twin: reference/raymarch.py (the algorithm is described there in full).
  *
  * Pixel equation (docs/conventions.md; l toward the light, omega = -d toward the camera):
@@ -71,7 +71,7 @@
  *              (albedo, phase and transmittance toward the sky directions folded in),
  *              planes C..2C-1 the multiple-scattering approximation; C = ENV_CHANNELS.
  *              With C = 3 the device layout is float [en][en][en][8]: the six planes of a
- *              voxel side by side, then two unused (lookup16_env6). The pixel gets env_colour (RGB) times their march integrals: into `single`
+ *              voxel side by side, then two unused (lookupL_env6). The pixel gets env_colour (RGB) times their march integrals: into `single`
  *              and `multiple` respectively
  *   bg_image   float [height][width][3] with BG_IMAGE: background radiance per pixel
  *   em         (after those, only with EMISSION) float [C][ez][ey][ex], C = EMISSION_CHANNELS,
@@ -84,11 +84,10 @@
  *   alpha, depth              float [height][width] out: 1 - T_cam(exit) and the mean
  *              distance of the first extinction event (0 where alpha = 0)
  *   stats      uint [tiles][4] out with RAYMARCH_STATS (else untouched, may be 4 bytes):
- *              march iterations, light lookups, majorant reads (each on 16 lanes), and
- *              active lane-segments
- * Global size: ceil(width / 4) * ceil(height / 4) work-items (padded; guarded here).
+ *              march iterations, light lookups, majorant reads (each on LANES lanes),
+ *              and active lane-segments
+ * Global size: ceil(width / 4) * ceil(height / (LANES / 4)) work-items (padded; guarded here).
  */
-#include "psabi.h"   /* first: see there */
 #include "grid.h"
 #include "phase.h"
 
@@ -150,9 +149,11 @@
 #error "MS_OCTAVES must be 1..MS_MAX_OCTAVES"
 #endif
 
+#include "lanes.h"
 #if TILE != 4
-#error "the lane pattern of raymarch() (px, py) is written for 4 x 4 tiles"
+#error "the lane pattern of raymarch() (px, py) is written for tiles 4 pixels wide"
 #endif
+#define TILE_ROWS (LANES / TILE)   /* a tile is TILE x TILE_ROWS pixels, one per lane */
 #ifndef SKIP_PASSES
 #define SKIP_PASSES 4
 #endif
@@ -160,85 +161,84 @@
  * cancels); truncation error < tau^5/30240. */
 #define H_SERIES_BELOW 0.05f
 
-#include "lanes.h"
-
-/* Row pairs (x0, x0 + 1) of 16 lanes as one 8-byte load each, through private arrays
+/* Row pairs (x0, x0 + 1) of LANES lanes as one 8-byte load each, through private arrays
  * (building the vectors from 32 scalars directly crashes Oclgrind 21.10's
  * uninitialised-value checker; this form costs PoCL ~5%). */
 #define LANE_PAIRS(P, I, LO, HI)                                                         \
     {                                                                                    \
-        int id_[16];                                                                     \
-        float lo_[16], hi_[16];                                                          \
-        vstore16(I, 0, id_);                                                             \
-        for (int j_ = 0; j_ < 16; ++j_) {                                                \
+        int id_[LANES];                                                                  \
+        float lo_[LANES], hi_[LANES];                                                    \
+        vstoreL(I, 0, id_);                                                              \
+        for (int j_ = 0; j_ < LANES; ++j_) {                                                \
             const float2 e_ = vload2(0, P + id_[j_]);                                    \
             lo_[j_] = e_.x;                                                              \
             hi_[j_] = e_.y;                                                              \
         }                                                                                \
-        LO = vload16(0, lo_);                                                            \
-        HI = vload16(0, hi_);                                                            \
+        LO = vloadL(0, lo_);                                                             \
+        HI = vloadL(0, hi_);                                                            \
     }
 
-/* grid_lookup (grid.h) on 16 lanes: trilinear at continuous voxel coordinates, clamped.
+/* grid_lookup (grid.h) on LANES lanes: trilinear at continuous voxel coordinates, clamped.
  * Each row pair (x0, x0 + 1) is one 8-byte load: x0 is clamped to nx - 2 so that x0 + 1
  * stays in the row, and fx becomes 1 at the last voxel (mix(a, b, 1) = b, the same value
  * grid.h's clamped x1 gives). Grids one voxel wide (nx = 1) take the plain gathers. */
 __attribute__((always_inline))
-v16 lookup16(__global const float *d, int nx, int ny, int nz, v16 gx, v16 gy, v16 gz) {
+vL lookupL(__global const float *d, int nx, int ny, int nz, vL gx, vL gy, vL gz) {
     /* Clamping first makes the casts floors (non-negative); it also keeps every index in
      * range for any finite coordinate. */
     /* Scalar bounds are broadcast explicitly: Oclgrind 21.10 applies the scalar argument of
      * min(int16, int) to lane 0 only (an out-of-bounds read it then reported itself). */
-    v16 x = clamp(gx, (v16)(0.0f), (v16)((float)(nx - 1)));
-    v16 y = clamp(gy, (v16)(0.0f), (v16)((float)(ny - 1)));
-    v16 z = clamp(gz, (v16)(0.0f), (v16)((float)(nz - 1)));
-    i16 x0 = min(convert_int16(x), (i16)(max(nx - 2, 0)));
-    i16 y0 = convert_int16(y), z0 = convert_int16(z);
-    i16 y1 = min(y0 + 1, (i16)(ny - 1)), z1 = min(z0 + 1, (i16)(nz - 1));
-    v16 fx = x - convert_float16(x0), fy = y - convert_float16(y0), fz = z - convert_float16(z0);
-    i16 r00 = (z0 * ny + y0) * nx + x0, r01 = (z0 * ny + y1) * nx + x0;
-    i16 r10 = (z1 * ny + y0) * nx + x0, r11 = (z1 * ny + y1) * nx + x0;
-    v16 a00, b00, a01, b01, a10, b10, a11, b11;
+    vL x = clamp(gx, (vL)(0.0f), (vL)((float)(nx - 1)));
+    vL y = clamp(gy, (vL)(0.0f), (vL)((float)(ny - 1)));
+    vL z = clamp(gz, (vL)(0.0f), (vL)((float)(nz - 1)));
+    iL x0 = min(convert_iL(x), (iL)(max(nx - 2, 0)));
+    iL y0 = convert_iL(y), z0 = convert_iL(z);
+    iL y1 = min(y0 + 1, (iL)(ny - 1)), z1 = min(z0 + 1, (iL)(nz - 1));
+    vL fx = x - convert_vL(x0), fy = y - convert_vL(y0), fz = z - convert_vL(z0);
+    iL r00 = (z0 * ny + y0) * nx + x0, r01 = (z0 * ny + y1) * nx + x0;
+    iL r10 = (z1 * ny + y0) * nx + x0, r11 = (z1 * ny + y1) * nx + x0;
+    vL a00, b00, a01, b01, a10, b10, a11, b11;
     if (nx >= 2) {
         LANE_PAIRS(d, r00, a00, b00)
         LANE_PAIRS(d, r01, a01, b01)
         LANE_PAIRS(d, r10, a10, b10)
         LANE_PAIRS(d, r11, a11, b11)
     } else {
-        a00 = b00 = gather16(d, r00);
-        a01 = b01 = gather16(d, r01);
-        a10 = b10 = gather16(d, r10);
-        a11 = b11 = gather16(d, r11);
+        a00 = b00 = gatherL(d, r00);
+        a01 = b01 = gatherL(d, r01);
+        a10 = b10 = gatherL(d, r10);
+        a11 = b11 = gatherL(d, r11);
     }
-    v16 c00 = mix(a00, b00, fx), c01 = mix(a01, b01, fx);
-    v16 c10 = mix(a10, b10, fx), c11 = mix(a11, b11, fx);
+    vL c00 = mix(a00, b00, fx), c01 = mix(a01, b01, fx);
+    vL c10 = mix(a10, b10, fx), c11 = mix(a11, b11, fx);
     return mix(mix(c00, c01, fy), mix(c10, c11, fy), fz);
 }
 
 #if ENV && ENV_CHANNELS == 3
-/* An RGB environment field's six planes (single R G B, multiple R G B) at 16 lanes, from
+/* An RGB environment field's six planes (single R G B, multiple R G B) at LANES lanes, from
  * its device layout (clvol/kernels/raymarch.py env_device_layout): 8 floats per voxel, six
- * used. A voxel pair (x0, x0 + 1) is one 16-float load, and the trilinear blend runs on
- * float8, so the six planes cost four loads a lane where six lookup16 calls cost 24 pair
- * loads. Coordinates, clamping and weights as lookup16 (n >= 2: the field is >= 4^3). */
+ * used. A voxel pair (x0, x0 + 1) is one 16-float load (at LANES 16; else 16 / LANES
+ * loads), and the trilinear blend runs on float8, so the six planes cost four loads a lane where six lookupL calls cost 24 pair
+ * loads. Coordinates, clamping and weights as lookupL (n >= 2: the field is >= 4^3). */
 __attribute__((always_inline))
-void lookup16_env6(__global const float *d, int n, v16 gx, v16 gy, v16 gz, float out[6][16]) {
-    const v16 hi = (v16)((float)(n - 1));
-    v16 x = clamp(gx, (v16)(0.0f), hi), y = clamp(gy, (v16)(0.0f), hi);
-    v16 z = clamp(gz, (v16)(0.0f), hi);
-    i16 x0 = min(convert_int16(x), (i16)(n - 2));
-    i16 y0 = convert_int16(y), z0 = convert_int16(z);
-    i16 y1 = min(y0 + 1, (i16)(n - 1)), z1 = min(z0 + 1, (i16)(n - 1));
-    float fx[16], fy[16], fz[16];
-    int r00[16], r01[16], r10[16], r11[16];
-    vstore16(x - convert_float16(x0), 0, fx);
-    vstore16(y - convert_float16(y0), 0, fy);
-    vstore16(z - convert_float16(z0), 0, fz);
-    vstore16((z0 * n + y0) * n + x0, 0, r00);
-    vstore16((z0 * n + y1) * n + x0, 0, r01);
-    vstore16((z1 * n + y0) * n + x0, 0, r10);
-    vstore16((z1 * n + y1) * n + x0, 0, r11);
-    for (int j = 0; j < 16; ++j) {
+void lookupL_env6(__global const float *d, int n, vL gx, vL gy, vL gz, float out[6][LANES]) {
+    const vL hi = (vL)((float)(n - 1));
+    vL x = clamp(gx, (vL)(0.0f), hi), y = clamp(gy, (vL)(0.0f), hi);
+    vL z = clamp(gz, (vL)(0.0f), hi);
+    iL x0 = min(convert_iL(x), (iL)(n - 2));
+    iL y0 = convert_iL(y), z0 = convert_iL(z);
+    iL y1 = min(y0 + 1, (iL)(n - 1)), z1 = min(z0 + 1, (iL)(n - 1));
+    float fx[LANES], fy[LANES], fz[LANES];
+    int r00[LANES], r01[LANES], r10[LANES], r11[LANES];
+    vstoreL(x - convert_vL(x0), 0, fx);
+    vstoreL(y - convert_vL(y0), 0, fy);
+    vstoreL(z - convert_vL(z0), 0, fz);
+    vstoreL((z0 * n + y0) * n + x0, 0, r00);
+    vstoreL((z0 * n + y1) * n + x0, 0, r01);
+    vstoreL((z1 * n + y0) * n + x0, 0, r10);
+    vstoreL((z1 * n + y1) * n + x0, 0, r11);
+    for (int j = 0; j < LANES; ++j) {
+#if LANES == 16
         const float16 p00 = vload16(0, d + 8 * r00[j]), p01 = vload16(0, d + 8 * r01[j]);
         const float16 p10 = vload16(0, d + 8 * r10[j]), p11 = vload16(0, d + 8 * r11[j]);
         const float8 c00 = mix(p00.lo, p00.hi, fx[j]), c01 = mix(p01.lo, p01.hi, fx[j]);
@@ -246,6 +246,21 @@ void lookup16_env6(__global const float *d, int n, v16 gx, v16 gy, v16 gz, float
         const float8 v = mix(mix(c00, c01, fy[j]), mix(c10, c11, fy[j]), fz[j]);
         out[0][j] = v.s0; out[1][j] = v.s1; out[2][j] = v.s2;
         out[3][j] = v.s3; out[4][j] = v.s4; out[5][j] = v.s5;
+#else
+        /* The voxel's 8 floats in 8 / LANES pieces of vL (nothing wider in a call). */
+        const int H = 8 / LANES;
+        float v[8];
+        for (int h = 0; h < H; ++h) {
+            __global const float *q00 = d + 8 * r00[j], *q01 = d + 8 * r01[j];
+            __global const float *q10 = d + 8 * r10[j], *q11 = d + 8 * r11[j];
+            const vL c00 = mix(vloadL(h, q00), vloadL(h + H, q00), fx[j]);
+            const vL c01 = mix(vloadL(h, q01), vloadL(h + H, q01), fx[j]);
+            const vL c10 = mix(vloadL(h, q10), vloadL(h + H, q10), fx[j]);
+            const vL c11 = mix(vloadL(h, q11), vloadL(h + H, q11), fx[j]);
+            vstoreL(mix(mix(c00, c01, fy[j]), mix(c10, c11, fy[j]), fz[j]), h, v);
+        }
+        for (int p = 0; p < 6; ++p) out[p][j] = v[p];
+#endif
     }
 }
 #endif
@@ -253,19 +268,19 @@ void lookup16_env6(__global const float *d, int n, v16 gx, v16 gy, v16 gz, float
 /* Parameter where the ray o + t d leaves the slab [lo, lo + size] of one axis in the
  * direction of travel; INFINITY for d = 0 (the ray never leaves it). */
 __attribute__((always_inline))
-v16 slab_exit16(float o, v16 d, v16 lo, float size) {
-    v16 face = lo + select((v16)(0.0f), (v16)(size), d > 0.0f);
-    return select((face - o) / d, (v16)(INFINITY), d == 0.0f);
+vL slab_exitL(float o, vL d, vL lo, float size) {
+    vL face = lo + select((vL)(0.0f), (vL)(size), d > 0.0f);
+    return select((face - o) / d, (vL)(INFINITY), d == 0.0f);
 }
 
 __attribute__((always_inline))
-void store_lanes(__global float *out, int channels, int ch, v16 v, i16 idx, i16 valid) {
-    float val[16];
-    int id[16], ok[16];
-    vstore16(v, 0, val);
-    vstore16(idx, 0, id);
-    vstore16(valid, 0, ok);
-    for (int j = 0; j < 16; ++j)
+void store_lanes(__global float *out, int channels, int ch, vL v, iL idx, iL valid) {
+    float val[LANES];
+    int id[LANES], ok[LANES];
+    vstoreL(v, 0, val);
+    vstoreL(idx, 0, id);
+    vstoreL(valid, 0, ok);
+    for (int j = 0; j < LANES; ++j)
         if (ok[j]) out[(size_t)id[j] * channels + ch] = val[j];
 }
 
@@ -302,34 +317,34 @@ __kernel void raymarch(
 {
     const int tiles_x = (width + TILE - 1) / TILE;
     const int tile = get_global_id(0);
-    if (tile >= tiles_x * ((height + TILE - 1) / TILE)) return;
+    if (tile >= tiles_x * ((height + TILE_ROWS - 1) / TILE_ROWS)) return;
     const int ty = tile / tiles_x, tx = tile - ty * tiles_x;
-    const i16 px = tx * TILE + (i16)(0, 1, 2, 3, 0, 1, 2, 3, 0, 1, 2, 3, 0, 1, 2, 3);
-    const i16 py = ty * TILE + (i16)(0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3);
-    const i16 valid = (px < width) & (py < height);
+    const iL px = tx * TILE + (LANE_IOTA & (iL)(TILE - 1));     /* lane = row * TILE + column */
+    const iL py = ty * TILE_ROWS + (LANE_IOTA >> (iL)(2));
+    const iL valid = (px < width) & (py < height);
 
     /* Camera rays: camera_ray of grid.h, lane by lane. */
-    const v16 sx = (2.0f * (convert_float16(px) + 0.5f) / (float)width - 1.0f) * tan_half
+    const vL sx = (2.0f * (convert_vL(px) + 0.5f) / (float)width - 1.0f) * tan_half
                    * ((float)width / (float)height);
-    const v16 sy = (1.0f - 2.0f * (convert_float16(py) + 0.5f) / (float)height) * tan_half;
-    v16 dx = forward.x + sx * right.x + sy * up.x;
-    v16 dy = forward.y + sx * right.y + sy * up.y;
-    v16 dz = forward.z + sx * right.z + sy * up.z;
+    const vL sy = (1.0f - 2.0f * (convert_vL(py) + 0.5f) / (float)height) * tan_half;
+    vL dx = forward.x + sx * right.x + sy * up.x;
+    vL dy = forward.y + sx * right.y + sy * up.y;
+    vL dz = forward.z + sx * right.z + sy * up.z;
     {
-        const v16 len = sqrt(dx * dx + dy * dy + dz * dz);  /* >= 1: forward is orthogonal */
+        const vL len = sqrt(dx * dx + dy * dy + dz * dz);  /* >= 1: forward is orthogonal */
         dx /= len; dy /= len; dz /= len;
     }
     const float ox = origin.x, oy = origin.y, oz = origin.z;
 
     /* Box entry and exit (box_intersect of grid.h, lane by lane), from t = 0. */
-    v16 lo = (v16)(0.0f), hi = (v16)(INFINITY);
-    i16 miss = ~valid;
+    vL lo = (vL)(0.0f), hi = (vL)(INFINITY);
+    iL miss = ~valid;
 #define SLAB(D, O, MN, MX)                                                              \
     {                                                                                   \
-        const i16 zero = D == 0.0f;                                                     \
-        miss |= zero & (i16)((O < MN || O > MX) ? -1 : 0);                              \
-        const v16 inv = 1.0f / D;                                                       \
-        const v16 ta = (MN - O) * inv, tb = (MX - O) * inv;                             \
+        const iL zero = D == 0.0f;                                                     \
+        miss |= zero & (iL)((O < MN || O > MX) ? -1 : 0);                              \
+        const vL inv = 1.0f / D;                                                       \
+        const vL ta = (MN - O) * inv, tb = (MX - O) * inv;                             \
         lo = select(fmax(lo, fmin(ta, tb)), lo, zero);                                  \
         hi = select(fmin(hi, fmax(ta, tb)), hi, zero);                                  \
     }
@@ -339,21 +354,21 @@ __kernel void raymarch(
 #undef SLAB
     miss |= lo > hi;
     /* Missed lanes get the empty interval [0, 0]: finite, never active. */
-    const v16 t0 = select(lo, (v16)(0.0f), miss), t1 = select(hi, (v16)(0.0f), miss);
-    const i16 hit = ~miss;
+    const vL t0 = select(lo, (vL)(0.0f), miss), t1 = select(hi, (vL)(0.0f), miss);
+    const iL hit = ~miss;
 
     /* Per-ray phase values: omega is constant along a camera ray, so the phase function
      * (and each octave's) is evaluated once per ray, not per step. */
-    const v16 mu = dx * light_dir.x + dy * light_dir.y + dz * light_dir.z;  /* dot(-l, omega) */
-    v16 f0;
+    const vL mu = dx * light_dir.x + dy * light_dir.y + dz * light_dir.z;  /* dot(-l, omega) */
+    vL f0;
 #if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
-    float ow[MS_OCTAVES - 1][16];  /* octave weights b^i f(mu; g c^i) per lane */
+    float ow[MS_OCTAVES - 1][LANES];  /* octave weights b^i f(mu; g c^i) per lane */
 #endif
     {
-        float m[16], f[16];
-        vstore16(mu, 0, m);
-        for (int j = 0; j < 16; ++j) f[j] = phase_eval(m[j], lobe_g, lobe_w);
-        f0 = vload16(0, f);
+        float m[LANES], f[LANES];
+        vstoreL(mu, 0, m);
+        for (int j = 0; j < LANES; ++j) f[j] = phase_eval(m[j], lobe_g, lobe_w);
+        f0 = vloadL(0, f);
 #if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
         float ci = 1.0f, bi = 1.0f;
         for (int i = 0; i < MS_OCTAVES - 1; ++i) {
@@ -362,7 +377,7 @@ __kernel void raymarch(
             /* Component-wise: Oclgrind 21.10's uninitialised-value checker crashed on the
              * float4 * float form here. */
             const float4 gi = (float4)(lobe_g.x * ci, lobe_g.y * ci, lobe_g.z * ci, lobe_g.w * ci);
-            for (int j = 0; j < 16; ++j) ow[i][j] = bi * phase_eval(m[j], gi, lobe_w);
+            for (int j = 0; j < LANES; ++j) ow[i][j] = bi * phase_eval(m[j], gi, lobe_w);
         }
 #endif
     }
@@ -370,14 +385,14 @@ __kernel void raymarch(
 #if MS_SOURCE == 3
     /* The lane's knots: depth vd[k], F_ms v0 + sum of ramps dv[k] over [vd[k], vd[k+1]]
      * (the piecewise-linear interpolant as a sum of clamped ramps: no per-step search). */
-    v16 vd[VIEW_K], vinv[VIEW_K], v0[MS_CHANNELS], dv[MS_CHANNELS][VIEW_K];
+    vL vd[VIEW_K], vinv[VIEW_K], v0[MS_CHANNELS], dv[MS_CHANNELS][VIEW_K];
     {
         const int plane = gx * gy * gz;
-        float kd[VIEW_K][16], kv[MS_CHANNELS][VIEW_K][16];
-        int pxs[16], pys[16];
-        vstore16(px, 0, pxs);
-        vstore16(py, 0, pys);
-        for (int j = 0; j < 16; ++j) {
+        float kd[VIEW_K][LANES], kv[MS_CHANNELS][VIEW_K][LANES];
+        int pxs[LANES], pys[LANES];
+        vstoreL(px, 0, pxs);
+        vstoreL(py, 0, pys);
+        for (int j = 0; j < LANES; ++j) {
             /* Bilinear between block centres (block i's centre is pixel position (i + 1/2) B). */
             const float u = clamp(((float)pxs[j] + 0.5f) / (float)VIEW_BLOCK - 0.5f, 0.0f, (float)(gy - 1));
             const float v = clamp(((float)pys[j] + 0.5f) / (float)VIEW_BLOCK - 0.5f, 0.0f, (float)(gz - 1));
@@ -405,13 +420,13 @@ __kernel void raymarch(
                 }
             }
         }
-        for (int k = 0; k < VIEW_K; ++k) vd[k] = vload16(0, kd[k]);
+        for (int k = 0; k < VIEW_K; ++k) vd[k] = vloadL(0, kd[k]);
         for (int k = 0; k + 1 < VIEW_K; ++k)
-            vinv[k] = 1.0f / fmax(vd[k + 1] - vd[k], (v16)(1e-30f));
+            vinv[k] = 1.0f / fmax(vd[k + 1] - vd[k], (vL)(1e-30f));
         for (int c = 0; c < MS_CHANNELS; ++c) {
-            v0[c] = vload16(0, kv[c][0]);
+            v0[c] = vloadL(0, kv[c][0]);
             for (int k = 0; k + 1 < VIEW_K; ++k)
-                dv[c][k] = vload16(0, kv[c][k + 1]) - vload16(0, kv[c][k]);
+                dv[c][k] = vloadL(0, kv[c][k + 1]) - vloadL(0, kv[c][k]);
         }
     }
 #endif
@@ -425,43 +440,43 @@ __kernel void raymarch(
     const int plane = gx * gy * gz;
 #endif
 
-    v16 k = (v16)(0.0f), T = (v16)(1.0f), S = (v16)(0.0f), A = (v16)(0.0f), D = (v16)(0.0f);
+    vL k = (vL)(0.0f), T = (vL)(1.0f), S = (vL)(0.0f), A = (vL)(0.0f), D = (vL)(0.0f);
 #if MS_SOURCE == 1 && LIT && MS_OCTAVES > 1
     /* One sum per octave; its per-ray phase weight is applied after the march. */
-    v16 Mo[MS_OCTAVES - 1];
-    for (int i = 0; i < MS_OCTAVES - 1; ++i) Mo[i] = (v16)(0.0f);
+    vL Mo[MS_OCTAVES - 1];
+    for (int i = 0; i < MS_OCTAVES - 1; ++i) Mo[i] = (vL)(0.0f);
 #endif
 #if MS_SOURCE == 1 || (MS_SOURCE >= 2 && MS_CHANNELS == 1)
-    v16 M = (v16)(0.0f);
+    vL M = (vL)(0.0f);
 #elif MS_SOURCE >= 2
-    v16 M0 = (v16)(0.0f), M1 = (v16)(0.0f), M2 = (v16)(0.0f);
+    vL M0 = (vL)(0.0f), M1 = (vL)(0.0f), M2 = (vL)(0.0f);
 #endif
 
 #if ENV
     const float ecell = env_size / (float)en;
     const int eplane = en * en * en;
 #if ENV_CHANNELS == 1
-    v16 ES = (v16)(0.0f), EM = (v16)(0.0f);
+    vL ES = (vL)(0.0f), EM = (vL)(0.0f);
 #else
-    v16 ES0 = (v16)(0.0f), ES1 = (v16)(0.0f), ES2 = (v16)(0.0f);
-    v16 EM0 = (v16)(0.0f), EM1 = (v16)(0.0f), EM2 = (v16)(0.0f);
+    vL ES0 = (vL)(0.0f), ES1 = (vL)(0.0f), ES2 = (vL)(0.0f);
+    vL EM0 = (vL)(0.0f), EM1 = (vL)(0.0f), EM2 = (vL)(0.0f);
 #endif
 #endif
 #if EMISSION
     const float3 emcell = (em_max.xyz - em_min.xyz) / (float3)((float)emx, (float)emy, (float)emz);
     const int emplane = emx * emy * emz;
 #if EMISSION_CHANNELS == 1
-    v16 EE = (v16)(0.0f);
+    vL EE = (vL)(0.0f);
 #else
-    v16 EE0 = (v16)(0.0f), EE1 = (v16)(0.0f), EE2 = (v16)(0.0f);
+    vL EE0 = (vL)(0.0f), EE1 = (vL)(0.0f), EE2 = (vL)(0.0f);
 #endif
 #endif
 #if RAYMARCH_STATS
     uint n_iter = 0, n_lit = 0, n_maj = 0, n_active = 0;
 #endif
     for (;;) {
-        v16 ta = t0 + k * step;
-        i16 active = hit & (ta < t1) & (T >= threshold);
+        vL ta = t0 + k * step;
+        iL active = hit & (ta < t1) & (T >= threshold);
         if (!any(active)) break;
 #if RAYMARCH_STATS
         ++n_iter;
@@ -471,25 +486,25 @@ __kernel void raymarch(
          * a few passes let lanes cross several empty blocks before the next lookup. */
         for (int pass = 0; pass < SKIP_PASSES; ++pass) {
             /* Untruncated midpoint of the current segment (0 for idle lanes: stays finite). */
-            const v16 tq = select((v16)(0.0f), ta + 0.5f * step, active);
-            const i16 bx = convert_int16(clamp((ox + tq * dx - bmin.x) / bsize.x, (v16)(0.0f),
-                                                   (v16)((float)(mx - 1))));
-            const i16 by = convert_int16(clamp((oy + tq * dy - bmin.y) / bsize.y, (v16)(0.0f),
-                                                   (v16)((float)(my - 1))));
-            const i16 bz = convert_int16(clamp((oz + tq * dz - bmin.z) / bsize.z, (v16)(0.0f),
-                                                   (v16)((float)(mz - 1))));
-            const i16 empty = active & (gather16(majorant, (bz * my + by) * mx + bx) == 0.0f);
+            const vL tq = select((vL)(0.0f), ta + 0.5f * step, active);
+            const iL bx = convert_iL(clamp((ox + tq * dx - bmin.x) / bsize.x, (vL)(0.0f),
+                                                   (vL)((float)(mx - 1))));
+            const iL by = convert_iL(clamp((oy + tq * dy - bmin.y) / bsize.y, (vL)(0.0f),
+                                                   (vL)((float)(my - 1))));
+            const iL bz = convert_iL(clamp((oz + tq * dz - bmin.z) / bsize.z, (vL)(0.0f),
+                                                   (vL)((float)(mz - 1))));
+            const iL empty = active & (gatherL(majorant, (bz * my + by) * mx + bx) == 0.0f);
 #if RAYMARCH_STATS
             ++n_maj;
 #endif
             if (!any(empty)) break;
-            const v16 t_exit = fmin(fmin(
-                slab_exit16(ox, dx, bmin.x + convert_float16(bx) * bsize.x, bsize.x),
-                slab_exit16(oy, dy, bmin.y + convert_float16(by) * bsize.y, bsize.y)),
-                slab_exit16(oz, dz, bmin.z + convert_float16(bz) * bsize.z, bsize.z));
+            const vL t_exit = fmin(fmin(
+                slab_exitL(ox, dx, bmin.x + convert_vL(bx) * bsize.x, bsize.x),
+                slab_exitL(oy, dy, bmin.y + convert_vL(by) * bsize.y, bsize.y)),
+                slab_exitL(oz, dz, bmin.z + convert_vL(bz) * bsize.z, bsize.z));
             /* First segment whose untruncated midpoint is at or past the block's exit;
              * at least one segment of progress whatever the rounding. */
-            const v16 k_star = ceil((t_exit - t0) / step - 0.5f);
+            const vL k_star = ceil((t_exit - t0) / step - 0.5f);
             k = select(k, fmax(k + 1.0f, k_star), empty);
             ta = t0 + k * step;
             active &= ta < t1;
@@ -497,88 +512,86 @@ __kernel void raymarch(
 #endif
 #if RAYMARCH_STATS
         {
-            const i16 one = active & (i16)(1);
-            const int8 h8 = one.lo + one.hi;
-            const int4 h4 = h8.lo + h8.hi;
-            n_active += (uint)(h4.x + h4.y + h4.z + h4.w);
+            const iL one = active & (iL)(1);
+            n_active += (uint)LANE_SUM(one);
         }
 #endif
-        const v16 len = select((v16)(0.0f), fmin(ta + step, t1) - ta, active);
-        ta = select((v16)(0.0f), ta, active);
-        const v16 tm = ta + 0.5f * len;
-        const v16 qx = ox + tm * dx, qy = oy + tm * dy, qz = oz + tm * dz;
-        const v16 tau = density_scale * lookup16(density, nx, ny, nz,
+        const vL len = select((vL)(0.0f), fmin(ta + step, t1) - ta, active);
+        ta = select((vL)(0.0f), ta, active);
+        const vL tm = ta + 0.5f * len;
+        const vL qx = ox + tm * dx, qy = oy + tm * dy, qz = oz + tm * dz;
+        const vL tau = density_scale * lookupL(density, nx, ny, nz,
                                                  (qx - bmin.x) / cell.x - 0.5f,
                                                  (qy - bmin.y) / cell.y - 0.5f,
                                                  (qz - bmin.z) / cell.z - 0.5f) * len;
         /* 1 - e^-tau without cancellation: its series below 0.1 (truncation < tau^4/120
          * relative), 1 - e^-tau above (rounding < 1.2e-7 / tau relative). Cheaper than
          * expm1, which PoCL evaluates 4x slower than exp on float16. */
-        const v16 e = exp(-tau);
-        const v16 a_seg = select(1.0f - e,
+        const vL e = exp(-tau);
+        const vL a_seg = select(1.0f - e,
                                  tau * (1.0f - tau * (0.5f - tau * ((1.0f / 6.0f) - tau * (1.0f / 24.0f)))),
                                  tau < 0.1f);
-        const v16 w = T * a_seg;
+        const vL w = T * a_seg;
         /* Where in the segment the light is scattered toward the camera, on average: the
          * fraction frac = 1/tau - e^-tau / (1 - e^-tau) of its length (1/2 for thin segments,
          * ~1/tau for opaque ones). Reading the source there rather than at the midpoint makes
          * the segment integral exact for a source varying linearly along it; the density
          * stays the midpoint's. Series below H_SERIES_BELOW (the direct form cancels; its 0/0
          * at tau = 0 is never selected). */
-        const v16 frac = select(1.0f / tau - e / a_seg,
+        const vL frac = select(1.0f / tau - e / a_seg,
                                 0.5f - tau * (1.0f / 12.0f - tau * tau * (1.0f / 720.0f)),
                                 tau < H_SERIES_BELOW);
-        const v16 ts = ta + frac * len;
-        const v16 rx = ox + ts * dx, ry = oy + ts * dy, rz = oz + ts * dz;
+        const vL ts = ta + frac * len;
+        const vL rx = ox + ts * dx, ry = oy + ts * dy, rz = oz + ts * dz;
 #if LIT
-        /* Segments where all 16 lanes are empty add nothing: skip the light lookup. */
+        /* Segments where all lanes are empty add nothing: skip the light lookup. */
         if (any(tau > 0.0f)) {
 #if RAYMARCH_STATS
             ++n_lit;
 #endif
             /* The light field, trilinear; -log T_light (>= 0; +inf where T underflowed to 0,
              * and the octaves' exp(-a^i inf) = 0 then, a > 0 being enforced). */
-            const v16 lf = lookup16(light, ln, ln, ln,
+            const vL lf = lookupL(light, ln, ln, ln,
                                     (rx - cube_min.x) / lcell - 0.5f,
                                     (ry - cube_min.y) / lcell - 0.5f,
                                     (rz - cube_min.z) / lcell - 0.5f);
 #if LIGHT_TAU
-            const v16 t_l = exp(-lf);
+            const vL t_l = exp(-lf);
 #define TAU_L lf
 #else
-            const v16 t_l = lf;
+            const vL t_l = lf;
 #define TAU_L (-log(lf))
 #endif
             S += w * t_l;
 #if MS_SOURCE == 1 && MS_OCTAVES > 1
             /* T_light^(a^i) = exp(-a^i tau_l). */
-            const v16 tau_l = TAU_L;
+            const vL tau_l = TAU_L;
             float ai = 1.0f;
             for (int i = 0; i < MS_OCTAVES - 1; ++i) {
                 ai *= oct_a;
                 Mo[i] += w * exp(-ai * tau_l);
             }
 #elif MS_SOURCE == 2
-            const v16 ux = (rx - gmin.x) / gcell.x - 0.5f;
-            const v16 uy = (ry - gmin.y) / gcell.y - 0.5f;
-            const v16 uz = (rz - gmin.z) / gcell.z - 0.5f;
+            const vL ux = (rx - gmin.x) / gcell.x - 0.5f;
+            const vL uy = (ry - gmin.y) / gcell.y - 0.5f;
+            const vL uz = (rz - gmin.z) / gcell.z - 0.5f;
 #if MS_CHANNELS == 1
-            M += w * lookup16(ms_grid, gx, gy, gz, ux, uy, uz);
+            M += w * lookupL(ms_grid, gx, gy, gz, ux, uy, uz);
 #else
-            M0 += w * lookup16(ms_grid, gx, gy, gz, ux, uy, uz);
-            M1 += w * lookup16(ms_grid + plane, gx, gy, gz, ux, uy, uz);
-            M2 += w * lookup16(ms_grid + 2 * plane, gx, gy, gz, ux, uy, uz);
+            M0 += w * lookupL(ms_grid, gx, gy, gz, ux, uy, uz);
+            M1 += w * lookupL(ms_grid + plane, gx, gy, gz, ux, uy, uz);
+            M2 += w * lookupL(ms_grid + 2 * plane, gx, gy, gz, ux, uy, uz);
 #endif
 #elif MS_SOURCE == 3
-            v16 ramp[VIEW_K];
+            vL ramp[VIEW_K];
             for (int k = 0; k + 1 < VIEW_K; ++k)
                 ramp[k] = clamp((ts - vd[k]) * vinv[k], 0.0f, 1.0f);
 #if MS_CHANNELS == 1
-            v16 f = v0[0];
+            vL f = v0[0];
             for (int k = 0; k + 1 < VIEW_K; ++k) f += dv[0][k] * ramp[k];
             M += w * f;
 #else
-            v16 f0_ = v0[0], f1_ = v0[1], f2_ = v0[2];
+            vL f0_ = v0[0], f1_ = v0[1], f2_ = v0[2];
             for (int k = 0; k + 1 < VIEW_K; ++k) {
                 f0_ += dv[0][k] * ramp[k];
                 f1_ += dv[1][k] * ramp[k];
@@ -595,21 +608,21 @@ __kernel void raymarch(
         /* The environment's source field at the same source point (sky light is constant
          * over the medium's colour, so it is a field of its own, not a light lookup). */
         if (any(tau > 0.0f)) {
-            const v16 ex = (rx - env_min.x) / ecell - 0.5f;
-            const v16 ey = (ry - env_min.y) / ecell - 0.5f;
-            const v16 ez = (rz - env_min.z) / ecell - 0.5f;
+            const vL ex = (rx - env_min.x) / ecell - 0.5f;
+            const vL ey = (ry - env_min.y) / ecell - 0.5f;
+            const vL ez = (rz - env_min.z) / ecell - 0.5f;
 #if ENV_CHANNELS == 1
-            ES += w * lookup16(env, en, en, en, ex, ey, ez);
-            EM += w * lookup16(env + eplane, en, en, en, ex, ey, ez);
+            ES += w * lookupL(env, en, en, en, ex, ey, ez);
+            EM += w * lookupL(env + eplane, en, en, en, ex, ey, ez);
 #else
-            float e6[6][16];
-            lookup16_env6(env, en, ex, ey, ez, e6);
-            ES0 += w * vload16(0, e6[0]);
-            ES1 += w * vload16(0, e6[1]);
-            ES2 += w * vload16(0, e6[2]);
-            EM0 += w * vload16(0, e6[3]);
-            EM1 += w * vload16(0, e6[4]);
-            EM2 += w * vload16(0, e6[5]);
+            float e6[6][LANES];
+            lookupL_env6(env, en, ex, ey, ez, e6);
+            ES0 += w * vloadL(0, e6[0]);
+            ES1 += w * vloadL(0, e6[1]);
+            ES2 += w * vloadL(0, e6[2]);
+            EM0 += w * vloadL(0, e6[3]);
+            EM1 += w * vloadL(0, e6[4]);
+            EM2 += w * vloadL(0, e6[5]);
 #endif
         }
 #endif
@@ -617,22 +630,22 @@ __kernel void raymarch(
         /* Emission at the segment's source point: T_cam (1 - e^-tau) Le(x_ts); (1 - albedo)
          * and the colour are applied once per ray. */
         if (any(tau > 0.0f)) {
-            const v16 ux = (rx - em_min.x) / emcell.x - 0.5f;
-            const v16 uy = (ry - em_min.y) / emcell.y - 0.5f;
-            const v16 uz = (rz - em_min.z) / emcell.z - 0.5f;
+            const vL ux = (rx - em_min.x) / emcell.x - 0.5f;
+            const vL uy = (ry - em_min.y) / emcell.y - 0.5f;
+            const vL uz = (rz - em_min.z) / emcell.z - 0.5f;
 #if EMISSION_BOX
-            const i16 in_em = (rx >= em_min.x) & (rx <= em_max.x) & (ry >= em_min.y) &
+            const iL in_em = (rx >= em_min.x) & (rx <= em_max.x) & (ry >= em_min.y) &
                               (ry <= em_max.y) & (rz >= em_min.z) & (rz <= em_max.z);
-            const v16 we = select((v16)(0.0f), w, in_em);
+            const vL we = select((vL)(0.0f), w, in_em);
 #else
-            const v16 we = w;
+            const vL we = w;
 #endif
 #if EMISSION_CHANNELS == 1
-            EE += we * lookup16(em, emx, emy, emz, ux, uy, uz);
+            EE += we * lookupL(em, emx, emy, emz, ux, uy, uz);
 #else
-            EE0 += we * lookup16(em, emx, emy, emz, ux, uy, uz);
-            EE1 += we * lookup16(em + emplane, emx, emy, emz, ux, uy, uz);
-            EE2 += we * lookup16(em + 2 * emplane, emx, emy, emz, ux, uy, uz);
+            EE0 += we * lookupL(em, emx, emy, emz, ux, uy, uz);
+            EE1 += we * lookupL(em + emplane, emx, emy, emz, ux, uy, uz);
+            EE2 += we * lookupL(em + 2 * emplane, emx, emy, emz, ux, uy, uz);
 #endif
         }
 #endif
@@ -641,16 +654,16 @@ __kernel void raymarch(
          * of the extinction (exact for a constant sigma_t over the segment). */
         D += w * ts;
         T *= e;
-        k += select((v16)(0.0f), (v16)(1.0f), active);
+        k += select((vL)(0.0f), (vL)(1.0f), active);
     }
 
 #if MS_SOURCE == 1 && LIT && MS_OCTAVES > 1
-    for (int i = 0; i < MS_OCTAVES - 1; ++i) M += vload16(0, ow[i]) * Mo[i];
+    for (int i = 0; i < MS_OCTAVES - 1; ++i) M += vloadL(0, ow[i]) * Mo[i];
 #endif
     /* Colour, once per ray. */
     const float3 ae = albedo.xyz * irradiance.xyz;
-    v16 s_r = (v16)(0.0f), s_g = (v16)(0.0f), s_b = (v16)(0.0f);
-    v16 m_r = (v16)(0.0f), m_g = (v16)(0.0f), m_b = (v16)(0.0f);
+    vL s_r = (vL)(0.0f), s_g = (vL)(0.0f), s_b = (vL)(0.0f);
+    vL m_r = (vL)(0.0f), m_g = (vL)(0.0f), m_b = (vL)(0.0f);
 #if LIT
     s_r = ae.x * (f0 * S); s_g = ae.y * (f0 * S); s_b = ae.z * (f0 * S);
 #if MS_SOURCE == 1 || (MS_SOURCE >= 2 && MS_CHANNELS == 1)
@@ -668,12 +681,12 @@ __kernel void raymarch(
     m_r += env_colour.x * EM0; m_g += env_colour.y * EM1; m_b += env_colour.z * EM2;
 #endif
 #endif
-    const i16 pix = py * width + px;
+    const iL pix = py * width + px;
 #if BG_IMAGE
     /* Padding lanes read pixel 0 (never stored). */
-    const i16 bgi = select((i16)(0), pix, valid) * 3;
-    const v16 bg_r = gather16(bg_image, bgi), bg_g = gather16(bg_image, bgi + 1),
-              bg_b = gather16(bg_image, bgi + 2);
+    const iL bgi = select((iL)(0), pix, valid) * 3;
+    const vL bg_r = gatherL(bg_image, bgi), bg_g = gatherL(bg_image, bgi + 1),
+              bg_b = gatherL(bg_image, bgi + 2);
 #else
 #define bg_r background.x
 #define bg_g background.y
@@ -689,10 +702,10 @@ __kernel void raymarch(
     /* sigma_a Le = sigma_t (1 - albedo) em_colour planes: colour once per ray. */
     const float3 ea = (float3)(1.0f) - albedo.xyz;
 #if EMISSION_CHANNELS == 1
-    const v16 e_r = (ea.x * em_colour.x) * EE, e_g = (ea.y * em_colour.y) * EE,
+    const vL e_r = (ea.x * em_colour.x) * EE, e_g = (ea.y * em_colour.y) * EE,
               e_b = (ea.z * em_colour.z) * EE;
 #else
-    const v16 e_r = (ea.x * em_colour.x) * EE0, e_g = (ea.y * em_colour.y) * EE1,
+    const vL e_r = (ea.x * em_colour.x) * EE0, e_g = (ea.y * em_colour.y) * EE1,
               e_b = (ea.z * em_colour.z) * EE2;
 #endif
     store_lanes(emission_out, 3, 0, e_r, pix, valid);
@@ -707,10 +720,10 @@ __kernel void raymarch(
     store_lanes(total, 3, 2, s_b + m_b + T * bg_b, pix, valid);
 #endif
     store_lanes(alpha, 1, 0, A, pix, valid);
-    store_lanes(depth, 1, 0, select((v16)(0.0f), D / A, A > 0.0f), pix, valid);
+    store_lanes(depth, 1, 0, select((vL)(0.0f), D / A, A > 0.0f), pix, valid);
 #if RAYMARCH_STATS
-    /* Per tile: march iterations (each one density lookup on 16 lanes), iterations with a
-     * light lookup, majorant reads (16 lanes each) and active lane-segments. */
+    /* Per tile: march iterations (each one density lookup on LANES lanes), iterations
+     * with a light lookup, majorant reads (LANES lanes each) and active lane-segments. */
     vstore4((uint4)(n_iter, n_lit, n_maj, n_active), tile, stats);
 #endif
 }

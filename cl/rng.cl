@@ -4,7 +4,6 @@
  * rng_uniforms:   out[i] = rng_uniform4(seed, stream0 + i, sample, block)  (float4 per item)
  * Twin: reference/rng.py.
  */
-#include "psabi.h"   /* first: see there */
 #include "rng.h"
 
 /* ctr and out are n x 4 uints, accessed with vload4/vstore4 (no uint4 alignment needed;

@@ -30,7 +30,7 @@
  *   per slice (|su|, |sv| <= 1). "Columns" are the light rays through the voxel centres of the
  *   first slice (nearest the light), extended to a lattice: column c sits at lateral position
  *   c - j (su, sv) in the slice of sweep step j, so all columns share one fractional offset and
- *   every lookup is a uniform stencil (float16 across 16 columns). Each step adds to every column
+ *   every lookup is a uniform stencil (a vector across LANES columns). Each step adds to every column
  *       scale / |l_a| * seg * c * (rho_start + 4 rho_mid + rho_end) / 6
  *   over its segment from the previous slice (from the face, half a voxel, for j = 0) to the
  *   current one: inside the cube a segment stays in one trilinear cell, so Simpson is exact;
@@ -47,7 +47,6 @@
  *
  * Twin: reference/transmittance.py. Host wrapper: clvol/kernels/transmittance.py.
  */
-#include "psabi.h"   /* first: see there */
 #include "grid.h"
 
 __kernel void transmittance_brute(__global const float *pyr, const int off, const int n,
@@ -98,28 +97,30 @@ size_t elem_uva(int n, int a, int u, int v, int k) {
 }
 
 /* ---------------------------------------------------------------- column sweep
- * Built twice: -D SWEEP_WIDTH=16 (explicit float16 across 16 columns / voxels of a row: the
- * fast path, levels with n >= 16) and -D SWEEP_WIDTH=1 (scalar, small levels).
+ * Built twice: -D SWEEP_WIDTH=LANES (explicit vectors across LANES columns / voxels of a row,
+ * cl/include/lanes.h: the fast path, levels with n >= 16) and -D SWEEP_WIDTH=1 (scalar, small
+ * levels).
  */
+#include "lanes.h"
 #ifndef SWEEP_WIDTH
 #define SWEEP_WIDTH 1
 #endif
-#if SWEEP_WIDTH == 16
-typedef float16 vecf;
-typedef int16 veci;
-#define VLOAD(p) vload16(0, (p))
-#define VSTORE(v, p) vstore16((v), 0, (p))
-#define LANES ((vecf)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
-#define VSELECT(a, b, m) select((a), (b), (m))   /* m: int16 mask (-1 = true) */
+#if SWEEP_WIDTH == LANES
+typedef vL vecf;
+typedef iL veci;
+#define VLOAD(p) vloadL(0, (p))
+#define VSTORE(v, p) vstoreL((v), 0, (p))
+#define LANE_POS convert_vL(LANE_IOTA)
+#define VSELECT(a, b, m) select((a), (b), (m))   /* m: iL mask (-1 = true) */
 #elif SWEEP_WIDTH == 1
 typedef float vecf;
 typedef int veci;
 #define VLOAD(p) (*(p))
 #define VSTORE(v, p) (*(p) = (v))
-#define LANES 0.0f
+#define LANE_POS 0.0f
 #define VSELECT(a, b, m) ((m) ? (b) : (a))
 #else
-#error "SWEEP_WIDTH must be 1 or 16"
+#error "SWEEP_WIDTH must be 1 or LANES"
 #endif
 
 /* Padded copy of a level for a sweep along axis a ("sweep layout"): S[ka][vv][uu] holds the
@@ -128,8 +129,8 @@ typedef int veci;
  * [-SWEEP_PAD, n + 2 SWEEP_PAD - 2] (u) or [-SWEEP_PAD, n + SWEEP_PAD - 1] (v) and any
  * a-position in [-0.5, n - 0.5] returns the level's clamped field without bounds tests, and
  * rows are contiguous along u whatever the light's axis. The column work-items of a block
- * reach up to 16 voxels beyond the level laterally (15 steps of drift) plus their 15 extra
- * lanes on the u side: hence the padding. */
+ * reach up to 16 voxels beyond the level laterally (15 steps of drift) plus their (at most)
+ * 15 extra lanes on the u side: hence the padding. */
 #include "constants.h"                     /* SWEEP_PAD, SWEEP_BLOCK (sweep steps per launch) */
 #define SWEEP_RS(n) ((n) + 3 * SWEEP_PAD)      /* row length (u) */
 #define SWEEP_RV(n) ((n) + 2 * SWEEP_PAD + 1)  /* rows per plane (v) */
@@ -196,8 +197,8 @@ int split_offset(float x, float *frac) {
 }
 
 /* One launch per block of SWEEP_BLOCK sweep steps of one level (launch b = 0 .. nb):
- *  - column work-items (block b < nb): each marches 16 light-ray columns (global column
- *    indices c0 .. c0 + 15 in row cv) through the block's steps: per step, tau +=
+ *  - column work-items (block b < nb): each marches SWEEP_WIDTH light-ray columns (global
+ *    column indices c0 .. c0 + SWEEP_WIDTH - 1 in row cv) through the block's steps: per step, tau +=
  *    kscale * seg * c * (rho_start + 4 rho_mid + rho_end) (the start of a segment is the end of
  *    the previous one, so only the block's first step evaluates it), and tau after every step
  *    goes to the block buffer bb[b % 2] for the voxels. tau persists in col (in place: one
@@ -219,7 +220,8 @@ int split_offset(float x, float *frac) {
  *   b, nb         this launch; number of blocks
  *   out_depth, out, out_off   output (level layout [z][y][x] at element offset out_off)
  *   n_col         work-items reserved for the columns (max over blocks of rows * chunks);
- *                 the voxels take the next n^2 / 16 (float16, a = x) or 16 n^2 / SWEEP_WIDTH
+ *                 the voxels take the next n^2 / SWEEP_WIDTH (a = x, SWEEP_WIDTH > 1) or
+ *                 16 n^2 / SWEEP_WIDTH
  */
 __kernel void transmittance_sweep_block(
         __global const float *S, const int s_off, const int n, const int a, const int sa,
@@ -278,7 +280,7 @@ __kernel void transmittance_sweep_block(
                 }
                 /* inside fraction of the lateral segment start -> end */
                 vecf t0u, t1u, t0v, t1v;
-                const vecf begu = (float)wu + LANES + (-fu + seg * su);
+                const vecf begu = (float)wu + LANE_POS + (-fu + seg * su);
                 const vecf begv = (vecf)((float)wv + (-fv + seg * sv));
                 INSIDE_T(begu, -seg * su, n, t0u, t1u);
                 INSIDE_T(begv, -seg * sv, n, t0v, t1v);
@@ -336,6 +338,34 @@ __kernel void transmittance_sweep_block(
                                 tile[13 * 16 + q], tile[14 * 16 + q], tile[15 * 16 + q]);
             vstore16(run, 0, out + (size_t)out_off
                              + ((size_t)v * (size_t)n + (size_t)(u0 + q)) * (size_t)n + (size_t)kb);
+        }
+        return;
+    }
+#elif SWEEP_WIDTH > 1
+    if (a == 0) {
+        /* As above with SWEEP_WIDTH y lanes: the 16 x-runs are written SWEEP_WIDTH at a time. */
+        const int chunks = n / SWEEP_WIDTH;
+        if (i >= n * chunks) return;
+        const int v = i / chunks, u0 = (i - v * chunks) * SWEEP_WIDTH;
+        const int kb = (sa > 0) ? n - SWEEP_BLOCK - bp * SWEEP_BLOCK : bp * SWEEP_BLOCK;
+        float tile[SWEEP_BLOCK * SWEEP_WIDTH];   /* [slice jj][y lane] */
+        for (int jj = 0; jj < SWEEP_BLOCK; ++jj) {
+            const int j = bp * SWEEP_BLOCK + jj;
+            const float fu = sftab[2 * j], fv = sftab[2 * j + 1];
+            __global const float *c0 = bbq + (size_t)jj * bplane
+                + (size_t)(stab[3 * j + 2] - vmin + v) * (size_t)bw
+                + (size_t)(stab[3 * j + 1] - umin + u0);
+            const vecf t = mix(mix(VLOAD(c0), VLOAD(c0 + 1), fu),
+                               mix(VLOAD(c0 + bw), VLOAD(c0 + bw + 1), fu), fv);
+            VSTORE(out_depth ? t : exp(-t), tile + jj * SWEEP_WIDTH);
+        }
+        for (int q = 0; q < SWEEP_WIDTH; ++q) {  /* x = kb + x_lane is step jj(x_lane) */
+            float run[SWEEP_BLOCK];
+            for (int x = 0; x < SWEEP_BLOCK; ++x)
+                run[x] = tile[(sa > 0 ? SWEEP_BLOCK - 1 - x : x) * SWEEP_WIDTH + q];
+            __global float *o = out + (size_t)out_off
+                                + ((size_t)v * (size_t)n + (size_t)(u0 + q)) * (size_t)n + (size_t)kb;
+            for (int h = 0; h < SWEEP_BLOCK; h += SWEEP_WIDTH) VSTORE(VLOAD(run + h), o + h);
         }
         return;
     }

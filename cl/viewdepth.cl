@@ -27,7 +27,6 @@
  *            box or reaches `stop` first; weight 1 for a collision. See the block below.
  * Global size: bx * by work-items (guarded), bx = ceil(width / VIEW_BLOCK).
  */
-#include "psabi.h"   /* first: see there */
 #include "grid.h"
 #include "constants.h"   /* VIEW_MAX_K, VIEW_MAX_RAYS */
 

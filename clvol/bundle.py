@@ -231,7 +231,7 @@ def _write_programs(m: "_Manifest", b: _Planned) -> None:
         "majorant": ("majorant", {}, {}),
         "transmittance": ("transmittance", {}, {}),
         "transmittance_w1": ("transmittance", {"SWEEP_WIDTH": 1}, {}),
-        "transmittance_w16": ("transmittance", {"SWEEP_WIDTH": 16}, {}),
+        "transmittance_wL": ("transmittance", {"SWEEP_WIDTH": kt.sweep_width_define(16)}, {}),
         "gather": ("gather", gather_defs, {"GATHER_SHUFFLE": 1} if kg.USE_SHUFFLE else {}),
         "gather_bake": ("gather", {}, {}),
         "mlp": ("mlp", mlp_defs, {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}),
@@ -242,11 +242,11 @@ def _write_programs(m: "_Manifest", b: _Planned) -> None:
     if not plan.lit:
         keep = ["majorant", "raymarch"]
     else:
-        # the sweeps' widths: float16 columns on levels of at least VECTOR_MIN_N voxels
+        # the sweeps' widths: LANES-wide columns on levels of at least VECTOR_MIN_N voxels
         # (clvol/kernels/transmittance.py), for the light field and the network's pyramid
         sizes = [b.light_res] + ([base >> lv for lv in range(kp.n_levels(base))]
                                  if b.network else [])
-        widths = {16 if n >= kt.VECTOR_MIN_N else 1 for n in sizes}
+        widths = {"L" if n >= kt.VECTOR_MIN_N else "1" for n in sizes}
         keep = ["pyramid", "majorant", "transmittance", "raymarch"]
         keep += [f"transmittance_w{wd}" for wd in sorted(widths)]
         if b.network:
@@ -275,7 +275,7 @@ def _write_host_constants(m: "_Manifest") -> None:
             "sweep_slack": kt.SWEEP_SLACK, "sweep_group": kt.SWEEP_GROUP,
             "sweep_vector_min_n": kt.VECTOR_MIN_N, "bake_min_row_level": kg.MIN_ROW_LEVEL,
             "bake_span": kg.BAKE_SPAN, "bake_pad": kg.BAKE_PAD, "sort_bits": kg.SORT_BITS,
-            "mlp_queries_per_item": km.QUERIES_PER_ITEM, "raymarch_tile": kr.TILE,
+            "raymarch_tile": kr.TILE,
             "raymarch_local_size": kr.LOCAL_SIZE,
             # the network's config layout (clvol/neural/layout.py CONFIG_FIELDS): the phase
             # fields first (medium.config_phase), then the albedo and alpha the host adds

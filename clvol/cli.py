@@ -19,26 +19,30 @@ from pathlib import Path
 from .errors import BuildError, ClvolError
 
 
-def _code_paths(kind: str, cus: int) -> list[str]:
-    """Which code path each kernel takes on a device of ``kind`` with ``cus`` compute units:
-    its work per work-item and launch shape (the places the host code asks the device type)."""
+def _code_paths(kind: str, cus: int, lanes: int, lanes_line: str = "") -> list[str]:
+    """Which code path each kernel takes on a device of ``kind`` with ``cus`` compute units
+    and lane width ``lanes`` (clvol/runtime.py device_lanes): its work per work-item and launch
+    shape (the places the host code asks the device)."""
     from .kernels.gather import GATHER_LOCAL
-    from .kernels.mlp import QUERIES_PER_ITEM
     from .kernels.pathtrace import QUERY_LANES, RENDER_LANES, launch_shape
-    from .kernels.raymarch import LOCAL_SIZE, TILE
+    from .kernels.raymarch import LOCAL_SIZE, TILE, tile_rows
     from .kernels.transmittance import SWEEP_GROUP
-    items, local = launch_shape(kind, cus, 256 * 256, RENDER_LANES)
+    render_lanes, query_lanes = min(RENDER_LANES, lanes), min(QUERY_LANES, lanes)
+    items, local = launch_shape(kind, cus, 256 * 256, render_lanes)
     cpu = kind == "cpu"
     return [
-        f"raymarch: {TILE}x{TILE} pixel tile per work-item (float16 lanes), groups of "
-        f"{LOCAL_SIZE} tiles",
-        f"pathtrace: {RENDER_LANES} paths per work-item (render), {QUERY_LANES} (point "
+        lanes_line or f"lanes: {lanes} per work-item",
+        f"raymarch: {TILE}x{tile_rows(lanes)} pixel tile per work-item (one pixel a lane), "
+        f"groups of {LOCAL_SIZE} tiles",
+        f"pathtrace: {render_lanes} paths per work-item (render), {query_lanes} (point "
         f"queries); {'CPU' if kind != 'gpu' else 'GPU'} launch: a 256^2 frame runs {items} "
         f"work-items in groups of {local[0]}",
-        f"mlp, gather_mlp: {QUERIES_PER_ITEM} queries per work-item (float16 lanes, ~105 KB "
-        f"private arrays), groups of {'1 (PoCL stack)' if cpu else 'the driver’s choice'}",
-        f"gather: one query per work-item, groups of {GATHER_LOCAL if cpu else 'the driver’s choice'}",
-        f"transmittance sweep: groups of {SWEEP_GROUP}",
+        f"mlp, gather_mlp: {lanes} queries per work-item (one a lane, private arrays), groups "
+        f"of {'1 (PoCL stack)' if cpu else 'the driver’s choice'}",
+        f"gather: one query per work-item ({lanes} template points a chunk), groups of "
+        f"{GATHER_LOCAL if cpu else 'the driver’s choice'}",
+        f"transmittance sweep: {lanes} columns per work-item on levels of 16 and more, groups "
+        f"of {SWEEP_GROUP}",
     ]
 
 
@@ -70,7 +74,8 @@ def _check_builds(entry) -> list[str]:
 
 def _cmd_info(args) -> int:
     from . import __version__
-    from .runtime import choose_device, describe_devices, list_devices
+    from .runtime import (choose_device, describe_devices, describe_lanes, device_lanes,
+                          list_devices)
     print(f"clvol {__version__}")
     print(describe_devices(args.device))
     try:
@@ -84,7 +89,8 @@ def _cmd_info(args) -> int:
         entries = [chosen] if args.device else entries
     for e in entries:
         print(f"code paths on {e.spec} ({e.kind}):")
-        for ln in _code_paths(e.kind, e.device.max_compute_units):
+        for ln in _code_paths(e.kind, e.device.max_compute_units, device_lanes(e),
+                              describe_lanes(e)):
             print(f"  {ln}")
         if args.check:
             print(f"build check on {e.spec} {e.label} (8x8 renders of a 32^3 cloud):",

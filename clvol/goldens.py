@@ -163,7 +163,8 @@ def _mlp_golden(root: Path, rng, rmlp) -> None:
     arch = w.arch
     k = _Kernel(root, "mlp", "mlp", "mlp_forward",
                 "the network's fused forward pass; y = log(F / albedo^4 + 1), F decoded",
-                f"ceil(n / {km.QUERIES_PER_ITEM}) work-items; local size 1 on CPU devices "
+                "ceil(n / LANES) work-items (LANES: the device's lane width, docs/opencl.md); "
+                "local size 1 on CPU devices "
                 f"(private arrays), else any")
     lobes = ((0.6, 0.8), (-0.2, 0.2))
     f, c = rmlp.random_inputs(37, rng, arch=arch, lobes=lobes)
@@ -185,7 +186,6 @@ def _mlp_golden(root: Path, rng, rmlp) -> None:
     pocl = {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}
     k.program(km.kernel_defines(arch, 1, True), pocl, "mlp_y")
     k.program(km.kernel_defines(arch, 3, True), pocl, "mlp_F")
-    k.kv["host.mlp_queries_per_item"] = km.QUERIES_PER_ITEM
     k.tolerance("mlp_y", 1e-4, 1e-6, "atol x max|F|: float32 vs the float64 twin over ~86k "
                 "multiply-adds, amplified by the decode exp(y) - 1 (tests/test_mlp.py)")
     k.tolerance("mlp_F", 1e-4, 1e-6, "atol x max|F|: the decode exp(y) - 1 amplifies y's error "
@@ -352,6 +352,7 @@ def _majorant_golden(root: Path, rng, rmajorant) -> None:
 
 def _transmittance_golden(root: Path, rng, rtrans) -> None:
     """One level's optical depth by the sweep (oblique light)."""
+    from .kernels import transmittance as kt
     lv = _density(rng, (16, 16, 16), 1.0, np.s_[4:9])
     ldir = _unit([0.35, -0.2, 0.9])
     tscale = 0.3
@@ -363,7 +364,7 @@ def _transmittance_golden(root: Path, rng, rtrans) -> None:
     k.scalar("scale", tscale, "float", "tau per (density x voxel-unit length)")
     k.array("tau", rtrans.sweep(lv.astype(np.float64), ldir, tscale), np.float32, "[n][n][n]",
             output=True)
-    k.program({"SWEEP_WIDTH": 16}, name="transmittance_w16")
+    k.program({"SWEEP_WIDTH": kt.sweep_width_define(16)}, name="transmittance_wL")
     k.tolerance("tau", 0.0, 2e-5, "atol x max tau: the twin runs the same sweep in float64 "
                 "(tests/test_transmittance.py KERNEL_TWIN_RTOL)")
     k.write()

@@ -14,7 +14,8 @@ Device choice (first that applies): the ``device`` argument, ``$CLVOL_DEVICE``,
 ``"gpu"``/``"cpu"``/``"accelerator"``, or a case-insensitive substring of
 "platform name / device name".
 
-Programs are built with ``-I cl/include``, the caller's ``-D`` defines and a hash of
+Programs are built with ``-I cl/include``, the caller's ``-D`` defines, the device's lane
+width ``-D LANES`` (``device_lanes``; ``Runtime.lanes`` for launch sizes) and a hash of
 every source they could include, so no driver-side cache can serve a stale header.
 They are cached in-process on (source hash, options, device).
 
@@ -218,6 +219,59 @@ def describe_devices(device: str | None = None, details: bool = True) -> str:
     return "\n".join(lines)
 
 
+# --------------------------------------------------------------------------- lanes
+
+LANE_WIDTHS = (16, 8, 4)
+
+
+def lanes_for(kind: str, native_float_width: int) -> int:
+    """Vector lanes per work-item (cl/include/lanes.h LANES) for a device: a CPU's native float
+    vector width (512-bit registers: 16, 256: 8, 128: 4), since a call passing a wider vector
+    changes the CPU's calling convention (clang's -Wpsabi, docs/opencl.md); 16 elsewhere (a
+    GPU scalarises the lanes, and a CPU that reports no SIMD width is not one PoCL targets)."""
+    w = int(native_float_width or 0)
+    if kind == "cpu" and w in (4, 8):
+        return w
+    return 16
+
+
+def forced_lanes() -> int | None:
+    """``$CLVOL_LANES`` (16, 8 or 4) if set: run the kernels at that width on any device (the
+    tests compare widths on one machine)."""
+    v = os.environ.get("CLVOL_LANES", "").strip()
+    if not v:
+        return None
+    if not v.isdigit() or int(v) not in LANE_WIDTHS:
+        raise DeviceError(
+            f"CLVOL_LANES={v!r}: expected one of {', '.join(map(str, LANE_WIDTHS))}")
+    return int(v)
+
+
+def device_lanes(e: DeviceEntry) -> int:
+    """The lane width the kernels are built with on this device: ``$CLVOL_LANES``, else
+    ``lanes_for`` its type and native float vector width. The one place it is decided."""
+    return _lanes_and_why(e)[0]
+
+
+def _lanes_and_why(e: DeviceEntry) -> tuple[int, str]:
+    forced = forced_lanes()
+    if forced is not None:
+        return forced, "forced by $CLVOL_LANES"
+    try:
+        width = int(e.device.native_vector_width_float)
+    except (cl.Error, AttributeError):
+        width = 0
+    why = (f"the CPU's native float vector width {width}" if e.kind == "cpu"
+           else f"16 on a {e.kind}")
+    return lanes_for(e.kind, width), why
+
+
+def describe_lanes(e: DeviceEntry) -> str:
+    """``clvol info``'s line: the width and why."""
+    lanes, why = _lanes_and_why(e)
+    return f"lanes: {lanes} per work-item ({why}; -D LANES of every program)"
+
+
 # --------------------------------------------------------------------------- programs
 
 def first_build_error(log: str) -> str:
@@ -385,6 +439,7 @@ class Runtime:
         self.entry = entry
         self.device = entry.device
         self.reason = why
+        self.lanes = device_lanes(entry)   # -D LANES of every program (cl/include/lanes.h)
         self.profiling = profiling
         self.context = cl.Context([self.device])
         props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
@@ -406,12 +461,14 @@ class Runtime:
     # -- programs
     def program(self, stem: str, defines: dict | None = None,
                 extra_options: tuple[str, ...] = ()) -> Program:
-        """Build (or fetch from cache) ``cl/<stem>.cl`` with the given ``-D`` defines."""
+        """Build (or fetch from cache) ``cl/<stem>.cl`` with the given ``-D`` defines and the
+        device's ``-D LANES``."""
         path = cl_source_dir() / f"{stem}.cl"
         if not path.is_file():
             raise BuildError(f"no OpenCL source {path}")
         src_hash = _sources_hash(path)
-        options = tuple(["-I", str(include_dir()), f"-DCLVOL_SOURCES_HASH=0x{src_hash}"]
+        options = tuple(["-I", str(include_dir()), f"-DCLVOL_SOURCES_HASH=0x{src_hash}",
+                         f"-DLANES={self.lanes}"]
                         + _define_flags(defines) + list(extra_options))
         key = (src_hash, options, self.entry.spec)
         prog = self._programs.get(key)
@@ -620,7 +677,7 @@ def get_runtime(device: str | None = None, profiling: bool | None = None) -> Run
     device = device if device is not None else _DEFAULTS["device"]
     profiling = profiling if profiling is not None else _DEFAULTS["profiling"]
     entry, _ = choose_device(device)
-    key = (entry.spec, profiling)
+    key = (entry.spec, profiling, device_lanes(entry))
     rt = _RUNTIMES.get(key)
     if rt is None:
         rt = _RUNTIMES[key] = Runtime(device, profiling)

@@ -39,9 +39,10 @@ def pytest_configure(config):
 
 def pytest_report_header(config):
     try:
-        from clvol.runtime import choose_device
+        from clvol.runtime import choose_device, device_lanes
         entry, why = choose_device()
         return [f"clvol OpenCL device: {entry.spec} {entry.label} ({why}); "
-                f"{entry.platform.version.strip()}"]
+                f"{entry.platform.version.strip()}; lanes {device_lanes(entry)} "
+                f"($CLVOL_LANES forces 16, 8 or 4)"]
     except Exception as exc:  # noqa: BLE001 - a header must not stop the session
         return [f"clvol OpenCL device: none ({str(exc).splitlines()[0]})"]

@@ -185,6 +185,27 @@ def test_c_render_matches_python_on_a_non_cubic_volume_and_image(host, tmp_path)
     assert rel <= 1e-3, f"relative RMS difference C vs Python {rel:.3g}"
 
 
+def test_c_host_takes_the_lane_width_of_its_device_or_clvol_lanes(host, tmp_path):
+    """libclvol decides the lane width as clvol/runtime.py does (docs/embedding.md) and
+    sizes its launches from it: $CLVOL_LANES 8 and 4 give the default's bits, on an image
+    whose height is no multiple of a tile's (4 x 4, 4 x 2, 4 x 1); a width it does not know
+    is an error that names it."""
+    scene = small("jade.toml").with_overrides({"camera.width": 21, "camera.height": 11})
+    bundle = write_bundle(scene, tmp_path / "b", ms_resolution=MS_RES)
+    images = {}
+    for lanes in ("", "8", "4"):
+        env = dict(os.environ, CLVOL_LANES=lanes)
+        r = run([host / "clvol-render", bundle, tmp_path / f"c{lanes}.pfm"], env=env)
+        assert r.returncode == 0, r.stderr
+        images[lanes] = read_pfm(tmp_path / f"c{lanes}.pfm")
+    assert images[""].shape == (11, 21, 3) and images[""].max() > 0
+    for lanes in ("8", "4"):
+        np.testing.assert_array_equal(images[lanes], images[""])
+    r = run([host / "clvol-render", bundle, tmp_path / "bad.pfm"],
+            env=dict(os.environ, CLVOL_LANES="5"))
+    assert r.returncode != 0 and "CLVOL_LANES=5" in r.stderr, r.stderr
+
+
 def test_c_octaves_with_distinct_parameters_match_python(host, tmp_path):
     """The Wrenninge fallback with a, b, c all different (and 4 octaves): a swap of any two of
     the C host's octave arguments changes the image (bundles otherwise carry a = b = c)."""

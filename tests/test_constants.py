@@ -31,7 +31,7 @@ CL_SOURCES = sorted((ROOT / "cl").glob("*.cl")) + sorted((ROOT / "cl" / "include
 
 # The host's name of a kernel's number, where the two differ (Python name -> kernel name).
 KERNEL_NAME = {
-    "PT_OUT": "PT_OUT_NO_EMISSION", "QUERIES_PER_ITEM": "MLP_QUERIES_PER_ITEM",
+    "PT_OUT": "PT_OUT_NO_EMISSION",
     "MAX_VIEW_K": "VIEW_MAX_K", "MAX_VIEW_RAYS": "VIEW_MAX_RAYS", "MAX_OCTAVES": "MS_MAX_OCTAVES",
     "RR_START": "PT_RR_START", "MAX_VERTICES": "PT_MAX_VERTICES", "T_RR": "PT_T_RR",
     "ORDER_EXACT": "PT_ORDER_EXACT", "ORDER_EXACT_LOG2": "PT_ORDER_EXACT_LOG2",
@@ -185,8 +185,9 @@ def test_the_header_is_read_strictly():
 
 def _probe(header: str, ints: list[str], floats: list[str], defines: dict) -> tuple[list, list]:
     """Build ``#include header`` and a kernel that writes the listed macros, with the host's
-    -D options for ``defines``; returns the values the program saw."""
+    -D options for ``defines`` (and the runtime's LANES); returns the values the program saw."""
     rt = get_runtime()
+    defines = dict(defines, LANES=rt.lanes)
     src = (f'#include "{header}"\n__kernel void probe(__global long *i, __global float *f) {{\n'
            + "".join(f"    i[{j}] = {n};\n" for j, n in enumerate(ints))
            + "".join(f"    f[{j}] = {n};\n" for j, n in enumerate(floats)) + "}\n")
@@ -208,7 +209,7 @@ def test_a_program_sees_the_header_values_the_python_host_uses():
     host = {  # kernel name -> the values the Python wrappers launch with
         "TILE": [raymarch.TILE], "MS_MAX_OCTAVES": [raymarch.MAX_OCTAVES],
         "SWEEP_PAD": [transmittance.SWEEP_PAD], "SWEEP_BLOCK": [transmittance.SWEEP_BLOCK],
-        "BAKE_SPAN": [gather.BAKE_SPAN], "MLP_QUERIES_PER_ITEM": [mlp.QUERIES_PER_ITEM],
+        "BAKE_SPAN": [gather.BAKE_SPAN],
         "PT_OUT_NO_EMISSION": [pathtrace.PT_OUT, pathtrace.ROW_EM_DIRECT.start],
         "PT_OUT_EMISSION": [pathtrace.PT_OUT_EMISSION, pathtrace.ROW_EM_SCATTERED.stop],
         "PT_ORDER_EXACT": [pathtrace.ORDER_EXACT], "PT_ORDER_EXACT_LOG2": [pathtrace.ORDER_EXACT_LOG2],

@@ -143,7 +143,7 @@ static int run_goldens(clvol_host *h, const char *root) {
         float *want_y = npy(dir, "y.npy", &ny);
         float *want_F = npy(dir, "F.npy", &nF);
         float *alb = npy(dir, "channel_albedo.npy", &na);
-        int N = (int)ny, qpi = mf_int(&h->mf, "host.mlp_queries_per_item");
+        int N = (int)ny, qpi = h->lanes;   /* queries per work-item: one a lane */
         cl_mem df = npy_buffer(h, "features.npy", &n), dc = npy_buffer(h, "config.npy", &n),
                dp = npy_buffer(h, "params.npy", &n), dy = buffer(h, 4 * (size_t)N, NULL),
                dF = buffer(h, 12 * (size_t)N, NULL);

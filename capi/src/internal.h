@@ -133,7 +133,7 @@ void mf_float4(const manifest *m, const char *key, int n, cl_float4 *out);
 
 /* ---------------------------------------------------------------------------- host */
 
-enum { P_PYRAMID, P_MAJORANT, P_TRANS, P_TRANS_W1, P_TRANS_W16, P_GATHER, P_BAKE, P_MLP,
+enum { P_PYRAMID, P_MAJORANT, P_TRANS, P_TRANS_W1, P_TRANS_WL, P_GATHER, P_BAKE, P_MLP,
        P_RAYMARCH, P_PACK, N_PROGRAMS };
 extern const char *const PROGRAM_NAMES[N_PROGRAMS];
 
@@ -149,8 +149,9 @@ struct clvol_renderer {
     cl_command_queue queue;
     cl_device_id device;
     int owns_context, is_pocl, is_cpu;
+    int lanes;                  /* -D LANES of every program: the device's (describe_device) */
     cl_program prog[N_PROGRAMS];
-    cl_kernel k_mip, k_majorant, k_layout, k_sweep1, k_sweep16, k_xpass, k_rows, k_small,
+    cl_kernel k_mip, k_majorant, k_layout, k_sweep1, k_sweepL, k_xpass, k_rows, k_small,
         k_gather, k_mlp, k_raymarch, k_pack;
     cl_mem mems[MAX_MEMS];
     int n_mems;
@@ -161,7 +162,7 @@ struct clvol_renderer {
     char *dir;
     manifest mf;
     int pad, sweep_pad, sweep_block, sweep_slack, sweep_group, sweep_vmin, bake_min, bake_span,
-        bake_pad, sort_bits, mlp_qpi, tile, rm_local;
+        bake_pad, sort_bits, tile, rm_local;
     int cfg_dim, cfg_albedo, cfg_alpha;   /* the network config layout (host.config_*) */
     int source;                 /* SOURCE_*: the bundle's, fixed (its programs) */
     /* volume (V) */

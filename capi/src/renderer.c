@@ -179,9 +179,10 @@ static cl_mem sweep_layout(clvol_host *h, cl_mem pyr, const long *loff, int base
 static void sweep_level(clvol_host *h, cl_mem layout, long s_off, int n, double scale,
                         const double *l, int out_depth, cl_mem out, long out_off) {
     sweep_geom g = sweep_geometry(l);
-    int width = n >= h->sweep_vmin ? 16 : 1;
-    cl_kernel k = width == 16 ? h->k_sweep16 : h->k_sweep1;
-    if (!k) fail(BUNDLE, "%s: program transmittance_w%d is not in the bundle's programs", h->mf.where, width);
+    int width = n >= h->sweep_vmin ? h->lanes : 1;
+    cl_kernel k = width > 1 ? h->k_sweepL : h->k_sweep1;
+    if (!k) fail(BUNDLE, "%s: program transmittance_w%s is not in the bundle's programs", h->mf.where,
+                 width > 1 ? "L" : "1");
     int *stab = xmalloc(sizeof(int) * 3 * (size_t)n);
     float *sftab = xmalloc(sizeof(float) * 2 * (size_t)n);
     int umin_all = 0, umax_all = 0, vmin_all = 0, vmax_all = 0;
@@ -227,7 +228,7 @@ static void sweep_level(clvol_host *h, cl_mem layout, long s_off, int n, double 
     int bw = bw_chunks * width;
     cl_mem bb = buffer(h, 4 * 2 * (size_t)SB * (size_t)brows * (size_t)bw, NULL);
     int n_col = (int)padded((size_t)n_col_max, (size_t)h->sweep_group);
-    long n_vox = (width == 16 && g.a == 0) ? (long)n * n / 16 : (long)SB * n * (n / width);
+    long n_vox = (width > 1 && g.a == 0) ? (long)n * n / width : (long)SB * n * (n / width);
     cl_mem d_stab = buffer(h, sizeof(int) * 3 * (size_t)n, stab);
     cl_mem d_sftab = buffer(h, sizeof(float) * 2 * (size_t)n, sftab);
     cl_mem d_btab = buffer(h, sizeof(int) * 4 * (size_t)nb, btab);
@@ -299,7 +300,6 @@ static void read_host_constants(clvol_host *h) {
     h->bake_span = mf_int_in(m, "host.bake_span", 1, 4096);
     h->bake_pad = mf_int_in(m, "host.bake_pad", 0, 4096);
     h->sort_bits = mf_int_in(m, "host.sort_bits", 1, 10);
-    h->mlp_qpi = mf_int_in(m, "host.mlp_queries_per_item", 1, 64);
     h->cfg_dim = mf_int_in(m, "host.config_dim", 3, 64);
     h->cfg_albedo = mf_int_in(m, "host.config_albedo", 0, h->cfg_dim - 1);
     h->cfg_alpha = mf_int_in(m, "host.config_alpha", 0, h->cfg_dim - 1);
@@ -417,11 +417,11 @@ static void open_bundle(clvol_host *h) {
         h->k_layout = kernel(h, P_TRANS, "sweep_layout");
         /* the widths the bundle's levels use (one of them when only the light field is swept) */
         if (h->prog[P_TRANS_W1]) h->k_sweep1 = kernel(h, P_TRANS_W1, "transmittance_sweep_block");
-        if (h->prog[P_TRANS_W16]) h->k_sweep16 = kernel(h, P_TRANS_W16, "transmittance_sweep_block");
+        if (h->prog[P_TRANS_WL]) h->k_sweepL = kernel(h, P_TRANS_WL, "transmittance_sweep_block");
     }
     if (h->network) {
         for (int p = P_PYRAMID; p <= P_MLP; ++p)
-            if (p != P_MAJORANT && p != P_TRANS_W1 && p != P_TRANS_W16 && !h->prog[p])
+            if (p != P_MAJORANT && p != P_TRANS_W1 && p != P_TRANS_WL && !h->prog[p])
                 fail(BUNDLE, "%s: the network's programs must list %s", m->where, PROGRAM_NAMES[p]);
         h->k_mip = kernel(h, P_PYRAMID, "mip_reduce");
         h->k_xpass = kernel(h, P_BAKE, "bake_xpass");
@@ -765,13 +765,13 @@ static void lattice_stage(clvol_host *h) {
                  h->d_hl, h->d_ptab, h->n_alpha, h->d_points, h->d_omegas, &light4, &lg, &lw,
                  (double)(float)wsum, h->d_order, n, h->d_feats, h->d_dummy, h->d_tenter);
         launch(h, h->k_gather, padded((size_t)n, (size_t)h->pad), 0);
-        /* MLP: 16 queries per work-item; groups of one work-item on a CPU (private arrays
+        /* MLP: LANES queries per work-item; groups of one work-item on a CPU (private arrays
          * of ~105 KB each overflow PoCL's stack in bigger groups) */
         cl_float4 ca = {{0, 0, 0, 0}};
         if (C == 3)
             for (int c = 0; c < 3; ++c) ca.s[c] = (float)alb[c];
         set_args(h->k_mlp, "mmm4im", h->d_feats, h->d_config, h->d_params, &ca, n, h->d_fms);
-        size_t items = (size_t)(n + h->mlp_qpi - 1) / (size_t)h->mlp_qpi;
+        size_t items = (size_t)(n + h->lanes - 1) / (size_t)h->lanes;
         if (h->is_cpu)
             launch(h, h->k_mlp, items, 1);
         else
@@ -841,7 +841,9 @@ static void march_stage(clvol_host *h) {
              &l4, &e4, &a4, &rg, &rw, &bg4, abc[0], abc[1], abc[2],
              h->step, mf_double(m, "raymarch.threshold"),
              h->d_out[0], h->d_out[1], h->d_out[2], h->d_out[3], h->d_out[4], h->d_out[5]);
-    size_t tiles = (size_t)((W + h->tile - 1) / h->tile) * (size_t)((H + h->tile - 1) / h->tile);
+    /* a tile is tile x LANES / tile pixels, one a lane (cl/raymarch.cl TILE_ROWS) */
+    int rows = h->lanes / h->tile;
+    size_t tiles = (size_t)((W + h->tile - 1) / h->tile) * (size_t)((H + rows - 1) / rows);
     launch(h, h->k_raymarch, padded(tiles, (size_t)h->rm_local), (size_t)h->rm_local);
     h->counts[CLVOL_STAGE_MARCH]++;
 }

@@ -325,7 +325,7 @@ int mf_int_in(const manifest *m, const char *key, int lo, int hi) {
 /* ------------------------------------------------------------------- OpenCL helpers */
 
 const char *const PROGRAM_NAMES[N_PROGRAMS] = {
-    "pyramid", "majorant", "transmittance", "transmittance_w1", "transmittance_w16", "gather",
+    "pyramid", "majorant", "transmittance", "transmittance_w1", "transmittance_wL", "gather",
     "gather_bake", "mlp", "raymarch", "pack_rgba"};
 
 cl_mem track(clvol_host *h, cl_mem m) {
@@ -491,6 +491,20 @@ void describe_device(clvol_host *h) {
     h->is_pocl = strstr(name, "Portable Computing Language") != NULL;
     CL(clGetDeviceInfo(h->device, CL_DEVICE_TYPE, sizeof t, &t, NULL));
     h->is_cpu = (t & CL_DEVICE_TYPE_CPU) != 0;
+    /* The lane width, as clvol/runtime.py device_lanes decides it: $CLVOL_LANES, else a CPU's
+     * native float vector width (8: AVX, 4: SSE; a wider vector in a call changes its calling
+     * convention), else 16 (docs/opencl.md, "Compiler warnings"). */
+    cl_uint native = 0;
+    if (clGetDeviceInfo(h->device, CL_DEVICE_NATIVE_VECTOR_WIDTH_FLOAT, sizeof native, &native,
+                        NULL) != CL_SUCCESS)
+        native = 0;
+    h->lanes = (h->is_cpu && (native == 4 || native == 8)) ? (int)native : 16;
+    const char *forced = getenv("CLVOL_LANES");
+    if (forced && *forced) {
+        if (strcmp(forced, "16") && strcmp(forced, "8") && strcmp(forced, "4"))
+            fail(CLVOL_ERROR_ARGUMENT, "CLVOL_LANES=%s: expected one of 16, 8, 4", forced);
+        h->lanes = atoi(forced);
+    }
 }
 
 /* Kernel sources with their quoted #includes pasted in from the include folder (each header
@@ -597,9 +611,9 @@ cl_program build_program_at(clvol_host *h, const char *dir, const manifest *m,
     const char *opts = mf_str(m, key);
     snprintf(key, sizeof key, "program.%s.options_pocl", name);
     const char *pocl = h->is_pocl ? mf_find(m, key) : NULL;
-    size_t n = strlen(opts) + (pocl ? strlen(pocl) : 0) + 4;
+    size_t n = strlen(opts) + (pocl ? strlen(pocl) : 0) + 32;
     char *options = xmalloc(n);
-    snprintf(options, n, "%s %s", opts, pocl ? pocl : "");
+    snprintf(options, n, "%s -DLANES=%d %s", opts, h->lanes, pocl ? pocl : "");
     cl_program p = build_source(h, src.s, options, path);
     xfree(options);
     xfree(seen);
@@ -615,7 +629,7 @@ void host_release(clvol_host *h) {
     if (h->queue) clFinish(h->queue);
     for (int i = 0; i < h->n_mems; ++i) clReleaseMemObject(h->mems[i]);
     h->n_mems = 0;
-    cl_kernel ks[] = {h->k_mip, h->k_majorant, h->k_layout, h->k_sweep1, h->k_sweep16, h->k_xpass,
+    cl_kernel ks[] = {h->k_mip, h->k_majorant, h->k_layout, h->k_sweep1, h->k_sweepL, h->k_xpass,
                       h->k_rows, h->k_small, h->k_gather, h->k_mlp, h->k_raymarch, h->k_pack};
     for (size_t i = 0; i < sizeof ks / sizeof ks[0]; ++i)
         if (ks[i]) clReleaseKernel(ks[i]);

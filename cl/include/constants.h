@@ -8,14 +8,15 @@
  * tests/test_constants.py checks that no Python module repeats one as a literal and that a
  * built program sees the values the Python host read.
  *
- * Numbers the host decides (the feature contract, the weight format, lane counts it measured)
+ * Numbers the host decides (the feature contract, the weight format, lane counts it measured
+ * or chose for the device: LANES, cl/include/lanes.h)
  * go the other way: the host passes them as -D defines and the kernel stops with #error
  * without them (e.g. cl/include/mlp_core.h). */
 #ifndef CLVOL_CONSTANTS_H
 #define CLVOL_CONSTANTS_H
 
-/* cl/raymarch.cl: pixels per side of the tile one work-item marches, one pixel per float16
- * lane (4 x 4; the kernel's lane pattern is written for it). */
+/* cl/raymarch.cl: pixels per row of the tile one work-item marches, one pixel per vector lane
+ * (a tile is TILE x LANES / TILE pixels; the kernel's lane pattern is written for 4). */
 #define TILE 4
 
 /* cl/raymarch.cl: the most Wrenninge octaves (MS_OCTAVES) it evaluates. */
@@ -27,11 +28,8 @@
 #define SWEEP_BLOCK 16
 
 /* cl/gather.cl bake_rows: voxels of a row per work-item (at most; n when the level is
- * narrower), in float16 chunks. */
+ * narrower), in LANES-wide chunks. */
 #define BAKE_SPAN 64
-
-/* cl/mlp.cl: queries per work-item, one per lane of mlp_core.h's V (float16). */
-#define MLP_QUERIES_PER_ITEM 16
 
 /* cl/pathtrace.cl: floats per path in the output row: background, order 1, orders >= 2
  * (RGB each), vertices, tracking steps, truncated; with -D PT_EMISSION then emission seen

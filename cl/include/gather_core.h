@@ -1,7 +1,7 @@
 /* The template gather's device functions (cl/gather.cl documents the gather; twin
  * reference/gather.py), shared by the gather kernel and the fused gather + network kernel
- * (cl/gather_mlp.cl): per query gather_query_init, per chunk of 16 template points
- * gather_chunk_points, then gather_render_chunk (render mode) and gather_phase_chunk. */
+ * (cl/gather_mlp.cl): per query gather_query_init, per chunk of LANES template points
+ * (cl/include/lanes.h) gather_chunk_points, then gather_render_chunk (render mode) and gather_phase_chunk. */
 #ifndef CLVOL_GATHER_CORE_H
 #define CLVOL_GATHER_CORE_H
 
@@ -12,25 +12,33 @@
 #ifndef NP
 #define NP 266
 #endif
-#define CHUNKS ((NP + 15) / 16)
-#define NPAD (16 * CHUNKS)
-#define TAIL (NP - 16 * (CHUNKS - 1))   /* points in the last chunk, 1..16 */
+#include "lanes.h"
+
+/* Table rows are padded to whole 16s (the widest LANES: one host layout for every width,
+ * clvol/kernels/gather.py n_pad); a work-item takes LANES points a chunk. */
+#define NPAD (16 * ((NP + 15) / 16))
+#define CHUNKS ((NP + LANES - 1) / LANES)
+#define TAIL (NP - LANES * (CHUNKS - 1))   /* points in the last chunk, 1..LANES */
 #ifndef COARSE_LEVEL
 #define COARSE_LEVEL 3
 #endif
 
-#include "lanes.h"
-
 __attribute__((always_inline))
-i16 gatheri16(__global const int *p, i16 i) {
-    return (i16)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7],
-                 p[i.s8], p[i.s9], p[i.sa], p[i.sb], p[i.sc], p[i.sd], p[i.se], p[i.sf]);
+iL gatheriL(__global const int *p, iL i) {
+    return (iL)(p[i.s0], p[i.s1], p[i.s2], p[i.s3]
+#if LANES >= 8
+                , p[i.s4], p[i.s5], p[i.s6], p[i.s7]
+#endif
+#if LANES == 16
+                , p[i.s8], p[i.s9], p[i.sa], p[i.sb], p[i.sc], p[i.sd], p[i.se], p[i.sf]
+#endif
+                );
 }
 
 /* Render lookups read, per lane and row, the float4 (tau, C at x0; tau, C at x0 + 1).
  * GATHER_SHUFFLE (the host sets it on PoCL): each lane's four row addresses are scalars (a base
- * and two strides, extracted from the vectors once), the sixteen float4 of a row are loaded
- * and transposed into four float16 in registers with Clang's __builtin_shufflevector (~24
+ * and two strides, extracted from the vectors once), the LANES float4 of a row are loaded
+ * and transposed into four vL in registers with Clang's __builtin_shufflevector (~24
  * instructions a row). Written lane by lane instead, LLVM turns them into four AVX-512 gathers
  * a row, ~2x slower here. Without it (Oclgrind, other compilers): per-lane scalar loads; its
  * uninitialised-value checker crashed on the float4 form and reports shuffle results as
@@ -38,6 +46,7 @@ i16 gatheri16(__global const int *p, i16 i) {
  * (tests/test_gather.py). */
 #ifdef GATHER_SHUFFLE
 #define SV __builtin_shufflevector
+#if LANES == 16
 #define TRANSPOSE4(E, X, Y, Z, W)                                                          \
     {                                                                                      \
         const float8 p0 = SV(E##0, E##1, 0, 1, 2, 3, 4, 5, 6, 7);                          \
@@ -48,19 +57,46 @@ i16 gatheri16(__global const int *p, i16 i) {
         const float8 p5 = SV(E##a, E##b, 0, 1, 2, 3, 4, 5, 6, 7);                          \
         const float8 p6 = SV(E##c, E##d, 0, 1, 2, 3, 4, 5, 6, 7);                          \
         const float8 p7 = SV(E##e, E##f, 0, 1, 2, 3, 4, 5, 6, 7);                          \
-        const v16 m0 = SV(p0, p1, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);   \
-        const v16 m1 = SV(p2, p3, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);   \
-        const v16 m2 = SV(p4, p5, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);   \
-        const v16 m3 = SV(p6, p7, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);   \
-        const v16 u0 = SV(m0, m1, 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29); \
-        const v16 u1 = SV(m0, m1, 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31); \
-        const v16 u2 = SV(m2, m3, 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29); \
-        const v16 u3 = SV(m2, m3, 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31); \
+        const vL m0 = SV(p0, p1, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);    \
+        const vL m1 = SV(p2, p3, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);    \
+        const vL m2 = SV(p4, p5, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);    \
+        const vL m3 = SV(p6, p7, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);    \
+        const vL u0 = SV(m0, m1, 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29); \
+        const vL u1 = SV(m0, m1, 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31); \
+        const vL u2 = SV(m2, m3, 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29); \
+        const vL u3 = SV(m2, m3, 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31); \
         X = SV(u0, u2, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);             \
         Y = SV(u0, u2, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);       \
         Z = SV(u1, u3, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);             \
         W = SV(u1, u3, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);       \
     }
+#elif LANES == 8
+#define TRANSPOSE4(E, X, Y, Z, W)                                                          \
+    {                                                                                      \
+        const float8 p0 = SV(E##0, E##1, 0, 1, 2, 3, 4, 5, 6, 7);                          \
+        const float8 p1 = SV(E##2, E##3, 0, 1, 2, 3, 4, 5, 6, 7);                          \
+        const float8 p2 = SV(E##4, E##5, 0, 1, 2, 3, 4, 5, 6, 7);                          \
+        const float8 p3 = SV(E##6, E##7, 0, 1, 2, 3, 4, 5, 6, 7);                          \
+        const float8 u0 = SV(p0, p1, 0, 4, 8, 12, 1, 5, 9, 13);                            \
+        const float8 u1 = SV(p0, p1, 2, 6, 10, 14, 3, 7, 11, 15);                          \
+        const float8 u2 = SV(p2, p3, 0, 4, 8, 12, 1, 5, 9, 13);                            \
+        const float8 u3 = SV(p2, p3, 2, 6, 10, 14, 3, 7, 11, 15);                          \
+        X = SV(u0, u2, 0, 1, 2, 3, 8, 9, 10, 11);                                          \
+        Y = SV(u0, u2, 4, 5, 6, 7, 12, 13, 14, 15);                                        \
+        Z = SV(u1, u3, 0, 1, 2, 3, 8, 9, 10, 11);                                          \
+        W = SV(u1, u3, 4, 5, 6, 7, 12, 13, 14, 15);                                        \
+    }
+#else
+#define TRANSPOSE4(E, X, Y, Z, W)                                                          \
+    {                                                                                      \
+        const float4 u0 = SV(E##0, E##1, 0, 4, 1, 5), u1 = SV(E##0, E##1, 2, 6, 3, 7);    \
+        const float4 u2 = SV(E##2, E##3, 0, 4, 1, 5), u3 = SV(E##2, E##3, 2, 6, 3, 7);    \
+        X = SV(u0, u2, 0, 1, 4, 5);                                                        \
+        Y = SV(u0, u2, 2, 3, 6, 7);                                                        \
+        Z = SV(u1, u3, 0, 1, 4, 5);                                                        \
+        W = SV(u1, u3, 2, 3, 6, 7);                                                        \
+    }
+#endif
 
 /* Lane J's four rows (z0, y0), (z0, y1), (z1, y0), (z1, y1). */
 #define LANE_ROWS(P, J)                                                                    \
@@ -70,36 +106,36 @@ i16 gatheri16(__global const int *p, i16 i) {
     const float4 rd##J = vload4(0, P + ib[0x##J] + iy[0x##J] + iz[0x##J]);
 #endif
 
-/* grid_lookup (grid.h) on 16 lanes of one level (off, n uniform), clamped coordinates.
+/* grid_lookup (grid.h) on LANES lanes of one level (off, n uniform), clamped coordinates.
  * Scalar bounds are broadcast explicitly: Oclgrind 21.10 applies the scalar argument of
  * min(int16, int) to lane 0 only (found by the ray marcher's engineer). */
 __attribute__((always_inline))
-v16 lookup16(__global const float *d, int n, v16 gx, v16 gy, v16 gz) {
-    const v16 hi = (v16)((float)(n - 1));
-    v16 x = clamp(gx, (v16)(0.0f), hi), y = clamp(gy, (v16)(0.0f), hi);
-    v16 z = clamp(gz, (v16)(0.0f), hi);
-    i16 x0 = convert_int16(x), y0 = convert_int16(y), z0 = convert_int16(z);
-    const i16 nm1 = (i16)(n - 1), nn = (i16)(n);
-    i16 x1 = min(x0 + 1, nm1), y1 = min(y0 + 1, nm1), z1 = min(z0 + 1, nm1);
-    v16 fx = x - convert_float16(x0), fy = y - convert_float16(y0), fz = z - convert_float16(z0);
-    i16 r00 = (z0 * nn + y0) * nn, r01 = (z0 * nn + y1) * nn;
-    i16 r10 = (z1 * nn + y0) * nn, r11 = (z1 * nn + y1) * nn;
-    v16 c00 = mix(gather16(d, r00 + x0), gather16(d, r00 + x1), fx);
-    v16 c01 = mix(gather16(d, r01 + x0), gather16(d, r01 + x1), fx);
-    v16 c10 = mix(gather16(d, r10 + x0), gather16(d, r10 + x1), fx);
-    v16 c11 = mix(gather16(d, r11 + x0), gather16(d, r11 + x1), fx);
+vL lookupL(__global const float *d, int n, vL gx, vL gy, vL gz) {
+    const vL hi = (vL)((float)(n - 1));
+    vL x = clamp(gx, (vL)(0.0f), hi), y = clamp(gy, (vL)(0.0f), hi);
+    vL z = clamp(gz, (vL)(0.0f), hi);
+    iL x0 = convert_iL(x), y0 = convert_iL(y), z0 = convert_iL(z);
+    const iL nm1 = (iL)(n - 1), nn = (iL)(n);
+    iL x1 = min(x0 + 1, nm1), y1 = min(y0 + 1, nm1), z1 = min(z0 + 1, nm1);
+    vL fx = x - convert_vL(x0), fy = y - convert_vL(y0), fz = z - convert_vL(z0);
+    iL r00 = (z0 * nn + y0) * nn, r01 = (z0 * nn + y1) * nn;
+    iL r10 = (z1 * nn + y0) * nn, r11 = (z1 * nn + y1) * nn;
+    vL c00 = mix(gatherL(d, r00 + x0), gatherL(d, r00 + x1), fx);
+    vL c01 = mix(gatherL(d, r01 + x0), gatherL(d, r01 + x1), fx);
+    vL c10 = mix(gatherL(d, r10 + x0), gatherL(d, r10 + x1), fx);
+    vL c11 = mix(gatherL(d, r11 + x0), gatherL(d, r11 + x1), fx);
     return mix(mix(c00, c01, fy), mix(c10, c11, fy), fz);
 }
 
-/* Store the first NP - 16 c values of a chunk (all 16 except in the last chunk). */
+/* Store the first NP - LANES c values of a chunk (all LANES except in the last chunk). */
 __attribute__((always_inline))
-void store_chunk(__global float *row, int c, v16 v) {
+void store_chunk(__global float *row, int c, vL v) {
     if (c < CHUNKS - 1) {
-        vstore16(v, c, row);
+        vstoreL(v, c, row);
     } else {
-        float t[16];
-        vstore16(v, 0, t);
-        for (int i = 0; i < TAIL; ++i) row[16 * c + i] = t[i];
+        float t[LANES];
+        vstoreL(v, 0, t);
+        for (int i = 0; i < TAIL; ++i) row[LANES * c + i] = t[i];
     }
 }
 
@@ -198,34 +234,34 @@ void gather_query_init(gather_query *s, float3 p, float3 w, float3 l,
     s->at = fa - (float)s->a0;
 }
 
-/* Chunk c (16 template points) of query s: each point's level lvl, the level's resolution n
+/* Chunk c (LANES template points) of query s: each point's level lvl, the level's resolution n
  * and offset off, whether it lies in the cube, and its clamped grid coordinates g. */
 __attribute__((always_inline))
 void gather_chunk_points(const gather_query *s, int c, float3 l, float3 cmin, float csize,
                          int n0, __global const float *tpl, __global const int *pinfo,
-                         __global const int *loff, i16 *lvl_out, i16 *n_out, i16 *off_out,
-                         i16 *inside_out, v16 *gx_out, v16 *gy_out, v16 *gz_out) {
+                         __global const int *loff, iL *lvl_out, iL *n_out, iL *off_out,
+                         iL *inside_out, vL *gx_out, vL *gy_out, vL *gz_out) {
     const float3 cmax = cmin + (float3)(csize);
-    const v16 ux = vload16(c, tpl), uy = vload16(c, tpl + NPAD), uz = vload16(c, tpl + 2 * NPAD);
-    const i16 info = vload16(c, pinfo);
-    const i16 h0 = (i16)(s->h0), h1 = (i16)(s->h1), h2 = (i16)(s->h2), h3 = (i16)(s->h3);
-    const i16 hl = info == (i16)(-1) ? h0 : (info == (i16)(-2) ? h1 : (info == (i16)(-3) ? h2 : h3));
-    const i16 diffuse = info >= (i16)(0);
-    const i16 lvl = diffuse ? info : hl;
-    const v16 scale = select((v16)(s->t_enter), (v16)(csize), diffuse);
-    const v16 sx = s->px + scale * (ux * s->fxx + uy * s->fyx + uz * l.x);
-    const v16 sy = s->py + scale * (ux * s->fxy + uy * s->fyy + uz * l.y);
-    const v16 sz = s->pz + scale * (ux * s->fxz + uy * s->fyz + uz * l.z);
-    const i16 n = (i16)(n0) >> lvl;
-    const v16 vox = csize / convert_float16(n);
-    const i16 inside = (sx >= cmin.x) & (sx <= cmax.x) & (sy >= cmin.y) & (sy <= cmax.y)
+    const vL ux = vloadL(c, tpl), uy = vloadL(c, tpl + NPAD), uz = vloadL(c, tpl + 2 * NPAD);
+    const iL info = vloadL(c, pinfo);
+    const iL h0 = (iL)(s->h0), h1 = (iL)(s->h1), h2 = (iL)(s->h2), h3 = (iL)(s->h3);
+    const iL hl = info == (iL)(-1) ? h0 : (info == (iL)(-2) ? h1 : (info == (iL)(-3) ? h2 : h3));
+    const iL diffuse = info >= (iL)(0);
+    const iL lvl = diffuse ? info : hl;
+    const vL scale = select((vL)(s->t_enter), (vL)(csize), diffuse);
+    const vL sx = s->px + scale * (ux * s->fxx + uy * s->fyx + uz * l.x);
+    const vL sy = s->py + scale * (ux * s->fxy + uy * s->fyy + uz * l.y);
+    const vL sz = s->pz + scale * (ux * s->fxz + uy * s->fyz + uz * l.z);
+    const iL n = (iL)(n0) >> lvl;
+    const vL vox = csize / convert_vL(n);
+    const iL inside = (sx >= cmin.x) & (sx <= cmax.x) & (sy >= cmin.y) & (sy <= cmax.y)
                      & (sz >= cmin.z) & (sz <= cmax.z);
-    const i16 nm1 = n - (i16)(1);
-    const v16 hi = convert_float16(nm1);
-    *gx_out = clamp((sx - cmin.x) / vox - 0.5f, (v16)(0.0f), hi);
-    *gy_out = clamp((sy - cmin.y) / vox - 0.5f, (v16)(0.0f), hi);
-    *gz_out = clamp((sz - cmin.z) / vox - 0.5f, (v16)(0.0f), hi);
-    *off_out = gatheri16(loff, lvl);
+    const iL nm1 = n - (iL)(1);
+    const vL hi = convert_vL(nm1);
+    *gx_out = clamp((sx - cmin.x) / vox - 0.5f, (vL)(0.0f), hi);
+    *gy_out = clamp((sy - cmin.y) / vox - 0.5f, (vL)(0.0f), hi);
+    *gz_out = clamp((sz - cmin.z) / vox - 0.5f, (vL)(0.0f), hi);
+    *off_out = gatheriL(loff, lvl);
     *lvl_out = lvl;
     *n_out = n;
     *inside_out = inside;
@@ -234,57 +270,61 @@ void gather_chunk_points(const gather_query *s, int c, float3 l, float3 cmin, fl
 /* Render mode: the density feature log1p(tau) and the combined transmittance C of a chunk
  * from the baked (tau, C) grid (0 and c_out outside the cube). */
 __attribute__((always_inline))
-void gather_render_chunk(__global const float *baked, i16 n, i16 off, i16 inside, v16 gx,
-                         v16 gy, v16 gz, float c_out, v16 *dens_out, v16 *t_out) {
+void gather_render_chunk(__global const float *baked, iL n, iL off, iL inside, vL gx,
+                         vL gy, vL gz, float c_out, vL *dens_out, vL *t_out) {
     /* Corners (x0, y0, z0) <= n - 2, so x0 + 1, y0 + 1, z0 + 1 are in the level and every
      * row pair is one 16-byte load; at the top face the weight is 1 instead of grid.h's
      * clamped corner (the same value up to rounding). A 1-voxel level reads one row beyond
      * itself with weight 0: the next level's data, or the buffer's padding. */
-    const i16 top = max(n - (i16)(2), (i16)(0));
-    const i16 x0 = min(convert_int16(gx), top), y0 = min(convert_int16(gy), top);
-    const i16 z0 = min(convert_int16(gz), top);
-    const v16 wx = gx - convert_float16(x0), wy = gy - convert_float16(y0);
-    const v16 wz = gz - convert_float16(z0);
-    const i16 base = (i16)(2) * (off + (z0 * n + y0) * n + x0);
-    const i16 dy = (i16)(2) * n, dz = (i16)(2) * n * n;     /* row strides */
-    v16 t0, c0, t1, c1;
+    const iL top = max(n - (iL)(2), (iL)(0));
+    const iL x0 = min(convert_iL(gx), top), y0 = min(convert_iL(gy), top);
+    const iL z0 = min(convert_iL(gz), top);
+    const vL wx = gx - convert_vL(x0), wy = gy - convert_vL(y0);
+    const vL wz = gz - convert_vL(z0);
+    const iL base = (iL)(2) * (off + (z0 * n + y0) * n + x0);
+    const iL dy = (iL)(2) * n, dz = (iL)(2) * n * n;     /* row strides */
+    vL t0, c0, t1, c1;
 #ifdef GATHER_SHUFFLE
-    int ib[16], iy[16], iz[16];
-    vstore16(base, 0, ib);
-    vstore16(dy, 0, iy);
-    vstore16(dz, 0, iz);
+    int ib[LANES], iy[LANES], iz[LANES];
+    vstoreL(base, 0, ib);
+    vstoreL(dy, 0, iy);
+    vstoreL(dz, 0, iz);
     LANE_ROWS(baked, 0) LANE_ROWS(baked, 1) LANE_ROWS(baked, 2) LANE_ROWS(baked, 3)
+#if LANES >= 8
     LANE_ROWS(baked, 4) LANE_ROWS(baked, 5) LANE_ROWS(baked, 6) LANE_ROWS(baked, 7)
+#endif
+#if LANES == 16
     LANE_ROWS(baked, 8) LANE_ROWS(baked, 9) LANE_ROWS(baked, a) LANE_ROWS(baked, b)
     LANE_ROWS(baked, c) LANE_ROWS(baked, d) LANE_ROWS(baked, e) LANE_ROWS(baked, f)
+#endif
 #define ROW(E, R) TRANSPOSE4(E, t0, c0, t1, c1)
 #else
 #define ROW(E, R)                                                                          \
-    t0 = gather16(baked, R); c0 = gather16(baked, R + (i16)(1));                           \
-    t1 = gather16(baked, R + (i16)(2)); c1 = gather16(baked, R + (i16)(3));
+    t0 = gatherL(baked, R); c0 = gatherL(baked, R + (iL)(1));                           \
+    t1 = gatherL(baked, R + (iL)(2)); c1 = gatherL(baked, R + (iL)(3));
 #endif
     ROW(ra, base)
-    const v16 t00 = mix(t0, t1, wx), k00 = mix(c0, c1, wx);
+    const vL t00 = mix(t0, t1, wx), k00 = mix(c0, c1, wx);
     ROW(rb, base + dy)
-    const v16 t01 = mix(t0, t1, wx), k01 = mix(c0, c1, wx);
+    const vL t01 = mix(t0, t1, wx), k01 = mix(c0, c1, wx);
     ROW(rc, base + dz)
-    const v16 t10 = mix(t0, t1, wx), k10 = mix(c0, c1, wx);
+    const vL t10 = mix(t0, t1, wx), k10 = mix(c0, c1, wx);
     ROW(rd, base + dy + dz)
-    const v16 t11 = mix(t0, t1, wx), k11 = mix(c0, c1, wx);
+    const vL t11 = mix(t0, t1, wx), k11 = mix(c0, c1, wx);
 #undef ROW
-    const v16 tau = mix(mix(t00, t01, wy), mix(t10, t11, wy), wz);
-    const v16 tc = mix(mix(k00, k01, wy), mix(k10, k11, wy), wz);
-    *dens_out = log1p(select((v16)(0.0f), tau, inside));
-    *t_out = select((v16)(c_out), tc, inside);
+    const vL tau = mix(mix(t00, t01, wy), mix(t10, t11, wy), wz);
+    const vL tc = mix(mix(k00, k01, wy), mix(k10, k11, wy), wz);
+    *dens_out = log1p(select((vL)(0.0f), tau, inside));
+    *t_out = select((vL)(c_out), tc, inside);
 }
 
 /* The phase feature of chunk c: the table ptab[NA][NPAD] read linearly in alpha. (The
  * centre point, j = 0, is replaced by log1p(phase_eval(mu, ...)) by the caller.) */
 __attribute__((always_inline))
-v16 gather_phase_chunk(const gather_query *s, int c, __global const float *ptab) {
+vL gather_phase_chunk(const gather_query *s, int c, __global const float *ptab) {
     __global const float *row0 = ptab + (size_t)s->a0 * NPAD;
     __global const float *row1 = row0 + NPAD;
-    return mix(vload16(c, row0), vload16(c, row1), s->at);
+    return mix(vloadL(c, row0), vloadL(c, row1), s->at);
 }
 
 #endif

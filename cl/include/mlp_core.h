@@ -1,11 +1,11 @@
 /* The network's forward pass as device functions (cl/mlp.cl documents it; twin
  * reference/mlp.py), shared by the mlp_forward kernel and the fused gather + network kernel
- * (cl/gather_mlp.cl): mlp_config (the 16 lanes' config), transpose16, mlp_run (normalise,
+ * (cl/gather_mlp.cl): mlp_config (the LANES lanes' config), transposeL, mlp_run (normalise,
  * pool, every channel's evaluation, decode, store). Needs the defines listed in cl/mlp.cl. */
 #ifndef CLVOL_MLP_CORE_H
 #define CLVOL_MLP_CORE_H
 
-#include "constants.h"   /* MLP_QUERIES_PER_ITEM */
+#include "lanes.h"   /* LANES: queries per work-item, one per lane */
 
 /* The feature contract's and the weight format's numbers, written once on the host
  * (clvol/neural/layout.py, clvol/neural/export.py) and passed by clvol/kernels/mlp.py
@@ -44,9 +44,6 @@
 #if MLP_GAMMA != 4
 #error "the decode computes albedo^MLP_GAMMA as (a^2)^2"
 #endif
-#if MLP_QUERIES_PER_ITEM != 16
-#error "one query per lane of V (float16)"
-#endif
 
 /* The albedo as the network reads it (-D MLP_ALBEDO_LOG1M: -log(1 - a + eps), which
  * resolves 0.99 .. 1; docs/network.md), before the config normalisation. */
@@ -57,7 +54,7 @@
 #endif
 #define PAD8(x) (((x) + 7) & ~7)
 
-typedef float16 V;
+typedef vL V;
 
 __constant int COUNTS[N_LAYERS] = {LAYER_COUNTS};
 __constant int HEADW[HEAD_DEPTH] = {HEAD_WIDTHS};
@@ -111,22 +108,29 @@ static inline __global const float *dense(__global const float *p, const int n_i
     return bias + np;
 }
 
-/* One value per lane: src[off[j] + idx] for the 16 queries (off: lane offsets, clamped to n-1). */
+/* One value per lane: src[off[j] + idx] for the LANES queries (off: lane offsets, clamped to
+ * n-1). */
 __attribute__((always_inline))
 static inline V lanes(__global const float *src, const int *off, const int idx) {
-    return (V)(src[off[0] + idx], src[off[1] + idx], src[off[2] + idx], src[off[3] + idx],
-               src[off[4] + idx], src[off[5] + idx], src[off[6] + idx], src[off[7] + idx],
-               src[off[8] + idx], src[off[9] + idx], src[off[10] + idx], src[off[11] + idx],
-               src[off[12] + idx], src[off[13] + idx], src[off[14] + idx], src[off[15] + idx]);
+    return (V)(src[off[0] + idx], src[off[1] + idx], src[off[2] + idx], src[off[3] + idx]
+#if LANES >= 8
+               , src[off[4] + idx], src[off[5] + idx], src[off[6] + idx], src[off[7] + idx]
+#endif
+#if LANES == 16
+               , src[off[8] + idx], src[off[9] + idx], src[off[10] + idx], src[off[11] + idx],
+               src[off[12] + idx], src[off[13] + idx], src[off[14] + idx], src[off[15] + idx]
+#endif
+               );
 }
 
 #ifdef MLP_TRANSPOSE16
-/* In-register 16x16 transpose: round b swaps bit b of the row index with bit b of the lane
- * index (4 rounds x 16 two-source shuffles, one instruction each with Clang's
+/* In-register LANES x LANES transpose: round b swaps bit b of the row index with bit b of the
+ * lane index (log2(LANES) rounds x LANES two-source shuffles, one instruction each with Clang's
  * __builtin_shufflevector). The host enables it on PoCL only: other compilers may lack the
  * builtin, and Oclgrind reports its shuffles' results as uninitialised although the transpose is
  * exact (a false positive of its per-instruction vector shadows; tests/test_mlp.py checks both
  * load paths give bit-identical outputs). */
+#if LANES == 16
 #define TR0L 0, 16, 2, 18, 4, 20, 6, 22, 8, 24, 10, 26, 12, 28, 14, 30
 #define TR0H 1, 17, 3, 19, 5, 21, 7, 23, 9, 25, 11, 27, 13, 29, 15, 31
 #define TR1L 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29
@@ -135,8 +139,21 @@ static inline V lanes(__global const float *src, const int *off, const int idx) 
 #define TR2H 4, 5, 6, 7, 20, 21, 22, 23, 12, 13, 14, 15, 28, 29, 30, 31
 #define TR3L 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23
 #define TR3H 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31
+#elif LANES == 8
+#define TR0L 0, 8, 2, 10, 4, 12, 6, 14
+#define TR0H 1, 9, 3, 11, 5, 13, 7, 15
+#define TR1L 0, 1, 8, 9, 4, 5, 12, 13
+#define TR1H 2, 3, 10, 11, 6, 7, 14, 15
+#define TR2L 0, 1, 2, 3, 8, 9, 10, 11
+#define TR2H 4, 5, 6, 7, 12, 13, 14, 15
+#elif LANES == 4
+#define TR0L 0, 4, 2, 6
+#define TR0H 1, 5, 3, 7
+#define TR1L 0, 1, 4, 5
+#define TR1H 2, 3, 6, 7
+#endif
 #define TR_ROUND(B, LO, HI)                                                  \
-    for (int i = 0; i < 16; ++i)                                             \
+    for (int i = 0; i < LANES; ++i)                                          \
         if (!(i & (1 << B))) {                                               \
             const V lo = r[i], hi = r[i | (1 << B)];                         \
             r[i] = __builtin_shufflevector(lo, hi, LO);                      \
@@ -144,50 +161,54 @@ static inline V lanes(__global const float *src, const int *off, const int idx) 
         }
 #endif
 
-/* r[i] lane j <- r[j] lane i (a 16x16 transpose in place). */
+/* r[i] lane j <- r[j] lane i (a LANES x LANES transpose in place). */
 __attribute__((always_inline))
-static inline void transpose16(V *r) {
+static inline void transposeL(V *r) {
 #ifdef MLP_TRANSPOSE16
     TR_ROUND(0, TR0L, TR0H)
     TR_ROUND(1, TR1L, TR1H)
+#if LANES >= 8
     TR_ROUND(2, TR2L, TR2H)
+#endif
+#if LANES == 16
     TR_ROUND(3, TR3L, TR3H)
+#endif
 #else
-    float t[256], col[16];
-    for (int j = 0; j < 16; ++j) vstore16(r[j], 0, t + 16 * j);
-    for (int i = 0; i < 16; ++i) {
-        for (int j = 0; j < 16; ++j) col[j] = t[16 * j + i];
-        r[i] = vload16(0, col);
+    float t[LANES * LANES], col[LANES];
+    for (int j = 0; j < LANES; ++j) vstoreL(r[j], 0, t + LANES * j);
+    for (int i = 0; i < LANES; ++i) {
+        for (int j = 0; j < LANES; ++j) col[j] = t[LANES * j + i];
+        r[i] = vloadL(0, col);
     }
 #endif
 }
 
-/* All features of the 16 queries, lane = query: x[t * N_POINTS + point]. With
- * MLP_TRANSPOSE16, rows of 16 consecutive floats are read per query and transposed in
- * registers (per-lane reads, 16 cache lines per vector, were half of the kernel's time on
+/* All features of the LANES queries, lane = query: x[t * N_POINTS + point]. With
+ * MLP_TRANSPOSE16, rows of LANES consecutive floats are read per query and transposed in
+ * registers (per-lane reads, LANES cache lines per vector, were half of the kernel's time on
  * PoCL); features still come from memory, hence the optional prefetch. */
 __attribute__((always_inline))
 static inline void load_features(__global const float *features, const int *off, V *x) {
     int c = 0;
 #ifdef MLP_TRANSPOSE16
-    for (; c + 16 <= N_TYPES * N_POINTS; c += 16) {
-        V r[16];
-        for (int j = 0; j < 16; ++j) {
+    for (; c + LANES <= N_TYPES * N_POINTS; c += LANES) {
+        V r[LANES];
+        for (int j = 0; j < LANES; ++j) {
 #ifdef MLP_PREFETCH
-            /* 16 rows 3 KB apart: ask for the line 8 ahead (+10-20% on PoCL; the host sets
+            /* LANES rows 3 KB apart: ask for the line 8 ahead (+10-20% on PoCL; the host sets
              * MLP_PREFETCH on PoCL only, as Oclgrind has no prefetch intrinsic) */
             __builtin_prefetch((const __global void *)(features + off[j] + c + 128));
 #endif
-            r[j] = vload16(0, features + off[j] + c);
+            r[j] = vloadL(0, features + off[j] + c);
         }
-        transpose16(r);
-        for (int j = 0; j < 16; ++j) x[c + j] = r[j];
+        transposeL(r);
+        for (int j = 0; j < LANES; ++j) x[c + j] = r[j];
     }
 #endif
     for (; c < N_TYPES * N_POINTS; ++c) x[c] = lanes(features, off, c);
 }
 
-/* The normalised config of the 16 queries (rows coff[j] of config) and their albedo as given. */
+/* The normalised config of the LANES queries (rows coff[j] of config) and their albedo as given. */
 __attribute__((always_inline))
 static inline void mlp_config(__global const float *config, const int *coff,
                               __global const float *params, V *cfg, V *albedo_cfg) {
@@ -200,7 +221,7 @@ static inline void mlp_config(__global const float *config, const int *coff,
 #endif
 }
 
-/* The network on the raw features x of 16 queries (normalised here, in place) with their
+/* The network on the raw features x of LANES queries (normalised here, in place) with their
  * config (mlp_config); lane j's channel ch goes to out[rows[j] + ch * stride], j < count (the
  * caller's layout: rows[j] = query * MLP_CHANNELS and stride 1 for [n][C] rows, or a lattice
  * index and the plane size for C planes). Returns 1 when a stored value is not finite. */
@@ -318,8 +339,8 @@ static inline int mlp_run(V *x, V *cfg, const V albedo_cfg, __global const float
         const V a2 = alb * alb;
         y = (a2 * a2) * fmax(expm1(y), 0.0f);   /* albedo^MLP_GAMMA, MLP_GAMMA = 4 */
 #endif
-        float r[16];
-        vstore16(y, 0, r);
+        float r[LANES];
+        vstoreL(y, 0, r);
         for (int j = 0; j < count; ++j) {
             out[rows[j] + ch * stride] = r[j];
             bad |= !isfinite(r[j]);

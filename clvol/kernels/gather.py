@@ -69,11 +69,12 @@ def _phase_table_padded(lobes: tuple, n_alpha: int = N_ALPHA) -> np.ndarray:
     return out
 
 
-CHUNK = 16   # template points per float16 chunk of the kernel
+CHUNK = 16   # template points per chunk at the widest LANES (cl/include/gather_core.h NPAD)
 
 
 def n_pad(n_points: int = layout.N_POINTS) -> int:
-    """Template points rounded up to whole chunks (the kernel's table row length)."""
+    """Template points rounded up to whole chunks of 16 (the kernel's table row length, the
+    same for every lane width: 16 is a multiple of each)."""
     return -(-n_points // CHUNK) * CHUNK
 
 

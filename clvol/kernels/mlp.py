@@ -19,9 +19,6 @@ from ..errors import NetworkInputError
 from ..neural.export import ALBEDO_EPS, GAMMA, SQUEEZE_DIM, TYPES, MlpWeights
 from ..neural.layout import CONFIG_DIM, CONFIG_FIELDS
 from ..runtime import DeviceArray, get_runtime
-from .constants import kernel_constant
-
-QUERIES_PER_ITEM = kernel_constant("MLP_QUERIES_PER_ITEM")   # float16 lanes of one work-item
 
 
 def _pad8(x: int) -> int:
@@ -164,12 +161,13 @@ class MlpKernel:
 
 
 def launch_items(rt, kernel, n: int, args, wait_for=None):
-    """Launch a kernel that evaluates the network for 16 queries per work-item (mlp_forward,
-    gather_mlp) over n queries. A work-item holds ~105 KB of private arrays (all 798 features
-    of its 16 queries, the layer buffers). PoCL's CPU driver with a NULL local size packs many
+    """Launch a kernel that evaluates the network for LANES queries per work-item (the
+    device's lane width ``rt.lanes``, one query per lane; mlp_forward, gather_mlp) over n
+    queries. A work-item holds ~105 KB of private arrays (at 16 lanes: all 798 features of its
+    16 queries, the layer buffers). PoCL's CPU driver with a NULL local size packs many
     work-items into one group and overflows its stack (segfault at 256 items); groups of one
     work-item also need no padding of the global size."""
-    items = -(-int(n) // QUERIES_PER_ITEM)
+    items = -(-int(n) // rt.lanes)
     local = (1,) if rt.entry.kind == "cpu" else None
     return rt.launch(kernel, items, args, local_size=local, pad=1 if local else 64,
                      wait_for=wait_for)

@@ -65,7 +65,14 @@ _EMISSION_DTYPES = [None, np.int32, np.int32, np.int32, None, None, None]
 # Paths side by side per work-item (cl/pathtrace.cl PT_LANES), measured best on PoCL/AVX-512
 # (docs/pathtrace.md): 8 for images; 16 for point queries, whose long paths spend more of
 # their time in the per-vertex code that 16 lanes share better.
+# At most the device's LANES (Runtime.lanes, cl/include/lanes.h): see path_lanes.
 RENDER_LANES, QUERY_LANES = 8, 16
+
+
+def path_lanes(rt, want: int) -> int:
+    """PT_LANES on ``rt``'s device: ``want`` (RENDER_LANES or QUERY_LANES), capped at the
+    device's lane width (a CPU without AVX-512 gets no 16-wide vector in a call)."""
+    return min(int(want), int(rt.lanes))
 
 
 # A lat-long map of radiance 1 everywhere (2:1, the smallest with a texel per hemisphere row).
@@ -216,7 +223,9 @@ class PathTracer:
         self.block = block = device_medium.block
         (self.mres, self.bsize) = majorant_args(self.shape, med.bbox_min, med.bbox_max, block)
         self.defines, self.simulated, self.skipped = specialisation(med, specialise)
-        self.program = rt.program("pathtrace", {"PT_LANES": RENDER_LANES, **self.defines})
+        self.render_lanes = path_lanes(rt, RENDER_LANES)
+        self.query_lanes = path_lanes(rt, QUERY_LANES)
+        self.program = rt.program("pathtrace", {"PT_LANES": self.render_lanes, **self.defines})
         self._query_program = None
         self._order_program = None
         lobes = med.lobes if med.lobes else [(0.0, 1.0)]
@@ -259,7 +268,7 @@ class PathTracer:
         """The program for point queries (built on first use: see QUERY_LANES)."""
         if self._query_program is None:
             self._query_program = self.rt.program(
-                "pathtrace", {"PT_LANES": QUERY_LANES, **self.defines})
+                "pathtrace", {"PT_LANES": self.query_lanes, **self.defines})
         return self._query_program
 
     def _launch(self, kernel, n_paths: int, args, lanes: int):
@@ -292,7 +301,7 @@ class PathTracer:
             f4(camera.origin), f4(fwd), f4(right), f4(up),
             np.float32(camera.tan_half_fov), np.int32(w), np.int32(h),
             np.uint64(seed), np.uint32(sample0), np.int32(spl), np.int32(self.max_order), out),
-            RENDER_LANES)
+            self.render_lanes)
         return rt.from_device(out, (spl, w * h, self.row))
 
     def query_batch(self, points_buf, omegas_buf, nq: int, seed: int, sample0: int, ppl: int,
@@ -316,7 +325,7 @@ class PathTracer:
                 raise ClvolError("per-order point queries need a grey albedo and no environment")
             if self._order_program is None:
                 self._order_program = self.rt.program(
-                    "pathtrace", {"PT_LANES": QUERY_LANES, **self.defines,
+                    "pathtrace", {"PT_LANES": self.query_lanes, **self.defines,
                                   "PT_ORDER_BINS": ORDER_BINS})
             program = self._order_program
         else:
@@ -326,7 +335,7 @@ class PathTracer:
                            + _QUERY_DTYPES[len(_MEDIUM_DTYPES):])
         self._launch(k, n, self._medium_args + (
             points_buf, omegas_buf, np.int32(nq), np.uint64(seed), np.uint32(sample0),
-            np.int32(ppl), np.int32(self.max_order), out), QUERY_LANES)
+            np.int32(ppl), np.int32(self.max_order), out), self.query_lanes)
         return rt.from_device(out, (ppl, nq, width))
 
 
@@ -337,7 +346,7 @@ def env_sample_test(tables, u, runtime=None) -> np.ndarray:
     rt = runtime or get_runtime()
     u = np.ascontiguousarray(u, np.float32).reshape(-1, 2)
     n = len(u)
-    program = rt.program("pathtrace", {"PT_LANES": RENDER_LANES, "PT_ENVMAP": 1,
+    program = rt.program("pathtrace", {"PT_LANES": path_lanes(rt, RENDER_LANES), "PT_ENVMAP": 1,
                                        **kphase.phase_defines([])})
     out = rt.empty((max(n, 1), 8))
     k = program.kernel("pt_env_sample_test", _ENV_TEST_DTYPES)

@@ -22,9 +22,15 @@ MS_SOURCE_DEFINES = {"none": 0, "wrenninge": 1, "grid": 2, "view": 3}
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
 MAX_OCTAVES = kernel_constant("MS_MAX_OCTAVES")
 MAX_VIEW_K = kernel_constant("VIEW_MAX_K")  # knots per block of the view-space table
-TILE = kernel_constant("TILE")  # pixels per side of the tile one work-item marches (16 lanes)
+TILE = kernel_constant("TILE")  # pixels per row of the tile one work-item marches
 LOCAL_SIZE = 16  # tiles per work-group
 LAYERS = (("total", 3), ("single", 3), ("multiple", 3), ("alpha", 1), ("depth", 1))
+
+
+def tile_rows(lanes: int) -> int:
+    """Rows of a tile: one pixel per lane (cl/raymarch.cl TILE_ROWS; LANES is the device's,
+    ``Runtime.lanes``)."""
+    return lanes // TILE
 
 
 def _device(x, rt) -> DeviceArray:
@@ -83,7 +89,7 @@ def env_device_layout(env) -> np.ndarray:
     """The kernel's layout of an environment field (2 C, n, n, n): one grey field (C = 1) as
     given; an RGB one (C = 3) as (n, n, n, ENV_PACK), a voxel's six values side by side and
     two zeros, so that the kernel fetches a voxel pair's six values with one 64-byte load
-    instead of six lookups (cl/raymarch.cl, ``lookup16_env6``)."""
+    instead of six lookups (cl/raymarch.cl, ``lookupL_env6``)."""
     env = np.asarray(env, np.float32)
     if env.ndim != 4 or env.shape[0] not in (2, 6) or len(set(env.shape[1:])) != 1:
         raise ClvolError(f"env must be (2 C, n, n, n) with C = 1 or 3, got {env.shape}")
@@ -389,7 +395,7 @@ def _outputs(camera: MarchCamera, layers, stats: bool, rt) -> tuple[dict, int]:
     else one unused word), and the number of tiles (work-items)."""
     w, h = camera.width, camera.height
     outs = {name: rt.empty((h * w * ch,)) for name, ch in layers}
-    n_tiles = -(-w // TILE) * -(-h // TILE)
+    n_tiles = -(-w // TILE) * -(-h // tile_rows(rt.lanes))
     outs["stats"] = rt.empty((n_tiles * 4 if stats else 1,), np.uint32)
     return outs, n_tiles
 

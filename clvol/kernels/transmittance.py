@@ -151,7 +151,7 @@ SWEEP_PAD = kernel_constant("SWEEP_PAD")      # padding of the sweep layout
 SWEEP_BLOCK = kernel_constant("SWEEP_BLOCK")  # sweep steps per launch
 SWEEP_SLACK = 64  # floats after the last level (lanes of the last work-items run past it)
 SWEEP_GROUP = 64  # work-group size (column groups step together, see the kernel)
-VECTOR_MIN_N = 16  # levels with n >= 16 use the float16 kernel, smaller ones the scalar one
+VECTOR_MIN_N = 16  # levels with n >= 16 use the LANES-wide kernel, smaller ones the scalar one
 
 
 def _layout_size(n: int) -> int:
@@ -193,13 +193,19 @@ _SWEEP_ARGS = ([None, np.int32, np.int32, np.int32, np.int32, np.float32, np.flo
 _ARG_B = 18  # index of the per-launch block argument b
 
 
+def sweep_width_define(width: int):
+    """-D SWEEP_WIDTH of a sweep ``width`` columns wide: the vector one is written ``LANES``
+    (the device's lane width, cl/include/lanes.h), so a bundle's options hold for any device."""
+    return "LANES" if width > 1 else 1
+
+
 def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
                  out_depth: bool, out: DeviceArray, out_off: int) -> None:
     n = pyr.resolution(level)
     a, sa, su, sv, inv_la = sweep_geometry(light_dir)
-    width = 16 if n >= VECTOR_MIN_N else 1
-    k = rt.program("transmittance", {"SWEEP_WIDTH": width}).kernel("transmittance_sweep_block",
-                                                                    _SWEEP_ARGS)
+    width = rt.lanes if n >= VECTOR_MIN_N else 1   # LANES: the device's (runtime.py)
+    k = rt.program("transmittance", {"SWEEP_WIDTH": sweep_width_define(width)}).kernel(
+        "transmittance_sweep_block", _SWEEP_ARGS)
     layout, offs = sweep_layout(pyr, a)
     steps = sweep_steps(n, light_dir)
     stab = np.array([s[:3] for s in steps], np.int32)
@@ -218,7 +224,7 @@ def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
     bw, brows = int(btab[:, 2].max()) * width, int(btab[:, 3].max())
     bb = rt.empty(2 * SWEEP_BLOCK * brows * bw)
     n_col = padded(int((btab[:, 2] * btab[:, 3]).max()), SWEEP_GROUP)
-    n_vox = n * n // 16 if (width == 16 and a == 0) else SWEEP_BLOCK * n * (n // width)
+    n_vox = n * n // width if (width > 1 and a == 0) else SWEEP_BLOCK * n * (n // width)
     # clSetKernelArg does not retain buffers: keep every one referenced until the last enqueue.
     tables = [rt.to_device(t) for t in (stab, sftab, btab)]
     k.set_args(layout.buffer, np.int32(offs[level]), np.int32(n), np.int32(a), np.int32(sa),
