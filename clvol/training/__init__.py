@@ -1,18 +1,13 @@
-"""The network: its feature contract, its weight files, and how it is trained.
-
-Read by rendering (NumPy only, no device code here):
-
-- ``layout``      the feature contract between the gather (cl/gather.cl) and the network;
-- ``templates``   the template point tables the gather reads (clvol/data/templates.npz);
-- ``phasetable``  volume-phase tables and the per-frame phase-feature table;
-- ``export``      weight files: ``Architecture``, save, load, contract and domain checks.
-
-Training only (``model`` and ``train`` import torch; nothing on the render path imports them):
+"""Training the network: data sets, labels, the torch model and its training (the top layer
+below the applications: it uses the kernels and the path tracer of clvol/render/).
 
 - ``dataset``     labelled data sets: shards of gathered features and path-traced labels;
 - ``distributed`` the same shards as Ray tasks, on all cores or a cluster;
+- ``labels``      labels at any albedo from per-scattering-order sums traced at albedo 1;
 - ``model``       the network in torch;
-- ``train``       samples, loss, the checkpointed trainer.
+- ``train``       samples, loss, the checkpointed trainer;
+- ``raytrain``    the same training as data-parallel Ray Train workers.
 
-The render-time source that runs the network (gather + cl/mlp.cl) is clvol/render/ms/network.py.
+torch is imported by ``model``, ``train`` and ``raytrain`` only; nothing on the render path
+imports this package. The feature contract and the weight file it writes are clvol/features/.
 """
