@@ -24,7 +24,7 @@ from _common import cpu_model, cpu_seconds  # bench/ is on sys.path
 from clvol.kernels import gather as kg
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
-from clvol.neural import layout
+from clvol.features import layout
 from clvol.runtime import get_runtime
 from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate

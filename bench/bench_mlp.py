@@ -7,7 +7,7 @@
 
 Evaluations/s = queries x channels evaluated per second. OpenCL is timed on device buffers
 (the render path: the gather's buffers in, a device buffer out; no host copies), torch
-(clvol.neural.model.Model, the training model) on the same inputs as CPU tensors in inference mode with
+(clvol.training.model.Model, the training model) on the same inputs as CPU tensors in inference mode with
 2 threads, and also with 1 thread: on a loaded 2-core machine torch's OpenMP pool often runs
 slower with 2 threads than with 1, and the ratio is taken against the faster of the two. The
 runs alternate within each repeat and medians are reported, with the load average before and
@@ -28,7 +28,7 @@ import numpy as np
 
 from _common import cpu_seconds, machine  # bench/ is on sys.path; puts the checkout (reference/) first
 from clvol.kernels.mlp import MlpKernel  # noqa: E402
-from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract  # noqa: E402
+from clvol.features.weights import Architecture, MlpWeights, default_params, feature_contract  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from reference import mlp as ref  # noqa: E402
 
@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     batches = (4096, 32768) if args.quick else (4096, 262144)
 
     import torch
-    from clvol.neural.model import Model
+    from clvol.training.model import Model
     torch.set_num_threads(2)
 
     arch = Architecture()
@@ -137,7 +137,7 @@ def main(argv=None) -> int:
 def compare_sizes(paths, device, repeats: int) -> int:
     """Median OpenCL forward time of each weight file's network on one 32^3 lattice of inputs
     (what one --ms network lattice fill evaluates), the files alternating within each repeat."""
-    from clvol.neural.export import load_weights
+    from clvol.features.weights import load_weights
     rt = get_runtime(device)
     nets = [(p, load_weights(p)) for p in paths]
     n = 32 ** 3

@@ -10,7 +10,7 @@ Prints the machine, then
    the lane kernel and, side by side in the same run, the scalar kernel it replaced
    (built from git commit BEFORE, one path per work-item); lane statistics (-D PT_STATS);
 2. training labels: labels/s of point_query for the dataset's default configuration
-   (clvol.neural.dataset.DatasetSpec(): shard (0, 0), its points and paths per label), before
+   (clvol.training.dataset.DatasetSpec(): shard (0, 0), its points and paths per label), before
    and after, and the largest label difference between the two;
 3. Mitsuba 3 volpath on the cloud scene if it is installed and renders (llvm_ad_rgb first,
    then scalar_rgb), and the ratio; llvm_ad_rgb needs libLLVM >= 17 (docs/pathtrace.md);
@@ -162,7 +162,7 @@ def labels(rt, repeats, before=True):
     """point_query at the dataset's defaults (shard (0, 0) of DatasetSpec()): labels/s of
     the lane kernel (the public API, end to end) and of the scalar kernel of BEFORE (the
     same launches and sums), interleaved."""
-    from clvol.neural.dataset import DatasetSpec, make_volume, sample_points, scene_for
+    from clvol.training.dataset import DatasetSpec, make_volume, sample_points, scene_for
     from clvol.render.pathtrace import DEFAULT_BLOCK
     spec = DatasetSpec()
     scene, grid = scene_for(spec, 0, 0), make_volume(spec, 0)

@@ -367,7 +367,7 @@ def t_fused(ctx) -> list[dict]:
 def t_mlp(ctx) -> list[dict]:
     """The network's forward pass alone on device buffers (cl/mlp.cl)."""
     from clvol.kernels.mlp import MlpKernel
-    from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract
+    from clvol.features.weights import Architecture, MlpWeights, default_params, feature_contract
     from reference import mlp as ref
     rt, n = ctx["rt"], ctx["settings"].mlp_n
     arch = Architecture()
@@ -522,7 +522,7 @@ def warm(name: str, ctx) -> None:
     elif name == "network":
         _network_setup(ctx)
         from clvol.kernels.mlp import MlpKernel
-        from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract
+        from clvol.features.weights import Architecture, MlpWeights, default_params, feature_contract
         arch = Architecture()
         MlpKernel(MlpWeights(arch, default_params(arch, np.random.default_rng(0)),
                              feature_contract()), runtime=ctx["rt"])

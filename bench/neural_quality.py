@@ -109,7 +109,7 @@ SCENES = {
     "cloud_sun_sky": ROOT / "bench" / "scenes" / "cloud_sun_sky.toml",
     "cloud_sky_map": ROOT / "examples" / "cloud_sky.toml",
     # the network on clouds it has never seen: generators no training set uses
-    # (clvol.neural.dataset.OUT_OF_FAMILY), optical thickness 37-48
+    # (clvol.training.dataset.OUT_OF_FAMILY), optical thickness 37-48
     "oof_nubis_side": ROOT / "bench" / "scenes" / "oof_nubis_side.toml",
     "oof_sphcu_back": ROOT / "bench" / "scenes" / "oof_sphcu_back.toml",
     "oof_nubis_top": ROOT / "bench" / "scenes" / "oof_nubis_top.toml",

@@ -1,7 +1,7 @@
 /* Template gather: the network's input features for N query points (seed III.B.2-5), and the
  * render-time bake of the combined graded transmittance it reads.
  *
- * Contract: clvol/neural/layout.py (features [N][3][NP], levels [N][L][NP]); docs/templates.md.
+ * Contract: clvol/features/layout.py (features [N][3][NP], levels [N][L][NP]); docs/templates.md.
  * Twin: reference/gather.py. Host wrapper: clvol/kernels/gather.py.
  *
  * For query q (point p, unit omega toward the camera) and template point j:

@@ -1,6 +1,6 @@
 /* The network's forward pass, fused: squeeze-and-excitation layer walks of the six modules
  * {density, transmittance, phase} x {diffuse, highlight}, the per-type merges and the MLP head
- * in one kernel (seed III.C; architecture in clvol/neural/export.py, twin reference/mlp.py).
+ * in one kernel (seed III.C; architecture in clvol/features/weights.py, twin reference/mlp.py).
  *
  * Work split: one work-item evaluates LANES queries (cl/include/lanes.h: 16, 8 or 4 by device),
  * one per vector lane; every layer is a loop over its inputs with 16 (or 8) output accumulators
@@ -11,7 +11,7 @@
  *
  * Arguments (inputs first, output last)
  *   features       float [n][3][N_POINTS]   gather output, types (density, transmittance, phase),
- *                                           points in layer order (clvol/neural/layout.py)
+ *                                           points in layer order (clvol/features/layout.py)
  *   config         float [n][9]             g0 g1 g2 w0 w1 w2 g_mean albedo alpha (radians)
  *   params         float [..]               packed by clvol/kernels/mlp.py: feature_shift[3],
  *                                           feature_scale[3], config_shift[9], config_scale[9],
@@ -33,7 +33,7 @@
  * transposed in registers instead of per-lane loads; Clang), MLP_PREFETCH (software prefetch of
  * the rows; Clang).
  *
- * Equations (clvol/neural/export.py docstring): squeeze v_k = (mean, max per type over layer k, g_mean,
+ * Equations (clvol/features/weights.py docstring): squeeze v_k = (mean, max per type over layer k, g_mean,
  * alpha); excitation w = sigmoid(E2 relu(E1 v)); z = w * [h, c]; u = relu(FC1 z) + x_{k+1};
  * h = relu(FC2 u) + x_{k+1}; module out relu(OUT z); merge relu(M [diffuse, highlight]);
  * head on [merged x3, c]. Output per seed eq. 20's normalised log space.

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ClvolError
-from .neural import layout
+from .features import layout
 
 FORMAT = "clvol-bundle"
 FORMAT_VERSION = 1
@@ -277,7 +277,7 @@ def _write_host_constants(m: "_Manifest") -> None:
             "bake_span": kg.BAKE_SPAN, "bake_pad": kg.BAKE_PAD, "sort_bits": kg.SORT_BITS,
             "raymarch_tile": kr.TILE,
             "raymarch_local_size": kr.LOCAL_SIZE,
-            # the network's config layout (clvol/neural/layout.py CONFIG_FIELDS): the phase
+            # the network's config layout (clvol/features/layout.py CONFIG_FIELDS): the phase
             # fields first (medium.config_phase), then the albedo and alpha the host adds
             "config_dim": layout.CONFIG_DIM,
             "config_albedo": layout.CONFIG_FIELDS.index("albedo"),
@@ -310,7 +310,7 @@ def _write_medium_light_camera(m: "_Manifest", b: _Planned) -> None:
     g4, w4 = lobe_vectors(b.med_lobes)
     m["medium.lobe_g"] = g4.tolist()
     m["medium.lobe_w"] = w4.tolist()
-    # config fields g0 g1 g2 w0 w1 w2 g_mean of every query (clvol/neural/layout.py), as the gather
+    # config fields g0 g1 g2 w0 w1 w2 g_mean of every query (clvol/features/layout.py), as the gather
     # makes them; the host adds albedo and alpha per query
     cfg = kg.config_vectors(medium, 0.0, np.array([[0.0, 0.0, 1.0]]), np.array([0.0, 0.0, 1.0]))
     n_phase = layout.CONFIG_FIELDS.index("albedo")       # the fields before the albedo

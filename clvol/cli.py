@@ -365,8 +365,8 @@ def _cmd_view(args) -> int:
 
 def _cmd_dataset_make(args) -> int:
     import time
-    from .neural.dataset import DatasetSpec
-    from .neural.distributed import generate
+    from .training.dataset import DatasetSpec
+    from .training.distributed import generate
     if args.workers is not None and args.workers < 1:
         raise ClvolError(f"--workers {args.workers}: must be >= 1")
     spec = DatasetSpec(seed=args.seed, n_volumes=args.volumes, n_heldout_volumes=args.heldout,
@@ -411,7 +411,7 @@ def _parse_pair(name: str, text: str, kind=float) -> tuple:
 
 def add_dataset_make_arguments(p: argparse.ArgumentParser) -> None:
     """Options of `clvol dataset make` (also scripts/make_dataset.py)."""
-    from .neural.dataset import DatasetSpec
+    from .training.dataset import DatasetSpec
     d = DatasetSpec()
     p.add_argument("out", help="data set folder (e.g. runs/data; runs/ is ignored by git)")
     p.add_argument("--seed", type=int, default=d.seed)

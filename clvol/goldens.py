@@ -156,8 +156,8 @@ def _copy_sources(root: Path) -> None:
 def _mlp_golden(root: Path, rng, rmlp) -> None:
     """The shipped network on 37 queries (two full work-items and a tail of 5)."""
     from .kernels import mlp as km
-    from .neural import layout
-    from .neural.export import load_weights
+    from .features import layout
+    from .features.weights import load_weights
     from .render.ms.network import shipped_weights
     w = load_weights(shipped_weights())
     arch = w.arch
@@ -237,7 +237,7 @@ def _gather_golden(root: Path, case: _GatherCase, rgather) -> None:
     """The gather in render mode (the C host's), argument by argument."""
     from .kernels import gather as kg
     from .kernels.phase import lobe_vectors, phase_defines
-    from .neural import layout
+    from .features import layout
     from .runtime import DEFAULT_PAD
     pyr, n = case.pyr, len(case.pts)
     want = rgather.gather(pyr, case.graded, case.pts, case.om, case.light, case.lobes,

@@ -1,4 +1,4 @@
-"""NumPy twin of cl/gather.cl: the template gather (clvol/neural/layout.py is the contract).
+"""NumPy twin of cl/gather.cl: the template gather (clvol/features/layout.py is the contract).
 
 Written independently of the kernel's loop structure, in float64:
 - frame, coarse level and highlight levels from this module's own definitions (from the docs);
@@ -7,7 +7,7 @@ Written independently of the kernel's loop structure, in float64:
 - density and graded levels by explicit trilinear weights over the level's voxel centres
   (reference.grid.grid_lookup for the T_m values at those centres);
 - phase at the exact alpha of each query from the volume phase's Legendre series (``cap_average``),
-  not the kernel's alpha table nor clvol.neural.phasetable's lobe tables;
+  not the kernel's alpha table nor clvol.features.phasetable's lobe tables;
 - the template table read from its .npz with NumPy (``Templates``), not through clvol's loader;
 - render transmittance as sum_m w_m levels[m] + b (no baked grid);
 - ``baked_grid``: the twin of the bake kernels (gather_bake's definition), by direct trilinear
@@ -70,7 +70,7 @@ def template_frame(light_dir, omega):
 
 class Templates:
     """The packaged template table read with NumPy alone (the data file is the contract;
-    clvol.neural.templates' loader is not used): points (frame units), layer per point,
+    clvol.features.templates' loader is not used): points (frame units), layer per point,
     spacing per layer (cube units), cone half-angle per point."""
 
     def __init__(self, path=TEMPLATE_FILE):

@@ -1,4 +1,4 @@
-"""NumPy twin of cl/mlp.cl and of clvol.neural.model.Model: the network's forward pass.
+"""NumPy twin of cl/mlp.cl and of clvol.training.model.Model: the network's forward pass.
 
 Inputs follow the feature contract (docs/network.md): features float32 [N][3][P] (density, transmittance, phase; P = 266
 template points, diffuse layers then highlight layers), config float32 [N][9]
@@ -7,7 +7,7 @@ transmittance feature by sum_l level_weights[l] * levels[:, l] + level_bias (the
 at render time the gather has already done that sum with the exported weights.
 
 The architecture (seed III.C with the FC-ReLU-FC-sigmoid excitation of docs/conventions.md) is written out in
-clvol/neural/export.py's docstring; this file is its executable statement, in float64 by default so it can
+clvol/features/weights.py's docstring; this file is its executable statement, in float64 by default so it can
 serve as the yardstick for the float32 torch and OpenCL versions.
 
 Output y = log(F / albedo^4 + 1) per query (seed eq. 20's normalised log space); ``decode`` turns

@@ -30,7 +30,7 @@ ALBEDOS = (0.8, 0.9, 0.96, 0.99, 1.0)
 def visible_points(scene, grid, n: int, tau: float):
     """[m][3] points at optical depth ``tau`` along a n x n grid of camera rays (rays that never
     reach it are skipped) and their directions toward the camera."""
-    from clvol.neural.dataset import depth_points
+    from clvol.training.dataset import depth_points
     cam = scene.camera
     o = np.asarray(cam.origin, np.float64)
     f = np.asarray(cam.target, np.float64) - o
@@ -53,9 +53,9 @@ def response(scene_path: Path, weights: Path, pixels: int, paths: int, tau: floa
     from clvol.kernels.gather import gather
     from clvol.kernels.pyramid import build_pyramid
     from clvol.kernels.transmittance import graded_transmittance
-    from clvol.neural import train as tr
-    from clvol.neural.export import load_weights
-    from clvol.neural.model import Model
+    from clvol.training import train as tr
+    from clvol.features.weights import load_weights
+    from clvol.training.model import Model
     from clvol.render.pathtrace import point_query_orders
     from clvol.scene import load_scene
 

@@ -30,7 +30,7 @@ import numpy as np
 
 def emulate(shards, k: int, p: int, seed: int, floor: float):
     """Training samples with k labels per configuration at p paths (see the module docstring)."""
-    from clvol.neural import train as tr
+    from clvol.training import train as tr
     parts = []
     for s in shards:
         a = s.arrays
@@ -53,8 +53,8 @@ def emulate(shards, k: int, p: int, seed: int, floor: float):
 def main(argv=None) -> int:
     import torch
     from clvol.errors import ClvolError
-    from clvol.neural import train as tr
-    from clvol.neural.dataset import load_shards
+    from clvol.training import train as tr
+    from clvol.training.dataset import load_shards
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data")
     ap.add_argument("out")

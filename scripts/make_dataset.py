@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """Make (or finish) a training data set for the network: procedural volumes, random
-configurations, path-traced F_>=2 labels, train-mode gather features (clvol/neural/dataset.py).
+configurations, path-traced F_>=2 labels, train-mode gather features (clvol/training/dataset.py).
 The same as `clvol dataset make` (docs/dataset.md):
 
     python scripts/make_dataset.py runs/data [--seed 0] [--volumes 30] [--heldout 10]

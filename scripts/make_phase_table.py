@@ -1,10 +1,10 @@
 #!/usr/bin/env python
-"""Rebuild the packaged volume-phase table clvol/data/phase_lobes.npz (clvol/neural/phasetable.py):
+"""Rebuild the packaged volume-phase table clvol/data/phase_lobes.npz (clvol/features/phasetable.py):
 exact cone-averaged HG lobe tables at the packed g nodes, log-quantised to uint16.
 
     python scripts/make_phase_table.py [--out clvol/data/phase_lobes.npz]
 
-Needed only when the table grid in clvol/neural/phasetable.py changes (the loader refuses a file made
+Needed only when the table grid in clvol/features/phasetable.py changes (the loader refuses a file made
 for another grid and falls back to the exact, slow computation).
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 
 
 def main(argv=None) -> int:
-    from clvol.neural import phasetable as P
+    from clvol.features import phasetable as P
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", default=str(P._packed_path()))
     args = ap.parse_args(argv)

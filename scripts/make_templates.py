@@ -5,7 +5,7 @@
     python scripts/make_templates.py --check    # regenerate and compare with the committed file
     python scripts/make_templates.py --out X.npz --diffuse 6,8,12,16,24,32,48,48 --highlight 32,16,16,8
 
-The algorithm and units are in clvol/neural/templates.py and docs/templates.md. The .npz is written
+The algorithm and units are in clvol/features/templates.py and docs/templates.md. The .npz is written
 with fixed zip timestamps, so the same tables give the same bytes (and the same hash, which
 weight files record as the contract's template_hash).
 """
@@ -23,7 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from clvol.neural import templates as T  # noqa: E402
+from clvol.features import templates as T  # noqa: E402
 
 
 def write_npz(path: Path, arrays: dict) -> None:

@@ -5,7 +5,7 @@
 
 Per optical-thickness bin of the shards' configurations: shards, mean and largest path length
 (vertices), paths cut at the vertex limit, the share of the albedo-1 label carried by albedo
-exponents >= 104 and >= 512 (bin edges: clvol/neural/labels.py energy_above), and the largest
+exponents >= 104 and >= 512 (bin edges: clvol/training/labels.py energy_above), and the largest
 storage bound of a label in y = log(F / a^4 + 1) (the training loss's units) over the
 evaluation albedos.
 """
@@ -17,8 +17,8 @@ import numpy as np
 
 
 def main(argv=None) -> int:
-    from clvol.neural.dataset import load_shards
-    from clvol.neural.labels import energy_above, label_at, label_bounds
+    from clvol.training.dataset import load_shards
+    from clvol.training.labels import energy_above, label_at, label_bounds
     argv = sys.argv[1:] if argv is None else argv
     if not argv:
         print(__doc__)

@@ -200,7 +200,7 @@ C_TESTS = ("tests/test_c_host.py::test_c_render_matches_python",
 FALLBACK_TESTS = ("tests/test_fallback_rule.py",
                   "tests/test_renderer.py::test_outside_the_domain_warns_and_uses_the_measured_alternative")
 BUGS = [
-    Bug("mirrored-frame", "clvol/neural/phasetable.py",
+    Bug("mirrored-frame", "clvol/features/phasetable.py",
         "phase feature's view term with the camera reflected across the light axis"),
     Bug("lattice-corners", "clvol/render/ms/grid.py",
         "F_ms lattice points at cell corners instead of cell centres (ms_lattice)"),

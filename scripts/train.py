@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Train the network on a clvol data set and export a weight file (clvol/neural/train.py, clvol/neural/dataset.py).
+"""Train the network on a clvol data set and export a weight file (clvol/training/train.py, clvol/training/dataset.py).
 
     python scripts/train.py runs/data runs/train [--steps 6000] [--batch 256] [--lr 2e-3]
         [--seed 0] [--threads 1] [--export clvol/data/weights/full_albedo.npz]
@@ -26,8 +26,8 @@ def main(argv=None) -> int:
     started = time.perf_counter()      # --time-budget counts from here (loading included)
 
     from clvol.errors import ClvolError
-    from clvol.neural import train as tr
-    from clvol.neural.dataset import load_shards
+    from clvol.training import train as tr
+    from clvol.training.dataset import load_shards
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data", help="data set folder (scripts/make_dataset.py), or several, comma-separated "
@@ -52,7 +52,7 @@ def main(argv=None) -> int:
                     help="stop S seconds after the start, data loading included (checkpointed; "
                          "rerun to go on), and export what was reached, saying so in the weight "
                          "file's notes")
-    from clvol.neural.export import Architecture
+    from clvol.features.weights import Architecture
     da = Architecture()
     ap.add_argument("--module-width", type=int, default=da.module_width,
                     help="width of each module's output and of the per-type merges")
@@ -158,7 +158,7 @@ def main(argv=None) -> int:
           f"per evaluation")
     trainer = tr.Trainer(train, cfg, arch, device=args.device)
     if args.init:
-        from clvol.neural.export import load_weights
+        from clvol.features.weights import load_weights
         w0 = load_weights(args.init)
         same = (lambda d: {k: v for k, v in d.items() if k != "albedo_input"})
         if same(w0.arch.to_dict()) != same(arch.to_dict()):
@@ -216,8 +216,8 @@ def main(argv=None) -> int:
 def export(model, path, folders, notes) -> None:
     """Write ``model``'s weight file with the contract of the gather that made the data and the
     union of the data sets' domains."""
-    from clvol.neural.dataset import dataset_domain
-    from clvol.neural.export import gather_contract
+    from clvol.training.dataset import dataset_domain
+    from clvol.features.weights import gather_contract
     spec = folders[0][0].meta["spec"]
     model.export(path, gather_contract(spec["base_resolution"], spec["lam"]), training=notes,
                  domain=union_domain([dataset_domain(f[0].meta["spec"]) for f in folders]))
@@ -225,20 +225,20 @@ def export(model, path, folders, notes) -> None:
 
 
 def _architecture(args, n_levels):
-    from clvol.neural.export import Architecture
+    from clvol.features.weights import Architecture
     return Architecture(n_levels=n_levels, module_width=args.module_width,
                         head_widths=tuple(int(w) for w in args.head_widths.split(",") if w),
                         se_hidden=args.se_hidden, albedo_input=args.albedo_input)
 
 
 def train_ray(args, folders, train_sh, held_sh, cfg, out, excluded) -> int:
-    """--ray: the same run on Ray Train's data-parallel workers (clvol/neural/raytrain.py); the
+    """--ray: the same run on Ray Train's data-parallel workers (clvol/training/raytrain.py); the
     same checkpoint file, report and export as one process."""
     import json
     import time
-    from clvol.neural.export import load_weights
-    from clvol.neural.model import Model
-    from clvol.neural.raytrain import train_on_ray
+    from clvol.features.weights import load_weights
+    from clvol.training.model import Model
+    from clvol.training.raytrain import train_on_ray
     try:
         import ray.train  # noqa: F401
     except ImportError as exc:
@@ -309,15 +309,15 @@ def evaluate_weights(path, train, held_sh, cfg, base_loss, out=None, excluded=()
     """Held-out eq. 20 loss of a weight file, split into unseen volumes and unseen configurations
     of seen volumes, with the mean predictor's loss and the labels' noise, and the median
     relative error of the decoded F against the labels. Volumes are in family (a training
-    family's held-out stream) or out of family (clvol.neural.dataset.OUT_OF_FAMILY, and the
+    family's held-out stream) or out of family (clvol.training.dataset.OUT_OF_FAMILY, and the
     ``excluded`` families of a leave-one-family-out run); the albedo bias is reported for both
     and their difference (the generalisation gap). Writes OUT/evaluation.json."""
     from collections import Counter
 
-    from clvol.neural import train as tr
-    from clvol.neural.dataset import OUT_OF_FAMILY
-    from clvol.neural.export import load_weights
-    from clvol.neural.model import Model
+    from clvol.training import train as tr
+    from clvol.training.dataset import OUT_OF_FAMILY
+    from clvol.features.weights import load_weights
+    from clvol.training.model import Model
     model = Model.from_weights(load_weights(path)).to(device)
     vid = (lambda s: (str(s.path.parent), s.volume))
     fam = (lambda s: s.meta["volume"].get("family", ""))
@@ -402,7 +402,7 @@ def albedo_response(model, shards, name) -> dict:
     sum ratio per albedo, and the albedo response d log F / d log a near 1 (the labels': their
     mean albedo exponent, sum M / sum S at albedo 1; the network's: from its F at 0.99 and 1)."""
     import numpy as np
-    from clvol.neural import train as tr
+    from clvol.training import train as tr
     h = tr.shard_samples(shards, 0.05, albedos=RESPONSE_ALBEDOS)
     y = tr.predict(model, h).astype(np.float64)
     alb = h.config[:, tr.ALBEDO].astype(np.float64)
@@ -438,7 +438,7 @@ def print_albedo_bias(model, shards, floor, name) -> dict:
     interval over configurations (a configuration's points are correlated), and the bootstrap
     draws (for the gap between two groups)."""
     import numpy as np
-    from clvol.neural import train as tr
+    from clvol.training import train as tr
     per_order = all(s.meta["spec"].get("per_order_labels") for s in shards)
     h = tr.shard_samples(shards, floor, albedos=EVAL_ALBEDOS if per_order else None)
     y = tr.predict(model, h).astype(np.float64)

@@ -1,9 +1,12 @@
 """The layers of docs/architecture.md, read from the import statements of clvol/ (ast, nothing
-imported): kernel wrappers never import the render layer above them, and torch stays in the
-two training modules. Also read with ast: no function of clvol/ is longer than 80 lines unless
-its docstring says why."""
+imported): no import climbs a layer, no files import each other in a circle, torch stays in
+the training package and the feature contract needs no device. Also read with ast: no function
+of clvol/ is longer than 80 lines unless its docstring says why."""
 import ast
+import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 CLVOL = ROOT / "clvol"
@@ -49,66 +52,6 @@ def test_twins_import_nothing_from_clvol():
     bad = {p.name: sorted(m for m in imports(p) if m == "clvol" or m.startswith("clvol."))
            for p in modules(ROOT / "reference")}
     assert not {k: v for k, v in bad.items() if v}
-
-
-def test_kernels_do_not_import_the_render_layer():
-    above = ("clvol.render", "clvol.viewer", "clvol.cli", "clvol.bundle")
-    bad = {p.name: sorted(m for m in imports(p) if m.startswith(above))
-           for p in modules(CLVOL / "kernels")}
-    assert not {k: v for k, v in bad.items() if v}
-
-
-def test_torch_only_in_the_training_modules():
-    training = {CLVOL / "neural" / "model.py", CLVOL / "neural" / "train.py",
-                CLVOL / "neural" / "raytrain.py"}
-    users = {p.relative_to(ROOT).as_posix() for p in modules(CLVOL)
-             if any(m == "torch" or m.startswith("torch.") for m in imports(p))}
-    assert users == {p.relative_to(ROOT).as_posix() for p in training}
-
-
-# docs/architecture.md, "Layers": a module imports only its own layer and the ones before it.
-LAYERS = [
-    ("base", ["errors", "atomic", "progress", "runtime", "__init__"]),
-    ("data", ["scenemodel", "scenefile", "scene", "envmap", "emission", "volume", "image",
-              "metrics"]),
-    ("network contract", ["neural.layout", "neural.templates", "neural.phasetable",
-                          "neural.export", "neural.__init__"]),
-    ("kernels", ["kernels"]),
-    ("render", ["render"]),
-    ("training", ["neural.dataset", "neural.distributed", "neural.labels", "neural.model",
-                  "neural.train", "neural.raytrain"]),
-    ("applications", ["cli", "__main__", "viewer", "bundle", "goldens", "sequence"]),
-]
-
-
-def layer_of(module: str) -> int:
-    """Index in LAYERS of a clvol module ("clvol.render.ms.network"), by its longest listed prefix."""
-    name = "__init__" if module == "clvol" else module.removeprefix("clvol.")
-    best = None
-    for i, (_, prefixes) in enumerate(LAYERS):
-        for p in prefixes:
-            if (name in (p, f"{p}.__init__") or name.startswith(p + ".")
-                    or f"{name}.__init__" == p) and (best is None or len(p) > best[1]):
-                best = (i, len(p))
-    assert best is not None, f"{module} is in no layer of docs/architecture.md"
-    return best[0]
-
-
-def test_every_module_imports_only_its_layer_and_those_before():
-    up = []
-    for path in modules(CLVOL):
-        mod = ".".join(path.relative_to(ROOT).with_suffix("").parts)
-        own = layer_of(mod)
-        for m in imports(path):
-            # the package itself (clvol/__init__.py) resolves names lazily for users
-            if (m == "clvol" or m.startswith("clvol.")) and mod != "clvol.__init__":
-                try:
-                    target = layer_of(m)
-                except AssertionError:     # a name imported from a module: the module's layer
-                    target = layer_of(m.rsplit(".", 1)[0])
-                if target > own:
-                    up.append(f"{mod} ({LAYERS[own][0]}) imports {m} ({LAYERS[target][0]})")
-    assert not up, "\n".join(up)
 
 
 # --------------------------------------------------------------------------- import circles
@@ -184,16 +127,87 @@ def test_import_graph_counts_function_level_imports():
     assert "clvol.render.raymarch" in import_graph()["clvol.render.renderer"]
 
 
-# Circles left on purpose, each with its reason: a circle not listed here fails the test below,
-# and so does a listed one that is gone (take it off the list). None today.
-KNOWN_CIRCLES: dict[tuple[str, ...], str] = {}
-
-
 def test_no_import_circles_inside_clvol():
-    found = {tuple(c) for c in import_circles(import_graph())}
-    new = sorted(found - set(KNOWN_CIRCLES))
-    assert not new, "import circles in clvol/: " + "; ".join(" <-> ".join(c) for c in new)
-    assert not set(KNOWN_CIRCLES) - found, "listed in KNOWN_CIRCLES but gone: remove them"
+    """No file imports itself through others: the graph of every import in clvol/ (lazy ones in
+    functions included) has no strongly connected component of more than one module."""
+    found = import_circles(import_graph())
+    assert not found, "import circles in clvol/: " + "; ".join(" <-> ".join(c) for c in found)
+
+
+# --------------------------------------------------------------------------- layers
+
+# docs/architecture.md, "Layers", bottom first: a module imports only modules of its own layer
+# and of the layers before it (no arrow climbs). Each entry is a module or a package (all of its
+# modules); the root "clvol" (no dot) is its own __init__.py only.
+LAYERS: list[tuple[str, set[str]]] = [
+    ("base", {"clvol.errors", "clvol.atomic", "clvol.progress"}),
+    ("features", {"clvol.features"}),
+    ("device", {"clvol.runtime"}),
+    ("data", {"clvol.scenemodel", "clvol.scenefile", "clvol.scene", "clvol.envmap",
+              "clvol.emission", "clvol.volume", "clvol.image", "clvol.metrics"}),
+    ("kernels", {"clvol.kernels"}),
+    ("render", {"clvol.render"}),
+    ("training", {"clvol.training"}),
+    ("applications", {"clvol", "clvol.__main__", "clvol.cli", "clvol.viewer", "clvol.bundle",
+                      "clvol.goldens", "clvol.sequence"}),
+]
+
+
+def layer_of(module: str, layers=LAYERS) -> int:
+    """Index in ``layers`` of a module ("clvol.render.ms.network"): the one layer with an entry
+    that is the module or a package above it (a root package, with no dot, only itself)."""
+    hits = {i for i, (_, entries) in enumerate(layers) for e in entries
+            if module == e or ("." in e and module.startswith(e + "."))}
+    assert len(hits) == 1, f"{module} is in {len(hits)} layers of docs/architecture.md, not one"
+    return hits.pop()
+
+
+def climbing_arrows(graph: dict[str, set[str]], layers=LAYERS) -> list[str]:
+    """Every import arrow of ``graph`` into a higher layer than its own."""
+    return [f"{a} ({layers[layer_of(a, layers)][0]}) imports {b} ({layers[layer_of(b, layers)][0]})"
+            for a in sorted(graph) for b in sorted(graph[a])
+            if layer_of(b, layers) > layer_of(a, layers)]
+
+
+def test_climbing_arrows_are_found():
+    layers = [("low", {"p.low"}), ("high", {"p", "p.high"})]
+    graph = {"p.low.a": {"p.low.b", "p.high"}, "p.low.b": set(), "p.high": {"p.low.a"},
+             "p": {"p.high", "p.low.b"}}
+    assert climbing_arrows(graph, layers) == ["p.low.a (low) imports p.high (high)"]
+    with pytest.raises(AssertionError, match="in 0 layers"):
+        layer_of("q.a", layers)
+    with pytest.raises(AssertionError, match="in 2 layers"):
+        layer_of("p.low.a", layers + [("again", {"p.low.a"})])
+
+
+def test_every_module_is_in_one_layer():
+    for name in import_graph():
+        layer_of(name)
+
+
+def test_no_arrow_climbs():
+    """Every import of clvol/ (lazy ones in functions too) goes to the importer's own layer or
+    one below it: the kernels read the feature contract, training sits above the renderer."""
+    up = climbing_arrows(import_graph())
+    assert not up, "imports that climb a layer:\n" + "\n".join(up)
+
+
+def test_torch_only_in_the_training_package():
+    """torch in the training package only, and there in the model and the trainers (data sets
+    are made without it: `clvol dataset` needs no torch)."""
+    users = {p.relative_to(ROOT).as_posix() for p in modules(CLVOL)
+             if any(m == "torch" or m.startswith("torch.") for m in imports(p))}
+    assert users == {"clvol/training/model.py", "clvol/training/train.py",
+                     "clvol/training/raytrain.py"}
+
+
+def test_the_feature_contract_needs_only_numpy_and_scipy():
+    """clvol/features/ imports the standard library, NumPy, SciPy and clvol's base layer only
+    (no torch, no pyopencl, no ray): whoever reads a weight file or the contract needs no device."""
+    allowed = {"numpy", "scipy", "clvol"} | set(sys.stdlib_module_names)
+    bad = {p.name: sorted(m for m in imports(p) if m.split(".")[0] not in allowed)
+           for p in modules(CLVOL / "features")}
+    assert not {k: v for k, v in bad.items() if v}
 
 
 # --------------------------------------------------------------------------- function length

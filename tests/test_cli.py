@@ -139,7 +139,7 @@ def test_rendering_never_imports_torch(tmp_path):
         f"assert main(['render', {str(tmp_path / 's.toml')!r}, '-o', {str(tmp_path / 'o.exr')!r}]) == 0\n"
         f"assert main(['render', {str(tmp_path / 's.toml')!r}, '--method', 'pathtrace', '--spp', '1',"
         f" '-o', {str(tmp_path / 'p.exr')!r}]) == 0\n"
-        "import clvol.neural.export, clvol.kernels.mlp, clvol.kernels.gather\n"
+        "import clvol.features.weights, clvol.kernels.mlp, clvol.kernels.gather\n"
         "assert 'torch' not in sys.modules, 'torch was imported'\n")
     write_scene(tmp_path / "s.toml", volume={"generator": "sphere", "resolution": 8},
                 medium={"preset": "cloud", "density_scale": 8.0},

@@ -225,15 +225,15 @@ def test_a_program_sees_the_header_values_the_python_host_uses():
 
 def test_mlp_core_sees_the_contract_the_host_passes():
     from clvol.kernels.mlp import kernel_defines
-    from clvol.neural import export, layout
-    defines = kernel_defines(export.Architecture(), 1, True)
+    from clvol.features import layout, weights
+    defines = kernel_defines(weights.Architecture(), 1, True)
     ints, floats = _probe("mlp_core.h", ["CONFIG_DIM", "CFG_GMEAN", "CFG_ALBEDO", "CFG_ALPHA",
                                         "N_TYPES", "SQUEEZE", "MLP_GAMMA"],
                           ["MLP_ALBEDO_EPS"], defines)
     f = layout.CONFIG_FIELDS
     assert ints == [len(f), f.index("g_mean"), f.index("albedo"), f.index("alpha"),
-                    len(layout.FEATURE_TYPES), export.SQUEEZE_DIM, export.GAMMA]
-    assert floats == [np.float32(export.ALBEDO_EPS)]
+                    len(layout.FEATURE_TYPES), weights.SQUEEZE_DIM, weights.GAMMA]
+    assert floats == [np.float32(weights.ALBEDO_EPS)]
 
 
 def test_twin_reads_the_config_where_the_kernel_does():
@@ -254,8 +254,8 @@ def _contract_names():
 @pytest.mark.parametrize("name", _contract_names())
 def test_mlp_core_refuses_to_build_without_a_contract_define(name):
     from clvol.kernels.mlp import kernel_defines
-    from clvol.neural import export
-    defines = kernel_defines(export.Architecture(), 1, True)
+    from clvol.features import weights
+    defines = kernel_defines(weights.Architecture(), 1, True)
     del defines[name]
     with pytest.raises(cl.RuntimeError, match=f"needs -D {name}"):
         _probe("mlp_core.h", ["CONFIG_DIM"], [], defines)

@@ -1,4 +1,4 @@
-"""Training data (clvol/neural/dataset.py) and resumable training runs (clvol/neural/train.py).
+"""Training data (clvol/training/dataset.py) and resumable training runs (clvol/training/train.py).
 
 Tiny specs throughout (12^3 volumes, 16^3 pyramid, 24 points, 16 paths): what is tested is
 determinism, resumability and the file handling, not the labels' accuracy (the path tracer's
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from clvol.errors import ClvolError
-from clvol.neural import dataset as ds
+from clvol.training import dataset as ds
 
 TINY = dict(n_volumes=2, n_heldout_volumes=1, resolution=12, base_resolution=16,
             configs_per_volume=2, points_per_config=24, n_paths=16, families=("cumulus", "blob"))
@@ -146,7 +146,7 @@ def test_heldout_volumes_come_from_their_own_stream():
 def test_version_1_shards_still_load(tmp_path):
     """A shard written by the first data set version (cloud_small's data) reads and splits as
     before: volume 1 and the first solid held out, plus the last configuration."""
-    from clvol.neural import train as tr
+    from clvol.training import train as tr
     spec = ds.DatasetSpec(seed=0, **TINY)
     sh = ds.make_shard(spec, 0, 0)
     v1 = {"seed": 0, "n_volumes": 3, "n_solids": 1, "resolution": 12, "base_resolution": 16,
@@ -168,7 +168,7 @@ def test_shard_samples_read_each_file_once_per_array_and_match_eager_samples(tmp
     """The streaming loader (lazy shard arrays, one preallocated copy of the feature rows) gives
     exactly the samples of loading every shard eagerly and concatenating; train_fraction keeps
     whole leading training volumes and leaves the held-out shards unchanged."""
-    from clvol.neural import train as tr
+    from clvol.training import train as tr
     spec = ds.DatasetSpec(seed=5, **dict(TINY, n_volumes=4, n_heldout_volumes=1))
     ds.make_dataset(spec, tmp_path, progress=False)
     shards = ds.load_shards(tmp_path)
@@ -190,7 +190,7 @@ def test_shard_samples_read_each_file_once_per_array_and_match_eager_samples(tmp
 
 
 def _synthetic_samples(n=64, L=5, seed=0):
-    from clvol.neural.train import Samples
+    from clvol.training.train import Samples
     rng = np.random.default_rng(seed)
     f = rng.uniform(0, 1, (n, 3, 266)).astype(np.float32)
     lv = rng.uniform(0, 1, (n, L, 266)).astype(np.float32)
@@ -204,7 +204,7 @@ def test_checkpoint_resume_gives_the_same_state(tmp_path):
     """6 steps in one go == 3 steps, checkpoint to disk, a new Trainer restored, 3 more steps:
     every tensor of model and optimiser bit-identical (same thread count, CPU)."""
     import torch
-    from clvol.neural import train as tr
+    from clvol.training import train as tr
     data = _synthetic_samples()
     cfg = tr.RunConfig(steps=6, batch=16, lr=1e-3, seed=5, eval_every=0, checkpoint_every=3)
     straight = tr.Trainer(data, cfg)
@@ -239,7 +239,7 @@ def test_train_script_end_to_end(tmp_path):
     file loads with the gather's contract for the data set's base resolution."""
     import subprocess
     import sys
-    from clvol.neural.export import gather_contract, load_weights
+    from clvol.features.weights import gather_contract, load_weights
     spec = ds.DatasetSpec(seed=1, **dict(TINY, n_volumes=3, n_heldout_volumes=1))
     data = tmp_path / "data"
     ds.make_dataset(spec, data, progress=False)
@@ -338,8 +338,8 @@ def test_per_order_shards_label_any_albedo_and_train(tmp_path):
     albedos with the log1m input and reports the [0.999, 1] bin."""
     import subprocess
     import sys
-    from clvol.neural import train as tr
-    from clvol.neural.labels import label_at
+    from clvol.training import train as tr
+    from clvol.training.labels import label_at
     spec = ds.DatasetSpec(seed=2, **dict(TINY, n_volumes=3, n_heldout_volumes=1,
                                          albedo=(0.3, 1.0), per_order_labels=True))
     data = tmp_path / "data"

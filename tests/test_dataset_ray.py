@@ -1,4 +1,4 @@
-"""Data set generation on Ray (clvol/neural/distributed.py): byte-identical to the serial path,
+"""Data set generation on Ray (clvol/training/distributed.py): byte-identical to the serial path,
 resumable, a killed worker's shard retried, a two-node cluster on loopback, and the serial
 fallback without Ray.
 
@@ -20,8 +20,8 @@ import pytest
 import ray_cluster
 
 from clvol import cli
-from clvol.neural import dataset as ds
-from clvol.neural import distributed as dist
+from clvol.training import dataset as ds
+from clvol.training import distributed as dist
 
 # Tiny and cheap: two volumes of cheap families (no plume), one of them held out.
 SPEC = ds.DatasetSpec(seed=67, n_volumes=2, n_heldout_volumes=1, resolution=(12, 12),

@@ -1,4 +1,4 @@
-"""Weight files (clvol/neural/export.py): round trip, counts, and every kind of bad file refused with a
+"""Weight files (clvol/features/weights.py): round trip, counts, and every kind of bad file refused with a
 message naming the file and the field. NumPy only (no torch, no OpenCL)."""
 import json
 import subprocess
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from clvol.errors import ClvolError
-from clvol.neural import layout
-from clvol.neural.export import (FORMAT_VERSION, META_KEY, Architecture, WeightsError, default_params,
-                                 feature_contract, gather_contract, load_weights, params_digest,
-                                 read_meta, save_weights)
+from clvol.features import layout
+from clvol.features.weights import (FORMAT_VERSION, META_KEY, Architecture, WeightsError,
+                                    default_params, feature_contract, gather_contract,
+                                    load_weights, params_digest, read_meta, save_weights)
 
 ARCH = Architecture()
 
@@ -200,7 +200,7 @@ def test_loader_and_forward_need_no_torch(saved):
     code = (
         "import sys; sys.modules['torch'] = None\n"
         "import numpy as np\n"
-        "from clvol.neural.export import load_weights\n"
+        "from clvol.features.weights import load_weights\n"
         "import clvol.kernels.mlp\n"
         "from reference import mlp\n"
         f"w = load_weights({str(saved)!r})\n"
@@ -229,7 +229,7 @@ DOMAIN = {"albedo": [0.3, 0.999], "g": [-0.9, 0.99], "max_lobes": 3,
 
 
 def test_domain_round_trip_and_default(tmp_path, params, saved):
-    from clvol.neural.export import DEFAULT_DOMAIN, weights_domain
+    from clvol.features.weights import DEFAULT_DOMAIN, weights_domain
     p = save_weights(tmp_path / "d.npz", ARCH, params, gather_contract(), domain=DOMAIN)
     w = load_weights(p, expect_contract=gather_contract())
     assert w.meta["domain"] == DOMAIN and weights_domain(w.meta) == DOMAIN

@@ -42,8 +42,8 @@ def test_fallback_reads_the_lowest_non_zero_channel():
 
 def test_lambda_agrees_across_wrapper_layout_and_weight_files():
     from clvol.kernels import transmittance
-    from clvol.neural import layout
-    from clvol.neural.export import read_meta
+    from clvol.features import layout
+    from clvol.features.weights import read_meta
     assert transmittance.DEFAULT_LAMBDA == layout.DEFAULT_LAMBDA == 0.6      # the seed's value
     files = sorted((ROOT / "clvol" / "data" / "weights").glob("*.npz"))
     assert len(files) >= 3

@@ -1,5 +1,5 @@
 """cl/gather.cl against reference/gather.py, the render/train consistency, edge cases, and
-the template's invariance under rotations (clvol/neural/layout.py is the contract under test).
+the template's invariance under rotations (clvol/features/layout.py is the contract under test).
 
 Tolerances (absolute; features are log1p values or T in [0, 1]):
 - density log1p(tau) and T levels: 2e-5, float32 trilinear lookups and frame arithmetic in the
@@ -21,7 +21,7 @@ from clvol.kernels import gather as kgather
 from clvol.kernels.gather import GatherError, gather
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
-from clvol.neural import layout
+from clvol.features import layout
 from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate
 from clvol.volume.grid import Grid
@@ -378,9 +378,9 @@ def test_tiny_render():
 def test_twin_template_table_and_volume_phase_agree_with_clvols():
     """reference/gather.py reads the template .npz and evaluates the volume phase itself
     (Legendre series). Same table as clvol's loader; the lobe tables within their stated
-    error bound (clvol.neural.phasetable.ERROR_BOUND, 1% relative; measured 0.17% at g 0.857)."""
-    from clvol.neural import phasetable
-    from clvol.neural.templates import load_templates
+    error bound (clvol.features.phasetable.ERROR_BOUND, 1% relative; measured 0.17% at g 0.857)."""
+    from clvol.features import phasetable
+    from clvol.features.templates import load_templates
     t, mine = load_templates(), rgather.Templates()
     np.testing.assert_array_equal(mine.points, t.points)
     np.testing.assert_array_equal(mine.is_highlight, t.is_highlight)

@@ -43,7 +43,7 @@ from clvol.kernels.gather_mlp import gather_mlp
 from clvol.kernels.mlp import MlpKernel
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
-from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract
+from clvol.features.weights import Architecture, MlpWeights, default_params, feature_contract
 from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate
 from reference import gather_mlp as rfused
@@ -251,7 +251,7 @@ def test_network_source_fused_and_unfused_paths_agree(tmp_path, albedo):
     """NetworkSource.evaluate (clvol/render/ms/network.py) on its fused default and on the
     unfused pair (fused=False): the same F_ms (identical bits measured; same tolerance as
     above), and the time split says which path ran."""
-    from clvol.neural.export import gather_contract, save_weights
+    from clvol.features.weights import gather_contract, save_weights
     from clvol.render.ms import network as rnet
     w = network(5, seed=11)
     path = tmp_path / "net.npz"
@@ -356,7 +356,7 @@ def test_device_output_inputs_checked():
 
 
 def _weights_file(tmp_path, seed=11, bias_shift=0.0):
-    from clvol.neural.export import gather_contract, save_weights
+    from clvol.features.weights import gather_contract, save_weights
     w = network(5, seed=seed)
     p = dict(w.params)
     last = f"head.{len(w.arch.head_widths)}.bias"

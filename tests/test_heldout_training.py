@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 import ray_cluster
 
-from clvol.neural import dataset as ds
-from clvol.neural import train as tr
+from clvol.training import dataset as ds
+from clvol.training import train as tr
 from clvol.volume.generators import generate, restructure
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -173,7 +173,7 @@ def test_ray_train_on_a_two_node_loopback_cluster_checkpoints_and_resumes(tiny_s
     rep = json.loads((out / "report.json").read_text())
     assert rep["engine"] == "ray" and rep["workers"] == 2 and rep["step"] == 8
     assert [r["step"] for r in rep["history"]] == [4, 8]     # the resumed run kept the first half
-    from clvol.neural.export import load_weights
+    from clvol.features.weights import load_weights
     w = load_weights(out / "w.npz")
     assert all(np.all(np.isfinite(v)) for v in w.params.values())
     # the same checkpoint file one process writes: scripts/train.py reads it

@@ -33,7 +33,7 @@ from clvol.kernels import raymarch as kr
 from clvol.kernels.pathtrace import ORDER_BINS, QUERY_LANES, RENDER_LANES
 from clvol.kernels.transmittance import sweep_width_define
 from clvol.kernels.phase import phase_defines
-from clvol.neural import layout
+from clvol.features import layout
 from clvol.render.ms.network import load_network_weights, shipped_weights
 from clvol.runtime import _define_flags, cl_source_dir, get_runtime, include_dir, lanes_for
 

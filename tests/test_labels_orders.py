@@ -1,5 +1,5 @@
 """Labels at every albedo from one set of paths (cl/pathtrace.cl -D PT_ORDER_BINS,
-clvol.render.pathtrace.point_query_orders, clvol/neural/labels.py).
+clvol.render.pathtrace.point_query_orders, clvol/training/labels.py).
 
 How the tests decide:
 - Kernel against twin, same random stream, path by path: as tests/test_pathtrace.py (>= 97%
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from clvol.kernels.pathtrace import ORDER_BINS, PT_OUT, PathTracer, order_bin_ranges
-from clvol.neural import labels
+from clvol.training import labels
 from reference import pathtrace as rpt
 from test_pathtrace import BMAX, BMIN, agreement, make_medium, twin
 

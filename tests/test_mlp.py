@@ -11,7 +11,7 @@ import pytest
 
 from clvol.errors import NetworkInputError
 from clvol.kernels.mlp import MlpKernel, pack_params
-from clvol.neural.export import Architecture, MlpWeights, default_params, feature_contract
+from clvol.features.weights import Architecture, MlpWeights, default_params, feature_contract
 from reference import mlp as ref
 
 ARCH = Architecture()
@@ -165,7 +165,7 @@ def test_tiny_architecture():
 def test_matches_torch(weights):
     """OpenCL vs torch directly (test_model.py holds torch to the same reference)."""
     torch = pytest.importorskip("torch")
-    from clvol.neural.model import Model
+    from clvol.training.model import Model
     m = Model(ARCH)
     m.load_numpy_params(weights.params)
     f, c = ref.random_inputs(64, np.random.default_rng(12), lobes=LOBES[1])
@@ -265,18 +265,18 @@ def test_log1m_albedo_input_matches_reference(albedo):
     assert not np.allclose(lin, ref.forward(w.params, arch, f, c))
 
 
-def test_twin_constants_and_slicing_agree_with_the_export_module():
+def test_twin_constants_and_slicing_agree_with_the_weights_module():
     """reference/mlp.py writes the encoding's gamma, the template order, the albedo input's
     offset, the feature and config layout, the point and level counts and the layer slicing
     itself (a twin shares no code with what it checks); here the two statements are held
     equal."""
-    from clvol.neural import export, layout
+    from clvol.features import layout, weights
     assert (ref.GAMMA, ref.TEMPLATES, ref.TYPES, ref.ALBEDO_EPS) == \
-        (export.GAMMA, export.TEMPLATES, export.TYPES, export.ALBEDO_EPS)
+        (weights.GAMMA, weights.TEMPLATES, weights.TYPES, weights.ALBEDO_EPS)
     assert (ref.TYPES, ref.CONFIG_FIELDS, ref.N_POINTS, ref.N_LEVELS) == \
         (layout.FEATURE_TYPES, layout.CONFIG_FIELDS, layout.N_POINTS, layout.N_LEVELS)
-    for arch in (export.Architecture(), export.Architecture(layer_counts=(3, 5, 2, 4),
-                                                            n_diffuse_layers=3)):
+    for arch in (weights.Architecture(), weights.Architecture(layer_counts=(3, 5, 2, 4),
+                                                              n_diffuse_layers=3)):
         assert ref.layer_slices(arch) == arch.layer_slices()
         for t in ref.TEMPLATES:
             assert ref.template_layer_slices(arch, t) == arch.template_layer_slices(t)

@@ -1,4 +1,4 @@
-"""The torch model (clvol/neural/model.py) and training helpers (clvol/neural/train.py): shapes and counts,
+"""The torch model (clvol/training/model.py) and training helpers (clvol/training/train.py): shapes and counts,
 parity with the float64 NumPy reference, the learned level combination, the noise-aware
 targets, and short training runs (synthetic target; real path-traced labels).
 
@@ -12,10 +12,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from clvol.neural import layout  # noqa: E402
-from clvol.neural import train as tr  # noqa: E402
-from clvol.neural.export import Architecture, default_params, load_weights, gather_contract  # noqa: E402
-from clvol.neural.model import Model, count_parameters  # noqa: E402
+from clvol.features import layout  # noqa: E402
+from clvol.training import train as tr  # noqa: E402
+from clvol.features.weights import Architecture, default_params, load_weights, gather_contract  # noqa: E402
+from clvol.training.model import Model, count_parameters  # noqa: E402
 from reference import mlp as ref  # noqa: E402
 
 # One thread: the suite shares 2 cores, and torch's OpenMP pool spins at every small op when
@@ -247,7 +247,7 @@ def test_features_carry_light_transport():
 def test_log1m_albedo_input_matches_reference_and_round_trips(tmp_path):
     """Architecture(albedo_input="log1m"): the torch model reads -log(1 - a + 1e-4) as the
     reference does, keeps it through export, and tells albedo 0.999 from 1 apart."""
-    from clvol.neural.export import LOG1M_SCALE, LOG1M_SHIFT
+    from clvol.features.weights import LOG1M_SCALE, LOG1M_SHIFT
     arch = Architecture(albedo_input="log1m")
     m = Model(arch)
     params = default_params(arch, np.random.default_rng(17))

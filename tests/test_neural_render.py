@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from clvol.errors import ClvolError, WeightsError
-from clvol.neural.export import Architecture, default_params, gather_contract, save_weights
+from clvol.features.weights import Architecture, default_params, gather_contract, save_weights
 from clvol.scene import scene_from_dict
 from scene_toml import SMALL_CLOUD, write_scene
 
@@ -106,7 +106,7 @@ def test_lattice_matches_numpy_reference(weights_file):
     the baked level weights and the channel handling on an anisotropic lattice (5 x 6 x 7)."""
     import reference.mlp as ref
     from clvol.kernels.gather import gather
-    from clvol.neural.export import load_weights
+    from clvol.features.weights import load_weights
     from clvol.render.ms.network import NetworkSource
     from clvol.render.ms.grid import ms_lattice
     sc = _scene([0.9, 0.95, 0.0], [(0.7, 0.6), (-0.3, 0.4)])
@@ -189,7 +189,7 @@ def test_default_model_is_full_albedo_with_the_whole_domain():
     """The default model covers what the quality benchmark tests: back-scattering (g -0.9),
     albedo 0.4 and albedo 1 are inside its recorded domain, so the renderer uses it there
     without a warning; it reads the albedo as -log(1 - a + 1e-4) (docs/network.md)."""
-    from clvol.neural.export import weights_domain
+    from clvol.features.weights import weights_domain
     from clvol.render.ms.network import load_network_weights, shipped_weights
     assert shipped_weights().name == "full_albedo.npz"
     w = load_network_weights(shipped_weights())
@@ -203,7 +203,7 @@ def test_shipped_domain_model_matches_this_gather_and_records_its_domain():
     """clvol/data/weights/domain_small.npz loads against the packaged templates and layout, and
     its meta["domain"] is the whole-domain data sets' (exactly the keys the renderer reads)."""
     from pathlib import Path
-    from clvol.neural.export import DOMAIN_KEYS, weights_domain
+    from clvol.features.weights import DOMAIN_KEYS, weights_domain
     from clvol.render.ms.network import load_network_weights
     path = Path(__file__).resolve().parents[1] / "clvol" / "data" / "weights" / "domain_small.npz"
     w = load_network_weights(path)

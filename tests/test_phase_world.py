@@ -1,7 +1,7 @@
 """The gather's phase features against a world-space computation that shares no frame code.
 
 The gather (cl/gather.cl) and its twin (reference/gather.py) read the phase feature from the
-same per-frame table (clvol.neural.phasetable.phase_features, built in the template frame), so a
+same per-frame table (clvol.features.phasetable.phase_features, built in the template frame), so a
 wrong frame convention in that table -- e.g. the camera reflected across the light axis --
 would be copied into both and pass every twin test. Here the feature is recomputed from its
 definition in world space (docs/templates.md, docs/conventions.md):
@@ -32,8 +32,8 @@ import pytest
 from clvol.kernels.gather import gather
 from clvol.kernels.pyramid import build_pyramid
 from clvol.kernels.transmittance import graded_transmittance
-from clvol.neural.phasetable import N_ALPHA, volume_phase
-from clvol.neural.templates import load_templates
+from clvol.features.phasetable import N_ALPHA, volume_phase
+from clvol.features.templates import load_templates
 from clvol.scene import Medium, Phase
 from clvol.volume.grid import Grid
 

@@ -1,4 +1,4 @@
-"""Volume-phase tables (clvol/neural/phasetable.py): exactness for an isotropic function, the
+"""Volume-phase tables (clvol/features/phasetable.py): exactness for an isotropic function, the
 beta -> 0 limit, normalisation, the lookup error bound against an independent Legendre
 series, g < 0 symmetry, MHG sums, and the per-frame phase-feature table.
 
@@ -10,8 +10,8 @@ beta on the peak's shoulder); node values themselves are ~1e-7 relative or bette
 import numpy as np
 import pytest
 
-from clvol.neural import phasetable as P
-from clvol.neural.templates import load_templates
+from clvol.features import phasetable as P
+from clvol.features.templates import load_templates
 
 INV4PI = 1.0 / (4.0 * np.pi)
 

@@ -33,7 +33,7 @@ def _scene(**medium):
 
 @pytest.fixture(scope="module")
 def domain():
-    from clvol.neural.export import weights_domain
+    from clvol.features.weights import weights_domain
     return weights_domain(load_network_weights(shipped_weights()).meta)
 
 

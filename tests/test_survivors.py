@@ -42,7 +42,7 @@ def _scene(medium=None, light=None):
 
 
 def _plan(scene, **given):
-    from clvol.neural.export import weights_domain
+    from clvol.features.weights import weights_domain
     from clvol.render.ms.network import load_network_weights, shipped_weights
     from clvol.render.options import bind
     from clvol.render.plan import VolumeFacts, plan_frame

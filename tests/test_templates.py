@@ -1,12 +1,12 @@
-"""Sampling-template tables (clvol/data/templates.npz, clvol/neural/templates.py): counts, radii per
+"""Sampling-template tables (clvol/data/templates.npz, clvol/features/templates.py): counts, radii per
 seed eq. 4, D(S_i), shells, evenness, determinism, level map, and the template frame."""
 import math
 
 import numpy as np
 import pytest
 
-from clvol.neural import layout
-from clvol.neural import templates as T
+from clvol.features import layout
+from clvol.features import templates as T
 
 
 @pytest.fixture(scope="module")

@@ -693,7 +693,7 @@ static void lattice_stage(clvol_host *h) {
      * the Python host's order); the others get F_ms = 0 */
     int n = h->n_active, nq = n > 0 ? n : 1;   /* nq: buffers are never empty */
     /* config layout from the bundle: the phase fields [0, cfg_albedo), then the albedo and
-     * alpha slots (clvol/neural/layout.py CONFIG_FIELDS) */
+     * alpha slots (clvol/features/layout.py CONFIG_FIELDS) */
     const int D = h->cfg_dim, NPH = h->cfg_albedo;
     double cphase[16];
     mf_doubles(m, "medium.config_phase", cphase, NPH);

@@ -139,7 +139,7 @@ void store_chunk(__global float *row, int c, vL v) {
     }
 }
 
-/* The template frame of docs/conventions.md (twin: clvol.neural.templates.template_frame): f[0..2] = x,
+/* The template frame of docs/conventions.md (twin: clvol.features.templates.template_frame): f[0..2] = x,
  * f[3..5] = y. In scalars: Oclgrind's uninitialised-value checker crashed on the float3
  * merged after the fallback branch (a vector phi). */
 __attribute__((always_inline))

@@ -8,7 +8,7 @@
 #include "lanes.h"   /* LANES: queries per work-item, one per lane */
 
 /* The feature contract's and the weight format's numbers, written once on the host
- * (clvol/neural/layout.py, clvol/neural/export.py) and passed by clvol/kernels/mlp.py
+ * (clvol/features/layout.py, clvol/features/weights.py) and passed by clvol/kernels/mlp.py
  * (contract_defines): CONFIG_DIM config fields, of which g_mean, albedo and alpha are read
  * at CFG_GMEAN, CFG_ALBEDO, CFG_ALPHA; N_TYPES feature types; SQUEEZE squeeze inputs;
  * MLP_GAMMA the albedo exponent of the output encoding; MLP_ALBEDO_EPS the log1m input's

@@ -1,4 +1,4 @@
-"""Host wrapper for cl/gather.cl: the template gather that feeds the network (clvol/neural/layout.py).
+"""Host wrapper for cl/gather.cl: the template gather that feeds the network (clvol/features/layout.py).
 
     pyr = build_pyramid(grid, 256)
     gt = graded_transmittance(pyr, medium.density_scale, light.direction)
@@ -16,7 +16,7 @@ one trilinear read serves both features (``bake_render_grid``; cached). Queries 
 coarse cell (``query_order``; results unchanged). Train mode returns every
 level T_l sampled at the centres of the point's density level and interpolated with the same
 trilinear weights, so sum_l w_l levels[:, l] + b equals the render feature (to rounding).
-Phase features come from a per-frame table over alpha (clvol/neural/phasetable.py) built once per phase.
+Phase features come from a per-frame table over alpha (clvol/features/phasetable.py) built once per phase.
 """
 from __future__ import annotations
 
@@ -27,9 +27,9 @@ import numpy as np
 import pyopencl as cl
 
 from ..errors import ClvolError
-from ..neural import layout
-from ..neural.phasetable import N_ALPHA, phase_feature_table, volume_phase
-from ..neural.templates import load_templates
+from ..features import layout
+from ..features.phasetable import N_ALPHA, phase_feature_table, volume_phase
+from ..features.templates import load_templates
 from ..runtime import DeviceArray
 from .constants import kernel_constant
 from .grid import f4
@@ -262,7 +262,7 @@ def _check_inputs(pyramid, graded, points, omegas, light_dir, medium, mode):
 
 
 def config_vectors(medium, channel_albedo, omegas, light_dir) -> np.ndarray:
-    """[N][CONFIG_DIM] per clvol.neural.layout.CONFIG_FIELDS."""
+    """[N][CONFIG_DIM] per clvol.features.layout.CONFIG_FIELDS."""
     n = len(omegas)
     lobes = _lobes(medium)
     at = layout.CONFIG_FIELDS.index
@@ -320,7 +320,7 @@ def gather(pyramid: Pyramid, graded: GradedT, points, omegas, light_dir, medium,
            mode: str = "train", level_weights=None, bias: float = 0.0,
            return_t_enter: bool = False, as_buffers: bool = False, sort: bool = True,
            reuse: dict | None = None) -> dict:
-    """Features for N queries (clvol/neural/layout.py): ``features`` float32 [N][3][NP], ``levels``
+    """Features for N queries (clvol/features/layout.py): ``features`` float32 [N][3][NP], ``levels``
     [N][L][NP] (train mode only), ``config`` [N][CONFIG_DIM] (and ``t_enter`` [N] on request).
 
     ``points`` world positions (N, 3); ``omegas`` unit directions toward the camera; ``light_dir``

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..neural import layout
+from ..features import layout
 from ..runtime import DeviceArray
 from .gather import (GatherError, _check_inputs, _lobes, _phase_table_padded, bake_render_grid,
                      config_vectors, gather_defines, query_order, static_args)

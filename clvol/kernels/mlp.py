@@ -7,7 +7,7 @@
     F = net.radiance(features, config, albedo_rgb)    # F [N][3], grey media: one evaluation
     net.enqueue(features_dev, config_dev, n, out_dev, ...)   # DeviceArrays in and out
 
-``features``/``config`` are the gather's arrays or DeviceArrays (clvol/neural/layout.py). With
+``features``/``config`` are the gather's arrays or DeviceArrays (clvol/features/layout.py). With
 ``channel_albedo`` one evaluation per distinct non-zero channel albedo is run in the kernel
 (grey: pass the config's albedo and no channel_albedo, one evaluation); albedo-0 channels give 0.
 """
@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import NetworkInputError
-from ..neural.export import ALBEDO_EPS, GAMMA, SQUEEZE_DIM, TYPES, MlpWeights
-from ..neural.layout import CONFIG_DIM, CONFIG_FIELDS
+from ..features.weights import ALBEDO_EPS, GAMMA, SQUEEZE_DIM, TYPES, MlpWeights
+from ..features.layout import CONFIG_DIM, CONFIG_FIELDS
 from ..runtime import DeviceArray, get_runtime
 
 
@@ -41,7 +41,7 @@ def pack_params(weights: MlpWeights) -> np.ndarray:
 
 def contract_defines() -> dict:
     """The -D options that carry the feature contract's and the weight format's numbers
-    (clvol/neural/layout.py, clvol/neural/export.py) into cl/include/mlp_core.h, which
+    (clvol/features/layout.py, clvol/features/weights.py) into cl/include/mlp_core.h, which
     refuses to build without them."""
     if GAMMA != int(GAMMA):
         raise RuntimeError(f"bug: GAMMA = {GAMMA!r}; the kernels decode integer powers only")
@@ -134,7 +134,7 @@ class MlpKernel:
             want_f = (n, len(TYPES), self.arch.n_points)
             if features.shape != want_f or config.shape != (n, CONFIG_DIM):
                 raise NetworkInputError(f"features {features.shape} / config {config.shape}: "
-                                        f"expected {want_f} / {(n, CONFIG_DIM)} (clvol/neural/layout.py)")
+                                        f"expected {want_f} / {(n, CONFIG_DIM)} (clvol/features/layout.py)")
             fb, cb = rt.upload(features), rt.upload(config)
         channels = 1 if channel_albedo is None else 3
         if n == 0:

@@ -30,7 +30,7 @@ import numpy as np
 from scipy import sparse
 
 from ..errors import ClvolError
-from ..neural.layout import is_power_of_two, n_levels
+from ..features.layout import is_power_of_two, n_levels
 from ..runtime import DeviceArray, Runtime, get_runtime
 from ..volume.grid import Grid
 

@@ -339,7 +339,7 @@ def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
 
 
 # Albedos at which per-order queries report the label's standard error (the label at any
-# other albedo takes the error of the nearest node in log(1 - albedo); clvol/neural/labels.py).
+# other albedo takes the error of the nearest node in log(1 - albedo); clvol/training/labels.py).
 SE_ALBEDOS = (1.0, 0.9999, 0.999, 0.997, 0.99, 0.97, 0.9, 0.7, 0.3)
 
 
@@ -349,7 +349,7 @@ def point_query_orders(scene, points, omegas, n_paths: int, seed: int = 0, grid=
     """F_>=2(p, omega) for every albedo from one set of paths (docs/pathtrace.md, "Labels per
     scattering order"): the walks run at albedo 1 (grey), and each sun NEE is binned by its
     albedo exponent e (real collisions after p), so the label at a homogeneous albedo a is
-    sum_b S_b a^(M_b / S_b) (clvol/neural/labels.py). The scene's albedo is ignored; its
+    sum_b S_b a^(M_b / S_b) (clvol/training/labels.py). The scene's albedo is ignored; its
     density, phase and light direction are used, with a sun of irradiance 1.
 
     Returns float64 arrays: "S", "M" [N][ORDER_BINS] (per-bin means of the contributions and

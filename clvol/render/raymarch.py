@@ -24,7 +24,7 @@ from ..kernels.majorant import DEFAULT_BLOCK
 from ..kernels.medium import DeviceMedium
 from ..kernels.pyramid import MAX_BASE_RESOLUTION
 from ..kernels.raymarch import LIGHT_QUANTITIES, launch
-from ..neural.layout import is_power_of_two
+from ..features.layout import is_power_of_two
 from ..runtime import get_runtime
 from .ms.base import MsSource
 from .plan import MAX_LIGHT_RESOLUTION, light_key, plan_frame

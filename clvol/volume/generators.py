@@ -514,7 +514,7 @@ def _union(dom: _Domain, seed: int, *, count, size, blend, density, edge) -> np.
 
 
 # The two generators below exist to MEASURE generalisation: the data sets keep their families
-# (clvol/neural/dataset.py OUT_OF_FAMILY) out of every training set. They follow published
+# (clvol/training/dataset.py OUT_OF_FAMILY) out of every training set. They follow published
 # descriptions rather than our own cloud generator, so their density structure differs: soft,
 # graded interiors (Perlin-Worley) and pyroclastic, displaced surfaces (sphere unions).
 
@@ -815,7 +815,7 @@ def generate(name: str, seed: int = 0, resolution: int | tuple[int, int, int] = 
 
 def restructure(grid: Grid, seed: int, *, gamma: float, modulation: float, scale: float) -> Grid:
     """Domain randomisation of a generated grid's density structure (training data sets,
-    clvol/neural/dataset.py ``augment``): a remap d -> peak * (d / peak)^gamma (gamma > 1 grades
+    clvol/training/dataset.py ``augment``): a remap d -> peak * (d / peak)^gamma (gamma > 1 grades
     saturated interiors and thins soft edges, gamma < 1 saturates them) times a low-frequency
     modulation 1 + modulation * fBm (heterogeneous interiors: our generators' clouds and solids are
     homogeneous inside, real clouds are not). Same arguments -> bit-identical grid."""

@@ -11,7 +11,7 @@ and the OpenCL network, in one kernel by default (clvol/kernels/gather_mlp.py) o
 lattice only when the camera position, the light or the medium changed, on the device unless
 ``ms_refresh`` or ``ms_directions`` need the values on the host.
 
-The weight file states the domain it was trained on (clvol/neural/export.py's
+The weight file states the domain it was trained on (clvol/features/weights.py's
 ``weights_domain``); ``outside_domain`` says how a medium lies outside it.
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import ClvolError, WeightsError
-from ...neural.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
+from ...features.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
 from ...runtime import DeviceArray, Stopwatch, get_runtime
 from ..sphere import fibonacci_directions, spherical_barycentric
 from .grid import GridMs, MsGrid, check_ms_grid, ms_lattice
@@ -68,7 +68,7 @@ def load_network_weights(path):
     """A weight file checked against the contract of the gather that will feed it: this
     code's layout and packaged templates (hash, level map) at the file's base resolution and
     lambda (the pyramid is built to match those). Raises WeightsError naming the field."""
-    from ...neural.export import MlpWeights, gather_contract, load_weights, read_meta
+    from ...features.weights import MlpWeights, gather_contract, load_weights, read_meta
     if isinstance(path, MlpWeights):
         path = path.path
     c = read_meta(path)["contract"]
@@ -423,9 +423,9 @@ class NetworkMs(GridMs):
                    o.get("ms_directions", 0), o.get("ms_refresh", 1))
 
     def training_domain(self) -> dict:
-        """The validity domain the weight file records (clvol/neural/export.py); loading it
+        """The validity domain the weight file records (clvol/features/weights.py); loading it
         also checks the file against this gather's contract."""
-        from ...neural.export import weights_domain
+        from ...features.weights import weights_domain
         return weights_domain(load_network_weights(self.weights_path).meta)
 
     def prepare(self, frame) -> None:

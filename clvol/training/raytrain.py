@@ -1,5 +1,5 @@
 """Data-parallel training on a Ray cluster (Ray Train's TorchTrainer): the same model, the same
-checkpoint file and the same resume as ``scripts/train.py`` (clvol/neural/train.py ``Trainer``).
+checkpoint file and the same resume as ``scripts/train.py`` (clvol/training/train.py ``Trainer``).
 
     python scripts/train.py DATA OUT --ray [--address HOST:PORT] [--workers N] [--gpu] ...
 
@@ -41,7 +41,7 @@ def _worker_loop(config: dict) -> None:
 
     from . import train as tr
     from .dataset import load_shards
-    from .export import Architecture
+    from ..features.weights import Architecture
 
     torch.set_num_threads(1)
     ctx = ray.train.get_context()

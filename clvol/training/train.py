@@ -27,8 +27,8 @@ import numpy as np
 import torch
 
 from ..errors import ClvolError
-from . import layout
-from .export import GAMMA, TYPES
+from ..features import layout
+from ..features.weights import GAMMA, TYPES
 from .model import Model
 
 ALBEDO = layout.CONFIG_FIELDS.index("albedo")
@@ -263,7 +263,7 @@ def per_key_mean(train: Samples, test: Samples) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- training runs
-# A run on a clvol.neural.dataset folder: held-out split by volume and configuration, checkpoints
+# A run on a clvol.training.dataset folder: held-out split by volume and configuration, checkpoints
 # written atomically and resumed exactly, export with the gather's contract.
 
 CHECKPOINT = "checkpoint.pt"
@@ -333,7 +333,7 @@ def split_shards(shards, cfg: RunConfig):
 
 
 # Albedos drawn for per-order labels (``albedo_draws``): the data sets' law for a range that
-# reaches 1 (clvol/neural/dataset.py: log-uniform in 1 - a up to 1 - ALBEDO_GAP, a share
+# reaches 1 (clvol/training/dataset.py: log-uniform in 1 - a up to 1 - ALBEDO_GAP, a share
 # ALBEDO_ONE exactly 1), vectorised, from DRAW_LOW.
 DRAW_LOW = 0.3
 
@@ -347,7 +347,7 @@ def draw_albedos(rng: np.random.Generator, n: int) -> np.ndarray:
 
 def order_samples(arrays, albedo, key=None, floor: float = 0.05) -> Samples:
     """Samples of one per-order shard at the albedos ``albedo`` [N][K] (K per query; any value
-    in (0, 1]): labels and standard errors relabelled from the bins (clvol/neural/labels.py)."""
+    in (0, 1]): labels and standard errors relabelled from the bins (clvol/training/labels.py)."""
     from ..render.pathtrace import SE_ALBEDOS
     from .labels import label_at, se_at
     albedo = np.asarray(albedo, np.float64)
@@ -369,7 +369,7 @@ def order_samples(arrays, albedo, key=None, floor: float = 0.05) -> Samples:
 
 def shard_samples(shards, floor: float = 0.05, albedo_draws: int = 0, albedos=None,
                   seed: int = 0) -> Samples:
-    """Samples of a list of clvol.neural.dataset.Shard, key = the shard's position in the data
+    """Samples of a list of clvol.training.dataset.Shard, key = the shard's position in the data
     set (volume * configs + configuration). Shards are read one at a time and their feature
     rows copied once (``concat_samples`` with ``n_rows``).
 
@@ -412,7 +412,7 @@ class Trainer:
 
     def __init__(self, train: Samples, cfg: RunConfig, arch=None, device: str = "cpu",
                  generator_seed: int | None = None):
-        from .export import Architecture
+        from ..features.weights import Architecture
         self.cfg = cfg
         self.device = torch.device(device)
         self.train = train
@@ -423,7 +423,7 @@ class Trainer:
         self.model.to(self.device)      # after the normalisation (computed in NumPy on the host)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         self.sched = torch.optim.lr_scheduler.CosineAnnealingLR(self.opt, T_max=max(cfg.steps, 1))
-        # a data-parallel worker draws its own batches (clvol/neural/raytrain.py: seed + rank)
+        # a data-parallel worker draws its own batches (clvol/training/raytrain.py: seed + rank)
         self.gen = torch.Generator().manual_seed(cfg.seed if generator_seed is None else generator_seed)
         self.net = self.model     # what the steps run: the model, or a DDP wrapper of it
         self.step = 0

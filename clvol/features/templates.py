@@ -378,14 +378,14 @@ def _load(path: str) -> Templates:
 
 def load_templates(path: str | Path | None = None, check_layout: bool = True) -> Templates:
     """Read a template table (default: the packaged clvol/data/templates.npz). With
-    ``check_layout`` the layer counts must be clvol.neural.layout's (the network contract)."""
+    ``check_layout`` the layer counts must be clvol.features.layout's (the network contract)."""
     t = _load(str(path or default_path()))
     if check_layout:
         want = DIFFUSE_LAYER_COUNTS + HIGHLIGHT_LAYER_COUNTS
         if tuple(int(c) for c in t.layer_counts) != want:
             raise TemplateError(f"{path or default_path()}: layer counts "
                                 f"{tuple(int(c) for c in t.layer_counts)} differ from the layout "
-                                f"contract {want} (clvol/neural/layout.py)")
+                                f"contract {want} (clvol/features/layout.py)")
     return t
 
 

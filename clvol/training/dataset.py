@@ -11,7 +11,7 @@ direction, camera position, phase, albedo, optical thickness -> density scale):
 
     points   float32 [n][3]        world positions (density-weighted inside the medium + uniform)
     omegas   float32 [n][3]        unit, toward the configuration's camera (as the renderer's lattice)
-    features float32 [n][3][P]     train-mode gather (clvol/neural/layout.py; features[:, 1] is 0: the
+    features float32 [n][3][P]     train-mode gather (clvol/features/layout.py; features[:, 1] is 0: the
     levels   float32 [n][L][P]     model combines ``levels`` itself)
     config   float32 [n][9]        the gather's config (albedo of channel 0; training sets each channel's)
     Fms, Fms_se, F1  float64 [n][3]  labels from clvol.render.pathtrace.point_query (unit sun, orders >= 2)
@@ -26,7 +26,7 @@ Robust to a session ending at any moment: a shard is written to a temporary file
 system), so a ``shard_*.npz`` is always complete; the loader reads only ``shard_*.npz``, and a
 rerun deletes stale temporary files and skips finished shards (one writer per folder at a time). Everything random
 is keyed by (spec.seed, v, c): the same spec gives the same shards bit for bit on the same
-device, in any order and after any interruption, serially or on Ray (clvol/neural/distributed.py:
+device, in any order and after any interruption, serially or on Ray (clvol/training/distributed.py:
 workers return the bytes, this process writes them).
 """
 from __future__ import annotations
@@ -42,7 +42,7 @@ import numpy as np
 
 from ..atomic import atomic_open
 from ..errors import ClvolError
-from . import layout
+from ..features import layout
 
 DATASET_FORMAT = "clvol-dataset"
 # Version 2: the whole material domain (volume families, resolutions, optical thickness, g < 0,
@@ -56,7 +56,7 @@ ARRAYS = ("points", "omegas", "features", "levels", "config", "Fms", "Fms_se", "
 # With per_order_labels: the per-order bins of clvol.render.pathtrace.point_query_orders
 # (S, M [n][ORDER_BINS]: the label at any albedo; se [n][len(SE_ALBEDOS)]: its standard error
 # at SE_ALBEDOS), from paths traced at albedo 1. Fms and Fms_se are then the relabelled
-# label at the configuration's albedo (clvol/neural/labels.py).
+# label at the configuration's albedo (clvol/training/labels.py).
 ORDER_ARRAYS = ("S", "M", "se")
 
 # Volume families, each a generator with a random parameter draw (``volume_params``). Volumes
@@ -65,7 +65,7 @@ FAMILIES = ("cumulus", "flat_cumulus", "stratus", "plume", "noise",
             "sphere", "blob", "torus", "box", "union", "nubis", "sphere_cumulus")
 SOLID_FAMILIES = ("sphere", "blob", "torus", "box", "union")
 # Out-of-family clouds: generators written from published descriptions that no training set
-# may use (clvol/neural/train.py split_shards holds every shard of theirs out). They measure how
+# may use (clvol/training/train.py split_shards holds every shard of theirs out). They measure how
 # the network does on density structure it never saw: the training families above come from
 # our own generators, so a held-out volume of theirs cannot show that gap (docs/neural.md).
 OUT_OF_FAMILY = ("nubis", "sphere_cumulus")
@@ -200,9 +200,9 @@ class DatasetSpec:
 
 
 def dataset_domain(spec: dict) -> dict | None:
-    """The validity domain a model trained on this data set has (clvol.neural.export's ``domain``), from
+    """The validity domain a model trained on this data set has (clvol.features.weights's ``domain``), from
     a spec dict (``DatasetSpec.to_dict()`` or a shard's meta["spec"]); None for a version-1 spec
-    (clvol.neural.export.DEFAULT_DOMAIN describes that data)."""
+    (clvol.features.weights.DEFAULT_DOMAIN describes that data)."""
     if "optical_thickness" not in spec:
         return None
     return {"albedo": [float(x) for x in spec["albedo"]], "g": [float(x) for x in spec["g"]],
@@ -512,7 +512,7 @@ def depth_points(grid, density_scale: float, origin, dirs, tau, jitter=0.5):
 
 
 def _code_contract(spec: DatasetSpec) -> dict:
-    from .templates import load_templates
+    from ..features.templates import load_templates
     return {"layout_version": layout.LAYOUT_VERSION, "template_hash": load_templates().sha256,
             "base_resolution": spec.base_resolution, "lambda": spec.lam,
             "n_levels": layout.n_levels(spec.base_resolution)}
@@ -695,7 +695,7 @@ def shard_progress(n_shards: int, spec: DatasetSpec, progress: bool):
 def make_dataset(spec: DatasetSpec, out_dir, runtime=None, progress: bool = True,
                  max_shards: int | None = None, on_shard=None, part=None) -> dict:
     """Make every missing shard of ``spec`` in ``out_dir``, serially in this process (Ray:
-    clvol/neural/distributed.py). Returns {"made", "skipped"} counts. ``max_shards``: stop after
+    clvol/training/distributed.py). Returns {"made", "skipped"} counts. ``max_shards``: stop after
     making this many (tests); ``on_shard(v, c)`` is called after each shard is written.
     ``part`` (i, n): only volumes v % n == i, so n processes can share one folder (one
     device, several host processes: docs/dataset.md)."""

@@ -95,7 +95,7 @@ def contract_dict(base_resolution: int = DEFAULT_BASE_RESOLUTION,
         "base_resolution": int(base_resolution),
         "n_levels": n_levels(base_resolution),
         "lambda": float(lam),
-        "template_hash": template_hash,  # clvol.neural.templates.load_templates().sha256
+        "template_hash": template_hash,  # clvol.features.templates.load_templates().sha256
         "frame": "z = l (toward light), x = omega's part perpendicular to l, y = z x x",
         "units": {"density": "log1p(tau_voxel)", "transmittance": "T", "phase": "log1p(f*f*)",
                   "alpha": "radians"},

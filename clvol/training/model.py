@@ -1,12 +1,12 @@
-"""The network in torch (training only; rendering uses clvol/neural/export.py + cl/mlp.cl, no torch).
+"""The network in torch (training only; rendering uses clvol/features/weights.py + cl/mlp.cl, no torch).
 
 Seed III.C: six modules {density, transmittance, phase} x {diffuse, highlight} of one structure,
 each walking its template layers with squeeze-and-excitation attention, FC-1 to the next layer's
 width and FC-2 fusion; diffuse and highlight merged per type by an FC layer; the three types and the
-configuration merged by a small MLP head. The architecture is written out in clvol/neural/export.py and
+configuration merged by a small MLP head. The architecture is written out in clvol/features/weights.py and
 executed in NumPy by reference/mlp.py; parameter names here are the weight file's tensor names.
 
-Inputs (clvol/neural/layout.py): features [N][3][P], config [N][9] and, in training, levels [N][L][P]:
+Inputs (clvol/features/layout.py): features [N][3][P], config [N][9] and, in training, levels [N][L][P]:
 the transmittance feature is then sum_l level_weights[l] T_l + level_bias, learned here (the seed's
 "3D-CNN" is a 1x1x1 convolution across levels) and baked by the gather at render time.
 Output y [N] = log(F / albedo^4 + 1) (seed eq. 20).
@@ -17,9 +17,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from . import layout
-from .export import (ALBEDO_EPS, DEFAULT_CONFIG_SCALE, LOG1M_SCALE, LOG1M_SHIFT, SQUEEZE_DIM, TEMPLATES, TYPES, Architecture,
-                     MlpWeights, save_weights)
+from ..features import layout
+from ..features.weights import (ALBEDO_EPS, DEFAULT_CONFIG_SCALE, LOG1M_SCALE, LOG1M_SHIFT, SQUEEZE_DIM,
+                               TEMPLATES, TYPES, Architecture, MlpWeights, save_weights)
 
 G_MEAN = layout.CONFIG_FIELDS.index("g_mean")
 ALBEDO = layout.CONFIG_FIELDS.index("albedo")
@@ -120,10 +120,10 @@ class Model(nn.Module):
         return m
 
     def export(self, path, contract: dict, training: dict | None = None, domain: dict | None = None):
-        """Write the weight file (clvol/neural/export.py) with the contract of the gather that made the
-        training features: ``clvol.neural.export.gather_contract(base_resolution, lam)`` for the
+        """Write the weight file (clvol/features/weights.py) with the contract of the gather that made the
+        training features: ``clvol.features.weights.gather_contract(base_resolution, lam)`` for the
         packaged templates (there is no default: a wrong one would pass the loader's check),
-        and the training data's validity ``domain`` (clvol.neural.dataset.dataset_domain)."""
+        and the training data's validity ``domain`` (clvol.training.dataset.dataset_domain)."""
         return save_weights(path, self.arch, self.numpy_params(), contract, training, domain)
 
 

@@ -7,7 +7,7 @@ so ``np.load(allow_pickle=False)`` reads it) holding
 - ``format`` / ``format_version``: "clvol-mlp" / ``FORMAT_VERSION``; other versions are refused;
 - ``architecture``: ``Architecture.to_dict()`` (everything that fixes the tensor shapes);
 - ``contract``: the feature contract the network was trained with (``feature_contract``):
-  ``clvol.neural.layout.contract_dict`` (layout version, layer counts, feature and config order, frame,
+  ``clvol.features.layout.contract_dict`` (layout version, layer counts, feature and config order, frame,
   units, base resolution, number of levels, lambda, template table hash) plus the level map,
   the phase parameterisation, the learned per-level transmittance weights and bias (the
   seed's 3D-CNN as a 1x1x1 convolution across levels, baked by the gather at render time),
@@ -66,7 +66,7 @@ META_KEY = "__meta__"
 
 # Fixed input normalisation defaults: the angle enters in units of pi (so it lies in [0, 1]);
 # everything else is already O(1). Training may replace the feature shift/scale by data
-# statistics (clvol.neural.train); the values travel in the weight file either way.
+# statistics (clvol.training.train); the values travel in the weight file either way.
 DEFAULT_CONFIG_SCALE = tuple(1.0 / math.pi if f == "alpha" else 1.0 for f in layout.CONFIG_FIELDS)
 
 PHASE_PARAMETERISATION = (
@@ -92,7 +92,7 @@ LOG1M_SHIFT, LOG1M_SCALE = 4.6, 1.0 / 3.0
 @dataclass(frozen=True)
 class Architecture:
     """Everything that fixes the network's tensor shapes. ``layer_counts`` is the template's
-    points per layer (clvol.neural.layout), the first ``n_diffuse_layers`` of them diffuse."""
+    points per layer (clvol.features.layout), the first ``n_diffuse_layers`` of them diffuse."""
     layer_counts: tuple = layout.LAYER_COUNTS
     n_diffuse_layers: int = len(layout.DIFFUSE_LAYER_COUNTS)
     config_dim: int = layout.CONFIG_DIM
@@ -115,7 +115,7 @@ class Architecture:
         if self.albedo_input not in ALBEDO_INPUTS:
             raise WeightsError(f"albedo_input {self.albedo_input!r}: one of {list(ALBEDO_INPUTS)}")
         if self.config_dim != layout.CONFIG_DIM:  # the forward reads g_mean, albedo, alpha by index
-            raise WeightsError(f"config_dim must be {layout.CONFIG_DIM} (clvol.neural.layout.CONFIG_FIELDS)")
+            raise WeightsError(f"config_dim must be {layout.CONFIG_DIM} (clvol.features.layout.CONFIG_FIELDS)")
 
     @property
     def n_points(self) -> int:
@@ -216,8 +216,8 @@ class Architecture:
 def feature_contract(base_resolution: int = layout.DEFAULT_BASE_RESOLUTION,
                      lam: float = layout.DEFAULT_LAMBDA, template_hash: str = "",
                      level_map: dict | None = None) -> dict:
-    """The contract a gather produces: clvol.neural.layout.contract_dict plus the level map (the mip
-    level each template layer reads, from clvol.neural.templates) and the phase parameterisation.
+    """The contract a gather produces: clvol.features.layout.contract_dict plus the level map (the mip
+    level each template layer reads, from clvol.features.templates) and the phase parameterisation.
     The weight-specific parts (level weights, normalisation) are added by ``save_weights``."""
     c = layout.contract_dict(base_resolution, lam, template_hash)
     c["level_map"] = level_map
@@ -227,7 +227,7 @@ def feature_contract(base_resolution: int = layout.DEFAULT_BASE_RESOLUTION,
 
 def gather_contract(base_resolution: int = layout.DEFAULT_BASE_RESOLUTION,
                     lam: float = layout.DEFAULT_LAMBDA, templates=None) -> dict:
-    """``feature_contract`` for the packaged template table (clvol.neural.templates): its hash and
+    """``feature_contract`` for the packaged template table (clvol.features.templates): its hash and
     level map (diffuse layers: one level each; highlight layers: spacing per unit t_enter,
     the level is chosen per query from it)."""
     from .templates import load_templates
@@ -340,7 +340,7 @@ def weights_domain(meta: dict) -> dict:
 def save_weights(path, arch: Architecture, params: dict, contract: dict,
                  training: dict | None = None, domain: dict | None = None) -> Path:
     """Write a weight file (atomically: a temporary file renamed into place). ``domain``: the
-    training data's validity domain (``check_domain``; clvol.neural.dataset.dataset_domain makes it)."""
+    training data's validity domain (``check_domain``; clvol.training.dataset.dataset_domain makes it)."""
     path = Path(path)
     params = _check_params(params, arch, str(path))
     domain = None if domain is None else check_domain(domain, str(path))
@@ -408,7 +408,7 @@ def _open(path):
 
 def load_weights(path, expect_contract: dict | None = None) -> MlpWeights:
     """Load and check a weight file. The file's feature contract must equal this code's
-    layout (clvol.neural.layout: version, layer counts, feature/config order, frame, units); with
+    layout (clvol.features.layout: version, layer counts, feature/config order, frame, units); with
     ``expect_contract`` (``feature_contract(...)`` from the gather that will feed it) the
     base resolution, lambda, template hash and level map must match too."""
     where = str(path)

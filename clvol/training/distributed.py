@@ -2,9 +2,9 @@
 
     make_dataset_ray(spec, "runs/data")                      # a local Ray on this machine's cores
     make_dataset_ray(spec, "runs/data", address="auto")      # the cluster this node belongs to
-    generate(spec, "runs/data", serial=True)                 # clvol.neural.dataset.make_dataset
+    generate(spec, "runs/data", serial=True)                 # clvol.training.dataset.make_dataset
 
-A worker makes the shard and returns the bytes of its file (clvol.neural.dataset.shard_bytes); only
+A worker makes the shard and returns the bytes of its file (clvol.training.dataset.shard_bytes); only
 this process (the driver) writes, atomically, so workers need no shared file system, a killed
 worker's task is simply rerun by Ray (``max_retries``), and a shard is written once whatever
 happens to the workers. The folder handling is the serial path's (``pending_shards``: the
@@ -125,7 +125,7 @@ def make_dataset_ray(spec: ds.DatasetSpec, out_dir, address: str | None = None,
     """Make every missing shard of ``spec`` in ``out_dir`` as Ray tasks. ``address``: None
     starts a private local Ray (``workers`` CPUs, default all), or "auto" / "HOST:PORT" /
     "ray://HOST:PORT" joins a running cluster; if this process already called ray.init, that
-    Ray is used. Returns {"made", "skipped"} like clvol.neural.dataset.make_dataset."""
+    Ray is used. Returns {"made", "skipped"} like clvol.training.dataset.make_dataset."""
     if workers is not None and address is not None:
         raise DistributedError("--workers applies to a local Ray only; a cluster's size is "
                                "set by `ray start --num-cpus` on its nodes")
