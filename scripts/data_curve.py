@@ -32,7 +32,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-from clvol.neural.dataset import TRAINING_FAMILIES  # noqa: E402  (the one list of families)
+from clvol.training.dataset import TRAINING_FAMILIES  # noqa: E402  (the one list of families)
 
 
 def points_for(fractions, family_sets) -> list[tuple[str, str, list[str]]]:
