@@ -29,6 +29,26 @@ PT_OUT = kernel_constant("PT_OUT_NO_EMISSION")
 # -D PT_EMISSION rows: 6 more floats, emission seen unscattered, then scattered (RGB each).
 PT_OUT_EMISSION = kernel_constant("PT_OUT_EMISSION")
 ROW_EM_DIRECT, ROW_EM_SCATTERED = slice(PT_OUT, PT_OUT + 3), slice(PT_OUT + 3, PT_OUT_EMISSION)
+# ROW_TRUNCATED: 1 for a path cut at PT_MAX_VERTICES, 2 for one stopped by a tracking bound.
+TRUNCATED_VERTICES, TRUNCATED_BOUND = 1, 2
+# The tracking loop's bounds (cl/pathtrace.cl; docs/pathtrace.md, "Bounds"). MAX_STEPS
+# tentative collisions a path: ~10 per vertex at the vertex limit (100,000), where the
+# examples' paths take at most ~900 (48^2 x 4 spp, max per path; 47-53 on average for the
+# clouds and milk) and a homogeneous medium's take one per vertex. MAX_STALLS in a row that
+# leave the ray's t unchanged: the step 1/sigma_maj is then below t's float32 rounding, and
+# the flight can never advance; a flight that advances resets it, and a stall needs
+# tau < sigma_maj ulp(t) / 2, so 256 in a row where flights advance at all has odds below
+# 2^-256 at sigma_maj ulp(t) <= 1.
+MAX_STEPS, MAX_STALLS = 1 << 20, 256
+BOUND_DEFINES = {"PT_MAX_STEPS": MAX_STEPS, "PT_MAX_STALLS": MAX_STALLS}
+
+
+def truncation_counts(rows) -> tuple[int, int]:
+    """(paths cut at the vertex limit, paths stopped by a tracking bound) of rows [..., row]."""
+    t = np.asarray(rows)[..., ROW_TRUNCATED]
+    return int(np.count_nonzero(t == TRUNCATED_VERTICES)), int(np.count_nonzero(t == TRUNCATED_BOUND))
+
+
 # Per-order rows (cl/pathtrace.cl -D PT_ORDER_BINS): exponents e = 1..ORDER_EXACT-1 one bin
 # each, then ORDER_SUB bins per octave up to 2^ORDER_END_LOG2 - 1 (> the kernel's
 # PT_MAX_VERTICES).
@@ -216,7 +236,8 @@ class PathTracer:
         self.block = block = device_medium.block
         (self.mres, self.bsize) = majorant_args(self.shape, med.bbox_min, med.bbox_max, block)
         self.defines, self.simulated, self.skipped = specialisation(med, specialise)
-        self.program = rt.program("pathtrace", {"PT_LANES": RENDER_LANES, **self.defines})
+        self.program = rt.program("pathtrace", {"PT_LANES": RENDER_LANES, **BOUND_DEFINES,
+                                                  **self.defines})
         self._query_program = None
         self._order_program = None
         lobes = med.lobes if med.lobes else [(0.0, 1.0)]
@@ -259,7 +280,7 @@ class PathTracer:
         """The program for point queries (built on first use: see QUERY_LANES)."""
         if self._query_program is None:
             self._query_program = self.rt.program(
-                "pathtrace", {"PT_LANES": QUERY_LANES, **self.defines})
+                "pathtrace", {"PT_LANES": QUERY_LANES, **BOUND_DEFINES, **self.defines})
         return self._query_program
 
     def _launch(self, kernel, n_paths: int, args, lanes: int):
@@ -316,7 +337,7 @@ class PathTracer:
                 raise ClvolError("per-order point queries need a grey albedo and no environment")
             if self._order_program is None:
                 self._order_program = self.rt.program(
-                    "pathtrace", {"PT_LANES": QUERY_LANES, **self.defines,
+                    "pathtrace", {"PT_LANES": QUERY_LANES, **BOUND_DEFINES, **self.defines,
                                   "PT_ORDER_BINS": ORDER_BINS})
             program = self._order_program
         else:
