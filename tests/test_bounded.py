@@ -170,3 +170,32 @@ def test_the_march_bound_is_predicted_from_the_camera_and_box():
     step = far / MARCH_BOUND_RATIO
     assert march_bound((0, 0, 0), (-0.5,) * 3, (0.5,) * 3, step * 1.001) is None
     assert march_bound((0, 0, 0), (-0.5,) * 3, (0.5,) * 3, step * 0.999) is not None
+
+
+@pytest.mark.parametrize("method", ["raymarch", "pathtrace"])
+def test_fuzz_found_float32_overflowing_extinction_is_refused(method):
+    """Found by the API fuzz's 500-example run (after the bounds): density_scale = 3.4e38
+    (float32's largest) with albedo 0 rendered a NaN alpha through the path tracer and the
+    unlit march (inf * 0). Both methods now refuse, in one line, what the light field
+    already refused: density_scale x the largest density x the box's diagonal >= 1e37."""
+    import clvol
+    from clvol.errors import ClvolError
+    from clvol.scene import Camera, Light, Medium, Phase, scene_from_dict
+    scene = scene_from_dict({
+        "volume": {"generator": "cloud", "seed": 3, "resolution": 16},
+        "medium": {"preset": "cloud", "density_scale": 30.0},
+        "light": {"direction": [0.0, 0.0, 1.0], "irradiance": [1.0, 1.0, 1.0]},
+        "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.0, 0.0], "fov_y": 30.0,
+                   "width": 8, "height": 8}}, "<float32>")
+    r = clvol.Renderer(scene, method, **({"spp": 1} if method == "pathtrace" else {}))
+    cam = Camera(origin=(0.0, 0.0, 0.0), target=(0.0, 0.0, 0.5), up=(0.0, 1.0, 0.0), fov_y=1.0,
+                 width=1, height=1)
+    light = Light(direction=(0.0, 0.0, 1.0), irradiance=(0.0, 0.0, 0.0))
+    for scale in (3.4028235677973366e+38, 1e37):
+        medium = Medium(density_scale=scale, albedo=(0.0, 0.0, 0.0), phase=Phase.isotropic())
+        with pytest.raises(ClvolError, match="beyond float32 range") as e:
+            r.render(camera=cam, light=light, medium=medium)
+        assert "\n" not in str(e.value)
+    ok = r.render(camera=cam, light=light, medium=Medium(density_scale=1e30, albedo=(0.0, 0.0, 0.0),
+                                                         phase=Phase.isotropic()))
+    assert all(np.isfinite(v).all() for v in ok.layers.values())
