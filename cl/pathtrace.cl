@@ -97,14 +97,18 @@
 /* Bounds on the tracking loop (clvol/kernels/pathtrace.py passes them; docs/pathtrace.md,
  * "Bounds"): a path ends, its row's truncated word set to 2, after PT_MAX_STEPS tentative
  * collisions (about 10 per vertex at PT_MAX_VERTICES; the examples' paths take at most
- * ~900), or after PT_MAX_STALLS tentative collisions in a row that leave t where it was
- * (a majorant so large that 1/sigma_maj is below t's rounding step: the flight can never
- * get anywhere). Neither binds in a path whose row is written otherwise. */
+ * ~900), or after PT_MAX_STALLS tentative collisions in a row that each move t by less
+ * than PT_STALL_FRACTION of the majorant block's smallest side (a majorant so large that
+ * crossing one block takes millions of draws, or 1/sigma_maj below t's rounding step: the
+ * flight never gets anywhere). Neither binds in a path whose row is written otherwise. */
 #ifndef PT_MAX_STEPS
 #define PT_MAX_STEPS 1048576
 #endif
 #ifndef PT_MAX_STALLS
 #define PT_MAX_STALLS 256
+#endif
+#ifndef PT_STALL_FRACTION
+#define PT_STALL_FRACTION 9.5367431640625e-07f   /* 2^-20 */
 #endif
 /* Ratio-tracking roulette threshold: below it, T survives with probability T / PT_T_RR. */
 #define PT_T_RR 0.1f
@@ -230,7 +234,7 @@ typedef struct {
     float T[PT_LANES];     /* ratio-tracking transmittance */
     int mode[PT_LANES];
     int steps[PT_LANES];
-    int stall[PT_LANES];   /* tentative collisions in a row that left t unchanged */
+    int stall[PT_LANES];   /* tentative collisions in a row that (almost) left t unchanged */
     /* random stream of the path: counter words; the next 8 uniforms of the stream are
      * u[used..7] (two Philox blocks; block = the next block to generate) */
     uint slo[PT_LANES], shi[PT_LANES], sample[PT_LANES], block[PT_LANES];
@@ -988,6 +992,7 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
     uint2 key = (uint2)((uint)J->seed, (uint)(J->seed >> 32));
     const int mx = m->mx, my = m->my, mz = m->mz;
     const float scale = m->scale;
+    const float stall_len = PT_STALL_FRACTION * fmin(fmin(m->bsize.x, m->bsize.y), m->bsize.z);
     VSTORE((vi)(H_START), S.pend);
 #ifdef PT_STATS
     uint n_it = 0, n_act = 0, n_ev = 0, n_cross = 0;
@@ -1056,7 +1061,8 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
         if (any(hit)) {
             /* tau / sm <= tb - t, so the hit stays inside the segment (clamped for rounding). */
             vf th = fmin(t + tau / sm, tb);
-            vi stuck = hit & ~(th > t);       /* this collision left t where it was */
+            /* this collision moved t by less than a stall (or not at all; NaN counts) */
+            vi stuck = hit & ~(th - t >= stall_len);
             t = select(t, th, hit);
             vi steps = VLOAD(S.steps) - hit;
             VSTORE(steps, S.steps);

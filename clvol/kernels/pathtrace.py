@@ -35,12 +35,14 @@ TRUNCATED_VERTICES, TRUNCATED_BOUND = 1, 2
 # tentative collisions a path: ~10 per vertex at the vertex limit (100,000), where the
 # examples' paths take at most ~900 (48^2 x 4 spp, max per path; 47-53 on average for the
 # clouds and milk) and a homogeneous medium's take one per vertex. MAX_STALLS in a row that
-# leave the ray's t unchanged: the step 1/sigma_maj is then below t's float32 rounding, and
-# the flight can never advance; a flight that advances resets it, and a stall needs
-# tau < sigma_maj ulp(t) / 2, so 256 in a row where flights advance at all has odds below
-# 2^-256 at sigma_maj ulp(t) <= 1.
-MAX_STEPS, MAX_STALLS = 1 << 20, 256
-BOUND_DEFINES = {"PT_MAX_STEPS": MAX_STEPS, "PT_MAX_STALLS": MAX_STALLS}
+# each move t by less than STALL_FRACTION of the majorant block's smallest side: the medium's
+# majorant then makes crossing one block a matter of millions of draws (or 1/sigma_maj is below
+# t's float32 rounding and the flight never advances). A draw moves t by Exp(1)/sigma_maj, so
+# where sigma_maj x block x STALL_FRACTION <= 1/2 (majorant optical depth per block <= 2^19)
+# a stall has odds <= 0.4 and 256 in a row <= 1e-100: it never binds where flights progress.
+MAX_STEPS, MAX_STALLS, STALL_FRACTION = 1 << 20, 256, 2.0 ** -20
+BOUND_DEFINES = {"PT_MAX_STEPS": MAX_STEPS, "PT_MAX_STALLS": MAX_STALLS,
+                 "PT_STALL_FRACTION": STALL_FRACTION}
 
 
 def truncation_counts(rows) -> tuple[int, int]:
