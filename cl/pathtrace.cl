@@ -93,6 +93,22 @@
 #ifndef PT_MAX_VERTICES
 #define PT_MAX_VERTICES 100000
 #endif
+/* Bounds on the tracking loop (clvol/kernels/pathtrace.py passes them; docs/pathtrace.md,
+ * "Bounds"): a path ends, its row's truncated word set to 2, after PT_MAX_STEPS tentative
+ * collisions (about 10 per vertex at PT_MAX_VERTICES; the examples' paths take at most
+ * ~900), or after PT_MAX_STALLS tentative collisions in a row that each move t by less
+ * than PT_STALL_FRACTION of the majorant block's smallest side (a majorant so large that
+ * crossing one block takes millions of draws, or 1/sigma_maj below t's rounding step: the
+ * flight never gets anywhere). Neither binds in a path whose row is written otherwise. */
+#ifndef PT_MAX_STEPS
+#define PT_MAX_STEPS 1048576
+#endif
+#ifndef PT_MAX_STALLS
+#define PT_MAX_STALLS 256
+#endif
+#ifndef PT_STALL_FRACTION
+#define PT_STALL_FRACTION 9.5367431640625e-07f   /* 2^-20 */
+#endif
 /* Ratio-tracking roulette threshold: below it, T survives with probability T / PT_T_RR. */
 #define PT_T_RR 0.1f
 /* The row: PT_OUT floats (constants.h), of which the first PT_ACC are accumulated (all but
@@ -220,6 +236,7 @@ typedef struct {
     float T[PT_LANES];     /* ratio-tracking transmittance */
     int mode[PT_LANES];
     int steps[PT_LANES];
+    int stall[PT_LANES];   /* tentative collisions in a row that (almost) left t unchanged */
     /* random stream of the path: counter words; the next 8 uniforms of the stream are
      * u[used..7] (two Philox blocks; block = the next block to generate) */
     uint slo[PT_LANES], shi[PT_LANES], sample[PT_LANES], block[PT_LANES];
@@ -742,6 +759,7 @@ void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const p
             VSTORE(select(VLOAD(S->used), (vi)(8), e), S->used);   /* nothing buffered */
             for (int c = 0; c < PT_ACC; ++c) VSTORE(select(VLOAD(S->acc[c]), (vf)(0.0f), e), S->acc[c]);
             VSTORE(select(VLOAD(S->steps), (vi)(0), e), S->steps);
+            VSTORE(select(VLOAD(S->stall), (vi)(0), e), S->stall);
             VSTORE(select(VLOAD(S->vertices), (vi)(0), e), S->vertices);
             VSTORE(select(VLOAD(S->truncated), (vi)(0), e), S->truncated);
             pt_set_beta_v(S, e, (vf)(1.0f), (vf)(1.0f), (vf)(1.0f));
@@ -976,6 +994,7 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
     uint2 key = (uint2)((uint)J->seed, (uint)(J->seed >> 32));
     const int mx = m->mx, my = m->my, mz = m->mz;
     const float scale = m->scale;
+    const float stall_len = PT_STALL_FRACTION * fmin(fmin(m->bsize.x, m->bsize.y), m->bsize.z);
     VSTORE((vi)(H_START), S.pend);
 #ifdef PT_STATS
     uint n_it = 0, n_act = 0, n_ev = 0, n_cross = 0;
@@ -1006,7 +1025,7 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
         vi cx = VLOAD(S.cx), cy = VLOAD(S.cy), cz = VLOAD(S.cz);
         /* maj_dda_track of majorant.h: every lane walks cells (cheap) until its next
          * tentative collision or the box exit; then the collisions are processed together. */
-        vi ev = (vi)(0), hit = (vi)(0), todo = act;
+        vi ev = (vi)(0), hit = (vi)(0), todo = act, bound = (vi)(0);
         vf sm = (vf)(0.0f), tb;
         for (;;) {
             tb = fmin(fmin(fmin(tnx, tny), tnz), te);
@@ -1044,8 +1063,14 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
         if (any(hit)) {
             /* tau / sm <= tb - t, so the hit stays inside the segment (clamped for rounding). */
             vf th = fmin(t + tau / sm, tb);
+            /* this collision moved t by less than a stall (or not at all; NaN counts) */
+            vi stuck = hit & ~(th - t >= stall_len);
             t = select(t, th, hit);
-            VSTORE(VLOAD(S.steps) - hit, S.steps);
+            vi steps = VLOAD(S.steps) - hit;
+            VSTORE(steps, S.steps);
+            vi stall = select(select((vi)(0), VLOAD(S.stall) + 1, stuck), VLOAD(S.stall), ~hit);
+            VSTORE(stall, S.stall);
+            bound = hit & ((steps >= PT_MAX_STEPS) | (stall >= PT_MAX_STALLS));
             vi shadow = mode == PT_SHADOW;
 #ifdef PT_ENVMAP
             vf dx = select(VLOAD(S.wx), VLOAD(S.lx), shadow);
@@ -1082,6 +1107,11 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
             if (any(more)) tau = select(tau, -log(1.0f - pt_lanes_take(&S, more)), more);
             ev = select(ev, (vi)(H_ACCEPT), accept);
             ev = select(ev, (vi)(H_NEE_DONE), kill);
+            if (any(bound)) {
+                /* A bound: the path ends here with what it has (row's truncated word 2). */
+                ev = select(ev, (vi)(H_FINISH), bound);
+                VSTORE(select(VLOAD(S.truncated), (vi)(2), bound), S.truncated);
+            }
         }
         VSTORE(t, S.t);
         VSTORE(tau, S.tau);

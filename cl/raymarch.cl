@@ -476,7 +476,11 @@ __kernel void raymarch(
 #endif
     for (;;) {
         vL ta = t0 + k * step;
-        iL active = hit & (ta < t1) & (T >= threshold);
+        /* Bounded: a lane stops where its next segment would not start past this one (k past
+         * 2^24, or step below t's float32 rounding: a camera far from a small box); nowhere
+         * else does this hold, so it changes no image that can be marched (the host reports
+         * when it may bind: clvol/render/raymarch.py march_bound). */
+        iL active = hit & (ta < t1) & (T >= threshold) & (t0 + (k + 1.0f) * step > ta);
         if (!any(active)) break;
 #if RAYMARCH_STATS
         ++n_iter;

@@ -53,6 +53,18 @@
 
 /* Advance every sample ray over segment [ta, ta + step]; returns C at its end and whether
  * some ray still sees medium beyond it. */
+/* Segments along one ray: at most VIEW_MAX_STEPS (float32 cannot place more segments of one
+ * step on a ray: t / step >= 2^22 leaves steps below two rounding steps of t), 0 for an empty
+ * or NaN span. A plain (int) cast of a larger or NaN float is undefined. */
+#ifndef VIEW_MAX_STEPS
+#define VIEW_MAX_STEPS 4194304
+#endif
+__attribute__((always_inline))
+int segments(float span, float step) {
+    const float n = ceil(span / step);
+    return n >= (float)VIEW_MAX_STEPS ? VIEW_MAX_STEPS : (n > 0.0f ? (int)n : 0);
+}
+
 __attribute__((always_inline))
 float advance(__global const float *density, int nx, int ny, int nz, float3 bmin, float3 cell,
               float density_scale, float3 o, const float3 *d, const float *t0, const float *t1,
@@ -88,7 +100,7 @@ float free_flight_depth(__global const float *density, int nx, int ny, int nz, f
     const float target = -log1p(-z);     /* exact for small z, where 1 - z rounds; z = 1: never met */
     const float tau_stop = stop > 0.0f ? -log(stop) : INFINITY;
     float depth = -1.0f, tau_acc = 0.0f;
-    const int n = t_in <= t_out ? (int)ceil((t_out - t_in) / step) : 0;
+    const int n = t_in <= t_out ? segments(t_out - t_in, step) : 0;
     for (int s = 0; s < n && depth < 0.0f && tau_acc <= tau_stop; ++s) {
         const float ta = t_in + (float)s * step, tb = fmin(ta + step, t_out);
         const float3 p = o + (0.5f * (ta + tb)) * d;
@@ -155,7 +167,7 @@ __kernel void view_depths(__global const float *density, const int nx, const int
     float w = 0.0f;
     int n_steps = 0;
     if (t_lo <= t_hi) {
-        n_steps = (int)ceil((t_hi - t_lo) / step);
+        n_steps = segments(t_hi - t_lo, step);
         for (int r = 0; r < VIEW_R2; ++r) tau[r] = 0.0f;
         int more = 1;
         for (int s = 0; s < n_steps && more; ++s)

@@ -185,6 +185,36 @@ def _sky_newest_first(text: str) -> str:
                          "stale = [j for j in reversed(order) if")
 
 
+def _view_jitter_swap(text: str) -> str:
+    # The stochastic source places its points on rays with the jitter's x and y swapped
+    # against cl/viewdepth.cl (which marched x = i B + jitter.x B, y = j B + jitter.y B).
+    text = _exactly_once(text, r"col = \(np\.arange\(bx\)\[None, :\] \+ jitter\[\.\.\., 0\]\)",
+                         "col = (np.arange(bx)[None, :] + jitter[..., 1])")
+    return _exactly_once(text, r"row = \(np\.arange\(by\)\[:, None\] \+ jitter\[\.\.\., 1\]\)",
+                         "row = (np.arange(by)[:, None] + jitter[..., 0])")
+
+
+def _pyramid_copy_unchecked(text: str) -> str:
+    # The device copy of level 0 for any base^3 grid, cube box or not.
+    return _exactly_once(text, r"if density is not None and is_identity\(grid, base\) and ",
+                         "if density is not None and ")
+
+
+def _chord_width(text: str) -> str:
+    # The labels' upper bound: the chord over a bin one exponent wider than the bin.
+    span = function_span(text, r"^def label_bounds\(", r"^(def |class |@)")
+    return replace_once(text, span, r"width = np\.maximum\(hi_e - lo_e, 1\.0\)",
+                        "width = np.maximum(hi_e - lo_e + 1, 1.0)")
+
+
+def _block_blend_swap(text: str) -> str:
+    # The view table's bilinear blend with the (i1, j0) and (i0, j1) weights swapped.
+    return _exactly_once(
+        text, r"float bw\[4\] = \{\(1\.0f - fu\) \* \(1\.0f - fv\), fu \* \(1\.0f - fv\), "
+              r"\(1\.0f - fu\) \* fv, fu \* fv\};",
+        "float bw[4] = {(1.0f - fu) * (1.0f - fv), (1.0f - fu) * fv, fu * (1.0f - fv), fu * fv};")
+
+
 PATCHES = {"mirrored-frame": _mirrored_frame, "lattice-corners": _lattice_corners,
            "shadow-bias": _shadow_rate_bias, "shadow-bias-ratio": _shadow_sigma_bias,
            "c-nx-ny": _c_nx_ny, "c-octave-ab": _c_octave_ab,
@@ -192,7 +222,9 @@ PATCHES = {"mirrored-frame": _mirrored_frame, "lattice-corners": _lattice_corner
            "coarse-level": _coarse_level_plus_one, "furnace-any": _furnace_any,
            "lit-all": _lit_all, "blackbody-hot": _blackbody_hot,
            "vdb-affine-translation": _vdb_affine_translation,
-           "sky-newest-first": _sky_newest_first}
+           "sky-newest-first": _sky_newest_first, "view-jitter-swap": _view_jitter_swap,
+           "pyramid-copy-unchecked": _pyramid_copy_unchecked, "chord-width": _chord_width,
+           "block-blend-swap": _block_blend_swap}
 C_TESTS = ("tests/test_c_host.py::test_c_render_matches_python",
            "tests/test_c_host.py::test_c_render_matches_python_on_a_non_cubic_volume_and_image",
            "tests/test_c_host.py::test_c_octaves_with_distinct_parameters_match_python",
@@ -234,6 +266,24 @@ BUGS = [
         "network sky refreshes stale cells newest first",
         ("tests/test_survivors.py", "tests/test_raymarch_env.py::"
          "test_network_sky_refreshes_a_few_cells_per_frame_when_asked")),
+    Bug("view-jitter-swap", "clvol/render/ms/view.py",
+        "stochastic source: host jitter x/y swapped against cl/viewdepth.cl",
+        ("tests/test_survivors.py::test_stochastic_points_lie_on_the_rays_the_depth_kernel_marched",
+         "tests/test_stochastic_source.py", "tests/test_viewdepth.py")),
+    Bug("pyramid-copy-unchecked", "clvol/kernels/pyramid.py",
+        "pyramid: level 0 copied on the device without the cube (identity) check",
+        ("tests/test_survivors.py::"
+         "test_a_base_sized_grid_on_the_device_is_copied_only_when_its_box_is_a_cube",
+         "tests/test_pyramid.py")),
+    Bug("chord-width", "clvol/training/labels.py",
+        "labels: the upper bound's chord one exponent wider than its bin",
+        ("tests/test_survivors.py::"
+         "test_the_chord_bound_is_exact_when_a_bin_holds_only_its_end_exponents",
+         "tests/test_labels_orders.py")),
+    Bug("block-blend-swap", "cl/raymarch.cl",
+        "view table: bilinear block weights of (i1, j0) and (i0, j1) swapped",
+        ("tests/test_survivors.py::test_each_pixel_blends_its_four_nearest_blocks_bilinearly",
+         "tests/test_view_source.py", "tests/test_stochastic_source.py")),
 ]
 
 

@@ -196,6 +196,87 @@ def test_viewer_state_messages_apply_or_fail_in_one_line(view_state, changes):
                 assert np.isfinite(x)
 
 
+# ----------------------------------------------------------------- the WebSocket handler
+
+class _FakeSocket:
+    """What Connection.handle sends, kept (no network)."""
+    closed = False
+
+    def __init__(self):
+        self.sent = []
+
+    async def send_str(self, text):
+        self.sent.append(text)
+
+
+@pytest.fixture(scope="module")
+def viewer_connection(view_state, tmp_path_factory):
+    """A clvol.viewer.server.Connection on a fake socket and a stand-in frame maker (the
+    handler reads only its sky-map menu): the handler itself, fuzzed without a server."""
+    from types import SimpleNamespace
+    from clvol.viewer.server import Connection
+    maker = SimpleNamespace(sky_maps={})
+    return lambda: Connection(_FakeSocket(), maker, view_state, tmp_path_factory.mktemp("save"))
+
+
+def _state_message(changes):
+    import json
+    return json.dumps({"type": "state", "state": changes}, allow_nan=True)
+
+
+WS_TEXT = st.one_of(
+    st.text(max_size=64),                                             # anything at all
+    VALUES.map(lambda v: __import__("json").dumps(v, allow_nan=True)),  # any JSON
+    st.dictionaries(st.sampled_from(["type", "state", "x"]),
+                    st.one_of(st.sampled_from(["state", "save", "nope", ""]), VALUES),
+                    max_size=3).map(lambda d: __import__("json").dumps(d, allow_nan=True)),
+    st.dictionaries(st.sampled_from(FIELDS), VIEWER_VALUES, max_size=5).map(_state_message),
+    st.integers(60, 70).map(lambda k: '{"type": "state", "state": {"nope": "'
+                            + "x" * (k * 1024) + '"}}'),              # near the size limit
+)
+
+
+WS_EXAMPLES = int(os.environ.get("CLVOL_FUZZ_WS_EXAMPLES", "200"))
+
+
+@settings(FUZZ, max_examples=WS_EXAMPLES)
+@given(st.lists(WS_TEXT, min_size=1, max_size=4))
+def test_viewer_websocket_handler_answers_every_message(viewer_connection, texts):
+    """Connection.handle (clvol/viewer/server.py) on what a client could send: never raises;
+    every reply is {"type": "error", "message": one line}; a state it keeps holds finite
+    numbers; a save before any frame is refused in one line. CI: 200 seeded examples of
+    up to 4 messages each (derandomize: the same every run), ~2 s at load ~1;
+    CLVOL_FUZZ_WS_EXAMPLES for more."""
+    import asyncio
+    import json
+    conn = viewer_connection()
+    for text in texts:
+        asyncio.run(conn.handle(text))
+    for reply in conn.ws.sent:
+        r = json.loads(reply)
+        assert r["type"] == "error", r
+        assert r["message"] and "\n" not in r["message"].strip(), r
+    for v in conn.state.to_json().values():
+        for x in (v if isinstance(v, (list, tuple)) else [v]):
+            if isinstance(x, float):
+                assert np.isfinite(x)
+
+
+def test_viewer_websocket_handler_cases(viewer_connection):
+    """The seeded fuzz's classes, written out: not JSON, no type, an unknown type, an
+    oversized message, a save with no frame, then a valid state change (no reply, kept)."""
+    import asyncio
+    import json
+    conn = viewer_connection()
+    for text, words in (("{", "not JSON"), ("[]", '"type"'), ('{"type": "x"}', "not one of"),
+                        ("x" * (70 * 1024), "at most"), ('{"type": "save"}', "no frame")):
+        asyncio.run(conn.handle(text))
+        assert words in json.loads(conn.ws.sent[-1])["message"], conn.ws.sent[-1]
+    n = len(conn.ws.sent)
+    asyncio.run(conn.handle(json.dumps({"type": "state", "state": {"albedo": [0.5, 0.6, 0.7]}})))
+    assert len(conn.ws.sent) == n and conn.state.albedo == (0.5, 0.6, 0.7), conn.state.albedo
+
+
 # ----------------------------------------------------------------- Renderer.render arguments
 
 API_EXAMPLES = int(os.environ.get("CLVOL_FUZZ_API_EXAMPLES", "100"))

@@ -14,7 +14,12 @@ Each test states its rule from the documentation, not from the code it checks:
 - OpenVDB's AffineMap and UnitaryMap (16 doubles, row vectors: the translation is the last
   row): no fixture wrote one, so dropping the translation passed;
 - the network sky's refresh (docs/raymarch.md, --env-ms-per-frame): the oldest cell first, so
-  under continuous motion every cell is refreshed in turn.
+  under continuous motion every cell is refreshed in turn;
+- the stochastic source's points on the rays cl/viewdepth.cl marched (reference/viewdepth.py),
+  the pyramid's device copy only for a cube (reference/pyramid.py), the labels' chord exact
+  where a bin holds only its end exponents, and the view table's bilinear block blend with
+  F_ms that differs per block (``--bugs view-jitter-swap pyramid-copy-unchecked chord-width
+  block-blend-swap``).
 """
 from __future__ import annotations
 
@@ -201,3 +206,204 @@ def test_the_network_sky_refreshes_the_oldest_cell_under_continuous_motion(monke
         assert h["raymarch.env_ms_cells_evaluated"] == 1
     assert len(seen) == 6 and len(set(seen)) == 3, seen
     assert seen[:3] == seen[3:], seen                  # round robin
+
+
+# ----------------------------------------------------------------- the stochastic source's rays
+
+def test_stochastic_points_lie_on_the_rays_the_depth_kernel_marched():
+    """--ms stochastic: each block's free-flight point is origin + t d, where d is the block's
+    jittered ray as cl/viewdepth.cl places it (reference/viewdepth.py: x = i block + jx block,
+    y = j block + jy block, jitter drawn from default_rng([seed, draw]) as (by, bx, 3)) and t
+    the free flight along that same ray (the twin's free_flight_depths). Directions within
+    1e-5 (float64 host vs float64 twin from one float32 jitter); points within 2e-5 of the
+    depth span + 1e-5 (test_viewdepth.py's kernel-vs-twin bound for the depth). Blocks of 4
+    pixels on a 26 x 19 image: the x/y jitter swapped moves a ray by up to 4 pixels (0.08
+    rad here), and the point by ~0.1 world units, 1000x the bound."""
+    from clvol.render.renderer import Renderer
+    from reference.viewdepth import free_flight_depths, sample_rays
+    from scene_toml import look_at
+    d = {"volume": {"generator": "cloud", "seed": 3, "resolution": 24},
+         "medium": {"preset": "cloud", "density_scale": 30.0},
+         "light": {"direction": [0.6, 0.9, 0.3], "irradiance": [1.5, 1.5, 1.5]},
+         "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0],
+                    "fov_y": 30.0, "width": 26, "height": 19}}
+    scene = scene_from_dict(d, "<jitter>")
+    seen, frames = [], []
+
+    def query(p, omega):
+        seen.append((np.array(p, np.float64), -np.array(omega, np.float64)))
+        return np.full((len(p), 3), 0.1)
+    r = Renderer(scene, "raymarch", ms="stochastic", view_block=4, view_samples=1, seed=11)
+    r.source.query = query
+    real = r.source._draw
+    r.source._draw = lambda frame, rng: (frames.append(frame), real(frame, rng))[1]
+    r.render()
+    assert len(seen) == 1 and len(frames) == 1
+    pts, dirs = seen[0]
+    frame, cam = frames[0], scene.camera
+    bx, by = -(-cam.width // 4), -(-cam.height // 4)
+    jitter = np.random.default_rng([11, 0]).random((by, bx, 3), dtype=np.float32)
+    assert np.abs(jitter[..., 0] - jitter[..., 1]).max() > 0.5       # a swap shows
+    f, rt, u = look_at(cam.origin, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    tan_half = np.tan(np.radians(cam.fov_y) / 2)
+    want_d = sample_rays(f, rt, u, tan_half, cam.width, cam.height, 4, 1, jitter)[:, :, 0]
+    g = scene.volume.load()
+    depth, _ = free_flight_depths(g.density, g.bbox_min, g.bbox_max, scene.medium.density_scale,
+                                  cam.origin, f, rt, u, tan_half, cam.width, cam.height, 4,
+                                  2.0 * frame.step, jitter, stop=frame.threshold)
+    hit = depth[..., 0] >= 0
+    assert hit.sum() >= 6 and len(pts) == hit.sum(), (hit.sum(), len(pts))
+    np.testing.assert_allclose(dirs, want_d[hit], rtol=0, atol=1e-5)
+    t = depth[hit, 0]
+    want_p = np.asarray(cam.origin)[None] + t[:, None] * want_d[hit]
+    np.testing.assert_allclose(pts, want_p, rtol=0, atol=2e-5 * max(np.ptp(t), 1.0) + 1e-5)
+
+
+# ----------------------------------------------------------------- the pyramid's device copy
+
+@pytest.mark.parametrize("bmax", [(1.0, 2.0, 1.5), (1.0, 1.0, 1.0)])
+def test_a_base_sized_grid_on_the_device_is_copied_only_when_its_box_is_a_cube(bmax):
+    """docs (clvol/kernels/pyramid.py step 3): level 0 is copied on the device from the
+    density a DeviceMedium holds only when the grid is already a base^3 *cube*. An 8^3 grid
+    in a 1 x 2 x 1.5 box has base^3 voxels but is padded to a cube 2 on a side (its voxels are
+    not the cube's): level 0 must be reference/pyramid.py's padded resample, whether the
+    density is passed on the device or not (1e-6 of the largest density, tests/test_pyramid.py's
+    bound). Copying it unchanged puts medium in the padding (y outside the box) and stretches
+    x and z: errors of the order of the density itself. The cubic box is the copy itself."""
+    from clvol.kernels.pyramid import build_pyramid
+    from clvol.runtime import get_runtime
+    from clvol.volume.grid import Grid
+    from reference.pyramid import resample_to_cube
+    d = (0.2 + np.random.default_rng(4).random((8, 8, 8))).astype(np.float32)
+    g = Grid.from_array(d, (0.0, 0.0, 0.0), bmax)
+    rt = get_runtime()
+    want, cube_min, size = resample_to_cube(d, (0.0, 0.0, 0.0), bmax, 8)
+    for density in (None, rt.upload(d)):
+        p = build_pyramid(g, 8, rt, density=density)
+        np.testing.assert_allclose(p.cube_min, cube_min, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(p.level(0), want, rtol=0, atol=1e-6 * want.max())
+        if bmax == (1.0, 1.0, 1.0):
+            np.testing.assert_array_equal(p.level(0), d)
+
+
+# ----------------------------------------------------------------- the labels' upper bound
+
+@pytest.mark.parametrize("albedo", [0.3, 0.9, 0.99, 0.999])
+def test_the_chord_bound_is_exact_when_a_bin_holds_only_its_end_exponents(albedo):
+    """docs/pathtrace.md, "Labels per scattering order": the upper bound of a bin is the chord
+    of a^e over the bin's exponents [lo, hi] read at M/S. The chord is tight: a bin whose
+    contributions sit only at its two ends (weight p at lo, 1 - p at hi) has exactly that
+    chord value, sum p a^lo + (1 - p) a^hi, and one-exponent bins are exact both ways. The
+    bins come from the twin's own rule (reference/pathtrace.py order_bin, inverted here by
+    scanning e over 1 .. 2^17 - 1); relative bound 1e-12 (float64 sums of 127 terms). Tests that only check
+    the bracketing pass a chord over a bin one exponent too wide (still above the sum)."""
+    from clvol.training.labels import label_bounds
+    from reference.pathtrace import ORDER_BINS, ORDER_TOP_OCTAVE, order_bin
+    ends = {}
+    for e in range(1, 2 << ORDER_TOP_OCTAVE):          # up to the top octave's last exponent
+        b = order_bin(e)
+        lo, hi = ends.get(b, (e, e))
+        ends[b] = (min(lo, e), max(hi, e))
+    assert sorted(ends) == list(range(ORDER_BINS))
+    rng = np.random.default_rng(8)
+    n = 5
+    S, M = np.zeros((n, ORDER_BINS)), np.zeros((n, ORDER_BINS))
+    exact = np.zeros(n)
+    wide = [b for b, (lo, hi) in ends.items() if hi > lo]
+    assert len(wide) > 50
+    for q in range(n):
+        for b, (lo, hi) in ends.items():
+            c_lo, c_hi = rng.random(2) * (1.0 if hi > lo else 0.0) + [0.01, 0.0]
+            if q == 0 and b not in wide[:3]:
+                c_lo = c_hi = 0.0                  # one query with three wide bins alone
+            S[q, b] = c_lo + c_hi
+            M[q, b] = c_lo * lo + c_hi * hi
+            exact[q] += c_lo * albedo ** lo + c_hi * albedo ** hi
+    lower, upper = label_bounds(S, M, albedo)
+    np.testing.assert_allclose(upper, exact, rtol=1e-12, atol=0)
+    assert np.all(lower <= exact * (1 + 1e-12))
+    single = np.zeros_like(S)
+    for b, (lo, hi) in ends.items():
+        if hi == lo:
+            single[:, b] = S[:, b]
+    lo1, up1 = label_bounds(single, single * [ends[b][0] for b in range(ORDER_BINS)], albedo)
+    np.testing.assert_allclose(lo1, up1, rtol=1e-12, atol=0)
+
+
+# ----------------------------------------------------------------- the view table's block blend
+
+@pytest.mark.parametrize("ms", ["stochastic", "view"])
+def test_each_pixel_blends_its_four_nearest_blocks_bilinearly(ms):
+    """cl/raymarch.cl's view table (docs in its header, MS_SOURCE 3): a pixel's knots are the
+    bilinear blend of the four nearest non-empty blocks' knots, between block centres
+    ((i + 1/2) B), clamped at the image's edge blocks, the weights of empty blocks (depth -1)
+    dropped and the rest renormalised. The blocks get different F_ms here (a stand-in query
+    F = 0.05 + 0.3 x - 0.2 y + 0.1 z of the world point, blocks of 4 pixels, 26 x 19 pixels),
+    and F is constant along each ray (the stochastic source's one knot; for --ms view a
+    query of the block only, so every knot of a block has one value): the multiple layer
+    is albedo E alpha F_blend(pixel), with F_blend computed here from the table the kernel
+    was given. Bound: 2e-5 of the layer's maximum (float32 march; the constant-source test
+    measures 1e-5). The blend's x and y weights swapped moves pixels by ~10% of it."""
+    from clvol.render.renderer import Renderer
+    d = {"volume": {"generator": "cloud", "seed": 3, "resolution": 24},
+         "medium": {"preset": "cloud", "density_scale": 30.0},
+         "light": {"direction": [0.6, 0.9, 0.3], "irradiance": [1.5, 1.5, 1.5]},
+         "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0],
+                    "fov_y": 30.0, "width": 26, "height": 19}}
+    scene = scene_from_dict(d, "<blend>")
+    cam = scene.camera
+    o = np.asarray(cam.origin, np.float64)
+    B = 4
+    bx, by = -(-cam.width // B), -(-cam.height // B)
+
+    def f_world(p):
+        return 0.05 + 0.3 * p[:, 0] - 0.2 * p[:, 1] + 0.1 * p[:, 2]
+    if ms == "stochastic":
+        def query(p, omega):
+            return f_world(p)[:, None].repeat(3, 1)
+        r = Renderer(scene, "raymarch", ms="stochastic", view_block=B, view_samples=1, seed=3)
+    else:
+        from scene_toml import look_at
+        f, rt, u = look_at(cam.origin, (0.0, 0.0, 0.0))
+        th = np.tan(np.radians(cam.fov_y) / 2)
+
+        def query(p, omega):
+            # the block of the ray through p (image position by the pinhole's definition)
+            v = p - o
+            x = ((v @ rt) / (v @ f) / (th * cam.width / cam.height) + 1) * cam.width / 2
+            y = (1 - (v @ u) / (v @ f) / th) * cam.height / 2
+            i = np.clip(np.floor(x / B), 0, bx - 1)
+            j = np.clip(np.floor(y / B), 0, by - 1)
+            return (0.05 + 0.04 * i + 0.07 * j)[:, None].repeat(3, 1)
+        r = Renderer(scene, "raymarch", ms="view", view_block=B, view_knots=3)
+    r.source.query = query
+    res = r.render()
+    table = np.asarray(r.source.table.read(), np.float64)      # what the kernel was given
+    table = table.reshape(-1, by, bx, table.shape[-1])
+    depth0, F = table[0, ..., 0], table[1, ..., 0]
+    if ms == "view":
+        assert np.all(np.ptp(table[1], axis=-1)[depth0 >= 0] < 1e-6)     # one value a block
+    assert np.ptp(F[depth0 >= 0]) > 0.05
+    px = np.arange(cam.width) + 0.5
+    py = np.arange(cam.height) + 0.5
+    uu = np.clip(px / B - 0.5, 0, bx - 1)
+    vv = np.clip(py / B - 0.5, 0, by - 1)
+    i0, j0 = np.floor(uu).astype(int), np.floor(vv).astype(int)
+    i1, j1 = np.minimum(i0 + 1, bx - 1), np.minimum(j0 + 1, by - 1)
+    fu, fv = uu - i0, vv - j0
+    want_f = np.zeros((cam.height, cam.width))
+    for y in range(cam.height):
+        for x in range(cam.width):
+            num = den = 0.0
+            for jj, ii, w in ((j0[y], i0[x], (1 - fu[x]) * (1 - fv[y])),
+                              (j0[y], i1[x], fu[x] * (1 - fv[y])),
+                              (j1[y], i0[x], (1 - fu[x]) * fv[y]),
+                              (j1[y], i1[x], fu[x] * fv[y])):
+                if depth0[jj, ii] >= 0:
+                    num, den = num + w * F[jj, ii], den + w
+            want_f[y, x] = num / den if den > 0 else 0.0
+    alb = np.asarray(scene.medium.albedo)
+    want = res.layers["alpha"][..., None] * alb * 1.5 * want_f[..., None]
+    got = res.layers["multiple"]
+    assert (res.layers["alpha"] > 0.05).sum() > 100
+    np.testing.assert_allclose(got, want, rtol=0, atol=2e-5 * np.abs(want).max())

@@ -29,6 +29,28 @@ PT_OUT = kernel_constant("PT_OUT_NO_EMISSION")
 # -D PT_EMISSION rows: 6 more floats, emission seen unscattered, then scattered (RGB each).
 PT_OUT_EMISSION = kernel_constant("PT_OUT_EMISSION")
 ROW_EM_DIRECT, ROW_EM_SCATTERED = slice(PT_OUT, PT_OUT + 3), slice(PT_OUT + 3, PT_OUT_EMISSION)
+# ROW_TRUNCATED: 1 for a path cut at PT_MAX_VERTICES, 2 for one stopped by a tracking bound.
+TRUNCATED_VERTICES, TRUNCATED_BOUND = 1, 2
+# The tracking loop's bounds (cl/pathtrace.cl; docs/pathtrace.md, "Bounds"). MAX_STEPS
+# tentative collisions a path: ~10 per vertex at the vertex limit (100,000), where the
+# examples' paths take at most ~900 (48^2 x 4 spp, max per path; 47-53 on average for the
+# clouds and milk) and a homogeneous medium's take one per vertex. MAX_STALLS in a row that
+# each move t by less than STALL_FRACTION of the majorant block's smallest side: the medium's
+# majorant then makes crossing one block a matter of millions of draws (or 1/sigma_maj is below
+# t's float32 rounding and the flight never advances). A draw moves t by Exp(1)/sigma_maj, so
+# where sigma_maj x block x STALL_FRACTION <= 1/2 (majorant optical depth per block <= 2^19)
+# a stall has odds <= 0.4 and 256 in a row <= 1e-100: it never binds where flights progress.
+MAX_STEPS, MAX_STALLS, STALL_FRACTION = 1 << 20, 256, 2.0 ** -20
+BOUND_DEFINES = {"PT_MAX_STEPS": MAX_STEPS, "PT_MAX_STALLS": MAX_STALLS,
+                 "PT_STALL_FRACTION": STALL_FRACTION}
+
+
+def truncation_counts(rows) -> tuple[int, int]:
+    """(paths cut at the vertex limit, paths stopped by a tracking bound) of rows [..., row]."""
+    t = np.asarray(rows)[..., ROW_TRUNCATED]
+    return int(np.count_nonzero(t == TRUNCATED_VERTICES)), int(np.count_nonzero(t == TRUNCATED_BOUND))
+
+
 # Per-order rows (cl/pathtrace.cl -D PT_ORDER_BINS): exponents e = 1..ORDER_EXACT-1 one bin
 # each, then ORDER_SUB bins per octave up to 2^ORDER_END_LOG2 - 1 (> the kernel's
 # PT_MAX_VERTICES).
@@ -225,7 +247,8 @@ class PathTracer:
         self.defines, self.simulated, self.skipped = specialisation(med, specialise)
         self.render_lanes = path_lanes(rt, RENDER_LANES)
         self.query_lanes = path_lanes(rt, QUERY_LANES)
-        self.program = rt.program("pathtrace", {"PT_LANES": self.render_lanes, **self.defines})
+        self.program = rt.program("pathtrace", {"PT_LANES": self.render_lanes, **BOUND_DEFINES,
+                                                  **self.defines})
         self._query_program = None
         self._order_program = None
         lobes = med.lobes if med.lobes else [(0.0, 1.0)]
@@ -268,7 +291,7 @@ class PathTracer:
         """The program for point queries (built on first use: see QUERY_LANES)."""
         if self._query_program is None:
             self._query_program = self.rt.program(
-                "pathtrace", {"PT_LANES": self.query_lanes, **self.defines})
+                "pathtrace", {"PT_LANES": self.query_lanes, **BOUND_DEFINES, **self.defines})
         return self._query_program
 
     def _launch(self, kernel, n_paths: int, args, lanes: int):
@@ -325,7 +348,7 @@ class PathTracer:
                 raise ClvolError("per-order point queries need a grey albedo and no environment")
             if self._order_program is None:
                 self._order_program = self.rt.program(
-                    "pathtrace", {"PT_LANES": self.query_lanes, **self.defines,
+                    "pathtrace", {"PT_LANES": self.query_lanes, **BOUND_DEFINES, **self.defines,
                                   "PT_ORDER_BINS": ORDER_BINS})
             program = self._order_program
         else:

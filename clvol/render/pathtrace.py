@@ -30,8 +30,8 @@ import numpy as np
 from ..errors import ClvolError
 from ..kernels.majorant import DEFAULT_BLOCK
 from ..kernels.pathtrace import (ORDER_BINS, PT_OUT, ROW_BG, ROW_EM_DIRECT, ROW_EM_SCATTERED,
-                                 ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRUNCATED, ROW_VERTICES, PathMedium,
-                                 PathTracer)
+                                 ROW_L1, ROW_LMS, ROW_STEPS, ROW_VERTICES, PathMedium,
+                                 PathTracer, truncation_counts)
 from ..progress import Progress
 from ..runtime import get_runtime
 from . import RenderResult
@@ -120,6 +120,7 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
         "mean_vertices": round(tally.vertices / n_paths, 3),
         "mean_tracking_steps": round(tally.steps / n_paths, 3),
         "paths_truncated": int(tally.truncated),
+        "paths_stopped_at_bound": int(tally.bound),
     }
     if time_budget is not None:
         header["time_budget"] = time_budget
@@ -205,7 +206,8 @@ class _PixelTally:
         npix = camera.width * camera.height
         self.sums = np.zeros((npix, _EM_SCATTERED.stop if emission else _SUN))
         self.sq = np.zeros((npix, 3))
-        self.vertices = self.steps = self.truncated = 0.0
+        self.vertices = self.steps = 0.0
+        self.truncated = self.bound = 0     # paths cut at the vertex limit / a tracking bound
         self.done = 0
 
     def add(self, rows: np.ndarray, spl: int) -> None:
@@ -221,7 +223,9 @@ class _PixelTally:
         self.sq += (total * total).sum(axis=0)
         self.vertices += rows64[..., ROW_VERTICES].sum()
         self.steps += rows64[..., ROW_STEPS].sum()
-        self.truncated += rows64[..., ROW_TRUNCATED].sum()
+        cut, bound = truncation_counts(rows)
+        self.truncated += cut
+        self.bound += bound
         self.done += spl
 
     def layers(self) -> dict:
@@ -287,7 +291,8 @@ def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
       "F1", "F1_se"   order 1: f(dot(-l, omega)) T(p -> sun) (grey; ratio-tracked T),
       "Fms", "Fms_se" orders >= 2 (RGB: the albedo of later vertices is included, that of
                       p is not, as F excludes sigma_s(p)),
-    plus "paths" (n_paths) and "truncated" (paths cut at the vertex limit). Points outside
+    plus "paths" (n_paths), "truncated" (paths cut at the vertex limit) and
+    "stopped_at_bound" (paths stopped by a tracking bound, cl/pathtrace.cl). Points outside
     the box or where the density is 0 are valid (the walk starts there all the same).
     Query q's path j uses the random stream (seed, q, j): same inputs, same output.
     ``device_medium``: the grid already on the device (as in ``render_pathtrace``).
@@ -311,7 +316,7 @@ def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
     nq = len(p)
     out = {k: np.zeros((nq, 3)) for k in ("F1", "F1_se", "Fms", "Fms_se")}
     out["paths"] = n_paths
-    out["truncated"] = 0
+    out["truncated"] = out["stopped_at_bound"] = 0
     if nq == 0:
         return out
     pbuf = rt.to_device(p.astype(np.float32))
@@ -327,7 +332,9 @@ def point_query(scene, points, omegas, n_paths: int, seed: int = 0,
         q1 += (a * a).sum(axis=0)
         sm += b.sum(axis=0)
         qm += (b * b).sum(axis=0)
-        out["truncated"] += int(rows[..., ROW_TRUNCATED].sum())
+        cut, bound = truncation_counts(rows)
+        out["truncated"] += cut
+        out["stopped_at_bound"] += bound
         done += ppl
     n = float(n_paths)
     for key, s, q in (("F1", s1, q1), ("Fms", sm, qm)):
@@ -373,7 +380,7 @@ def point_query_orders(scene, points, omegas, n_paths: int, seed: int = 0, grid=
     xs, xq = np.zeros((nq, len(nodes))), np.zeros((nq, len(nodes)))
     s1, q1 = np.zeros(nq), np.zeros(nq)
     vsum, vmax = np.zeros(nq), np.zeros(nq)
-    out = {"paths": n_paths, "truncated": 0}
+    out = {"paths": n_paths, "truncated": 0, "stopped_at_bound": 0}
     if nq:
         pbuf = rt.to_device(p.astype(np.float32))
         wbuf = rt.to_device(w.astype(np.float32))
@@ -398,7 +405,9 @@ def point_query_orders(scene, points, omegas, n_paths: int, seed: int = 0, grid=
             v = rows[..., ROW_VERTICES]
             vsum += v.sum(axis=0)
             vmax = np.maximum(vmax, v.max(axis=0))
-            out["truncated"] += int(rows[..., ROW_TRUNCATED].sum())
+            cut, bound = truncation_counts(rows)
+            out["truncated"] += cut
+            out["stopped_at_bound"] += bound
             done += ppl
     n = float(n_paths)
 

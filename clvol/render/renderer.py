@@ -262,6 +262,12 @@ class Renderer:
             "raymarch.block": int(rm.block),
             "device": self.rt.entry.label,
         })
+        from .raymarch import march_bound
+        t_far = march_bound(plan.camera.origin, grid.bbox_min, grid.bbox_max, plan.step)
+        if t_far is not None:       # cl/raymarch.cl's progress bound may stop rays early
+            header["raymarch.bound"] = (f"rays may stop early: the box reaches {t_far:.4g} "
+                                        f"from the camera, {t_far / plan.step:.3g} steps of "
+                                        f"{plan.step:.3g} (float32 cannot advance past 2^22)")
         header.update(source.header())
         header.update(rm.env_header(plan))
         return RenderResult(layers, header)
@@ -281,6 +287,22 @@ class Renderer:
         return res
 
     # ------------------------------------------------------------------ API
+    def _check_optical_range(self, medium) -> None:
+        """Both methods keep optical depths in float32: density_scale times the largest
+        density over the box's diagonal must stay below 1e37 (the light field's own rule,
+        clvol/kernels/transmittance.py), else inf * 0 makes NaN (the API fuzz found
+        density_scale = 3.4e38 rendering a NaN alpha through the path tracer and an unlit
+        march)."""
+        g = self.grid
+        if getattr(self, "_max_density_of", None) is not g:
+            self._max_density = float(np.max(g.density, initial=0.0))
+            self._max_density_of = g
+        worst = medium.density_scale * self._max_density * float(np.linalg.norm(g.extent))
+        if not worst < 1e37:
+            raise ClvolError(f"medium.density_scale = {medium.density_scale!r} times the "
+                             f"largest density {self._max_density:g} over the box's diagonal "
+                             f"gives optical depths beyond float32 range; rescale the density")
+
     def render(self, camera=None, light=None, medium=None, seed: int | None = None,
                grid=None, emission=None) -> RenderResult:
         """Render with the scene's camera, light and medium, or the ones given (instances of
@@ -303,6 +325,7 @@ class Renderer:
         elif emission is not None:
             raise ClvolError("render(emission=...) goes with grid=...: a new frame's density "
                              "and its emission grid")
+        self._check_optical_range(medium)
         if seed is not None:
             if self.method != "pathtrace":
                 raise ClvolError(f"seed: render(seed=) chooses the path tracer's pass; the "

@@ -541,7 +541,8 @@ def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runti
         alb = np.asarray(scene.medium.albedo, np.float64)
         lab = {"Fms": np.stack([label_at(o["S"], o["M"], a) for a in alb], axis=1),
                "Fms_se": np.stack([se_at(o["se"], SE_ALBEDOS, a) for a in alb], axis=1),
-               "F1": np.repeat(o["F1"][:, None], 3, axis=1), "truncated": o["truncated"]}
+               "F1": np.repeat(o["F1"][:, None], 3, axis=1), "truncated": o["truncated"],
+               "stopped_at_bound": o["stopped_at_bound"]}
         order_arrays = {"S": o["S"].astype(np.float32), "M": o["M"].astype(np.float32),
                         "se": o["se"].astype(np.float32)}
         path_stats = {"vertices_mean": float(o["vertices_mean"].mean()),
@@ -562,7 +563,8 @@ def make_shard(spec: DatasetSpec, v: int, c: int, grid=None, pyramid=None, runti
             "volume_index": v, "config_index": c, "heldout_volume": spec.is_heldout(v),
             "volume": volume_params(spec, v),
             "config": config_params(spec, v, c, grid), "camera_origin": list(scene.camera.origin),
-            "query_seed": qseed, "paths_truncated": int(lab["truncated"]), **path_stats,
+            "query_seed": qseed, "paths_truncated": int(lab["truncated"]),
+            "paths_stopped_at_bound": int(lab["stopped_at_bound"]), **path_stats,
             "contract": _code_contract(spec),
             "seconds": {"labels": round(t_labels, 3), "total": round(time.perf_counter() - t0, 3)},
             "label_median_rel_se": float(np.median(lab["Fms_se"][:, 0] /

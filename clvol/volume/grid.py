@@ -62,6 +62,9 @@ def check_density_values(density: np.ndarray, source: str) -> None:
             f"{_index_str(first, density.shape)} = {float(density.flat[first])!r}")
 
 
+MIN_RELATIVE_SIDE = 1e-5        # 2^-16.6: ~80 float32 rounding steps of the box's scale
+
+
 def check_bbox(bbox_min, bbox_max, source: str) -> tuple[np.ndarray, np.ndarray]:
     """Return (bbox_min, bbox_max) as float64 (3,) arrays, or raise naming the bad value.
 
@@ -86,6 +89,18 @@ def check_bbox(bbox_min, bbox_max, source: str) -> tuple[np.ndarray, np.ndarray]
         raise VolumeError(
             f"{source}: bbox_min {lo.tolist()} must be < bbox_max {hi.tolist()} on every axis "
             f"(not on {', '.join(bad)})")
+    # The kernels place points in float32 (24-bit mantissa): a side shorter than
+    # MIN_RELATIVE_SIDE of the box's scale (its longest side, or its farthest coordinate
+    # from the origin) cannot be resolved, and resampling it to the cube would need more
+    # cells than exist (a 1e-30 thick slab of a unit box overflowed the pyramid's matrix).
+    ext = hi - lo
+    scale = max(float(ext.max()), float(np.abs(lo).max()), float(np.abs(hi).max()))
+    thin = [ax for ax, e in zip("xyz", ext) if e < MIN_RELATIVE_SIDE * scale]
+    if thin:
+        raise VolumeError(
+            f"{source}: the box {lo.tolist()} .. {hi.tolist()} is too thin on "
+            f"{', '.join(thin)} (sides {ext.tolist()}): each side must be at least "
+            f"{MIN_RELATIVE_SIDE:g} of {scale:g}, the box's scale, to be resolved in float32")
     return lo, hi
 
 
