@@ -140,6 +140,7 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
     does not implement is refused here, naming it."""
     from .kernels.majorant import majorant_block
     from .render.ms.network import NETWORK_CHUNK, lattice_reach_mask, load_network_weights
+    from .render.ms import source_class
     from .render.raymarch import auto_light_resolution
     from .render.renderer import Renderer
     grid = scene.volume.load()
@@ -158,8 +159,10 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
                          f"{NETWORK_CHUNK} lattice points (32^3) in a bundle")
     if plan.supersample != 1:
         raise ClvolError("bundle: supersampling is not in the bundle format")
-    # The C host runs the network, none and wrenninge; another source is refused by name.
-    if plan.lit and plan.source not in ("network", "none", "wrenninge"):
+    # The C host runs the sources that declare ``bundle_supported`` (the network, none and
+    # wrenninge); another is refused by name.
+    ran = source_class(plan.source)
+    if plan.lit and not ran.bundle_supported:
         raise ClvolError(f"{scene.path or 'scene'}: the renderer would use --ms {plan.source} "
                          f"for this medium, which the C host (examples/c/) does not implement")
     if plan.env_scatter or plan.env_background == "map":
@@ -167,7 +170,7 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
                          f"sky (or shows a map behind it), which the C host (examples/c/) "
                          f"does not implement; a bundle renders the sun and a constant "
                          f"background only (docs/embedding.md)")
-    network = plan.lit and plan.source == "network"
+    network = plan.lit and ran.uses_network
     # Lattice points the network evaluates (the others hold F_ms = 0): the plan's rule.
     active = (np.flatnonzero(lattice_reach_mask(grid, res, plan.lattice_reach))
               if network else np.zeros(0, np.int64))
@@ -467,9 +470,13 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from .errors import ClvolError
+    from .render.ms import source_classes
     from .scene import load_scene
     check_out_dir(args.dir)
-    if args.ms != "network":
+    ms = source_classes().get(args.ms)
+    # The C host is configured with the network on the world lattice; the other sources it
+    # implements run only where the plan chooses them for a medium.
+    if ms is None or not (ms.bundle_supported and ms.uses_network):
         raise ClvolError(f"clvol bundle: --ms {args.ms} is not implemented by the C host, which "
                          f"renders the network on the world lattice (--ms network); the "
                          f"view-space sources (view, stochastic) run only in Python "

@@ -264,3 +264,107 @@ def test_no_function_is_longer_than_80_lines_without_a_reason():
         ", ".join(f"{k} ({v} lines)" for k, v in sorted(new.items()))
     assert not LONG_FUNCTIONS_TO_SPLIT - set(found), \
         "listed in LONG_FUNCTIONS_TO_SPLIT but short now: remove them"
+
+
+# --------------------------------------------------------------------------- sources decide
+
+MS = CLVOL / "render" / "ms"
+
+
+def _ms_classes() -> dict:
+    """Every class defined in clvol/render/ms/: name -> (base names, its own ``name = "..."``)."""
+    out = {}
+    for p in modules(MS):
+        for node in ast.walk(ast.parse(p.read_text(), str(p))):
+            if isinstance(node, ast.ClassDef):
+                own = [s.value.value for s in node.body if isinstance(s, ast.Assign)
+                       and isinstance(s.value, ast.Constant) and isinstance(s.value.value, str)
+                       and any(isinstance(t, ast.Name) and t.id == "name" for t in s.targets)]
+                bases = [b.id if isinstance(b, ast.Name) else getattr(b, "attr", "")
+                         for b in node.bases]
+                out[node.name] = (bases, own[0] if own else None)
+    return out
+
+
+def registered_source_names() -> set[str]:
+    """The ``--ms`` names of the registry (clvol/render/ms/__init__.py ``SOURCES``): the classes
+    its table lists, each class's ``name`` read from it or the nearest base that sets one."""
+    classes = _ms_classes()
+
+    def name_of(cls):
+        bases, own = classes[cls]
+        return own if own is not None else next(
+            (n for b in bases if b in classes for n in [name_of(b)] if n), None)
+    tree = ast.parse((MS / "__init__.py").read_text())
+    table = next(n for n in ast.walk(tree) if isinstance(n, (ast.Assign, ast.AnnAssign))
+                 and getattr(n.targets[0] if isinstance(n, ast.Assign) else n.target,
+                             "id", None) == "SOURCES")
+    listed = [e.id for n in ast.walk(table.value) if isinstance(n, ast.Tuple)
+              for e in n.elts if isinstance(e, ast.Name) and e.id in classes]
+    return {name_of(c) for c in listed}
+
+
+def _strings(node) -> list:
+    """The string constants of ``node``, or of the tuple, list or set it is."""
+    items = node.elts if isinstance(node, (ast.Tuple, ast.List, ast.Set)) else [node]
+    return [i.value for i in items if isinstance(i, ast.Constant) and isinstance(i.value, str)]
+
+
+def source_checks(path: Path, classes, names) -> list[str]:
+    """"file:line: what" for each class check against a clvol/render/ms/ class and each
+    comparison with a string naming a registered source, in ``path``: either side of ==, !=,
+    is, is not; an element of the right side of in, not in (``"grid" in table`` asks about a
+    key, not a source)."""
+    where = path.relative_to(ROOT) if ROOT in path.parents else path.name
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                and node.func.id in ("isinstance", "issubclass") and len(node.args) == 2):
+            arg = node.args[1]
+            items = arg.elts if isinstance(arg, ast.Tuple) else [arg]
+            hit = [h for i in items for h in [getattr(i, "id", getattr(i, "attr", None))]
+                   if h in classes]
+            if hit:
+                out.append(f"{where}:{node.lineno}: {node.func.id}(..., {hit[0]})")
+        elif isinstance(node, ast.Compare):
+            sides = [node.left, *node.comparators]
+            hit = [s for k, op in enumerate(node.ops)
+                   for side, tuple_ok in ((sides[k], False), (sides[k + 1], True))
+                   if isinstance(op, (ast.Eq, ast.NotEq, ast.Is, ast.IsNot))
+                   or (tuple_ok and isinstance(op, (ast.In, ast.NotIn)))
+                   for s in (_strings(side) if tuple_ok or not isinstance(
+                       side, (ast.Tuple, ast.List, ast.Set)) else []) if s in names]
+            if hit:
+                out.append(f"{where}:{node.lineno}: compares {hit[0]!r}")
+    return out
+
+
+def test_source_names_are_read_from_the_registry():
+    assert registered_source_names() == {"none", "wrenninge", "grid", "network", "view",
+                                         "stochastic"}
+
+
+def test_source_checks_are_found(tmp_path):
+    p = tmp_path / "planted.py"
+    p.write_text("def f(s, cls, plan, t):\n"
+                 "    if isinstance(s, NetworkMs) or issubclass(cls, (int, m.ViewMs)):\n"
+                 "        return plan.source == 'network' or plan.source in ('view', 'x')\n"
+                 "    if 'stochastic' != plan.source or plan.ms not in ['none']:\n"
+                 "        return 1\n"
+                 "    return s.uses_network and plan.kind == 'other' and 'grid' in t\n")
+    got = [h.split(": ", 1)[1] for h in source_checks(p, _ms_classes(),
+                                                     registered_source_names())]
+    assert sorted(got) == sorted([
+        "isinstance(..., NetworkMs)", "issubclass(..., ViewMs)", "compares 'network'",
+        "compares 'view'", "compares 'stochastic'", "compares 'none'"])
+
+
+def test_no_class_or_name_check_on_a_source_outside_its_package():
+    """A source declares what it can do (clvol/render/ms/base.py: ``uses_network``,
+    ``bundle_supported``, ``choose_for``, ...), so nothing outside clvol/render/ms/ asks which
+    source it is: no isinstance/issubclass against a class of clvol/render/ms/ and no
+    comparison with a registered ``--ms`` name ("none", "network", ...)."""
+    classes, names = _ms_classes(), registered_source_names()
+    bad = [hit for p in modules(CLVOL) if MS not in p.parents
+           for hit in source_checks(p, classes, names)]
+    assert not bad, "\n".join(bad)

@@ -106,18 +106,20 @@ def test_stochastic_block_and_view_defines(domain, no_device):
 
 
 def test_only_plan_py_decides_the_source():
-    """The deciding functions are called in clvol/render/plan.py alone (the bundle writes
-    the thresholds as data for the C library, and may ask whether the fixed phase lies
-    outside the domain, but never chooses a source)."""
-    deciders = {"fallback_for", "choose_source"}
-    callers = []
+    """The plan decides: ``choose_source`` is called in clvol/render/plan.py alone, and asks
+    the configured source's ``choose_for``; the network's rule (``fallback_for``) is applied in
+    its own module alone (the bundle writes the thresholds as data for the C library, and
+    may ask whether the fixed phase lies outside the domain, but never chooses a source)."""
+    callers = {"fallback_for": set(), "choose_source": set(), "choose_for": set()}
     for path in (ROOT / "clvol").rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.Call):
                 name = getattr(node.func, "id", None) or getattr(node.func, "attr", None)
-                if name in deciders:
-                    callers.append(path.relative_to(ROOT).as_posix())
-    assert set(callers) == {"clvol/render/plan.py"}, callers
+                if name in callers:
+                    callers[name].add(path.relative_to(ROOT).as_posix())
+    assert callers == {"fallback_for": {"clvol/render/ms/network.py"},
+                       "choose_source": {"clvol/render/plan.py"},
+                       "choose_for": {"clvol/render/plan.py"}}, callers
 
 
 def _sky(scene, albedo=None, **light):

@@ -16,9 +16,12 @@ from .constants import kernel_constant
 from .grid import f4
 from .phase import lobe_vectors, phase_defines
 
-# The kernel's MS_SOURCE define per source kind (the registry of source classes, a different
-# table, is clvol/render/ms/__init__.py SOURCES).
-MS_SOURCE_DEFINES = {"none": 0, "wrenninge": 1, "grid": 2, "view": 3}
+# The kernel's MS_SOURCE define per kind of F_ms lookup (the registry of source classes, a
+# different table, is clvol/render/ms/__init__.py SOURCES: each source says which kind it
+# marches as, in its ``plan_for``). The kinds are the kernel's words, named once here.
+MS_KIND_NONE, MS_KIND_OCTAVES, MS_KIND_GRID, MS_KIND_VIEW = "none", "wrenninge", "grid", "view"
+MS_SOURCE_DEFINES = {MS_KIND_NONE: 0, MS_KIND_OCTAVES: 1, MS_KIND_GRID: 2, MS_KIND_VIEW: 3}
+MS_TABLE_KINDS = (MS_KIND_GRID, MS_KIND_VIEW)   # the kinds that read a lattice or table
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
 MAX_OCTAVES = kernel_constant("MS_MAX_OCTAVES")
 MAX_VIEW_K = kernel_constant("VIEW_MAX_K")  # knots per block of the view-space table
@@ -50,9 +53,9 @@ def ms_defines(source: str, octaves: int = 1, channels: int = 1, view_k: int = 1
     if channels not in (1, 3):
         raise ClvolError(f"ms grid channels must be 1 or 3, got {channels}")
     d = {"MS_SOURCE": MS_SOURCE_DEFINES[source],
-         "MS_OCTAVES": int(octaves) if source == "wrenninge" else 1,
-         "MS_CHANNELS": int(channels) if source in ("grid", "view") else 1}
-    if source == "view":
+         "MS_OCTAVES": int(octaves) if source == MS_KIND_OCTAVES else 1,
+         "MS_CHANNELS": int(channels) if source in MS_TABLE_KINDS else 1}
+    if source == MS_KIND_VIEW:
         if not (1 <= view_k <= MAX_VIEW_K and view_block >= 1):
             raise ClvolError(f"view table: {view_k} knots (1..{MAX_VIEW_K}), block {view_block}")
         d.update(VIEW_K=int(view_k), VIEW_BLOCK=int(view_block))
@@ -129,13 +132,13 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     see the twin (this function's keywords are the twin's; ``launch`` takes them grouped).
     """
     rt = runtime or get_runtime()
-    if source == "grid":
+    if source == MS_KIND_GRID:
         ms = _device(ms_grid, rt)
         if len(ms.shape) != 4 or ms.shape[0] not in (1, 3):
             raise ClvolError(f"ms_grid must be (C, gz, gy, gx) with C = 1 or 3, got {ms.shape}")
         channels = ms.shape[0]
         view_k = 1
-    elif source == "view":
+    elif source == MS_KIND_VIEW:
         ms = _device(ms_grid, rt)
         if len(ms.shape) != 4 or ms.shape[0] not in (2, 4):
             raise ClvolError(f"view table must be (1 + C, by, bx, K) with C = 1 or 3, got {ms.shape}")

@@ -81,6 +81,10 @@ DEFAULT_ENV_RESOLUTION = 32
 # Sky cells the network is evaluated for (docs/raymarch.md "Environment light": the error
 # against the number of cells, bench/env_accuracy.py).
 DEFAULT_ENV_MS_DIRECTIONS = 32
+# How the sky's multiple scattering is found (the plan's ``env_ms``; --env-ms names the first
+# two): the network's F_ms per sky cell, the escape model, or none (--max-order 1). Words of
+# their own, not --ms source names.
+ENV_MS_NETWORK, ENV_MS_ESCAPE, ENV_MS_NONE = "network", "escape", "none"
 INV_4PI = 1.0 / (4.0 * math.pi)
 # The escape model's R is raised to this power (fitted: docs/raymarch.md "Environment light").
 MS_EXPONENT = 2.0

@@ -15,8 +15,10 @@ beyond a precomputed grid named by path); everything that runs reads the plan:
 - ``clvol bundle`` (clvol/bundle.py) serialises it for the C library;
 - the EXR header is written from it (``FramePlan.header``) plus the stages' timings.
 
-Where a decision comes from a measurement, the constant says where the measurement is
-(clvol/render/ms/network.py: the domain fallback and the thin-medium shortcut).
+The plan asks each source what it is (clvol/render/ms/base.py): ``choose_for`` (the network's
+domain fallback and thin-medium shortcut live in its own module, with their measurements),
+``uses_network``, ``lattice_reach_for``, ``network_reach``; it never tests a source's class
+or name.
 """
 from __future__ import annotations
 
@@ -28,9 +30,8 @@ import numpy as np
 from ..kernels.phase import phase_defines
 from .ms import source_class
 from .ms.analytic import NoMs
-from .ms.base import MsPlan
-from .ms.network import (NetworkMs, THIN_OPTICAL_THICKNESS, fallback_for, lattice_reach,
-                         outside_domain)
+from .ms.base import MsPlan, SourceChoice
+from .environment import ENV_MS_NETWORK
 
 
 class VolumeFacts:
@@ -41,19 +42,15 @@ class VolumeFacts:
     def __init__(self, grid):
         self.resolution = tuple(int(n) for n in grid.resolution)
         self.cell = float(np.min(grid.cell_size))        # the smallest voxel side
-        self._grid = grid
+        self.grid = grid
         self._ot = None
 
     @property
     def max_optical_thickness(self) -> float:
         if self._ot is None:
             from ..volume.stats import volume_stats
-            self._ot = float(volume_stats(self._grid, 1.0)["max_optical_thickness"])
+            self._ot = float(volume_stats(self.grid, 1.0)["max_optical_thickness"])
         return self._ot
-
-    def lattice_reach(self, step_voxels: float) -> float:
-        """The network's active-point reach for this step (``lattice_reach``)."""
-        return lattice_reach(self._grid, step_voxels)
 
 
 def is_lit(medium, light) -> bool:
@@ -61,41 +58,15 @@ def is_lit(medium, light) -> bool:
     return bool(np.any(np.asarray(medium.albedo) * np.asarray(light.irradiance) > 0))
 
 
-@dataclass(frozen=True)
-class SourceChoice:
-    """The source that runs and why it is not the configured one (None when it is)."""
-    name: str
-    warning: str | None = None      # outside the network's training domain
-    thin: float | None = None       # the largest optical thickness, when thinness chose none
-
-
 def choose_source(configured: str, medium, options, volume: VolumeFacts | None,
                   domain: dict | None) -> SourceChoice:
-    """The multiple-scattering source for ``medium``: the configured one; none for
-    ``--max-order 1``; for the network sources, single scattering alone in an optically thin
-    medium (THIN_OPTICAL_THICKNESS, unless shortcuts are off) and the measured fallback
-    outside the weights' training domain (``fallback_for``, unless ``domain_fallback`` is
-    off)."""
+    """The multiple-scattering source for ``medium``: none for ``--max-order 1``; otherwise
+    what the configured source's ``choose_for`` says (itself, or for the network sources single
+    scattering alone in an optically thin medium and the measured fallback outside the
+    weights' training domain: clvol/render/ms/network.py)."""
     if options["max_order"] == 1:
-        return SourceChoice("none")
-    if not issubclass(source_class(configured), NetworkMs):
-        return SourceChoice(configured)
-    use_fallback = options["domain_fallback"]
-    if volume is None or domain is None:
-        return SourceChoice(configured)
-    ot = volume.max_optical_thickness * medium.density_scale
-    if ot < THIN_OPTICAL_THICKNESS and options["shortcuts"]:
-        return SourceChoice("none", thin=ot)
-    out = outside_domain(domain, medium, ot)
-    if not out:
-        return SourceChoice(configured)
-    alt = fallback_for(medium) if use_fallback else None
-    what = ("the network is used all the same (--no-domain-fallback)" if not use_fallback else
-            "the network is used all the same (measured better than the analytic sources "
-            "there)" if alt is None else f"multiple scattering from --ms {alt} instead")
-    msg = (f"scene outside the network's training domain ({'; '.join(out)}): {what} "
-           f"(docs/raymarch.md)")
-    return SourceChoice(alt or configured, warning=msg)
+        return SourceChoice(NoMs.name)
+    return source_class(configured).choose_for(medium, options, volume, domain)
 
 
 @dataclass(frozen=True)
@@ -146,7 +117,7 @@ class FramePlan:
                 "raymarch.env_resolution": self.env_resolution,
                 "raymarch.env_ms": self.env_ms} if self.env_scatter else {}),
             **({"raymarch.env_ms_directions": self.env_ms_directions}
-               if self.env_scatter and self.env_ms == "network" else {}),
+               if self.env_scatter and self.env_ms == ENV_MS_NETWORK else {}),
             "raymarch.ms": self.source,
             "raymarch.step_voxels": self.step_voxels,
             "raymarch.step": self.step,
@@ -194,8 +165,9 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
     if lit:
         _ms_effects(ms, choice, sim, skip)
     env = _environment(medium, light, o, shortcuts, choice, sim, skip)
-    env["env_reach"] = (volume.lattice_reach(o["step"]) if env["env_ms"] == "network" and
-                        shortcuts and volume is not None else None)
+    env["env_reach"] = (source_class(choice.name).network_reach(volume, o["step"])
+                        if env["env_ms"] == ENV_MS_NETWORK and shortcuts and volume is not None
+                        else None)
     _emission_effects(getattr(scene, "emission", None), sim, skip)
 
     defines = dict(phase_defines(list(lobes)))
@@ -205,8 +177,8 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
     if lit and volume is not None:
         light_res = int(o["light_resolution"] or auto_light_resolution(volume.resolution))
     # the network's lattice skips points no density sample reads (shortcuts on)
-    reach = (volume.lattice_reach(o["step"]) if lit and shortcuts and volume is not None
-             and cls.name == "network" else None)
+    reach = (cls.lattice_reach_for(volume, o["step"]) if lit and shortcuts and volume is not None
+             else None)
     return FramePlan(
         configured_source=o["ms"], source=choice.name, warning=choice.warning,
         thin=choice.thin, lit=lit, shortcuts=shortcuts, skip_empty=skip_empty, camera=camera,
@@ -236,7 +208,7 @@ def _stage_keys(cls, camera, light, medium, shortcuts, lobes, env) -> dict:
     if env["env_scatter"]:
         sky = (sky_key(light, env["env_directions"]), medium.is_grey)
         keys["env_sky"] = sky
-        net = env["env_ms"] == "network"
+        net = env["env_ms"] == ENV_MS_NETWORK
         if net:                                   # the network's own J cells
             keys["env_ms_sky"] = (sky_key(light, env["env_ms_directions"]), medium.is_grey)
         # the phase toward the camera enters the field only for an anisotropic phase; the
@@ -269,9 +241,7 @@ def _ms_effects(ms: MsPlan, choice: SourceChoice, sim, skip) -> None:
     sim += ms.simulated
     skip += [x for x in ms.skipped if not (choice.thin is not None and "--ms none" in x)]
     if choice.thin is not None:
-        skip.append(f"multiple scattering (optically thin: largest optical thickness "
-                    f"{choice.thin:.3g} < {THIN_OPTICAL_THICKNESS:g}, where single "
-                    f"scattering alone measured as accurate; docs/raymarch.md)")
+        skip.append(choice.thin_reason)
     if ms.channels is None:
         skip.append("per-channel marching (albedo and irradiance are constant over the "
                     "medium: one colour-free march, colour applied once per ray)")
@@ -309,8 +279,8 @@ def _environment(medium, light, o, shortcuts, choice, sim, skip) -> dict:
         env_background="map" if env_map else "constant" if light.environment is not None
         else "none",
         env_directions=dirs, env_resolution=res, env_ms=env_ms, env_ms_directions=ms_dirs,
-        env_ms_per_frame=int(o["env_ms_per_frame"] or 0) if env_ms == "network" else 0,
-        env_weights=o["weights"] if env_ms == "network" else None)
+        env_ms_per_frame=int(o["env_ms_per_frame"] or 0) if env_ms == ENV_MS_NETWORK else 0,
+        env_weights=o["weights"] if env_ms == ENV_MS_NETWORK else None)
 
 
 def _env_ms(medium, light, o, choice, res, sim, skip) -> tuple:
@@ -323,13 +293,13 @@ def _env_ms(medium, light, o, choice, res, sim, skip) -> tuple:
         skip.append("environment multiple scattering (--max-order 1)")
         return "none", 0
     furnace = all(a == 1.0 for a in medium.albedo) and sky_is_uniform(light)
-    if (o["env_ms"] or "network") == "network" and issubclass(source_class(choice.name), NetworkMs) \
-            and not furnace:
+    if ((o["env_ms"] or ENV_MS_NETWORK) == ENV_MS_NETWORK
+            and source_class(choice.name).uses_network and not furnace):
         j = int(o["env_ms_directions"] or DEFAULT_ENV_MS_DIRECTIONS)
         sim.append(f"environment multiple scattering (the network's F_ms for {j} sky "
                    f"directions, each weighted by its cell's irradiance, at the {res}^3 "
                    f"field's voxels toward the camera)")
-        return "network", j
+        return ENV_MS_NETWORK, j
     why = ("exact here: albedo 1 under a uniform sky" if furnace else
            "--env-ms escape" if o["env_ms"] == "escape" else
            f"the network does not serve the sun here (--ms {choice.name})")

@@ -82,10 +82,10 @@ def check_env_options(env_directions, env_resolution, env_ms_directions=None, en
                       env_ms_per_frame=0) -> None:
     """The environment source's sky directions (1..1024) and field resolution (a power of two
     from 4 to 256); None: the default."""
-    from .environment import sky_directions
+    from .environment import ENV_MS_ESCAPE, ENV_MS_NETWORK, sky_directions
     if env_directions is not None:
         sky_directions(env_directions)                    # refuses a bad count
-    if env_ms not in (None, "network", "escape"):
+    if env_ms not in (None, ENV_MS_NETWORK, ENV_MS_ESCAPE):
         raise ClvolError(f"raymarch option env_ms = {env_ms!r}: choose network or escape")
     pf = env_ms_per_frame
     if isinstance(pf, bool) or not isinstance(pf, (int, np.integer)) or not 0 <= pf <= 256:
@@ -316,7 +316,7 @@ class RayMarcher:
         """The network's (C, n^3) sky multiple scattering for this camera position
         (environment.py ``SkyNetwork``), or None where the plan says otherwise."""
         from . import environment as E
-        if plan.env_ms != "network":
+        if plan.env_ms != E.ENV_MS_NETWORK:
             return None
         if self._env_net is None or self._env_net.net.grid is not self.grid:
             self._env_net = E.SkyNetwork(plan.env_weights or None, self.grid, self.medium,
@@ -331,7 +331,8 @@ class RayMarcher:
     def env_header(self, plan) -> dict:
         """This frame's network sky entries: cells evaluated, and whether some are still
         stale (a caller that renders the same view again refines it)."""
-        if plan.env_ms != "network" or self._env_net is None:
+        from . import environment as E
+        if plan.env_ms != E.ENV_MS_NETWORK or self._env_net is None:
             return {}
         return {"raymarch.env_ms_points": self._env_net.points,
                 "raymarch.env_ms_cells_evaluated": self._env_net.evaluated,

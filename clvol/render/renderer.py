@@ -150,7 +150,6 @@ class Renderer:
         """Validate the options, build the configured source (it reads its options), and
         refuse what nothing read (clvol/render/options.py)."""
         from .ms import source_class
-        from .ms.network import NetworkMs
         from .raymarch import check_march_options, make_source
         o, given = self.options, self.given
         mo = o["max_order"]
@@ -161,7 +160,7 @@ class Renderer:
                 raise ClvolError(f"option --max-order {mo} is not supported by method 'raymarch': "
                                  f"it simulates order 1 (--max-order 1) or all orders; use "
                                  f"--method pathtrace to stop at order {mo}")
-            if given.get("ms", "none") != "none":
+            if given.get("ms") is not None and source_class(given["ms"]).multiple_scattering:
                 raise ClvolError(f"option --max-order 1 asks for single scattering, but --ms "
                                  f"{given['ms']} adds multiple scattering; drop one of them")
         source_class(o["ms"])                     # an unknown name is refused here
@@ -178,8 +177,7 @@ class Renderer:
         if "ms_grid" in o.read:      # a grid source read its file: the plans take the MsGrid
             o.set("ms_grid", self.source.ms_grid)
         self._sources = {self.source.name: self.source}
-        self.domain = (self.source.training_domain() if isinstance(self.source, NetworkMs)
-                       else None)
+        self.domain = self.source.training_domain()     # None: a source without a network
         unused = o.unused()
         if unused:
             raise ClvolError(_unused_message(unused[0], o["ms"]))

@@ -8,12 +8,15 @@ from .base import MsPlan, MsSource, Octaves
 
 class NoMs(MsSource):
     """Single scattering only."""
+    bundle_supported = True
 
 
 class OctavesMs(MsSource):
     """Wrenninge octaves evaluated in the kernel from the light field: no data of its own."""
     name = "wrenninge"
     label = "Wrenninge octaves (analytic multiple scattering)"
+    multiple_scattering = True
+    bundle_supported = True
 
     def __init__(self, octaves: Octaves = Octaves()):
         self.octaves = octaves.check()

@@ -10,6 +10,13 @@ tests a source's name:
   lattice depends on);
 - ``header()``: its own header entries (options, weights, time split).
 
+What a source can do, it declares here (class attributes and classmethods, each with its
+answer in the source's own module), so nothing outside this package tests a source's class
+or name (tests/test_architecture.py): ``multiple_scattering``, ``uses_network``,
+``bundle_supported``; ``choose_for`` (the source that runs for a medium: the network's training
+domain and thin-medium rules), ``lattice_reach_for`` and ``network_reach`` (the active-point
+rules), ``training_domain``.
+
 The sources, one module each in this package: analytic.py (``NoMs`` "none", ``OctavesMs``
 "wrenninge"), grid.py (``GridMs`` "grid", a precomputed ``MsGrid``), network.py (``NetworkMs``
 "network", the paper's world lattice) and view.py (``ViewMs`` "view", ``StochasticViewMs``
@@ -93,6 +100,15 @@ class MsPlan:
         return int(self.defines["MS_CHANNELS"]) if reads_table else None
 
 
+@dataclass(frozen=True)
+class SourceChoice:
+    """The source that runs and why it is not the configured one (None when it is)."""
+    name: str
+    warning: str | None = None      # outside the network's training domain
+    thin: float | None = None       # the largest optical thickness, when thinness chose none
+    thin_reason: str | None = None  # the header's skipped line saying why (thin media)
+
+
 @dataclass
 class SourceFrame:
     """What a source may read to fill its data: the volume, the frame's camera, light and
@@ -120,6 +136,35 @@ class MsSource:
     for a frame, ``device_data`` hands it to the marcher, ``header`` reports it)."""
     name = "none"
     label = "no multiple scattering"
+    # What the source is (one answer per source, read by the plan, the renderer, the bundle):
+    multiple_scattering = False   # it adds orders >= 2 (refused with --max-order 1)
+    uses_network = False          # the trained network computes its F_ms (and the sky's)
+    bundle_supported = False      # the C host (clvol bundle, examples/c/) implements it
+
+    @classmethod
+    def choose_for(cls, medium, options, volume, domain) -> SourceChoice:
+        """The source that runs when this one is configured for ``medium`` (``options``: the
+        render options; ``volume``: clvol/render/plan.py ``VolumeFacts`` or None; ``domain``:
+        the weights' training domain or None): itself, unless the source's own rule says
+        otherwise (the network's: clvol/render/ms/network.py)."""
+        return SourceChoice(cls.name)
+
+    @classmethod
+    def lattice_reach_for(cls, volume, step_voxels: float) -> float | None:
+        """The active-point reach of this source's own F_ms lattice over the volume (only
+        points a density sample reads are filled; shortcuts on), or None: every point, or no
+        lattice."""
+        return None
+
+    @classmethod
+    def network_reach(cls, volume, step_voxels: float) -> float | None:
+        """The network's active-voxel reach for the sky's F_ms fields (a network source), or
+        None."""
+        return None
+
+    def training_domain(self) -> dict | None:
+        """The validity domain of the weights this source evaluates, or None (no network)."""
+        return None
 
     @classmethod
     def from_options(cls, o, runtime=None) -> "MsSource":

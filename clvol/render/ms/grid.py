@@ -104,6 +104,7 @@ class GridMs(MsSource):
     ``prepare``; the lattice goes to the device once per grid and colour layout."""
     name = "grid"
     label = "precomputed F_ms grid"
+    multiple_scattering = True
     what = "precomputed F_ms grid"
 
     def __init__(self, ms_grid: MsGrid | None = None, runtime=None):

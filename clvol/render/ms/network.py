@@ -24,7 +24,7 @@ from ...features.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_t
 from ...runtime import DeviceArray, Stopwatch, get_runtime
 from ..sphere import fibonacci_directions, spherical_barycentric
 from .grid import GridMs, MsGrid, check_ms_grid, ms_lattice
-from .base import MsPlan
+from .base import MsPlan, MsSource, SourceChoice
 
 DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
 NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
@@ -361,6 +361,44 @@ class NetworkMs(GridMs):
     camera position (omega toward it), the light direction and the medium; ``prepare``
     refills it only when one of those changed."""
     name = "network"
+    uses_network = True
+    bundle_supported = True            # the C host's network on the world lattice
+
+    @classmethod
+    def choose_for(cls, medium, options, volume, domain) -> SourceChoice:
+        """Single scattering alone in an optically thin medium (THIN_OPTICAL_THICKNESS, unless
+        shortcuts are off) and the measured fallback outside the weights' training domain
+        (``fallback_for``, unless ``domain_fallback`` is off); this source otherwise, and
+        when the volume or the domain is not known (no judgement)."""
+        configured = cls.name
+        use_fallback = options["domain_fallback"]
+        if volume is None or domain is None:
+            return SourceChoice(configured)
+        ot = volume.max_optical_thickness * medium.density_scale
+        if ot < THIN_OPTICAL_THICKNESS and options["shortcuts"]:
+            return SourceChoice(MsSource.name, thin=ot, thin_reason=(
+                f"multiple scattering (optically thin: largest optical thickness "
+                f"{ot:.3g} < {THIN_OPTICAL_THICKNESS:g}, where single "
+                f"scattering alone measured as accurate; docs/raymarch.md)"))
+        out = outside_domain(domain, medium, ot)
+        if not out:
+            return SourceChoice(configured)
+        alt = fallback_for(medium) if use_fallback else None
+        what = ("the network is used all the same (--no-domain-fallback)" if not use_fallback else
+                "the network is used all the same (measured better than the analytic sources "
+                "there)" if alt is None else f"multiple scattering from --ms {alt} instead")
+        msg = (f"scene outside the network's training domain ({'; '.join(out)}): {what} "
+               f"(docs/raymarch.md)")
+        return SourceChoice(alt or configured, warning=msg)
+
+    @classmethod
+    def network_reach(cls, volume, step_voxels: float) -> float:
+        """The network's active-point reach for this step (``lattice_reach``)."""
+        return lattice_reach(volume.grid, step_voxels)
+
+    @classmethod
+    def lattice_reach_for(cls, volume, step_voxels: float) -> float:
+        return cls.network_reach(volume, step_voxels)
 
     @property
     def label(self) -> str:

@@ -52,6 +52,11 @@ class ViewMs(NetworkMs):
     """The network at ``knots`` depths per ``block`` x ``block`` pixels of the camera's view."""
     name = "view"
     what = "view-space F_ms table"
+    bundle_supported = False           # Python only (docs/embedding.md)
+
+    @classmethod
+    def lattice_reach_for(cls, volume, step_voxels: float) -> None:
+        return None                    # a table where the camera sees, no world lattice
 
     def __init__(self, weights=None, block: int = DEFAULT_VIEW_BLOCK,
                  knots: int = DEFAULT_VIEW_KNOTS, runtime=None):
