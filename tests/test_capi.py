@@ -481,3 +481,176 @@ def test_setters_refuse_what_the_scene_file_refuses(lib, bundle):
         assert st == UNSUPPORTED and "--ms none" in lib.clvol_last_error(r).decode()
     finally:
         lib.clvol_destroy(r)
+
+
+# ------------------------------------------------------------------ the volume's rules (issue 41)
+
+def _unlit_scene():
+    """Smoke at albedo 0 under an environment: nothing lit, --ms none (no network, no source
+    switch), so every medium in range is one the bundle's programs render."""
+    return load_scene(ROOT / "examples" / "smoke.toml").with_overrides(
+        {"volume.resolution": 12, "camera.width": 8, "camera.height": 8,
+         "medium.albedo": [0.0, 0.0, 0.0], "light.environment": [0.2, 0.3, 0.4]})
+
+
+@pytest.fixture(scope="module")
+def unlit_bundle(tmp_path_factory):
+    b = write_bundle(_unlit_scene(), tmp_path_factory.mktemp("unlit") / "unlit",
+                     ms_resolution=MS_RES, light_resolution=16)
+    assert "raymarch.ms_source = none" in (b / "manifest.txt").read_text()
+    return b
+
+
+def test_volume_rules_hold_python_numbers():
+    """The header's numbers are Python's (one rule, two languages)."""
+    from clvol.kernels.transmittance import MAX_OPTICAL_DEPTH
+    from clvol.volume.grid import MIN_RELATIVE_SIDE
+    header = (ROOT / "capi" / "include" / "clvol.h").read_text()
+    import re
+    got = dict(re.findall(r"#define (CLVOL_MIN_RELATIVE_SIDE|CLVOL_MAX_OPTICAL_DEPTH) (\S+)\n",
+                          header))
+    assert float(got["CLVOL_MIN_RELATIVE_SIDE"]) == MIN_RELATIVE_SIDE
+    assert float(got["CLVOL_MAX_OPTICAL_DEPTH"]) == MAX_OPTICAL_DEPTH
+
+
+def _open(lib, bundle):
+    r = ctypes.c_void_p()
+    st = lib.clvol_create(str(bundle).encode(), None, None, None, ctypes.byref(r))
+    return st, r
+
+
+def _render_c(lib, r):
+    w, h = ctypes.c_int(), ctypes.c_int()
+    lib.clvol_get_size(r, ctypes.byref(w), ctypes.byref(h))
+    img = np.full((h.value, w.value, 4), np.nan, np.float32)
+    st = lib.clvol_render(r, img.ctypes.data_as(ctypes.POINTER(ctypes.c_float)))
+    assert st == OK, lib.clvol_last_error(r).decode()
+    return img
+
+
+def test_optical_range_refused_by_the_setters_as_by_renderer_render(lib, unlit_bundle):
+    """density_scale x the largest density x the box's diagonal >= 1e37: Renderer.render refuses
+    it (ClvolError), and so do clvol_set_medium (a new scale) and clvol_set_density (a new
+    largest density), with CLVOL_ERROR_ARGUMENT and the same sentence; half the limit passes
+    every door and renders finite in C."""
+    from clvol.errors import ClvolError
+    scene = _unlit_scene()
+    grid = scene.volume.load()
+    maxd = float(grid.density.max())
+    diag = float(np.linalg.norm(grid.extent))
+    limit = 1e37 / (maxd * diag)
+    rp = Renderer(scene, "raymarch", ms="none")
+    st, r = _open(lib, unlit_bundle)
+    assert st == OK, lib.clvol_last_error(None)
+    try:
+        alb = _f32((0.0, 0.0, 0.0))
+        for scale in (2.0 * limit, 3.4e38):
+            with pytest.raises(ClvolError) as e:
+                rp.render(medium=dataclasses.replace(scene.medium, density_scale=scale))
+            py = str(e.value)
+            assert lib.clvol_set_medium(r, alb[0], scale) == ARGUMENT
+            msg = lib.clvol_last_error(r).decode()
+            assert msg.startswith("clvol_set_medium: medium.density_scale = ") and "\n" not in msg
+            tail = " over the box's diagonal gives optical depths beyond float32 range; " \
+                   "rescale the density"
+            assert msg.endswith(tail) and py.endswith(tail), (msg, py)
+            assert f"times the largest density {maxd:g} " in msg and \
+                f"times the largest density {maxd:g} " in py
+        # half the limit: accepted by both, the C image finite (an opaque medium)
+        half = np.float32(0.5 * limit)
+        img_p = rp.render(medium=dataclasses.replace(scene.medium, density_scale=float(half)))
+        assert lib.clvol_set_medium(r, alb[0], half) == OK, lib.clvol_last_error(r).decode()
+        img = _render_c(lib, r)
+        assert np.isfinite(img).all() and np.isfinite(img_p.total).all()
+        # a new density whose largest value breaks the rule at this scale
+        dens = np.ones((4, 5, 6), np.float32)
+        dens[1, 2, 3] = 4.0 * maxd
+        with pytest.raises(ClvolError, match="times the largest density"):
+            rp.render(medium=dataclasses.replace(scene.medium, density_scale=float(half)),
+                      grid=Grid(dens, grid.bbox_min, grid.bbox_max))
+        assert lib.clvol_set_density(r, _f32(dens)[0], 6, 5, 4) == ARGUMENT
+        msg = lib.clvol_last_error(r).decode()
+        assert msg.startswith("clvol_set_density: medium.density_scale = ") and \
+            f"times the largest density {4.0 * maxd:g} " in msg, msg
+        assert np.isfinite(_render_c(lib, r)).all()       # the refusal changed nothing
+    finally:
+        lib.clvol_destroy(r)
+
+
+def test_density_scale_zero_is_in_range_through_libclvol(lib, unlit_bundle):
+    """An empty medium, as the scene file and Renderer.render take it (tests/test_doors.py):
+    clvol_set_medium accepts density_scale 0 and renders the background alone, alpha 0, the
+    Python image. (A bundle whose programs run the network refuses it as UNSUPPORTED instead:
+    clvol.Renderer would switch to --ms none; test_setters_refuse_what_the_scene_file_refuses.)"""
+    scene = _unlit_scene().with_overrides({"medium.density_scale": 0.0})
+    want = Renderer(scene, "raymarch", ms="none").render()
+    st, r = _open(lib, unlit_bundle)
+    assert st == OK, lib.clvol_last_error(None)
+    try:
+        assert lib.clvol_set_medium(r, _f32((0.0, 0.0, 0.0))[0], 0.0) == OK, \
+            lib.clvol_last_error(r).decode()
+        img = _render_c(lib, r)
+    finally:
+        lib.clvol_destroy(r)
+    assert img[..., 3].max() == 0.0 and want.alpha.max() == 0.0
+    np.testing.assert_allclose(img[..., :3], want.total, rtol=1e-6)
+    np.testing.assert_allclose(img[..., :3], np.broadcast_to([0.2, 0.3, 0.4], want.total.shape),
+                               rtol=1e-6)
+
+
+def _edit_manifest(bundle, out, key, value):
+    b = shutil.copytree(bundle, out)
+    mf = b / "manifest.txt"
+    lines = mf.read_text().splitlines(True)
+    assert any(l.startswith(key + " = ") for l in lines), key
+    mf.write_text("".join(f"{key} = {value}\n" if l.startswith(key + " = ") else l
+                          for l in lines))
+    return b
+
+
+@pytest.mark.parametrize("key, value, c_text, python", [
+    # the box: each side at least 1e-5 of the box's scale (clvol.volume.grid.check_bbox)
+    ("density.bbox_max", "0.5 0.5 -0.499999", "is too thin on z", "is too thin on z"),
+    ("density.bbox_max", "1e6 0.5 0.5", "is too thin on y, z", "is too thin on y, z"),
+    ("density.bbox_min", "-0.5 -0.5 -0.5", None, None),            # the bundle's own: opens
+    # the medium: the setters' ranges and the optical range
+    ("medium.density_scale", "3.4e38", "beyond float32 range", "beyond float32 range"),
+    ("medium.density_scale", "nan", "must be finite and >= 0", None),
+    ("medium.density_scale", "-1", "must be finite and >= 0", None),
+    ("medium.albedo", "0 1.5 0", "each must be in [0, 1]", None),
+    ("light.irradiance", "1 inf 1", "each must be finite and >= 0", None),
+])
+def test_a_bundle_out_of_the_scene_files_ranges_is_refused(lib, unlit_bundle, tmp_path, key,
+                                                           value, c_text, python):
+    """clvol_create's door: a damaged manifest's box, scale, albedo or irradiance is held to
+    the rules the setters and the scene file apply (CLVOL_ERROR_BUNDLE, one line naming the
+    manifest); where Python has the rule for a grid or a render, its message says the same."""
+    from clvol.errors import ClvolError
+    from clvol.volume.grid import check_bbox
+    b = _edit_manifest(unlit_bundle, tmp_path / "b", key, value)
+    st, r = _open(lib, b)
+    try:
+        msg = lib.clvol_last_error(None).decode()
+        if c_text is None:
+            assert st == OK, msg
+            return
+        assert st == BUNDLE and not r.value, msg
+        assert msg.startswith(str(b / "manifest.txt")) and c_text in msg and "\n" not in msg, msg
+    finally:
+        lib.clvol_destroy(r)
+    if python is None:
+        return
+    scene = _unlit_scene()
+    if key.startswith("density.bbox"):
+        lo, hi = [-0.5] * 3, [0.5] * 3
+        (hi if key.endswith("max") else lo)[:] = map(float, value.split())
+        with pytest.raises(ClvolError) as e:
+            check_bbox(lo, hi, "grid")
+        assert python in str(e.value) and "each side must be at least 1e-05 of" in str(e.value)
+        assert "each side must be at least 1e-05 of" in msg
+    else:
+        with pytest.raises(ClvolError) as e:
+            Renderer(scene, "raymarch", ms="none").render(
+                medium=dataclasses.replace(scene.medium, density_scale=float(value)))
+        assert python in str(e.value)
+
