@@ -897,6 +897,11 @@ static void pack_into(clvol_host *h, cl_mem rgba) {
 
 /* A failure the renderer cannot recover from (its device state may be half made). */
 static clvol_status end_call(clvol_host *h, guard *g) {
+    /* A failure may leave non-blocking writes from this call's scratch memory in the queue
+     * (a key missing from the manifest, read after the lattice's uploads were enqueued): they
+     * must finish before guard_end frees that memory (the setter fuzz found PoCL's thread
+     * copying freed memory; tests/test_capi.py test_fuzz_found_failures_drain_the_queue). */
+    if (g->status != CLVOL_OK && h->queue) clFinish(h->queue);
     clvol_status st = guard_end(g);
     if (st == CLVOL_ERROR_OPENCL || st == CLVOL_ERROR_MEMORY) h->broken = st;
     return st;
@@ -1296,6 +1301,7 @@ clvol_status clvol_create(const char *bundle_dir, cl_context context, cl_device_
     clvol_host *volatile h = NULL;   /* volatile: read after a longjmp */
     guard_init(&g, msg, sizeof msg);
     if (setjmp(g.jump)) {
+        if (h && h->queue) clFinish(h->queue);   /* as end_call: before the scratch is freed */
         clvol_status st = guard_end(&g);
         host_release(h);
         snprintf(thread_error, sizeof thread_error, "%s", msg);
