@@ -66,6 +66,19 @@ def pocl_only(tmp: Path, env: dict) -> dict:
     return env
 
 
+def test_sanitizer_runs_load_pocl_alone(tmp_path):
+    """pocl_only's folder holds PoCL's .icd file and nothing else, and OCL_ICD_FILENAMES (which
+    would add drivers) is dropped; without PoCL installed the environment is left as it is."""
+    env = pocl_only(tmp_path, {"OCL_ICD_FILENAMES": "/x/libother.so", "KEEP": "1"})
+    if not sorted(Path("/etc/OpenCL/vendors").glob("*pocl*.icd")):
+        assert env == {"OCL_ICD_FILENAMES": "/x/libother.so", "KEEP": "1"}
+        return
+    only = Path(env["OCL_ICD_VENDORS"])
+    assert [p.name for p in only.iterdir()] and all("pocl" in p.name for p in only.iterdir())
+    assert len(list(only.iterdir())) == 1
+    assert "OCL_ICD_FILENAMES" not in env and env["KEEP"] == "1"
+
+
 @pytest.fixture(scope="module")
 def host(tmp_path_factory):
     why = _have_toolchain()
