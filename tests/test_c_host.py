@@ -8,7 +8,8 @@
   arguments on one device, so the difference is in practice 0). Also the scenes the renderer
   gives another source: unlit, optically thin (--ms none) and strongly backward (wrenninge).
 - The -D defines a bundle records equal the ones the Python render builds with (same device).
-- AddressSanitizer + LeakSanitizer + UBSan build on a tiny bundle: exit 0, no report. No
+- AddressSanitizer + LeakSanitizer + UBSan build on a tiny bundle: exit 0, no report (the ICD
+  loader restricted to PoCL, ``pocl_only``: other drivers a machine has are not loaded). No
   suppression file is used: a cl_mem the host forgets to release is reported (its allocation
   is PoCL's), so suppressing PoCL would hide the host's own leaks; instead a first run fills
   PoCL's kernel cache (its compiler leaks when it builds) and the second is checked
@@ -47,6 +48,35 @@ def _have_toolchain() -> str | None:
     if probe.returncode != 0:
         return "no OpenCL headers (apt-get install opencl-headers ocl-icd-opencl-dev)"
     return None
+
+
+def pocl_only(tmp: Path, env: dict) -> dict:
+    """``env`` for a sanitizer run, with the ICD loader restricted to PoCL: an OCL_ICD_VENDORS
+    folder holding PoCL's .icd file alone, so that other drivers installed on the machine (Mesa's
+    rusticl leaked under ASan here) are not loaded. Unchanged where no PoCL .icd file is found."""
+    vendors = Path("/etc/OpenCL/vendors")
+    icds = sorted(vendors.glob("*pocl*.icd")) if vendors.is_dir() else []
+    if not icds:
+        return env
+    only = tmp / "pocl_only_icd"
+    only.mkdir(exist_ok=True)
+    shutil.copy(icds[0], only / icds[0].name)
+    env = dict(env, OCL_ICD_VENDORS=str(only))
+    env.pop("OCL_ICD_FILENAMES", None)
+    return env
+
+
+def test_sanitizer_runs_load_pocl_alone(tmp_path):
+    """pocl_only's folder holds PoCL's .icd file and nothing else, and OCL_ICD_FILENAMES (which
+    would add drivers) is dropped; without PoCL installed the environment is left as it is."""
+    env = pocl_only(tmp_path, {"OCL_ICD_FILENAMES": "/x/libother.so", "KEEP": "1"})
+    if not sorted(Path("/etc/OpenCL/vendors").glob("*pocl*.icd")):
+        assert env == {"OCL_ICD_FILENAMES": "/x/libother.so", "KEEP": "1"}
+        return
+    only = Path(env["OCL_ICD_VENDORS"])
+    assert [p.name for p in only.iterdir()] and all("pocl" in p.name for p in only.iterdir())
+    assert len(list(only.iterdir())) == 1
+    assert "OCL_ICD_FILENAMES" not in env and env["KEEP"] == "1"
 
 
 @pytest.fixture(scope="module")
@@ -247,8 +277,8 @@ def test_asan_no_leaks_or_errors(host, tmp_path):
     assert "raymarch.ms_source = wrenninge" in (octaves / "manifest.txt").read_text()
     for b, leaks, extra in ((bundle, 0, []), (bundle, 1, []), (bundle, 1, ["--external-context"]),
                             (octaves, 0, []), (octaves, 1, [])):
-        env = dict(os.environ, ASAN_OPTIONS=f"detect_leaks={leaks}:exitcode=23",
-                   UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1")
+        env = pocl_only(tmp_path, dict(os.environ, ASAN_OPTIONS=f"detect_leaks={leaks}:exitcode=23",
+                                       UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"))
         r = run([host / "clvol-render-asan", b, tmp_path / "t.pfm"] + extra, env=env)
         report = r.stdout + r.stderr
         assert r.returncode == 0, report
@@ -290,7 +320,7 @@ def test_fuzz_found_bundles_are_refused(host, tmp_path, mutation, message):
         data = bytearray(f.read_bytes())
         data[int(mutation[2] * len(data))] ^= 0xFF
         f.write_bytes(bytes(data))
-    env = dict(os.environ, ASAN_OPTIONS="detect_leaks=0:exitcode=23")
+    env = pocl_only(tmp_path, dict(os.environ, ASAN_OPTIONS="detect_leaks=0:exitcode=23"))
     r = run([host / "clvol-render-asan", b, tmp_path / "t.pfm"], env=env, timeout=120)
     assert r.returncode == 1 and message in r.stderr, r.stdout + r.stderr
 
@@ -309,8 +339,9 @@ def test_mutated_bundles_fail_cleanly_under_asan(host, tmp_path_factory):
     arrays = sorted(p.name for p in base.iterdir() if p.suffix in (".f32", ".i32", ".u32", ".bin"))
     junk = st.sampled_from(["-1", "0", "1e30", "nan", "inf", "abc", "", "99999999999",
                             "1 2 3 4 5 6 7 8 9", "-2147483648", "0.5 nan 0.5"])
-    env = dict(os.environ, ASAN_OPTIONS="detect_leaks=0:exitcode=23",
-               UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1")
+    env = pocl_only(tmp_path_factory.mktemp("icd"),
+                    dict(os.environ, ASAN_OPTIONS="detect_leaks=0:exitcode=23",
+                         UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1"))
 
     @settings(max_examples=int(os.environ.get("CLVOL_FUZZ_EXAMPLES_C", "40")), derandomize=True,
               deadline=None, suppress_health_check=list(HealthCheck))

@@ -53,6 +53,17 @@ CLVOL_API clvol_status clvol_create(const char *bundle_dir, cl_context context,
  * (clvol.scenemodel.MAX_IMAGE_SIZE; tests/test_capi.py holds the two equal). */
 #define CLVOL_MAX_IMAGE_SIZE 16384
 
+/* The volume's rules, as clvol's scene files and Renderer.render apply them (tests/test_capi.py
+ * holds them equal to Python's): each side of the bundle's box at least CLVOL_MIN_RELATIVE_SIDE
+ * of the box's scale (its longest side or its farthest coordinate from the origin;
+ * clvol.volume.grid.MIN_RELATIVE_SIDE), else float32 cannot resolve it (clvol_create refuses
+ * such a bundle); density_scale x the largest density x the box's diagonal below
+ * CLVOL_MAX_OPTICAL_DEPTH (clvol.kernels.transmittance.MAX_OPTICAL_DEPTH), else optical depths
+ * leave float32's range (clvol_set_medium and clvol_set_density refuse it, clvol_create
+ * refuses such a bundle). */
+#define CLVOL_MIN_RELATIVE_SIDE 1e-5
+#define CLVOL_MAX_OPTICAL_DEPTH 1e37
+
 /* Pinhole camera: origin, target and up finite, target != origin, up not parallel to
  * target - origin (sine of the angle >= 1e-6, as a scene file's [camera]); fov_y_degrees in
  * (0, 180); width and height in [1, CLVOL_MAX_IMAGE_SIZE]. */
@@ -62,10 +73,13 @@ CLVOL_API clvol_status clvol_set_camera(clvol_renderer *r, const float origin[3]
 /* to_light: toward the light (any non-zero length); irradiance: RGB, >= 0. */
 CLVOL_API clvol_status clvol_set_light(clvol_renderer *r, const float to_light[3],
                                        const float irradiance[3]);
-/* albedo: RGB in [0, 1]; density_scale >= 0 (sigma_t = density x density_scale). */
+/* albedo: RGB in [0, 1]; density_scale finite and >= 0 (sigma_t = density x density_scale;
+ * 0, an empty medium, is in range as in a scene file), and density_scale x the largest density
+ * x the box's diagonal < CLVOL_MAX_OPTICAL_DEPTH. */
 CLVOL_API clvol_status clvol_set_medium(clvol_renderer *r, const float albedo[3],
                                         float density_scale);
-/* density[z][y][x], float32, finite and >= 0; the volume keeps its bounding box */
+/* density[z][y][x], float32, finite and >= 0; the volume keeps its bounding box; the largest
+ * density x density_scale x the box's diagonal < CLVOL_MAX_OPTICAL_DEPTH */
 CLVOL_API clvol_status clvol_set_density(clvol_renderer *r, const float *density, int nx,
                                          int ny, int nz);
 

@@ -170,6 +170,7 @@ struct clvol_renderer {
     double bmin[3], bmax[3], cube_min[3], cube_size;
     float *density;             /* [nz][ny][nx], owned */
     double unit_thickness;      /* largest optical thickness at density scale 1 */
+    double max_density;         /* the largest density value (CLVOL_MAX_OPTICAL_DEPTH's rule) */
     double step_voxels, step;   /* march step: in voxels (the option) and world units */
     int lit, network, grey, channels, light_res, light_tau, block, skip_empty;
     cl_mem d_density, d_majorant, d_light_pyr, d_light, d_dummy;

@@ -356,6 +356,25 @@ static void open_bundle(clvol_host *h) {
     for (int a = 0; a < 3; ++a)
         if (!(isfinite(h->bmin[a]) && isfinite(h->bmax[a]) && h->bmax[a] > h->bmin[a]))
             fail(BUNDLE, "%s: density.bbox_min/max: an empty or non-finite box", m->where);
+    /* clvol/volume/grid.py check_bbox: a side shorter than CLVOL_MIN_RELATIVE_SIDE of the
+     * box's scale cannot be resolved in float32 */
+    double scale = 0.0;
+    for (int a = 0; a < 3; ++a)
+        scale = fmax(scale, fmax(h->bmax[a] - h->bmin[a], fmax(fabs(h->bmin[a]), fabs(h->bmax[a]))));
+    char thin[8] = "";
+    size_t nthin = 0;
+    for (int a = 0; a < 3; ++a)
+        if (h->bmax[a] - h->bmin[a] < CLVOL_MIN_RELATIVE_SIDE * scale) {
+            if (nthin) thin[nthin++] = ',', thin[nthin++] = ' ';
+            thin[nthin++] = "xyz"[a];
+            thin[nthin] = '\0';
+        }
+    if (thin[0])
+        fail(BUNDLE, "%s: density.bbox_min/max: the box (%g, %g, %g) .. (%g, %g, %g) is too thin "
+             "on %s (sides %g, %g, %g): each side must be at least %g of %g, the box's scale, "
+             "to be resolved in float32", m->where, h->bmin[0], h->bmin[1], h->bmin[2],
+             h->bmax[0], h->bmax[1], h->bmax[2], thin, h->bmax[0] - h->bmin[0],
+             h->bmax[1] - h->bmin[1], h->bmax[2] - h->bmin[2], CLVOL_MIN_RELATIVE_SIDE, scale);
     size_t count = (size_t)h->nx * h->ny * h->nz;
     h->density = keep(read_raw4(h->dir, mf_str(m, "density.file"), count));
     h->density_scale = mf_double(m, "medium.density_scale");
@@ -878,6 +897,11 @@ static void pack_into(clvol_host *h, cl_mem rgba) {
 
 /* A failure the renderer cannot recover from (its device state may be half made). */
 static clvol_status end_call(clvol_host *h, guard *g) {
+    /* A failure may leave non-blocking writes from this call's scratch memory in the queue
+     * (a key missing from the manifest, read after the lattice's uploads were enqueued): they
+     * must finish before guard_end frees that memory (the setter fuzz found PoCL's thread
+     * copying freed memory; tests/test_capi.py test_fuzz_found_failures_drain_the_queue). */
+    if (g->status != CLVOL_OK && h->queue) clFinish(h->queue);
     clvol_status st = guard_end(g);
     if (st == CLVOL_ERROR_OPENCL || st == CLVOL_ERROR_MEMORY) h->broken = st;
     return st;
@@ -898,6 +922,26 @@ static clvol_status end_call(clvol_host *h, guard *g) {
 
 static void need(const void *p, const char *fn, const char *what) {
     if (!p) fail(CLVOL_ERROR_ARGUMENT, "%s: %s is NULL", fn, what);
+}
+
+/* The largest value of a density (checked finite and >= 0). */
+static double max_density(const float *d, size_t count) {
+    double m = 0.0;
+    for (size_t i = 0; i < count; ++i) m = fmax(m, d[i]);
+    return m;
+}
+
+/* clvol/render/renderer.py _check_optical_range: density_scale x the largest density x the
+ * box's diagonal must stay below CLVOL_MAX_OPTICAL_DEPTH (optical depths are float32). */
+static void check_optical_range(const clvol_host *h, clvol_status status, const char *where,
+                                double scale, double maxd) {
+    double d2 = 0.0;
+    for (int a = 0; a < 3; ++a) d2 += (h->bmax[a] - h->bmin[a]) * (h->bmax[a] - h->bmin[a]);
+    double worst = scale * maxd * sqrt(d2);
+    if (!(worst < CLVOL_MAX_OPTICAL_DEPTH))
+        fail(status, "%s: medium.density_scale = %.9g times the largest density %g over the "
+             "box's diagonal gives optical depths beyond float32 range; rescale the density",
+             where, scale, maxd);
 }
 
 static void need_finite3(const float v[3], const char *fn, const char *what) {
@@ -1069,6 +1113,7 @@ clvol_status clvol_set_medium(clvol_renderer *r, const float albedo[3], float de
                  alb[0], alb[1], alb[2]);
     if (!(isfinite(scale) && scale >= 0))
         fail(CLVOL_ERROR_ARGUMENT, "%s: density_scale = %g: must be finite and >= 0", fn, scale);
+    check_optical_range(r, CLVOL_ERROR_ARGUMENT, fn, scale, r->max_density);
     check_same_programs(r, fn, alb, r->irradiance, scale, r->unit_thickness, 1);
     if (scale != r->density_scale) r->light_dirty = r->lattice_dirty = 1;
     if (memcmp(alb, r->albedo, sizeof alb) != 0) r->lattice_dirty = 1;
@@ -1091,6 +1136,8 @@ clvol_status clvol_set_density(clvol_renderer *r, const float *density, int nx, 
             fail(CLVOL_ERROR_ARGUMENT, "%s: density[%zu] (x %zu, y %zu, z %zu) = %g: every value "
                  "must be finite and >= 0", fn, i, i % (size_t)nx, i / (size_t)nx % (size_t)ny,
                  i / ((size_t)nx * ny), (double)density[i]);
+    double maxd = max_density(density, count);
+    check_optical_range(r, CLVOL_ERROR_ARGUMENT, fn, r->density_scale, maxd);
     double tau1 = unit_optical_thickness(density, nx, ny, nz, r->bmin, r->bmax);
     check_same_programs(r, fn, r->albedo, r->irradiance, r->density_scale, tau1, 1);
     float *copy = xmalloc(4 * count);
@@ -1099,6 +1146,7 @@ clvol_status clvol_set_density(clvol_renderer *r, const float *density, int nx, 
     r->density = keep(copy);
     r->nx = nx, r->ny = ny, r->nz = nz;
     r->unit_thickness = tau1;
+    r->max_density = maxd;
     /* the step option is in voxels of the grid (its smallest side) */
     double min_cell = INFINITY;
     int n[3] = {nx, ny, nz};
@@ -1204,6 +1252,21 @@ static void create(clvol_host *h, const char *bundle_dir, cl_context context,
         if (!(isfinite(h->density[i]) && h->density[i] >= 0))
             fail(BUNDLE, "%s: density value %zu = %g: must be finite and >= 0", h->mf.where, i,
                  (double)h->density[i]);
+    /* the bundle's medium and light in the setters' ranges (a damaged manifest may hold any
+     * number) */
+    if (!(isfinite(h->density_scale) && h->density_scale >= 0))
+        fail(BUNDLE, "%s: medium.density_scale = %g: must be finite and >= 0", h->mf.where,
+             h->density_scale);
+    for (int c = 0; c < 3; ++c) {
+        if (!(h->albedo[c] >= 0 && h->albedo[c] <= 1))
+            fail(BUNDLE, "%s: medium.albedo = (%g, %g, %g): each must be in [0, 1]", h->mf.where,
+                 h->albedo[0], h->albedo[1], h->albedo[2]);
+        if (!(isfinite(h->irradiance[c]) && h->irradiance[c] >= 0))
+            fail(BUNDLE, "%s: light.irradiance = (%g, %g, %g): each must be finite and >= 0",
+                 h->mf.where, h->irradiance[0], h->irradiance[1], h->irradiance[2]);
+    }
+    h->max_density = max_density(h->density, count);
+    check_optical_range(h, BUNDLE, h->mf.where, h->density_scale, h->max_density);
     h->unit_thickness = unit_optical_thickness(h->density, h->nx, h->ny, h->nz, h->bmin, h->bmax);
     /* the bundle's camera and light (the camera as its basis: it may come from any target) */
     double o[3], f[3], t[3], u[3], l[3];
@@ -1238,6 +1301,7 @@ clvol_status clvol_create(const char *bundle_dir, cl_context context, cl_device_
     clvol_host *volatile h = NULL;   /* volatile: read after a longjmp */
     guard_init(&g, msg, sizeof msg);
     if (setjmp(g.jump)) {
+        if (h && h->queue) clFinish(h->queue);   /* as end_call: before the scratch is freed */
         clvol_status st = guard_end(&g);
         host_release(h);
         snprintf(thread_error, sizeof thread_error, "%s", msg);

@@ -11,6 +11,22 @@
  *        expect STATUS                      (the status the next call must return)
  *     each call's status and message are printed; exit 1 at the first unexpected status.
  *     --external: the renderer runs on a context and queue made here (checked alive after).
+ *   test_capi serve
+ *     the fuzz driver of tests/test_capi.py: reads calls from stdin, one a line, and answers
+ *     each with one line "NAME STATUS EXTRA MESSAGE" (a newline in the message is written as
+ *     '|' and EXTRA is then -1), flushed:
+ *        open BUNDLE                        (clvol_destroy, then clvol_create; EXTRA 0)
+ *        camera X*10 width height           (X: a float32's bits in hex: origin, target, up,
+ *        light X*6                           fov_y; every NaN, infinity and size reaches
+ *        medium X*4                          the library as given; EXTRA 0)
+ *        density nx ny nz FILE              (FILE: nx*ny*nz raw float32; sizes that are not
+ *                                            all >= 1 with a product <= 2^24 pass a buffer of
+ *                                            one float: the library must refuse them before
+ *                                            reading it; ASan sees a read past it)
+ *        density_null nx ny nz              (a NULL density)
+ *        render                             (clvol_render, at most 4096 pixels, else EXTRA
+ *                                            -2 and no render; EXTRA: non-finite values)
+ *     exit 0 at the end of the input.
  *   test_capi checks BUNDLE DAMAGED_BUNDLE
  *     bad arguments, the caller's context and queue, render_to_buffer = render, two
  *     renderers in two threads = one at a time. Prints "ok NAME" or "FAIL NAME: why" per
@@ -186,6 +202,105 @@ static int run_script(const char *bundle, const char *script, int external) {
     return bad;
 }
 
+/* ------------------------------------------------------------------------ serve */
+
+static float hex_float(const char *tok) {
+    unsigned long bits = strtoul(tok, NULL, 16);
+    unsigned int b32 = (unsigned int)bits;
+    float f;
+    memcpy(&f, &b32, sizeof f);
+    return f;
+}
+
+static void answer(const char *name, clvol_status st, long extra, const char *msg) {
+    char line[2048];
+    snprintf(line, sizeof line, "%s", msg ? msg : "(null)");
+    for (char *p = line; *p; ++p)
+        if (*p == '\n' || *p == '\r') *p = '|', extra = -1;
+    printf("%s %d %ld %s\n", name, (int)st, extra, line);
+    fflush(stdout);
+}
+
+static int run_serve(void) {
+    clvol_renderer *r = NULL;
+    char line[4096];
+    while (fgets(line, sizeof line, stdin)) {
+        char *tok[16];
+        int n = 0;
+        for (char *p = strtok(line, " \t\n"); p && n < 16; p = strtok(NULL, " \t\n")) tok[n++] = p;
+        if (n == 0) continue;
+        const char *cmd = tok[0];
+        float v[12];
+        clvol_status st;
+        if (strcmp(cmd, "open") == 0 && n == 2) {
+            clvol_destroy(r);
+            r = NULL;
+            st = clvol_create(tok[1], NULL, NULL, NULL, &r);
+            answer(cmd, st, 0, st == CLVOL_OK ? "" : clvol_last_error(NULL));
+            continue;
+        }
+        if (!r) {
+            answer(cmd, CLVOL_ERROR_ARGUMENT, 0, "serve: no renderer open");
+            continue;
+        }
+        if (strcmp(cmd, "camera") == 0 && n == 13) {
+            for (int i = 0; i < 10; ++i) v[i] = hex_float(tok[1 + i]);
+            st = clvol_set_camera(r, v, v + 3, v + 6, v[9], atoi(tok[11]), atoi(tok[12]));
+            answer(cmd, st, 0, clvol_last_error(r));
+        } else if (strcmp(cmd, "light") == 0 && n == 7) {
+            for (int i = 0; i < 6; ++i) v[i] = hex_float(tok[1 + i]);
+            st = clvol_set_light(r, v, v + 3);
+            answer(cmd, st, 0, clvol_last_error(r));
+        } else if (strcmp(cmd, "medium") == 0 && n == 5) {
+            for (int i = 0; i < 4; ++i) v[i] = hex_float(tok[1 + i]);
+            st = clvol_set_medium(r, v, v[3]);
+            answer(cmd, st, 0, clvol_last_error(r));
+        } else if (strcmp(cmd, "density_null") == 0 && n == 4) {
+            st = clvol_set_density(r, NULL, atoi(tok[1]), atoi(tok[2]), atoi(tok[3]));
+            answer(cmd, st, 0, clvol_last_error(r));
+        } else if (strcmp(cmd, "density") == 0 && n == 5) {
+            int nx = atoi(tok[1]), ny = atoi(tok[2]), nz = atoi(tok[3]);
+            int small = nx >= 1 && ny >= 1 && nz >= 1 && (double)nx * ny * nz <= 16777216.0;
+            size_t count = small ? (size_t)nx * ny * nz : 1;
+            float *d = malloc(4 * count);
+            FILE *f = small ? fopen(tok[4], "rb") : NULL;
+            if (!d || (small && (!f || fread(d, 4, count, f) != count))) {
+                printf("cannot read %s: %zu float32 expected\n", tok[4], count);
+                if (f) fclose(f);
+                free(d);
+                clvol_destroy(r);
+                return 1;
+            }
+            if (f) fclose(f);
+            if (!small) d[0] = 1.0f;
+            st = clvol_set_density(r, d, nx, ny, nz);
+            free(d);
+            answer(cmd, st, 0, clvol_last_error(r));
+        } else if (strcmp(cmd, "render") == 0 && n == 1) {
+            int w = 0, h = 0;
+            clvol_get_size(r, &w, &h);
+            if ((long)w * h > 4096) {
+                answer(cmd, CLVOL_OK, -2, "not rendered: more than 4096 pixels");
+                continue;
+            }
+            size_t count = 4 * (size_t)w * h;
+            float *img = malloc(4 * count);
+            st = clvol_render(r, img);
+            long bad = 0;
+            if (st == CLVOL_OK)
+                for (size_t i = 0; i < count; ++i) bad += !isfinite(img[i]);
+            free(img);
+            answer(cmd, st, bad, clvol_last_error(r));
+        } else {
+            printf("bad line: %s\n", cmd);
+            clvol_destroy(r);
+            return 1;
+        }
+    }
+    clvol_destroy(r);
+    return 0;
+}
+
 /* ------------------------------------------------------------------------ checks */
 
 typedef struct {
@@ -349,11 +464,12 @@ static void run_checks(const char *bundle, const char *damaged) {
 int main(int argc, char **argv) {
     if (argc >= 4 && strcmp(argv[1], "script") == 0)
         return run_script(argv[2], argv[3], argc >= 5 && strcmp(argv[4], "--external") == 0);
+    if (argc == 2 && strcmp(argv[1], "serve") == 0) return run_serve();
     if (argc == 4 && strcmp(argv[1], "checks") == 0) {
         run_checks(argv[2], argv[3]);
         printf("%s: %d check(s) failed\n", failures ? "FAILED" : "passed", failures);
         return failures ? 1 : 0;
     }
-    fprintf(stderr, "usage: test_capi script BUNDLE SCRIPT [--external] | checks BUNDLE DAMAGED\n");
+    fprintf(stderr, "usage: test_capi script BUNDLE SCRIPT [--external] | serve | checks BUNDLE DAMAGED\n");
     return 2;
 }

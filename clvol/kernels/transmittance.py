@@ -112,6 +112,12 @@ def _as_float(value) -> float:
         return float("nan")
 
 
+# The largest optical depth a render may meet (density_scale x the largest density x the
+# longest path through the volume): beyond it float32 optical depths overflow and inf * 0
+# makes NaN. Renderer.render applies it too; libclvol as CLVOL_MAX_OPTICAL_DEPTH (clvol.h).
+MAX_OPTICAL_DEPTH = 1e37
+
+
 def _check_args(pyramid, density_scale, lam, method, quantity) -> tuple[float, float]:
     if not isinstance(pyramid, Pyramid):
         raise ClvolError(f"expected a Pyramid (clvol.kernels.pyramid.build_pyramid), "
@@ -121,7 +127,7 @@ def _check_args(pyramid, density_scale, lam, method, quantity) -> tuple[float, f
         raise ClvolError(f"density_scale = {density_scale!r} must be a finite number >= 0")
     # The largest optical depth must stay a finite float32 (inf * 0 would make NaN).
     worst = s * pyramid.max_density * pyramid.cube_size * np.sqrt(3.0)
-    if not worst < 1e37:
+    if not worst < MAX_OPTICAL_DEPTH:
         raise ClvolError(f"density_scale = {density_scale!r} times the largest density over the "
                          f"cube gives optical depths beyond float32 range; rescale the density")
     lam_f = _as_float(lam)

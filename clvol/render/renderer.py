@@ -287,16 +287,17 @@ class Renderer:
     # ------------------------------------------------------------------ API
     def _check_optical_range(self, medium) -> None:
         """Both methods keep optical depths in float32: density_scale times the largest
-        density over the box's diagonal must stay below 1e37 (the light field's own rule,
-        clvol/kernels/transmittance.py), else inf * 0 makes NaN (the API fuzz found
-        density_scale = 3.4e38 rendering a NaN alpha through the path tracer and an unlit
-        march)."""
+        density over the box's diagonal must stay below MAX_OPTICAL_DEPTH = 1e37 (the light
+        field's own rule, clvol/kernels/transmittance.py; libclvol's CLVOL_MAX_OPTICAL_DEPTH),
+        else inf * 0 makes NaN (the API fuzz found density_scale = 3.4e38 rendering a NaN
+        alpha through the path tracer and an unlit march)."""
         g = self.grid
         if getattr(self, "_max_density_of", None) is not g:
             self._max_density = float(np.max(g.density, initial=0.0))
             self._max_density_of = g
         worst = medium.density_scale * self._max_density * float(np.linalg.norm(g.extent))
-        if not worst < 1e37:
+        from ..kernels.transmittance import MAX_OPTICAL_DEPTH
+        if not worst < MAX_OPTICAL_DEPTH:
             raise ClvolError(f"medium.density_scale = {medium.density_scale!r} times the "
                              f"largest density {self._max_density:g} over the box's diagonal "
                              f"gives optical depths beyond float32 range; rescale the density")
