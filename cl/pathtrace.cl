@@ -206,19 +206,17 @@ typedef pt_rgb spec_t;
 #if PT_LANES > LANES
 #error "PT_LANES must be at most the device's LANES (lanes.h: no wider vector in a call)"
 #endif
-#define PT_CAT_(a, b) a##b
-#define PT_CAT(a, b) PT_CAT_(a, b)
-typedef PT_CAT(float, PT_LANES) vf;
-typedef PT_CAT(int, PT_LANES) vi;
-typedef PT_CAT(uint, PT_LANES) vu;
-#define VLOAD(a) PT_CAT(vload, PT_LANES)(0, a)
-#define VSTORE(v, a) PT_CAT(vstore, PT_LANES)(v, 0, a)
-#define VGATHER(p, i) PT_CAT(gather, PT_LANES)(p, i)
-#define VCONVERT_F(x) PT_CAT(convert_float, PT_LANES)(x)
-#define VCONVERT_I(x) PT_CAT(convert_int, PT_LANES)(x)
+typedef LANES_CAT(float, PT_LANES) vf;
+typedef LANES_CAT(int, PT_LANES) vi;
+typedef LANES_CAT(uint, PT_LANES) vu;
+#define VLOAD(a) LANES_CAT(vload, PT_LANES)(0, a)
+#define VSTORE(v, a) LANES_CAT(vstore, PT_LANES)(v, 0, a)
+#define VGATHER(p, i) LANES_CAT(gather, PT_LANES)(p, i)
+#define VCONVERT_F(x) LANES_CAT(convert_float, PT_LANES)(x)
+#define VCONVERT_I(x) LANES_CAT(convert_int, PT_LANES)(x)
 RNG_DEFINE_LANES(PT_LANES)
-#define VPHILOX PT_CAT(philox4x32_10_x, PT_LANES)
-#define as_vu(x) PT_CAT(as_uint, PT_LANES)(x)
+#define VPHILOX LANES_CAT(philox4x32_10_x, PT_LANES)
+#define as_vu(x) LANES_CAT(as_uint, PT_LANES)(x)
 
 #define PT_IDLE 0
 #define PT_FLIGHT 1     /* delta tracking: a real collision is a scattering vertex */
