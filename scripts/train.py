@@ -39,6 +39,10 @@ def main(argv=None) -> int:
     ap.add_argument("--lr", type=float, default=d.lr)
     ap.add_argument("--seed", type=int, default=d.seed)
     ap.add_argument("--floor", type=float, default=d.floor)
+    ap.add_argument("--image-weight", type=float, default=d.image_weight, metavar="P",
+                    help="weigh each training sample's error by its share of its "
+                         "configuration's linear brightness, to the power P (0: off; 2: as an "
+                         "image weighs it; docs/neural.md)")
     ap.add_argument("--holdout-volumes", default=",".join(map(str, d.holdout_volumes)))
     ap.add_argument("--train-fraction", type=float, default=d.train_fraction,
                     help="train on the first fraction of each data set's training volumes "
@@ -90,7 +94,7 @@ def main(argv=None) -> int:
         ap.error("--ray trains (not with --evaluate) with --workers >= 1")
     torch.set_num_threads(args.threads)
     cfg = tr.RunConfig(steps=args.steps, batch=args.batch, lr=args.lr, seed=args.seed,
-                       floor=args.floor,
+                       floor=args.floor, image_weight=args.image_weight,
                        holdout_volumes=tuple(int(v) for v in args.holdout_volumes.split(",") if v),
                        train_fraction=args.train_fraction, eval_every=args.eval_every,
                        checkpoint_every=args.checkpoint_every)
@@ -129,7 +133,8 @@ def main(argv=None) -> int:
     # --evaluate needs the training samples only for the mean predictor: a bounded subset
     # (every k-th shard) keeps evaluating a large data set's weights cheap
     use = train_sh[::max(1, len(train_sh) // EVAL_TRAIN_SHARDS)] if args.evaluate else train_sh
-    train = tr.shard_samples(use, cfg.floor, albedo_draws=args.albedo_draws, seed=cfg.seed)
+    train = tr.shard_samples(use, cfg.floor, albedo_draws=args.albedo_draws, seed=cfg.seed,
+                             image_weight=cfg.image_weight)
     # the held-out loss printed during training is a monitor: a bounded subset of the held-out
     # shards (every k-th); --evaluate reports on all of them by group
     mon = held_sh if args.evaluate else thin_to_queries(held_sh, MONITOR_QUERIES)

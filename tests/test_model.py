@@ -155,6 +155,28 @@ def test_make_samples_channels_and_albedo_zero():
         tr.make_samples(f, c, F, None, (0, 0, 0))
 
 
+def test_image_weight_is_the_linear_share_of_its_configuration():
+    """weigh_as_image: within a configuration, weight ratios are the ratios of F + a^gamma to
+    the power given, whatever the albedo; configurations are normalised apart; power 0 is off."""
+    rng = np.random.default_rng(5)
+    f, c = ref.random_inputs(6, rng)
+    F = np.array([[0.01] * 3, [0.2] * 3, [1.5] * 3, [0.05] * 3, [0.4] * 3, [3.0] * 3])
+    key = np.array([7, 7, 7, 9, 9, 9])
+    s = tr.make_samples(f, c, F, None, (0.6, 0.95, 0.95), key=key)       # two albedos per query
+    off = tr.weigh_as_image(tr.make_samples(f, c, F, None, (0.6, 0.95, 0.95), key=key), 0.0)
+    assert np.array_equal(off.weight, s.weight)
+    w = tr.weigh_as_image(s, 2.0).weight.astype(np.float64)
+    a = s.config[:, ref.ALBEDO].astype(np.float64)
+    lin = np.repeat(F[:, 0], 1)[s.rows()] + a ** 4           # F + a^gamma (GAMMA = 4)
+    for k in (7, 9):
+        m = key[s.rows()] == k
+        share = lin[m] / lin[m].mean()
+        assert w[m] / w[m].sum() == pytest.approx(share ** 2 / (share ** 2).sum(), rel=1e-5)
+    assert w.mean() == pytest.approx(1.0, rel=1e-6)
+    # the brightest query of each configuration outweighs its darkest
+    assert w[s.rows() == 2].min() > w[s.rows() == 0].max()
+
+
 def _synthetic(n, rng):
     """A target the features determine: attenuated light and density of the inner layers."""
     f, c = ref.random_inputs(n, rng, lobes=LOBES[1])

@@ -53,7 +53,8 @@ def _worker_loop(config: dict) -> None:
     fam = (lambda s: s.meta.get("volume", {}).get("family"))
     train_sh = [s for f in folders for s in tr.split_shards(f, cfg)[0] if fam(s) not in excluded]
     mine = train_sh[rank::world]
-    samples = tr.shard_samples(mine, cfg.floor, albedo_draws=config["albedo_draws"], seed=cfg.seed)
+    samples = tr.shard_samples(mine, cfg.floor, albedo_draws=config["albedo_draws"], seed=cfg.seed,
+                               image_weight=cfg.image_weight)
     arch = Architecture.from_dict(config["architecture"])
     device = "cpu"
     if config["gpu"]:

@@ -156,6 +156,26 @@ def concat_samples(items, n_rows: int | None = None) -> Samples:
     return out
 
 
+def weigh_as_image(s: Samples, power: float) -> Samples:
+    """Multiply the loss weights by (F + a^gamma) / its configuration's mean, to ``power``.
+
+    The loss is a squared error in y = log1p(F / a^gamma), so an error e in y is a linear error
+    of about (F + a^gamma) e. An image is a sum of linear radiance over the points a camera sees:
+    power 2 weighs each sample's log error as its linear share of its configuration's image
+    (docs/neural.md, "Weighted as the image weighs points"); power 0 leaves the weights as they
+    are. Per-configuration means keep one bright configuration from taking over the loss."""
+    if power == 0 or len(s) == 0:
+        return s
+    a_g = np.asarray(s.config[:, ALBEDO], np.float64) ** GAMMA
+    lin = np.exp(np.asarray(s.y, np.float64) - 0.5 * np.asarray(s.var, np.float64)) * a_g
+    key = np.zeros(len(s), np.int64) if s.key is None else np.asarray(s.key)
+    _, inv = np.unique(key, return_inverse=True)
+    mean = np.bincount(inv, weights=lin) / np.bincount(inv)
+    w = np.asarray(s.weight, np.float64) * (lin / mean[inv]) ** power
+    s.weight = (w / w.mean()).astype(np.float32)
+    return s
+
+
 def weighted_loss(y_hat: torch.Tensor, y: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
     """Seed eq. 20 (mean squared error in the normalised log space), optionally weighted."""
     err = (y_hat - y) ** 2
@@ -278,6 +298,7 @@ class RunConfig:
     weight_decay: float = 0.0
     seed: int = 0
     floor: float = 0.05
+    image_weight: float = 0.0         # power of the image-brightness weight (weigh_as_image); 0: off
     holdout_volumes: tuple = ()       # extra whole volumes never trained on (split_shards)
     holdout_config: int = -1          # this configuration index of every volume is held out too
     train_fraction: float = 1.0       # train on the first fraction of each data set's training volumes
@@ -368,7 +389,7 @@ def order_samples(arrays, albedo, key=None, floor: float = 0.05) -> Samples:
 
 
 def shard_samples(shards, floor: float = 0.05, albedo_draws: int = 0, albedos=None,
-                  seed: int = 0) -> Samples:
+                  seed: int = 0, image_weight: float = 0.0) -> Samples:
     """Samples of a list of clvol.training.dataset.Shard, key = the shard's position in the data
     set (volume * configs + configuration). Shards are read one at a time and their feature
     rows copied once (``concat_samples`` with ``n_rows``).
@@ -393,7 +414,8 @@ def shard_samples(shards, floor: float = 0.05, albedo_draws: int = 0, albedos=No
             else:
                 yield make_samples(a["features"], a["config"], F, a["Fms_se"], s.albedo,
                                    levels=a["levels"], key=key, floor=floor)
-    return concat_samples(parts(), n_rows=sum(len(F) for F in labels))
+    out = concat_samples(parts(), n_rows=sum(len(F) for F in labels))
+    return weigh_as_image(out, image_weight)
 
 
 def save_checkpoint(path, state: dict) -> None:
