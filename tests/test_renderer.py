@@ -163,6 +163,21 @@ def test_max_order_1_is_single_scattering_for_every_method():
     assert pt.multiple.max() == 0 and pt.single.max() > 0
 
 
+@pytest.mark.parametrize("ms,opts", [("none", {}), ("wrenninge", {"step": 0.5, "octaves": 3})])
+def test_march_with_is_the_renderers_frame(ms, opts):
+    """RayMarcher.march_with (the benchmarks' short form) plans as the Renderer does: a plan
+    without the volume's facts marched in world-unit steps and drew other images."""
+    from clvol.render.raymarch import RayMarcher
+    sc = small_scene()
+    ren = clvol.Renderer(sc, ms=ms, **opts)
+    want = ren.render()
+    rm = RayMarcher(sc.volume.load(), sc.medium, get_runtime())
+    layers, plan = rm.march_with(sc.camera, sc.light, ms, **opts)
+    assert plan.step == pytest.approx(float(ren.plan().step))
+    for k in ("total", "single", "multiple", "alpha"):
+        np.testing.assert_array_equal(layers[k], want.layers[k], err_msg=k)
+
+
 def _fresh(scene, camera=None, light=None, medium=None, **opts):
     sc = dataclasses.replace(scene, camera=camera or scene.camera, light=light or scene.light,
                              medium=medium or scene.medium)

@@ -264,9 +264,12 @@ class RayMarcher:
         default): the benchmarks' and tests' short form of plan_frame + march."""
         from ..scene import Scene
         from .options import bind
+        from .plan import VolumeFacts
         o = bind("raymarch", dict(options, ms=ms))
         scene = Scene(path=None, volume=None, medium=self.medium, light=light, camera=camera)
-        plan = plan_frame(scene, o)
+        # the volume's facts, as the Renderer gives them: without them the plan cannot turn the
+        # step from voxels into world units (it marched 1-world-unit steps, 10-40x too coarse)
+        plan = plan_frame(scene, o, VolumeFacts(self.grid))
         source = make_source(ms, o, self.rt)
         return self.march(plan.camera, light, plan, source, read_back=read_back, stats=stats)
 
