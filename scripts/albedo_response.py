@@ -11,7 +11,10 @@ per-order labels (one set of albedo-1 paths, docs/pathtrace.md) give F at any al
 network predicts F from the train-mode gather (what the data sets store), for a unit sun. Printed,
 per albedo 0.8 / 0.9 / 0.96 / 0.99 / 1: sum of predicted F over sum of labels; the response
 d log F / d log a over 0.99..1 of both; and the same split by the labels' mean albedo exponent
-(low- and high-order halves). The same quantities for the data sets' own point distribution
+(low- and high-order halves), and what the network's inputs say about the sun there: the median
+optical depth from the point to the sun, and per graded transmittance level (finest first) the
+median of the innermost template layer's mean T (the six points around the query; ``levels``):
+what the network's transmittance inputs tell it of the sun's distance. The same quantities for the data sets' own point distribution
 come from `scripts/train.py DATA X --evaluate W` (docs/neural.md).
 """
 from __future__ import annotations
@@ -49,6 +52,27 @@ def visible_points(scene, grid, n: int, tau: float):
     return pts, om
 
 
+def sun_depth(grid, density_scale: float, pts, to_light) -> np.ndarray:
+    """[m] optical depth from each point toward the light (``to_light``: the scene's
+    ``light.direction``, which points toward the light) to the box's edge, by clvol.training.dataset.depth_points' march: the depth of a
+    far target at a huge optical depth is what the march has summed when it leaves the box."""
+    from clvol.training.dataset import VISIBLE_STEPS
+    lo, hi = np.asarray(grid.bbox_min, np.float64), np.asarray(grid.bbox_max, np.float64)
+    d = grid.density.astype(np.float64) * density_scale
+    shape = np.array(d.shape[::-1])
+    cell = (hi - lo) / shape
+    to_sun = np.asarray(to_light, np.float64)
+    to_sun /= np.linalg.norm(to_sun)
+    with np.errstate(divide="ignore"):
+        t0, t1 = (lo - pts) / to_sun, (hi - pts) / to_sun
+    tf = np.nanmin(np.maximum(t0, t1), axis=1).clip(0)
+    dt = tf / VISIBLE_STEPS
+    ts = (np.arange(VISIBLE_STEPS)[None, :] + 0.5) * dt[:, None]
+    p = pts[:, None, :] + ts[..., None] * to_sun
+    k = np.clip(((p - lo) / cell).astype(np.int64), 0, shape - 1)
+    return (d[k[..., 2], k[..., 1], k[..., 0]] * dt[:, None]).sum(1)
+
+
 def response(scene_path: Path, weights: Path, pixels: int, paths: int, tau: float, seed: int) -> dict:
     from clvol.kernels.gather import gather
     from clvol.kernels.pyramid import build_pyramid
@@ -83,6 +107,12 @@ def response(scene_path: Path, weights: Path, pixels: int, paths: int, tau: floa
     F_hat = a ** 4 * np.expm1(y)
     F_lab = a ** 4 * np.expm1(h.y.astype(np.float64) - 0.5 * h.var)
     rows = np.asarray(h.row)
+    tau_sun = sun_depth(grid, scene.medium.density_scale, pts, l)
+    # the innermost template layer (the 6 points around the query): far layers reach outside
+    # the medium, where T is 1 by definition, so their largest T says nothing about depth
+    from clvol.features import layout
+    inner = layout.layer_slices()[0]
+    t_inner = np.asarray(g["levels"], np.float64)[:, :, inner].mean(axis=2)     # [m][levels]
     out = {"scene": scene_path.stem, "points": int(len(pts)), "groups": {}}
     lit = S.sum(1) > 0
     med = float(np.median(ebar[lit])) if lit.any() else 0.0
@@ -93,7 +123,10 @@ def response(scene_path: Path, weights: Path, pixels: int, paths: int, tau: floa
         ratio = {x: sums[x][0] / max(sums[x][1], 1e-30) for x in ALBEDOS}
         slope = (lambda i: np.log(sums[1.0][i] / max(sums[0.99][i], 1e-30)) / -np.log(0.99))
         out["groups"][name] = {"ratio": ratio, "label_slope": slope(1), "network_slope": slope(0),
-                               "points": int(keep.sum())}
+                               "points": int(keep.sum()),
+                               "tau_sun": float(np.median(tau_sun[keep])) if keep.any() else 0.0,
+                               "t_levels": (np.median(t_inner[keep], axis=0) if keep.any()
+                                            else np.zeros(t_inner.shape[1])).tolist()}
     return out
 
 
@@ -109,14 +142,15 @@ def main(argv=None) -> int:
     print(f"weights {args.weights}; {args.pixels}^2 camera rays, points at optical depth {args.tau} "
           f"from the camera; {args.paths} paths per label")
     print("| scene | points | group | " + " | ".join(f"a = {x}" for x in ALBEDOS) +
-          " | d log F / d log a (0.99..1): labels / network |")
-    print("|---|---|---|" + "---|" * len(ALBEDOS) + "---|")
+          " | d log F / d log a (0.99..1): labels / network | optical depth to the sun | inner T per level, finest first |")
+    print("|---|---|---|" + "---|" * len(ALBEDOS) + "---|---|---|")
     for s in args.scenes:
         r = response(Path(s), Path(args.weights), args.pixels, args.paths, args.tau, args.seed)
         for name, gr in r["groups"].items():
             print(f"| {r['scene']} | {gr['points']} | {name} | " +
                   " | ".join(f"{gr['ratio'][x]:.3f}" for x in ALBEDOS) +
-                  f" | {gr['label_slope']:.1f} / {gr['network_slope']:.1f} |", flush=True)
+                  f" | {gr['label_slope']:.1f} / {gr['network_slope']:.1f} | {gr['tau_sun']:.1f}"
+                  " | " + " ".join(f"{t:.0e}" for t in gr["t_levels"]) + " |", flush=True)
     return 0
 
 
