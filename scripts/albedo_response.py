@@ -73,27 +73,28 @@ def sun_depth(grid, density_scale: float, pts, to_light) -> np.ndarray:
     return (d[k[..., 2], k[..., 1], k[..., 0]] * dt[:, None]).sum(1)
 
 
-def response(scene_path: Path, weights: Path, pixels: int, paths: int, tau: float, seed: int) -> dict:
+def scene_points(scene_path: Path, pixels: int, paths: int, seed: int, base: int = 64,
+                 lam: float = 0.6, tau: float = 1.0) -> dict:
+    """The visible points of one scene with their labels: {"name", "points", "samples" (the
+    train-mode samples at every albedo of ALBEDOS), "score": y -> per-group results} where
+    ``score`` takes a model's predicted y for ``samples`` (``base``, ``lam``: the gather's
+    contract, the model's)."""
+    from clvol.features import layout
     from clvol.kernels.gather import gather
     from clvol.kernels.pyramid import build_pyramid
     from clvol.kernels.transmittance import graded_transmittance
-    from clvol.training import train as tr
-    from clvol.features.weights import load_weights
-    from clvol.training.model import Model
     from clvol.render.pathtrace import point_query_orders
     from clvol.scene import load_scene
+    from clvol.training import train as tr
 
     scene = load_scene(scene_path)
     # a unit sun, as the labels and the network's F are defined
     scene = dataclasses.replace(scene, light=dataclasses.replace(scene.light, irradiance=(1.0, 1.0, 1.0)))
     grid = scene.volume.load()
-    w = load_weights(weights)
-    base = int(w.meta.get("contract", {}).get("base_resolution", 64))
     pts, om = visible_points(scene, grid, pixels, tau)
     o = point_query_orders(scene, pts, om, paths, seed=seed, grid=grid)
     pyramid = build_pyramid(grid, base)
     l = np.asarray(scene.light.direction, np.float64)
-    lam = float(w.meta.get("contract", {}).get("lambda", 0.6))
     graded = graded_transmittance(pyramid, scene.medium.density_scale, l, lam=lam)
     g = gather(pyramid, graded, pts, om, l, scene.medium, scene.medium.albedo[0], mode="train")
     arrays = {"features": g["features"], "levels": g["levels"], "config": g["config"],
@@ -101,33 +102,47 @@ def response(scene_path: Path, weights: Path, pixels: int, paths: int, tau: floa
     S, M = np.asarray(o["S"], np.float64), np.asarray(o["M"], np.float64)
     ebar = np.divide(M.sum(1), S.sum(1), out=np.zeros(len(S)), where=S.sum(1) > 0)
     h = tr.order_samples(arrays, np.tile(np.asarray(ALBEDOS), (len(pts), 1)))
-    model = Model.from_weights(w)
-    y = tr.predict(model, h).astype(np.float64)
     a = h.config[:, tr.ALBEDO].astype(np.float64)
-    F_hat = a ** 4 * np.expm1(y)
     F_lab = a ** 4 * np.expm1(h.y.astype(np.float64) - 0.5 * h.var)
     rows = np.asarray(h.row)
     tau_sun = sun_depth(grid, scene.medium.density_scale, pts, l)
     # the innermost template layer (the 6 points around the query): far layers reach outside
-    # the medium, where T is 1 by definition, so their largest T says nothing about depth
-    from clvol.features import layout
+    # the medium, where T is 1 by definition
     inner = layout.layer_slices()[0]
     t_inner = np.asarray(g["levels"], np.float64)[:, :, inner].mean(axis=2)     # [m][levels]
-    out = {"scene": scene_path.stem, "points": int(len(pts)), "groups": {}}
     lit = S.sum(1) > 0
     med = float(np.median(ebar[lit])) if lit.any() else 0.0
-    for name, keep in (("all", lit), (f"low order (mean exponent < {med:.0f})", lit & (ebar < med)),
-                       (f"high order (mean exponent >= {med:.0f})", lit & (ebar >= med))):
-        k = keep[rows]
-        sums = {x: (F_hat[k & np.isclose(a, x)].sum(), F_lab[k & np.isclose(a, x)].sum()) for x in ALBEDOS}
-        ratio = {x: sums[x][0] / max(sums[x][1], 1e-30) for x in ALBEDOS}
-        slope = (lambda i: np.log(sums[1.0][i] / max(sums[0.99][i], 1e-30)) / -np.log(0.99))
-        out["groups"][name] = {"ratio": ratio, "label_slope": slope(1), "network_slope": slope(0),
-                               "points": int(keep.sum()),
-                               "tau_sun": float(np.median(tau_sun[keep])) if keep.any() else 0.0,
-                               "t_levels": (np.median(t_inner[keep], axis=0) if keep.any()
-                                            else np.zeros(t_inner.shape[1])).tolist()}
-    return out
+    groups = (("all", lit), (f"low order (mean exponent < {med:.0f})", lit & (ebar < med)),
+              (f"high order (mean exponent >= {med:.0f})", lit & (ebar >= med)))
+
+    def score(y) -> dict:
+        F_hat = a ** 4 * np.expm1(np.asarray(y, np.float64))
+        out = {}
+        for name, keep in groups:
+            k = keep[rows]
+            sums = {x: (F_hat[k & np.isclose(a, x)].sum(), F_lab[k & np.isclose(a, x)].sum())
+                    for x in ALBEDOS}
+            slope = (lambda i: np.log(sums[1.0][i] / max(sums[0.99][i], 1e-30)) / -np.log(0.99))
+            out[name] = {"ratio": {x: sums[x][0] / max(sums[x][1], 1e-30) for x in ALBEDOS},
+                         "label_slope": slope(1), "network_slope": slope(0),
+                         "points": int(keep.sum()),
+                         "tau_sun": float(np.median(tau_sun[keep])) if keep.any() else 0.0,
+                         "t_levels": (np.median(t_inner[keep], axis=0) if keep.any()
+                                      else np.zeros(t_inner.shape[1])).tolist()}
+        return out
+    return {"name": scene_path.stem, "points": int(len(pts)), "samples": h, "score": score}
+
+
+def response(scene_path: Path, weights: Path, pixels: int, paths: int, tau: float, seed: int) -> dict:
+    from clvol.features.weights import load_weights
+    from clvol.training import train as tr
+    from clvol.training.model import Model
+    w = load_weights(weights)
+    c = w.meta.get("contract", {})
+    sp = scene_points(scene_path, pixels, paths, seed, base=int(c.get("base_resolution", 64)),
+                      lam=float(c.get("lambda", 0.6)), tau=tau)
+    y = tr.predict(Model.from_weights(w), sp["samples"])
+    return {"scene": sp["name"], "points": sp["points"], "groups": sp["score"](y)}
 
 
 def main(argv=None) -> int:
