@@ -11,7 +11,7 @@ DIR/manifest.txt is ``key = value`` lines (``#`` starts a comment; lists are spa
 strings have no spaces). Every binary file is raw little-endian float32 or int32, C order.
 The bundle serialises the renderer's plan of the scene's frame (clvol/render/plan.py
 ``plan_frame``, through ``Renderer.plan``): the source it chose, the ray marcher's ``-D``
-defines, the network's active-point rule (``lattice_reach_mask``); the network's programs'
+defines, the network's active-point rule (its ``active_points``); the network's programs'
 defines come from the kernels' own functions (``mlp.kernel_defines``, ``phase_defines``,
 ``coarse_level``), formatted by the runtime's own ``_define_flags``; the host constants
 (padding, tile and chunk sizes) are read from the Python modules that launch the kernels, so
@@ -116,6 +116,7 @@ class _Planned:
     options: object
     plan: object
     domain: dict
+    source: object             # the configured network source (clvol/render/ms/network.py)
     weights: object            # the network's MlpWeights
     res: tuple                 # the F_ms lattice (gx, gy, gz)
     active: object             # the network's active lattice points ([z][y][x] indices)
@@ -139,7 +140,6 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
     kernel defines, the active lattice points, the light field's resolution. What the C host
     does not implement is refused here, naming it."""
     from .kernels.majorant import majorant_block
-    from .render.ms.network import NETWORK_CHUNK, lattice_reach_mask, load_network_weights
     from .render.ms import source_class
     from .render.raymarch import auto_light_resolution
     from .render.renderer import Renderer
@@ -151,12 +151,14 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
         for k, v in octaves.as_options().items():
             o.set(k, v)
     plan = r.plan()
+    configured = r.source        # the network source the C host runs (its declarations)
     res = ((o["ms_resolution"],) * 3 if np.isscalar(o["ms_resolution"])
            else tuple(int(v) for v in o["ms_resolution"]))
-    if int(np.prod(res)) > NETWORK_CHUNK:
+    chunk = configured.lattice_points_per_launch
+    if int(np.prod(res)) > chunk:
         # The Python host splits bigger lattices into chunks; the C host runs one launch.
         raise ClvolError(f"bundle option ms_resolution = {o['ms_resolution']!r}: at most "
-                         f"{NETWORK_CHUNK} lattice points (32^3) in a bundle")
+                         f"{chunk} lattice points (32^3) in a bundle")
     if plan.supersample != 1:
         raise ClvolError("bundle: supersampling is not in the bundle format")
     # The C host runs the sources that declare ``bundle_supported`` (the network, none and
@@ -172,9 +174,9 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
                          f"background only (docs/embedding.md)")
     network = plan.lit and ran.uses_network
     # Lattice points the network evaluates (the others hold F_ms = 0): the plan's rule.
-    active = (np.flatnonzero(lattice_reach_mask(grid, res, plan.lattice_reach))
+    active = (np.flatnonzero(configured.active_points(grid, res, plan.lattice_reach))
               if network else np.zeros(0, np.int64))
-    return _Planned(scene, grid, o, plan, r.domain, load_network_weights(r.source.weights_path),
+    return _Planned(scene, grid, o, plan, r.domain, configured, configured.network_weights(),
                     res, active, network, plan.light_resolution or auto_light_resolution(grid),
                     majorant_block(o["majorant_block"], grid.density.shape))
 
@@ -359,21 +361,19 @@ def _write_raymarch(m: "_Manifest", b: _Planned) -> None:
 
 
 def _write_domain(m: "_Manifest", b: _Planned) -> None:
-    from .render.ms.network import (BACKWARD_ALBEDO, BACKWARD_LIMIT, THIN_OPTICAL_THICKNESS,
-                                    outside_domain)
-    medium, dom = b.scene.medium, b.domain
+    medium, dom, rules = b.scene.medium, b.domain, b.source.domain_rules()
     m.comment("domain: what clvol.Renderer needs to pick its source for another medium or "
               "volume (clvol/render/plan.py); libclvol refuses a change that would switch it")
-    m["domain.thin_optical_thickness"] = THIN_OPTICAL_THICKNESS
+    m["domain.thin_optical_thickness"] = rules["thin_optical_thickness"]
     m["domain.albedo"] = [float(v) for v in dom.get("albedo", [0.0, 1.0])]
     ot_range = dom.get("optical_thickness")
     m["domain.optical_thickness"] = "none" if ot_range is None else [float(v) for v in ot_range]
     # the phase cannot change in a bundle: whether it lies outside the domain is fixed
     phase_only = dataclasses.replace(medium, albedo=(1.0, 1.0, 1.0))
-    m["domain.phase_outside"] = bool(outside_domain(
+    m["domain.phase_outside"] = bool(b.source.outside_training_domain(
         {k: v for k, v in dom.items() if k in ("g", "max_lobes")}, phase_only))
-    m["domain.backward"] = bool(medium.phase.mean_cosine < BACKWARD_LIMIT)
-    m["domain.backward_albedo"] = BACKWARD_ALBEDO
+    m["domain.backward"] = bool(medium.phase.mean_cosine < rules["backward_limit"])
+    m["domain.backward_albedo"] = rules["backward_albedo"]
 
 
 def _write_network(m: "_Manifest", b: _Planned, out: Path) -> None:
@@ -445,16 +445,18 @@ def _packed_tensors(w, pad8) -> list:
 
 
 def add_arguments(p) -> None:
-    from .render.ms.network import DEFAULT_NETWORK_RESOLUTION
+    from .render.ms import DEFAULT_SOURCE, source_class
+    # the defaults are the network source's own (the C host's source)
+    default_res = source_class(DEFAULT_SOURCE).option("ms_resolution").default
     p.add_argument("scene", help="scene .toml file")
     p.add_argument("dir", help="output folder (created)")
     p.add_argument("--weights", metavar="FILE.npz", help="network weights (default: shipped)")
-    p.add_argument("--ms", default="network",
+    p.add_argument("--ms", default=DEFAULT_SOURCE,
                    help="multiple-scattering source: the C host implements network (the world "
                         "lattice, default); view and stochastic are Python-only and refused "
                         "(docs/embedding.md)")
-    p.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
-                   help=f"F_ms lattice points per side (default {DEFAULT_NETWORK_RESOLUTION}, "
+    p.add_argument("--ms-resolution", type=int, default=default_res,
+                   help=f"F_ms lattice points per side (default {default_res}, "
                         f"at most 32)")
     p.add_argument("--light-resolution", type=int, default=None,
                    help="light field resolution (power of two; default as clvol render)")

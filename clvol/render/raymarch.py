@@ -319,8 +319,9 @@ class RayMarcher:
         if plan.env_ms != E.ENV_MS_NETWORK:
             return None
         if self._env_net is None or self._env_net.net.grid is not self.grid:
-            self._env_net = E.SkyNetwork(plan.env_weights or None, self.grid, self.medium,
-                                         self.rt, self.dm)
+            from .ms import source_class
+            self._env_net = E.SkyNetwork(source_class(plan.source), plan.env_weights or None,
+                                         self.grid, self.medium, self.rt, self.dm)
             self.count("env_network_setup")
         cells = self._env_ms_sky.get(plan.keys["env_ms_sky"], lambda: E.make_sky(
             light, plan.env_ms_directions, self.medium.is_grey))
@@ -369,56 +370,10 @@ def add_arguments(group) -> None:
 
 
 def _source_arguments(group) -> None:
-    from .ms.network import DEFAULT_NETWORK_RESOLUTION
-    from .ms import source_classes
-    from .ms.view import (DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS, DEFAULT_VIEW_SAMPLES,
-                       STILL_SAMPLES, STOCHASTIC_BLOCKS_ACROSS)
-    group.add_argument("--ms", choices=sorted(source_classes()), default="network",
-                       help="multiple-scattering source: network (the trained network on "
-                            "a world lattice, default), view (the trained network at the "
-                            "camera's view), stochastic (the network at one free-flight "
-                            "point per pixel block per frame, accumulated), wrenninge "
-                            "(analytic octaves), grid (precomputed F_ms, --ms-grid), none "
-                            "(single scattering only)")
-    group.add_argument("--weights", metavar="FILE.npz",
-                       help="network weight file for --ms network (default: the shipped "
-                            "model, clvol/data/weights/full_albedo.npz)")
-    group.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
-                       help=f"F_ms lattice points per side filled by the network (default "
-                            f"{DEFAULT_NETWORK_RESOLUTION})")
-    group.add_argument("--view-block", type=int, default=None, metavar="B",
-                       help=f"--ms view and stochastic: pixels per block side; each block's "
-                            f"queries serve its pixels (default {DEFAULT_VIEW_BLOCK} for "
-                            f"view; for stochastic about {STOCHASTIC_BLOCKS_ACROSS} blocks "
-                            f"across the image: 2 at 128^2, 4 at 256^2)")
-    group.add_argument("--view-samples", type=int, default=DEFAULT_VIEW_SAMPLES, metavar="N",
-                       help=f"--ms stochastic: free-flight samples per block drawn per frame "
-                            f"(default {DEFAULT_VIEW_SAMPLES}; a still view accumulates them "
-                            f"up to {STILL_SAMPLES} per block)")
-    group.add_argument("--view-knots", type=int, default=DEFAULT_VIEW_KNOTS, metavar="K",
-                       help=f"--ms view: network queries per block, at the quantiles of the "
-                            f"camera's in-scattering weight (default {DEFAULT_VIEW_KNOTS})")
-    group.add_argument("--ms-grid", metavar="FILE.npz",
-                       help="precomputed F_ms grid (arrays values, bbox_min, bbox_max) for --ms grid")
-    group.add_argument("--ms-directions", type=int, default=0, metavar="K",
-                       help="network: fill F_ms at K fixed directions per lattice point once per "
-                            "light and blend them for each camera (camera motion then costs no "
-                            "network evaluation; 0 = a lattice per camera position, default)")
-    group.add_argument("--ms-refresh", type=int, default=1, metavar="K",
-                       help="network: when only the camera moves, refill 1/K of the lattice per "
-                            "frame (interleaved; the rest keeps earlier positions' values until "
-                            "its turn; default 1 = all of it)")
-    group.add_argument("--no-domain-fallback", dest="domain_fallback", action="store_false",
-                       help="use the network even for a scene outside the domain its weight "
-                            "file was trained on (default: warn and use the measured fallback, "
-                            "docs/raymarch.md)")
-    group.add_argument("--octaves", type=int, default=3, help="Wrenninge octaves N (default 3)")
-    group.add_argument("--ms-a", type=float, default=0.5,
-                       help="octave extinction multiplier a (default 0.5)")
-    group.add_argument("--ms-b", type=float, default=0.5,
-                       help="octave contribution multiplier b (default 0.5; keep b <= a)")
-    group.add_argument("--ms-c", type=float, default=0.5,
-                       help="octave eccentricity multiplier c (default 0.5)")
+    """Each multiple-scattering source's own options (clvol/render/ms/, ``source_options``)."""
+    from .ms import source_options
+    for opt in source_options():
+        group.add_argument(*opt.flags, **opt.kwargs)
 
 
 def _march_arguments(group) -> None:

@@ -80,6 +80,35 @@ class Octaves:
         return self
 
 
+# --------------------------------------------------------------------------- options
+
+@dataclass(frozen=True)
+class SourceOption:
+    """One render option a source reads: its CLI flags and argparse keywords (type, default,
+    help ...). The sources' options are collected from the registry
+    (clvol/render/ms/__init__.py ``source_options``) into the ray marcher's option table
+    (clvol/render/options.py), which the CLI, the Renderer and the viewer share."""
+    flags: tuple
+    kwargs: dict = field(default_factory=dict, hash=False, compare=False)
+
+    @property
+    def name(self) -> str:
+        """The Python keyword (argparse's ``dest``)."""
+        return self.kwargs.get("dest") or self.flags[0][2:].replace("-", "_")
+
+    @property
+    def default(self):
+        action = self.kwargs.get("action")
+        return (action == "store_false") if action in ("store_true", "store_false") \
+            else self.kwargs.get("default")
+
+
+def option(*flags, **kwargs) -> SourceOption:
+    """A source's option as argparse takes it: ``option("--ms-a", type=float, default=0.5,
+    help=...)``."""
+    return SourceOption(tuple(flags), kwargs)
+
+
 # --------------------------------------------------------------------------- interface
 
 @dataclass
@@ -140,6 +169,24 @@ class MsSource:
     multiple_scattering = False   # it adds orders >= 2 (refused with --max-order 1)
     uses_network = False          # the trained network computes its F_ms (and the sky's)
     bundle_supported = False      # the C host (clvol bundle, examples/c/) implements it
+    summary = "single scattering only"   # its entry in --ms's help
+    # The render options it reads (flag, default, help): its own table, collected into the
+    # CLI's and the Renderer's by the registry (several sources may list the same one).
+    options: tuple = ()
+
+    @classmethod
+    def option(cls, name: str) -> SourceOption:
+        """This source's declared option ``name``."""
+        for opt in cls.options:
+            if opt.name == name:
+                return opt
+        raise KeyError(f"--ms {cls.name} has no option {name!r}")
+
+    @classmethod
+    def read(cls, o, name: str):
+        """Option ``name`` from render options ``o`` (recorded as read), or its declared
+        default where ``o`` lacks it (a partial dict, as the tests pass)."""
+        return o[name] if name in o else cls.option(name).default
 
     @classmethod
     def choose_for(cls, medium, options, volume, domain) -> SourceChoice:
@@ -164,6 +211,36 @@ class MsSource:
 
     def training_domain(self) -> dict | None:
         """The validity domain of the weights this source evaluates, or None (no network)."""
+        return None
+
+    # What the C host's bundle (clvol/bundle.py) and the sky's network share
+    # (clvol/render/environment.py) ask of a network source; None or empty for the others.
+    lattice_points_per_launch: int | None = None   # the most lattice points one launch takes
+
+    def network_weights(self):
+        """The checked weights (clvol/features/weights.py MlpWeights) it evaluates, or None."""
+        return None
+
+    @classmethod
+    def domain_rules(cls) -> dict:
+        """The numbers of its ``choose_for`` rules ({rule: value}; the bundle's manifest)."""
+        return {}
+
+    @classmethod
+    def outside_training_domain(cls, domain: dict, medium) -> list[str]:
+        """The ways ``medium`` lies outside the weights' ``domain`` (empty: inside)."""
+        return []
+
+    @classmethod
+    def active_points(cls, grid, resolution, reach: float, box=None):
+        """Boolean mask over a lattice's points ([z][y][x], over ``box`` or the volume's):
+        those with density within ``reach`` (the plan's ``lattice_reach``), or None."""
+        return None
+
+    @classmethod
+    def sky_evaluator(cls, weights, grid, medium, runtime, device_medium):
+        """The network evaluator of the sky's F_ms fields (``weights`` None: the shipped
+        model), or None for a source without a network."""
         return None
 
     @classmethod

@@ -24,7 +24,7 @@ from ...features.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_t
 from ...runtime import DeviceArray, Stopwatch, get_runtime
 from ..sphere import fibonacci_directions, spherical_barycentric
 from .grid import GridMs, MsGrid, check_ms_grid, ms_lattice
-from .base import MsPlan, MsSource, SourceChoice
+from .base import MsPlan, MsSource, SourceChoice, option
 
 DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
 NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
@@ -356,13 +356,40 @@ class NetworkSource:
         return (out if host else None), info
 
 
+# The options every network-backed source reads (this module's and view.py's).
+WEIGHTS_OPTION = option(
+    "--weights", metavar="FILE.npz",
+    help="network weight file for --ms network (default: the shipped model, "
+         "clvol/data/weights/full_albedo.npz)")
+DOMAIN_FALLBACK_OPTION = option(
+    "--no-domain-fallback", dest="domain_fallback", action="store_false",
+    help="use the network even for a scene outside the domain its weight file was trained "
+         "on (default: warn and use the measured fallback, docs/raymarch.md)")
+
+
 class NetworkMs(GridMs):
     """The network's lattice marched like a precomputed grid. The lattice depends on the
     camera position (omega toward it), the light direction and the medium; ``prepare``
     refills it only when one of those changed."""
     name = "network"
+    summary = "the trained network on a world lattice"
     uses_network = True
     bundle_supported = True            # the C host's network on the world lattice
+    options = (
+        WEIGHTS_OPTION,
+        option("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
+               help=f"F_ms lattice points per side filled by the network (default "
+                    f"{DEFAULT_NETWORK_RESOLUTION})"),
+        option("--ms-directions", type=int, default=0, metavar="K",
+               help="network: fill F_ms at K fixed directions per lattice point once per "
+                    "light and blend them for each camera (camera motion then costs no "
+                    "network evaluation; 0 = a lattice per camera position, default)"),
+        option("--ms-refresh", type=int, default=1, metavar="K",
+               help="network: when only the camera moves, refill 1/K of the lattice per "
+                    "frame (interleaved; the rest keeps earlier positions' values until "
+                    "its turn; default 1 = all of it)"),
+        DOMAIN_FALLBACK_OPTION,
+    )
 
     @classmethod
     def choose_for(cls, medium, options, volume, domain) -> SourceChoice:
@@ -390,6 +417,29 @@ class NetworkMs(GridMs):
         msg = (f"scene outside the network's training domain ({'; '.join(out)}): {what} "
                f"(docs/raymarch.md)")
         return SourceChoice(alt or configured, warning=msg)
+
+    lattice_points_per_launch = NETWORK_CHUNK
+
+    def network_weights(self):
+        return load_network_weights(self.weights_path)
+
+    @classmethod
+    def domain_rules(cls) -> dict:
+        return {"thin_optical_thickness": THIN_OPTICAL_THICKNESS,
+                "backward_limit": BACKWARD_LIMIT, "backward_albedo": BACKWARD_ALBEDO}
+
+    @classmethod
+    def outside_training_domain(cls, domain: dict, medium) -> list[str]:
+        return outside_domain(domain, medium)
+
+    @classmethod
+    def active_points(cls, grid, resolution, reach: float, box=None):
+        return lattice_reach_mask(grid, resolution, reach, box=box)
+
+    @classmethod
+    def sky_evaluator(cls, weights, grid, medium, runtime, device_medium):
+        return NetworkSource(shipped_weights() if weights is None else weights, grid, medium,
+                             runtime, device_medium=device_medium)
 
     @classmethod
     def network_reach(cls, volume, step_voxels: float) -> float:
@@ -455,10 +505,10 @@ class NetworkMs(GridMs):
 
     @classmethod
     def from_options(cls, o, runtime=None) -> "NetworkMs":
-        r = o.get("ms_resolution")
-        o.get("domain_fallback")        # read by plan_frame for every network source
-        return cls(o.get("weights"), DEFAULT_NETWORK_RESOLUTION if r is None else r, runtime,
-                   o.get("ms_directions", 0), o.get("ms_refresh", 1))
+        r = cls.read(o, "ms_resolution")
+        cls.read(o, "domain_fallback")  # read by plan_frame for every network source
+        return cls(cls.read(o, "weights"), DEFAULT_NETWORK_RESOLUTION if r is None else r,
+                   runtime, cls.read(o, "ms_directions"), cls.read(o, "ms_refresh"))
 
     def training_domain(self) -> dict:
         """The validity domain the weight file records (clvol/features/weights.py); loading it
