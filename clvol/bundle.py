@@ -10,10 +10,11 @@ reads it is examples/c/.
 DIR/manifest.txt is ``key = value`` lines (``#`` starts a comment; lists are space-separated;
 strings have no spaces). Every binary file is raw little-endian float32 or int32, C order.
 The bundle serialises the renderer's plan of the scene's frame (clvol/render/plan.py
-``plan_frame``, through ``Renderer.plan``): the source it chose, the ray marcher's ``-D``
-defines, the network's active-point rule (its ``active_points``); the network's programs'
-defines come from the kernels' own functions (``mlp.kernel_defines``, ``phase_defines``,
-``coarse_level``), formatted by the runtime's own ``_define_flags``; the host constants
+``plan_frame``, through ``Renderer.plan``): the source it chose, every program's ``-D``
+defines as the plan lists them (``FramePlan.programs``; the network's gather and MLP apart,
+as the C host runs them, from the same source's ``network_programs``), the network's
+active-point rule (its ``active_points``), formatted by the runtime's own
+``_define_flags``; the host constants
 (padding, tile and chunk sizes) are read from the Python modules that launch the kernels, so
 the C host hard-codes none. tests/test_c_host.py checks the image, the source, the network's
 point count and the recorded defines against a Python render.
@@ -218,55 +219,37 @@ def _write_sources(m: "_Manifest", scene, out: Path) -> None:
     m["include_dir"] = "cl/include"
 
 
+# The manifest's order of the programs (those of the plan that the C host builds).
+PROGRAM_ORDER = ("pyramid", "majorant", "transmittance", "transmittance_w1", "transmittance_wL",
+                 "gather", "gather_bake", "mlp", "raymarch")
+
+
 def _write_programs(m: "_Manifest", b: _Planned) -> None:
-    """The programs the Python host builds for this plan, with their -D options."""
-    from .kernels import gather as kg
-    from .kernels import mlp as km
-    from .kernels import pyramid as kp
-    from .kernels import transmittance as kt
-    from .kernels.phase import phase_defines
+    """The plan's programs (FramePlan.programs and programs_pocl) with their -D options,
+    written as they are; the network's gather and MLP as the C host runs them, apart (the
+    source's ``network_programs`` with ``fused=False``, where Python fuses them)."""
+    from .render.plan import program_source
     from .runtime import _define_flags
-    plan, base = b.plan, b.base
+    plan = b.plan
     m.comment("programs: <name> = source file; options (all devices); options_pocl (added on PoCL)")
-    mlp_defs = km.kernel_defines(b.weights.arch, 1 if b.scene.medium.is_grey else 3, True)
-    gather_defs = dict(phase_defines(b.med_lobes), NP=layout.N_POINTS,
-                       COARSE_LEVEL=kg.coarse_level(base), GATHER_RENDER=1)
-    programs = {
-        "pyramid": ("pyramid", {}, {}),
-        "majorant": ("majorant", {}, {}),
-        "transmittance": ("transmittance", {}, {}),
-        "transmittance_w1": ("transmittance", {"SWEEP_WIDTH": 1}, {}),
-        "transmittance_wL": ("transmittance", {"SWEEP_WIDTH": kt.sweep_width_define(16)}, {}),
-        "gather": ("gather", gather_defs, {"GATHER_SHUFFLE": 1} if kg.USE_SHUFFLE else {}),
-        "gather_bake": ("gather", {}, {}),
-        "mlp": ("mlp", mlp_defs, {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}),
-        "raymarch": ("raymarch", _raymarch_defines(b), {}),
-    }
-    # What the Python host builds: nothing lit, no light field and no source; an analytic
-    # source, the light field (its cube's mips, the sweeps) but no network.
-    if not plan.lit:
-        keep = ["majorant", "raymarch"]
-    else:
-        # the sweeps' widths: LANES-wide columns on levels of at least VECTOR_MIN_N voxels
-        # (clvol/kernels/transmittance.py), for the light field and the network's pyramid
-        sizes = [b.light_res] + ([base >> lv for lv in range(kp.n_levels(base))]
-                                 if b.network else [])
-        widths = {"L" if n >= kt.VECTOR_MIN_N else "1" for n in sizes}
-        keep = ["pyramid", "majorant", "transmittance", "raymarch"]
-        keep += [f"transmittance_w{wd}" for wd in sorted(widths)]
-        if b.network:
-            keep += ["gather", "gather_bake", "mlp"]
-    programs = {k: v for k, v in programs.items() if k in keep}
-    m["programs"] = list(programs)
-    for name, (stem, defs, pocl) in programs.items():
+    programs, pocl = dict(plan.programs), dict(plan.programs_pocl)
+    if b.network:
+        apart, apart_pocl = b.source.network_programs(b.scene.medium, plan.shortcuts,
+                                                      b.weights, fused=False)
+        programs.pop("gather_mlp", None)
+        programs.update(apart)
+        pocl.update(apart_pocl)
+    unknown = set(programs) - set(PROGRAM_ORDER)
+    if unknown:
+        raise ClvolError(f"bundle: programs {sorted(unknown)} have no place in the manifest")
+    names = [n for n in PROGRAM_ORDER if n in programs]
+    m["programs"] = names
+    for name in names:
+        stem = program_source(name)
         m[f"program.{name}"] = f"cl/{stem}.cl"
-        m[f"program.{name}.options"] = program_options(stem, defs).split()
-        if pocl:
-            m[f"program.{name}.options_pocl"] = _define_flags(pocl)
-
-
-def _raymarch_defines(b: _Planned) -> dict:
-    return dict(b.plan.defines, LIGHT_TAU=int(b.plan.light_interp == "optical_depth"))
+        m[f"program.{name}.options"] = program_options(stem, programs[name]).split()
+        if pocl.get(name):
+            m[f"program.{name}.options_pocl"] = _define_flags(pocl[name])
 
 
 def _write_host_constants(m: "_Manifest") -> None:
@@ -351,7 +334,7 @@ def _write_raymarch(m: "_Manifest", b: _Planned) -> None:
     m["raymarch.block"] = int(b.block)
     m["raymarch.skip_empty"] = bool(plan.skip_empty)
     m["raymarch.light_resolution"] = int(b.light_res)
-    m["raymarch.light_tau"] = _raymarch_defines(b)["LIGHT_TAU"]
+    m["raymarch.light_tau"] = plan.programs["raymarch"]["LIGHT_TAU"]
     m["raymarch.channels"] = plan.channels if plan.lit else 1
     rg, rw = lobe_vectors(plan.lobes)
     m["raymarch.lobe_g"] = rg.tolist()

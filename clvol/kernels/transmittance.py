@@ -205,6 +205,19 @@ def sweep_width_define(width: int):
     return "LANES" if width > 1 else 1
 
 
+def sweep_programs(sizes) -> dict:
+    """{program name: defines} of the sweeps over cubes of these ``sizes`` (voxels per side):
+    "transmittance_wL" (LANES-wide columns) for levels of at least VECTOR_MIN_N voxels,
+    "transmittance_w1" for smaller ones (as ``_sweep_level`` builds them on a device of more
+    than one lane)."""
+    out = {}
+    for n in sorted(set(int(n) for n in sizes), reverse=True):
+        wide = n >= VECTOR_MIN_N
+        out["transmittance_wL" if wide else "transmittance_w1"] = {
+            "SWEEP_WIDTH": sweep_width_define(16 if wide else 1)}
+    return out
+
+
 def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
                  out_depth: bool, out: DeviceArray, out_off: int) -> None:
     n = pyr.resolution(level)

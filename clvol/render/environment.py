@@ -134,6 +134,12 @@ def sky_key(light, k: int):
     return ("constant", tuple(light.environment), k)
 
 
+def sky_channels(light, grey_albedo: bool) -> int:
+    """The sky cells' colour planes (``make_sky``; the march's ENV_CHANNELS): 1 for a
+    constant sky over a grey albedo, else 3."""
+    return 1 if getattr(light, "environment_map", None) is None and grey_albedo else 3
+
+
 def make_sky(light, k: int, grey_albedo: bool = True) -> Sky:
     """The cells of ``light``'s environment. A constant sky is grey (C = 1, coloured once per
     ray) when the albedo is grey too; otherwise (a map, or a coloured albedo, whose multiple
@@ -144,7 +150,7 @@ def make_sky(light, k: int, grey_albedo: bool = True) -> Sky:
     if m is None:
         L = np.asarray(light.environment, np.float64)
         om = np.full(k, omega)
-        if grey_albedo:
+        if sky_channels(light, grey_albedo) == 1:
             return Sky(dirs, np.full((k, 1), omega), tuple(L), 1, om)
         return Sky(dirs, np.tile(L * omega, (k, 1)), (1.0, 1.0, 1.0), 3, om)
     rgb = np.asarray(light.environment_texels(), np.float64)

@@ -239,7 +239,7 @@ class RayMarcher:
         from ..kernels.raymarch import (MarchCamera, MarchEmission, MarchEnvironment,
                                         MarchLight, MarchMs, MarchVolume)
         res = launch(
-            defines=plan.defines,
+            defines=plan.programs["raymarch"],
             volume=MarchVolume(self.density, g.bbox_min, g.bbox_max, self.medium.density_scale,
                                self.majorant, self.block),
             camera=MarchCamera(camera.origin, fwd, right, up, camera.tan_half_fov,

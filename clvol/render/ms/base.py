@@ -238,6 +238,14 @@ class MsSource:
         return None
 
     @classmethod
+    def network_programs(cls, medium, shortcuts: bool, weights, fused: bool | None = None):
+        """(programs, pocl): {program name: -D defines} of the kernels its network runs for
+        ``medium`` with ``weights`` (MlpWeights), and the defines PoCL adds to some of them;
+        ({}, {}) for a source without a network. ``fused`` (None: the Python host's choice):
+        gather and network in one kernel, else two (the C host's)."""
+        return {}, {}
+
+    @classmethod
     def sky_evaluator(cls, weights, grid, medium, runtime, device_medium):
         """The network evaluator of the sky's F_ms fields (``weights`` None: the shipped
         model), or None for a source without a network."""

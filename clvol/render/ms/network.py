@@ -437,6 +437,27 @@ class NetworkMs(GridMs):
         return lattice_reach_mask(grid, resolution, reach, box=box)
 
     @classmethod
+    def network_programs(cls, medium, shortcuts: bool, weights, fused: bool | None = None):
+        """The programs ``NetworkSource`` builds: the pyramid's sweeps (graded
+        transmittance), the gather's bake, and the gather with the network (fused, as
+        ``FUSED_DEFAULT``) or apart; one colour plane for a grey medium with shortcuts."""
+        from ...kernels import gather as kg
+        from ...kernels import mlp as km
+        from ...kernels.pyramid import n_levels
+        from ...kernels.transmittance import sweep_programs
+        base = int(weights.contract["base_resolution"])
+        channels = 1 if shortcuts and medium.is_grey else 3
+        gather = kg.program_defines(base, kg._lobes(medium), render=True)
+        mlp = km.kernel_defines(weights.arch, channels, True)
+        programs = dict(sweep_programs([base >> lv for lv in range(n_levels(base))]),
+                        gather_bake={})
+        if FUSED_DEFAULT if fused is None else fused:
+            programs["gather_mlp"] = dict(gather, **mlp)
+            return programs, {"gather_mlp": dict(kg.POCL_DEFINES, **km.POCL_DEFINES)}
+        programs.update(gather=gather, mlp=mlp)
+        return programs, {"gather": dict(kg.POCL_DEFINES), "mlp": dict(km.POCL_DEFINES)}
+
+    @classmethod
     def sky_evaluator(cls, weights, grid, medium, runtime, device_medium):
         return NetworkSource(shipped_weights() if weights is None else weights, grid, medium,
                              runtime, device_medium=device_medium)
