@@ -142,7 +142,6 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
     does not implement is refused here, naming it."""
     from .kernels.majorant import majorant_block
     from .render.ms import source_class
-    from .render.raymarch import auto_light_resolution
     from .render.renderer import Renderer
     grid = scene.volume.load()
     r = Renderer(scene, "raymarch", grid=grid, runtime=runtime, ms="network",
@@ -178,7 +177,7 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
     active = (np.flatnonzero(configured.active_points(grid, res, plan.lattice_reach))
               if network else np.zeros(0, np.int64))
     return _Planned(scene, grid, o, plan, r.domain, configured, configured.network_weights(),
-                    res, active, network, plan.light_resolution or auto_light_resolution(grid),
+                    res, active, network, plan.light_resolution,
                     majorant_block(o["majorant_block"], grid.density.shape))
 
 
@@ -428,7 +427,9 @@ def _packed_tensors(w, pad8) -> list:
 
 
 def add_arguments(p) -> None:
+    from .kernels.raymarch import DEFAULT_THRESHOLD
     from .render.ms import DEFAULT_SOURCE, source_class
+    from .render.raymarch import DEFAULT_STEP
     # the defaults are the network source's own (the C host's source)
     default_res = source_class(DEFAULT_SOURCE).option("ms_resolution").default
     p.add_argument("scene", help="scene .toml file")
@@ -446,9 +447,9 @@ def add_arguments(p) -> None:
     p.add_argument("--light-interp", choices=["transmittance", "optical_depth"],
                    default="transmittance",
                    help="what the light field holds and is blended (as clvol render)")
-    p.add_argument("--step", type=float, default=None, help="march step in voxels (default: the renderer's, 0.5)")
+    p.add_argument("--step", type=float, default=None, help=f"march step in voxels (default: the renderer's, {DEFAULT_STEP:g})")
     p.add_argument("--threshold", type=float, default=None,
-                   help="early termination transmittance (default 1e-3)")
+                   help=f"early termination transmittance (default {DEFAULT_THRESHOLD:g})")
     p.add_argument("--width", type=int, default=None, help="override the camera's width")
     p.add_argument("--height", type=int, default=None, help="override the camera's height")
 

@@ -87,7 +87,11 @@ def test_max_order_one_is_single_scattering(domain, no_device):
 
 def test_unlit_isotropic_coloured(domain, no_device):
     unlit = _plan(_scene(albedo=0.0), domain)
-    assert not unlit.lit and unlit.defines["LIT"] == 0 and unlit.light_resolution == 0
+    assert not unlit.lit and unlit.defines["LIT"] == 0
+    # the resolution is resolved (a bundle's host may light the medium later), but no light
+    # field is built and the header reports none
+    assert "transmittance" not in unlit.programs and "pyramid" not in unlit.programs
+    assert unlit.header("-")["raymarch.light_resolution"] == 0
     iso = _plan(_scene(phase={"type": "isotropic"}), domain)
     assert iso.lobes == () and any("isotropic" in s for s in iso.skipped)
     colour = _plan(_scene(albedo=[0.9, 0.8, 0.7]), domain)

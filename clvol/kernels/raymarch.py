@@ -23,6 +23,11 @@ MS_KIND_NONE, MS_KIND_OCTAVES, MS_KIND_GRID, MS_KIND_VIEW = "none", "wrenninge",
 MS_SOURCE_DEFINES = {MS_KIND_NONE: 0, MS_KIND_OCTAVES: 1, MS_KIND_GRID: 2, MS_KIND_VIEW: 3}
 MS_TABLE_KINDS = (MS_KIND_GRID, MS_KIND_VIEW)   # the kinds that read a lattice or table
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
+# Wrenninge octaves: N, and the a, b, c multipliers (one value for all three; b <= a holds).
+# clvol/render/ms/base.py Octaves and the CLI take them from here.
+DEFAULT_OCTAVES = 3
+DEFAULT_OCTAVE_MULTIPLIER = 0.5
+DEFAULT_THRESHOLD = 1e-3   # early termination when T_cam falls below this
 MAX_OCTAVES = kernel_constant("MS_MAX_OCTAVES")
 MAX_VIEW_K = kernel_constant("VIEW_MAX_K")  # knots per block of the view-space table
 TILE = kernel_constant("TILE")  # pixels per row of the tile one work-item marches
@@ -43,7 +48,7 @@ def _device(x, rt) -> DeviceArray:
 
 
 def ms_defines(source: str, octaves: int = 1, channels: int = 1, view_k: int = 1,
-               view_block: int = 4) -> dict:
+               view_block: int | None = None) -> dict:
     """The -D defines of one multiple-scattering source of cl/raymarch.cl (see its header)."""
     if source not in MS_SOURCE_DEFINES:
         raise ClvolError(f"unknown multiple-scattering source {source!r}; one of "
@@ -56,7 +61,7 @@ def ms_defines(source: str, octaves: int = 1, channels: int = 1, view_k: int = 1
          "MS_OCTAVES": int(octaves) if source == MS_KIND_OCTAVES else 1,
          "MS_CHANNELS": int(channels) if source in MS_TABLE_KINDS else 1}
     if source == MS_KIND_VIEW:
-        if not (1 <= view_k <= MAX_VIEW_K and view_block >= 1):
+        if not (1 <= view_k <= MAX_VIEW_K and view_block is not None and view_block >= 1):
             raise ClvolError(f"view table: {view_k} knots (1..{MAX_VIEW_K}), block {view_block}")
         d.update(VIEW_K=int(view_k), VIEW_BLOCK=int(view_block))
     return d
@@ -84,7 +89,7 @@ def input_defines(light_quantity: str, env_channels: int | None = None, bg_image
 
 
 def raymarch_defines(lobes, lit: bool, source: str, octaves: int, channels: int,
-                     skip_empty: bool, view_k: int = 1, view_block: int = 4) -> dict:
+                     skip_empty: bool, view_k: int = 1, view_block: int | None = None) -> dict:
     """The -D defines that specialise cl/raymarch.cl (see its header)."""
     d = dict(phase_defines(lobes))
     d.update(LIT=int(bool(lit)), SKIP_EMPTY=int(bool(skip_empty)))
@@ -131,10 +136,11 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              ms_grid, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
              light_dir, irradiance, albedo, lobes, background,
-             source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
-             step=None, threshold=1e-3, skip_empty=True, lit=True,
+             source="wrenninge", octaves=DEFAULT_OCTAVES, a=DEFAULT_OCTAVE_MULTIPLIER,
+             b=DEFAULT_OCTAVE_MULTIPLIER, c=DEFAULT_OCTAVE_MULTIPLIER,
+             step=None, threshold=DEFAULT_THRESHOLD, skip_empty=True, lit=True,
              light_quantity="transmittance", runtime=None, read_back=True, stats=False,
-             view_block=4, env=None, env_min=(0, 0, 0), env_size=1.0,
+             view_block=None, env=None, env_min=(0, 0, 0), env_size=1.0,
              env_colour=(1, 1, 1), bg_image=None, emission=None, em_min=(0, 0, 0),
              em_max=(1, 1, 1), em_colour=(1, 1, 1), em_box=False):
     """Launch the ray marcher. Returns {layer: array} (float32; total/single/multiple
@@ -242,9 +248,9 @@ class MarchMs:
     planes: object = None
     bbox_min: tuple | None = None
     bbox_max: tuple | None = None
-    a: float = 0.5
-    b: float = 0.5
-    c: float = 0.5
+    a: float = DEFAULT_OCTAVE_MULTIPLIER
+    b: float = DEFAULT_OCTAVE_MULTIPLIER
+    c: float = DEFAULT_OCTAVE_MULTIPLIER
 
 
 @dataclass(frozen=True)
@@ -284,7 +290,7 @@ class MarchEmission:
 
 def launch(*, defines: dict, volume: MarchVolume, camera: MarchCamera, light: MarchLight,
            ms: MarchMs, environment: MarchEnvironment = MarchEnvironment(),
-           emission: MarchEmission | None = None, step: float, threshold: float = 1e-3,
+           emission: MarchEmission | None = None, step: float, threshold: float,
            runtime=None, read_back: bool = True, stats: bool = False):
     """Launch cl/raymarch.cl built with ``defines``, complete: the plan's
     (FramePlan.programs["raymarch"]), or ``raymarch_defines`` with ``input_defines``. The

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ClvolError
+from ..features.layout import DEFAULT_LAMBDA  # the contract's graded-transmittance lambda
 from ..runtime import DeviceArray, Runtime, padded
 from .constants import kernel_constant
 from .grid import f4
@@ -36,7 +37,6 @@ from .pyramid import Pyramid
 
 METHODS = ("sweep", "brute")
 QUANTITIES = ("transmittance", "optical_depth")
-DEFAULT_LAMBDA = 0.6
 
 
 @dataclass(eq=False)

@@ -102,7 +102,7 @@ class FramePlan:
     step_voxels: float
     step: float                     # world units
     threshold: float
-    light_resolution: int           # 0 when unlit
+    light_resolution: int           # the light field's side (0: the volume is not known)
     light_interp: str
     supersample: int
     lattice_reach: float | None     # the network's active-point rule (None: every point)
@@ -128,7 +128,7 @@ class FramePlan:
             "raymarch.step": self.step,
             "raymarch.threshold": self.threshold,
             "raymarch.skip_empty": self.skip_empty,
-            "raymarch.light_resolution": self.light_resolution,
+            "raymarch.light_resolution": self.light_resolution if self.lit else 0,
             "raymarch.light_interp": self.light_interp,
             "raymarch.supersample": self.supersample,
             "raymarch.channels_marched": self.channels,
@@ -162,6 +162,12 @@ def auto_light_resolution(resolution, cap: int = MAX_LIGHT_RESOLUTION) -> int:
     return min(1 << max(0, (n - 1).bit_length()), cap)
 
 
+def light_resolution_for(option, resolution) -> int:
+    """The light field's resolution: the ``light_resolution`` option, or for None the
+    default for a grid of ``resolution`` (``auto_light_resolution``)."""
+    return int(option or auto_light_resolution(resolution))
+
+
 def plan_frame(scene, options, volume: VolumeFacts | None = None,
                domain: dict | None = None, weights=None) -> FramePlan:
     """The plan of one ray-marched frame of ``scene`` (its camera, light and medium) with the
@@ -192,9 +198,10 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
     defines = dict(phase_defines(list(lobes)))
     defines.update(LIT=int(lit), SKIP_EMPTY=int(skip_empty))
     defines.update(ms.defines)
-    light_res = 0
-    if lit and volume is not None:
-        light_res = int(o["light_resolution"] or auto_light_resolution(volume.resolution))
+    # resolved for an unlit frame too (the bundle's C host may light it later); the header
+    # and the programs count it only where it is used
+    light_res = (light_resolution_for(o["light_resolution"], volume.resolution)
+                 if volume is not None else 0)
     # the network's lattice skips points no density sample reads (shortcuts on)
     reach = (cls.lattice_reach_for(volume, o["step"]) if lit and shortcuts and volume is not None
              else None)

@@ -23,20 +23,19 @@ from ..errors import ClvolError
 from ..kernels.majorant import DEFAULT_BLOCK
 from ..kernels.medium import DeviceMedium
 from ..kernels.pyramid import MAX_BASE_RESOLUTION
-from ..kernels.raymarch import LIGHT_QUANTITIES, launch
+from ..kernels.raymarch import DEFAULT_THRESHOLD, LIGHT_QUANTITIES, launch
 from ..features.layout import is_power_of_two
 from ..runtime import get_runtime
 from .ms.base import MsSource
-from .plan import MAX_LIGHT_RESOLUTION, light_key, plan_frame
+from .plan import MAX_LIGHT_RESOLUTION, light_key, light_resolution_for, plan_frame
 from .stages import Stage
-from .plan import auto_light_resolution as plan_light_resolution
 
 # Segment length in voxels of the density grid. Half a voxel, because at one voxel the
 # single scattering alone left RMSE x100 0.54-0.85 against the path tracer on dense scenes
 # (every bench scene has 0.5-0.94 optical depths per voxel) and 0.19-0.33 at half a voxel
 # with the 4x light field below (docs/raymarch.md, "Step and light field").
 DEFAULT_STEP = 0.5
-DEFAULT_THRESHOLD = 1e-3   # early termination when T_cam falls below this
+DEFAULT_SUPERSAMPLE = 1
 MAX_SUPERSAMPLE = 8
 
 
@@ -103,11 +102,6 @@ def check_env_options(env_directions, env_resolution, env_ms_directions=None, en
                          f"power of two from 4 to 256")
 
 
-def auto_light_resolution(grid) -> int:
-    """The light field's default resolution for ``grid`` (clvol/render/plan.py decides it)."""
-    return plan_light_resolution(grid.resolution)
-
-
 class RayMarcher:
     """A volume kept on the device for many frames: density, majorant grid, light field.
 
@@ -125,7 +119,7 @@ class RayMarcher:
         self.rt = runtime or get_runtime()
         self.grid = grid
         self.medium = medium
-        self.light_resolution = light_resolution or auto_light_resolution(grid)
+        self.light_resolution = light_resolution_for(light_resolution, grid.resolution)
         if light_interp not in LIGHT_QUANTITIES:
             raise ClvolError(f"raymarch option light_interp = {light_interp!r}: choose one of "
                              f"{list(LIGHT_QUANTITIES)}")
@@ -168,7 +162,7 @@ class RayMarcher:
         self.dm = device_medium
         self.block = self.dm.block
         self.density, self.majorant = self.dm.density, self.dm.majorant
-        self.light_resolution = light_resolution or auto_light_resolution(grid)
+        self.light_resolution = light_resolution_for(light_resolution, grid.resolution)
         self._light.drop()
         self._env_T = None
         self._env_field.drop()
@@ -377,6 +371,8 @@ def _source_arguments(group) -> None:
 
 
 def _march_arguments(group) -> None:
+    from .environment import (DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_MS_DIRECTIONS,
+                              DEFAULT_ENV_RESOLUTION)
     group.add_argument("--max-order", type=int, default=None, metavar="K",
                        help="highest scattering order: 1 = single scattering only (the ray "
                             "marcher then uses --ms none); the ray marcher has no other limit")
@@ -396,24 +392,27 @@ def _march_arguments(group) -> None:
                             "(default) or the optical depth (docs/raymarch.md)")
     group.add_argument("--env-directions", type=int, default=None, metavar="K",
                        help="environment light: sky directions (cells) whose transmittance "
-                            "fields light the medium (default 64; docs/raymarch.md)")
+                            f"fields light the medium (default {DEFAULT_ENV_DIRECTIONS}; "
+                            f"docs/raymarch.md)")
     group.add_argument("--env-resolution", type=int, default=None, metavar="N",
-                       help="environment light: voxels per side of each direction's "
-                            "transmittance field (power of two; default 32)")
+                       help=f"environment light: voxels per side of each direction's "
+                            f"transmittance field (power of two; default "
+                            f"{DEFAULT_ENV_RESOLUTION})")
     group.add_argument("--env-ms", choices=["network", "escape"], default=None,
                        help="environment light's multiple scattering: the network for "
                             "--env-ms-directions sky cells (default wherever the network "
                             "serves the sun) or the escape model (cheaper, less accurate; "
                             "docs/raymarch.md)")
     group.add_argument("--env-ms-directions", type=int, default=None, metavar="J",
-                       help="environment light: sky cells the network is evaluated for "
-                            "(default 32; each is one network call per camera position)")
+                       help=f"environment light: sky cells the network is evaluated for "
+                            f"(default {DEFAULT_ENV_MS_DIRECTIONS}; each is one network call "
+                            f"per camera position)")
     group.add_argument("--env-ms-per-frame", type=int, default=0, metavar="M",
                        help="environment light: after a camera move, evaluate the network "
                             "for at most M sky cells per frame, the others keeping earlier "
                             "positions' values until their turn (default 0 = all at once)")
-    group.add_argument("--supersample", type=int, default=1,
-                       help="S x S rays per pixel (default 1)")
+    group.add_argument("--supersample", type=int, default=DEFAULT_SUPERSAMPLE,
+                       help=f"S x S rays per pixel (default {DEFAULT_SUPERSAMPLE})")
     group.add_argument("--no-skip-empty", dest="skip_empty", action="store_false",
                        help="march through empty majorant blocks too (same image, slower)")
     group.add_argument("--no-shortcuts", dest="shortcuts", action="store_false",

@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...errors import ClvolError
-from ...kernels.raymarch import MAX_OCTAVES, MS_SOURCE_DEFINES, ms_defines
+from ...kernels.raymarch import (DEFAULT_OCTAVE_MULTIPLIER, DEFAULT_OCTAVES, DEFAULT_THRESHOLD,
+                                 MAX_OCTAVES, MS_SOURCE_DEFINES, ms_defines)
 
 
 # --------------------------------------------------------------------------- data
@@ -44,12 +45,12 @@ class Octaves:
     phase eccentricity. Energy condition (Wrenninge et al.): an octave's contribution
     multiplier must not exceed its extinction multiplier, i.e. ``b <= a`` in this formula's
     letters (the paper writes it "a <= b" with the roles of the letters swapped;
-    docs/raymarch.md). Defaults a = b = c = 0.5, n = 3 satisfy it.
+    docs/raymarch.md). The defaults (clvol/kernels/raymarch.py: a = b = c) satisfy it.
     """
-    n: int = 3
-    a: float = 0.5
-    b: float = 0.5
-    c: float = 0.5
+    n: int = DEFAULT_OCTAVES
+    a: float = DEFAULT_OCTAVE_MULTIPLIER
+    b: float = DEFAULT_OCTAVE_MULTIPLIER
+    c: float = DEFAULT_OCTAVE_MULTIPLIER
 
     @property
     def energy_conserving(self) -> bool:
@@ -153,7 +154,7 @@ class SourceFrame:
     device_medium: object = None  # the volume on the device (clvol/kernels/medium.py): its
                                   # density, pyramids and cache (data as long as the volume)
     step: float = 0.0         # the march's segment length (world units) ...
-    threshold: float = 1e-3   # ... and its early-termination transmittance
+    threshold: float = DEFAULT_THRESHOLD   # ... and its early-termination transmittance
     key: object = None        # the plan's keys["ms"]: what the source's data depends on
 
 
