@@ -111,6 +111,13 @@ class FramePlan:
     skipped: tuple
     keys: dict                      # stage -> what it depends on (clvol/render/stages.py)
 
+    def device_programs(self, pocl: bool) -> dict:
+        """``programs`` as a device builds them: with ``programs_pocl`` added on PoCL."""
+        if not pocl:
+            return self.programs
+        return {name: dict(d, **self.programs_pocl.get(name, {}))
+                for name, d in self.programs.items()}
+
     def header(self, label: str) -> dict:
         """The header entries that state this plan (``label``: the source's description)."""
         return {

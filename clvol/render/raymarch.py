@@ -317,6 +317,9 @@ class RayMarcher:
             self._env_net = E.SkyNetwork(source_class(plan.source), plan.env_weights or None,
                                          self.grid, self.medium, self.rt, self.dm)
             self.count("env_network_setup")
+        programs = plan.device_programs(self.rt.is_pocl)
+        sky = "sky_gather_mlp" if "sky_gather_mlp" in programs else "gather_mlp"
+        self._env_net.net.programs = {"gather_mlp": programs[sky]} if sky in programs else None
         cells = self._env_ms_sky.get(plan.keys["env_ms_sky"], lambda: E.make_sky(
             light, plan.env_ms_directions, self.medium.is_grey))
         return self._env_net.field(cells, self.medium, pyr.cube_min, pyr.cube_size,

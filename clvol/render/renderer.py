@@ -239,7 +239,8 @@ class Renderer:
                 source.prepare(SourceFrame(grid, plan.camera, light, medium, self.rt,
                                            plan.shortcuts, self._count, plan.lattice_reach,
                                            rm.dm, plan.step, plan.threshold,
-                                           plan.keys["ms"]))
+                                           plan.keys["ms"],
+                                           plan.device_programs(self.rt.is_pocl)))
             else:
                 source.skip()
             with Stopwatch() as sw_light:

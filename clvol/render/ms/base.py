@@ -156,6 +156,8 @@ class SourceFrame:
     step: float = 0.0         # the march's segment length (world units) ...
     threshold: float = DEFAULT_THRESHOLD   # ... and its early-termination transmittance
     key: object = None        # the plan's keys["ms"]: what the source's data depends on
+    programs: dict | None = None  # the plan's programs with this device's additions
+                                  # (FramePlan.device_programs): the defines it builds with
 
 
 class MsSource:

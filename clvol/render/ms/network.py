@@ -185,6 +185,10 @@ class NetworkSource:
         self.graded_keep = 1
         self.graded_builds = 0
         self.fused = FUSED_DEFAULT if fused is None else bool(fused)
+        # The frame's planned programs (FramePlan.device_programs; the owner sets them each
+        # frame): the fused kernel is built with their "gather_mlp" defines. None: formed
+        # by the kernel wrappers (tests, benchmarks).
+        self.programs: dict | None = None
 
     def _pyramid(self, grid, device_medium):
         if device_medium is None:
@@ -327,11 +331,13 @@ class NetworkSource:
                 args = (self.mlp, self.pyramid, graded, pts[sl], om[sl], l, medium,
                         float(alb[0]), self.weights.level_weights, self.weights.level_bias,
                         None if grey else alb)   # grey: the config's albedo is the medium's
+                planned = None if self.programs is None else self.programs["gather_mlp"]
                 with Stopwatch() as sw:
                     if host:
-                        out[sl] = gather_mlp(*args)
+                        out[sl] = gather_mlp(*args, defines=planned)
                     else:
-                        gather_mlp(*args, out=out, out_index=out_index[sl], nonfinite=nonfinite)
+                        gather_mlp(*args, out=out, out_index=out_index[sl], nonfinite=nonfinite,
+                                   defines=planned)
                         rt.finish()
                 info["network"] += sw.seconds
         else:
@@ -523,6 +529,7 @@ class NetworkMs(GridMs):
                 frame.runtime.finish()
             self.setup_seconds = sw.seconds
             self._key = None
+        self.net.programs = frame.programs
 
     @classmethod
     def from_options(cls, o, runtime=None) -> "NetworkMs":
