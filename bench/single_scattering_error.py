@@ -19,7 +19,8 @@ import sys
 from _common import machine  # noqa: E402  (bench/ is on sys.path; puts the checkout first)
 from neural_quality import bench_scene, resolve_scenes, scores  # noqa: E402
 
-from clvol.render.raymarch import DEFAULT_STEP, MAX_LIGHT_RESOLUTION, auto_light_resolution  # noqa: E402
+from clvol.render.plan import auto_light_resolution  # noqa: E402
+from clvol.render.raymarch import DEFAULT_STEP, MAX_LIGHT_RESOLUTION  # noqa: E402
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 
@@ -48,11 +49,11 @@ def main(argv=None) -> int:
         halves = [Renderer(sc, "pathtrace", grid=grid, spp=args.spp, seed=s, max_order=1)
                   .render().layers["total"] for s in SEEDS]
         n = max(grid.resolution)
-        rows = [(1, DEFAULT_STEP, auto_light_resolution(grid)),
-                (3, DEFAULT_STEP, auto_light_resolution(grid))]
+        rows = [(1, DEFAULT_STEP, auto_light_resolution(grid.resolution)),
+                (3, DEFAULT_STEP, auto_light_resolution(grid.resolution))]
         for step in args.steps:
             for f in args.light_factors or [None]:
-                lr = auto_light_resolution(grid) if f is None else min(
+                lr = auto_light_resolution(grid.resolution) if f is None else min(
                     1 << max(0, (f * n - 1).bit_length()), MAX_LIGHT_RESOLUTION)
                 rows.append((3, step, lr))
         for ss, step, lr in rows:

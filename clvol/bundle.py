@@ -10,10 +10,11 @@ reads it is examples/c/.
 DIR/manifest.txt is ``key = value`` lines (``#`` starts a comment; lists are space-separated;
 strings have no spaces). Every binary file is raw little-endian float32 or int32, C order.
 The bundle serialises the renderer's plan of the scene's frame (clvol/render/plan.py
-``plan_frame``, through ``Renderer.plan``): the source it chose, the ray marcher's ``-D``
-defines, the network's active-point rule (``lattice_reach_mask``); the network's programs'
-defines come from the kernels' own functions (``mlp.kernel_defines``, ``phase_defines``,
-``coarse_level``), formatted by the runtime's own ``_define_flags``; the host constants
+``plan_frame``, through ``Renderer.plan``): the source it chose, every program's ``-D``
+defines as the plan lists them (``FramePlan.programs``; the network's gather and MLP apart,
+as the C host runs them, from the same source's ``network_programs``), the network's
+active-point rule (its ``active_points``), formatted by the runtime's own
+``_define_flags``; the host constants
 (padding, tile and chunk sizes) are read from the Python modules that launch the kernels, so
 the C host hard-codes none. tests/test_c_host.py checks the image, the source, the network's
 point count and the recorded defines against a Python render.
@@ -116,6 +117,7 @@ class _Planned:
     options: object
     plan: object
     domain: dict
+    source: object             # the configured network source (clvol/render/ms/network.py)
     weights: object            # the network's MlpWeights
     res: tuple                 # the F_ms lattice (gx, gy, gz)
     active: object             # the network's active lattice points ([z][y][x] indices)
@@ -139,9 +141,7 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
     kernel defines, the active lattice points, the light field's resolution. What the C host
     does not implement is refused here, naming it."""
     from .kernels.majorant import majorant_block
-    from .render.ms.network import NETWORK_CHUNK, lattice_reach_mask, load_network_weights
     from .render.ms import source_class
-    from .render.raymarch import auto_light_resolution
     from .render.renderer import Renderer
     grid = scene.volume.load()
     r = Renderer(scene, "raymarch", grid=grid, runtime=runtime, ms="network",
@@ -151,12 +151,14 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
         for k, v in octaves.as_options().items():
             o.set(k, v)
     plan = r.plan()
+    configured = r.source        # the network source the C host runs (its declarations)
     res = ((o["ms_resolution"],) * 3 if np.isscalar(o["ms_resolution"])
            else tuple(int(v) for v in o["ms_resolution"]))
-    if int(np.prod(res)) > NETWORK_CHUNK:
+    chunk = configured.lattice_points_per_launch
+    if int(np.prod(res)) > chunk:
         # The Python host splits bigger lattices into chunks; the C host runs one launch.
         raise ClvolError(f"bundle option ms_resolution = {o['ms_resolution']!r}: at most "
-                         f"{NETWORK_CHUNK} lattice points (32^3) in a bundle")
+                         f"{chunk} lattice points (32^3) in a bundle")
     if plan.supersample != 1:
         raise ClvolError("bundle: supersampling is not in the bundle format")
     # The C host runs the sources that declare ``bundle_supported`` (the network, none and
@@ -172,10 +174,10 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
                          f"background only (docs/embedding.md)")
     network = plan.lit and ran.uses_network
     # Lattice points the network evaluates (the others hold F_ms = 0): the plan's rule.
-    active = (np.flatnonzero(lattice_reach_mask(grid, res, plan.lattice_reach))
+    active = (np.flatnonzero(configured.active_points(grid, res, plan.lattice_reach))
               if network else np.zeros(0, np.int64))
-    return _Planned(scene, grid, o, plan, r.domain, load_network_weights(r.source.weights_path),
-                    res, active, network, plan.light_resolution or auto_light_resolution(grid),
+    return _Planned(scene, grid, o, plan, r.domain, configured, configured.network_weights(),
+                    res, active, network, plan.light_resolution,
                     majorant_block(o["majorant_block"], grid.density.shape))
 
 
@@ -216,55 +218,37 @@ def _write_sources(m: "_Manifest", scene, out: Path) -> None:
     m["include_dir"] = "cl/include"
 
 
+# The manifest's order of the programs (those of the plan that the C host builds).
+PROGRAM_ORDER = ("pyramid", "majorant", "transmittance", "transmittance_w1", "transmittance_wL",
+                 "gather", "gather_bake", "mlp", "raymarch")
+
+
 def _write_programs(m: "_Manifest", b: _Planned) -> None:
-    """The programs the Python host builds for this plan, with their -D options."""
-    from .kernels import gather as kg
-    from .kernels import mlp as km
-    from .kernels import pyramid as kp
-    from .kernels import transmittance as kt
-    from .kernels.phase import phase_defines
+    """The plan's programs (FramePlan.programs and programs_pocl) with their -D options,
+    written as they are; the network's gather and MLP as the C host runs them, apart (the
+    source's ``network_programs`` with ``fused=False``, where Python fuses them)."""
+    from .render.plan import program_source
     from .runtime import _define_flags
-    plan, base = b.plan, b.base
+    plan = b.plan
     m.comment("programs: <name> = source file; options (all devices); options_pocl (added on PoCL)")
-    mlp_defs = km.kernel_defines(b.weights.arch, 1 if b.scene.medium.is_grey else 3, True)
-    gather_defs = dict(phase_defines(b.med_lobes), NP=layout.N_POINTS,
-                       COARSE_LEVEL=kg.coarse_level(base), GATHER_RENDER=1)
-    programs = {
-        "pyramid": ("pyramid", {}, {}),
-        "majorant": ("majorant", {}, {}),
-        "transmittance": ("transmittance", {}, {}),
-        "transmittance_w1": ("transmittance", {"SWEEP_WIDTH": 1}, {}),
-        "transmittance_wL": ("transmittance", {"SWEEP_WIDTH": kt.sweep_width_define(16)}, {}),
-        "gather": ("gather", gather_defs, {"GATHER_SHUFFLE": 1} if kg.USE_SHUFFLE else {}),
-        "gather_bake": ("gather", {}, {}),
-        "mlp": ("mlp", mlp_defs, {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}),
-        "raymarch": ("raymarch", _raymarch_defines(b), {}),
-    }
-    # What the Python host builds: nothing lit, no light field and no source; an analytic
-    # source, the light field (its cube's mips, the sweeps) but no network.
-    if not plan.lit:
-        keep = ["majorant", "raymarch"]
-    else:
-        # the sweeps' widths: LANES-wide columns on levels of at least VECTOR_MIN_N voxels
-        # (clvol/kernels/transmittance.py), for the light field and the network's pyramid
-        sizes = [b.light_res] + ([base >> lv for lv in range(kp.n_levels(base))]
-                                 if b.network else [])
-        widths = {"L" if n >= kt.VECTOR_MIN_N else "1" for n in sizes}
-        keep = ["pyramid", "majorant", "transmittance", "raymarch"]
-        keep += [f"transmittance_w{wd}" for wd in sorted(widths)]
-        if b.network:
-            keep += ["gather", "gather_bake", "mlp"]
-    programs = {k: v for k, v in programs.items() if k in keep}
-    m["programs"] = list(programs)
-    for name, (stem, defs, pocl) in programs.items():
+    programs, pocl = dict(plan.programs), dict(plan.programs_pocl)
+    if b.network:
+        apart, apart_pocl = b.source.network_programs(b.scene.medium, plan.shortcuts,
+                                                      b.weights, fused=False)
+        programs.pop("gather_mlp", None)
+        programs.update(apart)
+        pocl.update(apart_pocl)
+    unknown = set(programs) - set(PROGRAM_ORDER)
+    if unknown:
+        raise ClvolError(f"bundle: programs {sorted(unknown)} have no place in the manifest")
+    names = [n for n in PROGRAM_ORDER if n in programs]
+    m["programs"] = names
+    for name in names:
+        stem = program_source(name)
         m[f"program.{name}"] = f"cl/{stem}.cl"
-        m[f"program.{name}.options"] = program_options(stem, defs).split()
-        if pocl:
-            m[f"program.{name}.options_pocl"] = _define_flags(pocl)
-
-
-def _raymarch_defines(b: _Planned) -> dict:
-    return dict(b.plan.defines, LIGHT_TAU=int(b.plan.light_interp == "optical_depth"))
+        m[f"program.{name}.options"] = program_options(stem, programs[name]).split()
+        if pocl.get(name):
+            m[f"program.{name}.options_pocl"] = _define_flags(pocl[name])
 
 
 def _write_host_constants(m: "_Manifest") -> None:
@@ -349,7 +333,7 @@ def _write_raymarch(m: "_Manifest", b: _Planned) -> None:
     m["raymarch.block"] = int(b.block)
     m["raymarch.skip_empty"] = bool(plan.skip_empty)
     m["raymarch.light_resolution"] = int(b.light_res)
-    m["raymarch.light_tau"] = _raymarch_defines(b)["LIGHT_TAU"]
+    m["raymarch.light_tau"] = plan.programs["raymarch"]["LIGHT_TAU"]
     m["raymarch.channels"] = plan.channels if plan.lit else 1
     rg, rw = lobe_vectors(plan.lobes)
     m["raymarch.lobe_g"] = rg.tolist()
@@ -359,21 +343,19 @@ def _write_raymarch(m: "_Manifest", b: _Planned) -> None:
 
 
 def _write_domain(m: "_Manifest", b: _Planned) -> None:
-    from .render.ms.network import (BACKWARD_ALBEDO, BACKWARD_LIMIT, THIN_OPTICAL_THICKNESS,
-                                    outside_domain)
-    medium, dom = b.scene.medium, b.domain
+    medium, dom, rules = b.scene.medium, b.domain, b.source.domain_rules()
     m.comment("domain: what clvol.Renderer needs to pick its source for another medium or "
               "volume (clvol/render/plan.py); libclvol refuses a change that would switch it")
-    m["domain.thin_optical_thickness"] = THIN_OPTICAL_THICKNESS
+    m["domain.thin_optical_thickness"] = rules["thin_optical_thickness"]
     m["domain.albedo"] = [float(v) for v in dom.get("albedo", [0.0, 1.0])]
     ot_range = dom.get("optical_thickness")
     m["domain.optical_thickness"] = "none" if ot_range is None else [float(v) for v in ot_range]
     # the phase cannot change in a bundle: whether it lies outside the domain is fixed
     phase_only = dataclasses.replace(medium, albedo=(1.0, 1.0, 1.0))
-    m["domain.phase_outside"] = bool(outside_domain(
+    m["domain.phase_outside"] = bool(b.source.outside_training_domain(
         {k: v for k, v in dom.items() if k in ("g", "max_lobes")}, phase_only))
-    m["domain.backward"] = bool(medium.phase.mean_cosine < BACKWARD_LIMIT)
-    m["domain.backward_albedo"] = BACKWARD_ALBEDO
+    m["domain.backward"] = bool(medium.phase.mean_cosine < rules["backward_limit"])
+    m["domain.backward_albedo"] = rules["backward_albedo"]
 
 
 def _write_network(m: "_Manifest", b: _Planned, out: Path) -> None:
@@ -445,25 +427,29 @@ def _packed_tensors(w, pad8) -> list:
 
 
 def add_arguments(p) -> None:
-    from .render.ms.network import DEFAULT_NETWORK_RESOLUTION
+    from .kernels.raymarch import DEFAULT_THRESHOLD
+    from .render.ms import DEFAULT_SOURCE, source_class
+    from .render.raymarch import DEFAULT_STEP
+    # the defaults are the network source's own (the C host's source)
+    default_res = source_class(DEFAULT_SOURCE).option("ms_resolution").default
     p.add_argument("scene", help="scene .toml file")
     p.add_argument("dir", help="output folder (created)")
     p.add_argument("--weights", metavar="FILE.npz", help="network weights (default: shipped)")
-    p.add_argument("--ms", default="network",
+    p.add_argument("--ms", default=DEFAULT_SOURCE,
                    help="multiple-scattering source: the C host implements network (the world "
                         "lattice, default); view and stochastic are Python-only and refused "
                         "(docs/embedding.md)")
-    p.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
-                   help=f"F_ms lattice points per side (default {DEFAULT_NETWORK_RESOLUTION}, "
+    p.add_argument("--ms-resolution", type=int, default=default_res,
+                   help=f"F_ms lattice points per side (default {default_res}, "
                         f"at most 32)")
     p.add_argument("--light-resolution", type=int, default=None,
                    help="light field resolution (power of two; default as clvol render)")
     p.add_argument("--light-interp", choices=["transmittance", "optical_depth"],
                    default="transmittance",
                    help="what the light field holds and is blended (as clvol render)")
-    p.add_argument("--step", type=float, default=None, help="march step in voxels (default: the renderer's, 0.5)")
+    p.add_argument("--step", type=float, default=None, help=f"march step in voxels (default: the renderer's, {DEFAULT_STEP:g})")
     p.add_argument("--threshold", type=float, default=None,
-                   help="early termination transmittance (default 1e-3)")
+                   help=f"early termination transmittance (default {DEFAULT_THRESHOLD:g})")
     p.add_argument("--width", type=int, default=None, help="override the camera's width")
     p.add_argument("--height", type=int, default=None, help="override the camera's height")
 

@@ -183,7 +183,7 @@ def _mlp_golden(root: Path, rng, rmlp) -> None:
             "medium's program)", output=True)
     k.array("F", rmlp.radiance(w.params, arch, f, c, alb), np.float32,
             "[n][3] output of program mlp_F (3 channels, channel_albedo, decoded)", output=True)
-    pocl = {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}
+    pocl = km.POCL_DEFINES
     k.program(km.kernel_defines(arch, 1, True), pocl, "mlp_y")
     k.program(km.kernel_defines(arch, 3, True), pocl, "mlp_F")
     k.tolerance("mlp_y", 1e-4, 1e-6, "atol x max|F|: float32 vs the float64 twin over ~86k "

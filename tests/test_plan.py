@@ -87,7 +87,11 @@ def test_max_order_one_is_single_scattering(domain, no_device):
 
 def test_unlit_isotropic_coloured(domain, no_device):
     unlit = _plan(_scene(albedo=0.0), domain)
-    assert not unlit.lit and unlit.defines["LIT"] == 0 and unlit.light_resolution == 0
+    assert not unlit.lit and unlit.defines["LIT"] == 0
+    # the resolution is resolved (a bundle's host may light the medium later), but no light
+    # field is built and the header reports none
+    assert "transmittance" not in unlit.programs and "pyramid" not in unlit.programs
+    assert unlit.header("-")["raymarch.light_resolution"] == 0
     iso = _plan(_scene(phase={"type": "isotropic"}), domain)
     assert iso.lobes == () and any("isotropic" in s for s in iso.skipped)
     colour = _plan(_scene(albedo=[0.9, 0.8, 0.7]), domain)
@@ -151,3 +155,44 @@ def test_the_sky_multiple_scattering_follows_the_sun_source(domain, no_device):
     # sun-lit, no sky: none of it
     p0 = _plan(_scene(), domain)
     assert not p0.env_scatter and "env_field" not in p0.keys
+
+
+def _built_programs(monkeypatch) -> list:
+    """Record every (source stem, defines) handed to the runtime's program cache."""
+    from clvol.runtime import Runtime
+    built, real = [], Runtime.program
+
+    def record(self, stem, defines=None, extra_options=()):
+        built.append((stem, dict(defines or {})))
+        return real(self, stem, defines, extra_options)
+    monkeypatch.setattr(Runtime, "program", record)
+    return built
+
+
+@pytest.mark.parametrize("sky", [None, (0.3, 0.4, 0.5)])
+@pytest.mark.parametrize("given", [{}, {"ms": "wrenninge"}, {"ms": "none"},
+                                   {"light_interp": "optical_depth", "shortcuts": False}])
+def test_the_programs_a_frame_builds_are_the_plans(monkeypatch, given, sky):
+    """Every program a render builds (the first frame: majorant, light field, network,
+    march; with a sky its fields and the network's share) is one of ``FramePlan.programs``
+    with exactly its defines (plus PoCL's additions on PoCL), and every planned program is
+    built: the executors decide no define. (This test renders: the device is used.)"""
+    import dataclasses
+    from clvol.render.plan import program_source
+    from clvol.render.renderer import Renderer
+    built = _built_programs(monkeypatch)
+    scene = _scene()
+    if sky is not None:
+        scene = dataclasses.replace(scene, light=dataclasses.replace(scene.light,
+                                                                     environment=sky))
+    r = Renderer(scene, "raymarch", **given)
+    r.render()
+    plan = r.plan()
+    pocl = r.rt.is_pocl
+
+    def entry(stem, defines):
+        return stem, tuple(sorted(defines.items()))
+    want = {entry(program_source(name), dict(d, **(plan.programs_pocl.get(name, {})
+                                                  if pocl else {})))
+            for name, d in plan.programs.items()}
+    assert {entry(stem, d) for stem, d in built} == want

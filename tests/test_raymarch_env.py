@@ -14,6 +14,7 @@ import clvol
 from clvol import envmap
 from clvol.image import write_exr
 from clvol.render import environment as env
+from clvol.render.ms import source_class
 from clvol.scene import scene_from_dict
 
 SKY = (0.3, 0.5, 0.9)
@@ -197,7 +198,7 @@ def test_network_sky_is_the_irradiance_weighted_sum_of_the_networks_f_ms():
     from clvol.render.ms.network import NetworkSource, shipped_weights
     scene = _scene(albedo=0.8, size=(8, 8))
     grid = scene.volume.load()
-    sky_net = env.SkyNetwork(None, grid, scene.medium, None, None)
+    sky_net = env.SkyNetwork(source_class("network"), None, grid, scene.medium, None, None)
     dirs = np.array([[0.0, 1.0, 0.0], [0.6, 0.0, 0.8], [0.0, -0.6, -0.8]])
     E = np.array([[1.0, 2.0, 3.0], [0.5, 0.25, 0.0], [0.0, 0.0, 0.0]])   # one black cell
     cells = env.Sky(dirs, E, (1.0, 1.0, 1.0), 3, np.full(3, 4 * np.pi / 3))

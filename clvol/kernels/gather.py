@@ -305,14 +305,25 @@ def query_order(pyramid: Pyramid, points: np.ndarray) -> np.ndarray:
     return np.argsort(key, kind="stable").astype(np.int32)
 
 
-def gather_defines(pyramid: Pyramid, lobes: tuple, render: bool) -> dict:
-    """The -D options of cl/gather.cl's device functions (also cl/gather_mlp.cl's)."""
+# Added on PoCL only (Clang builtins, measured faster there: cl/gather.cl).
+POCL_DEFINES = {"GATHER_SHUFFLE": 1} if USE_SHUFFLE else {}
+
+
+def program_defines(base_resolution: int, lobes: tuple, render: bool) -> dict:
+    """The -D options of cl/gather.cl's device functions (also cl/gather_mlp.cl's) on every
+    device (``POCL_DEFINES`` are PoCL's additions): the plan's and the bundle's."""
     defines = dict(phase_defines(lobes), NP=layout.N_POINTS,
-                   COARSE_LEVEL=coarse_level(pyramid.base_resolution))
+                   COARSE_LEVEL=coarse_level(base_resolution))
     if render:
         defines["GATHER_RENDER"] = 1
-    if pyramid.runtime.is_pocl and USE_SHUFFLE:
-        defines["GATHER_SHUFFLE"] = 1
+    return defines
+
+
+def gather_defines(pyramid: Pyramid, lobes: tuple, render: bool) -> dict:
+    """``program_defines`` with the device's additions (``POCL_DEFINES`` on PoCL)."""
+    defines = program_defines(pyramid.base_resolution, lobes, render)
+    if pyramid.runtime.is_pocl:
+        defines.update(POCL_DEFINES)
     return defines
 
 

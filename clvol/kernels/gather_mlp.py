@@ -31,7 +31,7 @@ from .phase import lobe_vectors
 def gather_mlp(net: MlpKernel, pyramid, graded, points, omegas, light_dir, medium, albedo,
                level_weights, bias: float = 0.0, channel_albedo=None, sort: bool = True,
                out: DeviceArray | None = None, out_index=None,
-               nonfinite: DeviceArray | None = None):
+               nonfinite: DeviceArray | None = None, defines: dict | None = None):
     """F (decoded, >= 0 up to the network's sign) at N queries: [N] with ``albedo`` (scalar or
     (N,)) in the config, or [N][3] with ``channel_albedo`` (one evaluation per distinct
     non-zero channel albedo; albedo-0 channels give 0). ``sort``: process the queries in
@@ -43,7 +43,10 @@ def gather_mlp(net: MlpKernel, pyramid, graded, points, omegas, light_dir, mediu
     channel c of query q goes to element ``out_index[q]`` of plane c. Nothing else of ``out``
     is written, nothing is read back, and ``out`` is returned. ``nonfinite``: a (1,) int32
     DeviceArray into which the kernel ORs 1 when a value it writes is not finite (the caller
-    zeroes it before and reads it after); the NumPy path's caller checks the array it gets."""
+    zeroes it before and reads it after); the NumPy path's caller checks the array it gets.
+    ``defines``: the program's -D defines as the frame's plan lists them (FramePlan.programs
+    "gather_mlp" with the device's additions); None: formed here from the kernels' own
+    functions."""
     if net.arch.n_points != layout.N_POINTS:
         raise GatherError(f"the network reads {net.arch.n_points} template points, the gather "
                           f"writes {layout.N_POINTS}")
@@ -68,7 +71,11 @@ def gather_mlp(net: MlpKernel, pyramid, graded, points, omegas, light_dir, mediu
     if out is None:              # NumPy out: [n][C] rows, read back below
         host_out = rt.alloc((n, channels))
         index, stride = np.arange(n, dtype=np.int32) * channels, 1
-    defines = dict(gather_defines(pyramid, lobes, render=True), **net.defines(channels, True))
+    if defines is None:          # no plan (tests, benchmarks): the kernels' own functions
+        defines = dict(gather_defines(pyramid, lobes, render=True), **net.defines(channels, True))
+    elif int(defines.get("MLP_CHANNELS", 0)) != channels:
+        raise GatherError(f"gather_mlp: the planned program has MLP_CHANNELS "
+                          f"{defines.get('MLP_CHANNELS')}, the call {channels}")
     k = rt.program("gather_mlp", defines=defines).kernel(
         "gather_mlp", [None, None, None, np.int32, np.int32, None, np.float32, None, None, None,
                        None, np.int32, None, None, None, None, None, np.float32, None, None,

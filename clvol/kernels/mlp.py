@@ -66,6 +66,10 @@ def kernel_defines(arch, channels: int, decode: bool) -> dict:
     }
 
 
+# Added on PoCL only (Clang builtins, measured faster there: cl/mlp.cl).
+POCL_DEFINES = {"MLP_TRANSPOSE16": 1, "MLP_PREFETCH": 1}
+
+
 class MlpKernel:
     """A weight file on one device, ready to evaluate gather buffers."""
 
@@ -83,9 +87,8 @@ class MlpKernel:
     def defines(self, channels: int, decode: bool) -> dict:
         """The -D options of cl/mlp.cl's device functions (also cl/gather_mlp.cl's)."""
         defines = kernel_defines(self.arch, channels, decode)
-        if self.rt.is_pocl:   # Clang builtins, measured faster on PoCL (see cl/mlp.cl)
-            defines["MLP_TRANSPOSE16"] = 1
-            defines["MLP_PREFETCH"] = 1
+        if self.rt.is_pocl:
+            defines.update(POCL_DEFINES)
         defines.update(self._extra)   # runtime._define_flags skips None values
         return defines
 

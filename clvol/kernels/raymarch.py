@@ -23,6 +23,11 @@ MS_KIND_NONE, MS_KIND_OCTAVES, MS_KIND_GRID, MS_KIND_VIEW = "none", "wrenninge",
 MS_SOURCE_DEFINES = {MS_KIND_NONE: 0, MS_KIND_OCTAVES: 1, MS_KIND_GRID: 2, MS_KIND_VIEW: 3}
 MS_TABLE_KINDS = (MS_KIND_GRID, MS_KIND_VIEW)   # the kinds that read a lattice or table
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
+# Wrenninge octaves: N, and the a, b, c multipliers (one value for all three; b <= a holds).
+# clvol/render/ms/base.py Octaves and the CLI take them from here.
+DEFAULT_OCTAVES = 3
+DEFAULT_OCTAVE_MULTIPLIER = 0.5
+DEFAULT_THRESHOLD = 1e-3   # early termination when T_cam falls below this
 MAX_OCTAVES = kernel_constant("MS_MAX_OCTAVES")
 MAX_VIEW_K = kernel_constant("VIEW_MAX_K")  # knots per block of the view-space table
 TILE = kernel_constant("TILE")  # pixels per row of the tile one work-item marches
@@ -43,7 +48,7 @@ def _device(x, rt) -> DeviceArray:
 
 
 def ms_defines(source: str, octaves: int = 1, channels: int = 1, view_k: int = 1,
-               view_block: int = 4) -> dict:
+               view_block: int | None = None) -> dict:
     """The -D defines of one multiple-scattering source of cl/raymarch.cl (see its header)."""
     if source not in MS_SOURCE_DEFINES:
         raise ClvolError(f"unknown multiple-scattering source {source!r}; one of "
@@ -56,14 +61,35 @@ def ms_defines(source: str, octaves: int = 1, channels: int = 1, view_k: int = 1
          "MS_OCTAVES": int(octaves) if source == MS_KIND_OCTAVES else 1,
          "MS_CHANNELS": int(channels) if source in MS_TABLE_KINDS else 1}
     if source == MS_KIND_VIEW:
-        if not (1 <= view_k <= MAX_VIEW_K and view_block >= 1):
+        if not (1 <= view_k <= MAX_VIEW_K and view_block is not None and view_block >= 1):
             raise ClvolError(f"view table: {view_k} knots (1..{MAX_VIEW_K}), block {view_block}")
         d.update(VIEW_K=int(view_k), VIEW_BLOCK=int(view_block))
     return d
 
 
+def input_defines(light_quantity: str, env_channels: int | None = None, bg_image: bool = False,
+                  emission_channels: int | None = None, emission_box: bool = False) -> dict:
+    """The -D defines of what the march reads besides its source (cl/raymarch.cl's header):
+    LIGHT_TAU (the light field holds optical depth), ENV and ENV_CHANNELS (the sky's source
+    field, 1 or 3 channels), BG_IMAGE (a per-pixel background), EMISSION, EMISSION_CHANNELS
+    and EMISSION_BOX. Decided by the plan for a frame (clvol/render/plan.py ``programs``);
+    ``raymarch`` (the tests' form) derives them from its arrays; ``launch`` checks that its
+    inputs match them."""
+    if light_quantity not in LIGHT_QUANTITIES:
+        raise ClvolError(f"light_quantity {light_quantity!r}: one of {LIGHT_QUANTITIES}")
+    d = {"LIGHT_TAU": int(light_quantity == "optical_depth")}
+    if env_channels:
+        d.update(ENV=1, ENV_CHANNELS=int(env_channels))
+    if bg_image:
+        d["BG_IMAGE"] = 1
+    if emission_channels:
+        d.update(EMISSION=1, EMISSION_CHANNELS=int(emission_channels),
+                 EMISSION_BOX=int(bool(emission_box)))
+    return d
+
+
 def raymarch_defines(lobes, lit: bool, source: str, octaves: int, channels: int,
-                     skip_empty: bool, view_k: int = 1, view_block: int = 4) -> dict:
+                     skip_empty: bool, view_k: int = 1, view_block: int | None = None) -> dict:
     """The -D defines that specialise cl/raymarch.cl (see its header)."""
     d = dict(phase_defines(lobes))
     d.update(LIT=int(bool(lit)), SKIP_EMPTY=int(bool(skip_empty)))
@@ -110,10 +136,11 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              ms_grid, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
              light_dir, irradiance, albedo, lobes, background,
-             source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
-             step=None, threshold=1e-3, skip_empty=True, lit=True,
+             source="wrenninge", octaves=DEFAULT_OCTAVES, a=DEFAULT_OCTAVE_MULTIPLIER,
+             b=DEFAULT_OCTAVE_MULTIPLIER, c=DEFAULT_OCTAVE_MULTIPLIER,
+             step=None, threshold=DEFAULT_THRESHOLD, skip_empty=True, lit=True,
              light_quantity="transmittance", runtime=None, read_back=True, stats=False,
-             view_block=4, env=None, env_min=(0, 0, 0), env_size=1.0,
+             view_block=None, env=None, env_min=(0, 0, 0), env_size=1.0,
              env_colour=(1, 1, 1), bg_image=None, emission=None, em_min=(0, 0, 0),
              em_max=(1, 1, 1), em_colour=(1, 1, 1), em_box=False):
     """Launch the ray marcher. Returns {layer: array} (float32; total/single/multiple
@@ -148,6 +175,12 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         ms, channels, view_k = None, 1, 1
     defines = raymarch_defines(lobes, lit, source, octaves, channels, skip_empty, view_k,
                                view_block)
+    defines.update(input_defines(
+        light_quantity, env_channels=None if env is None else _env_shape(
+            env if isinstance(env, DeviceArray) else env_device_layout(env))[0],
+        bg_image=bg_image is not None,
+        emission_channels=None if emission is None else _device(emission, rt).shape[0],
+        emission_box=em_box))
     return launch(
         defines=defines,
         volume=MarchVolume(density, bbox_min, bbox_max, density_scale, majorant, block),
@@ -215,9 +248,9 @@ class MarchMs:
     planes: object = None
     bbox_min: tuple | None = None
     bbox_max: tuple | None = None
-    a: float = 0.5
-    b: float = 0.5
-    c: float = 0.5
+    a: float = DEFAULT_OCTAVE_MULTIPLIER
+    b: float = DEFAULT_OCTAVE_MULTIPLIER
+    c: float = DEFAULT_OCTAVE_MULTIPLIER
 
 
 @dataclass(frozen=True)
@@ -257,39 +290,43 @@ class MarchEmission:
 
 def launch(*, defines: dict, volume: MarchVolume, camera: MarchCamera, light: MarchLight,
            ms: MarchMs, environment: MarchEnvironment = MarchEnvironment(),
-           emission: MarchEmission | None = None, step: float, threshold: float = 1e-3,
+           emission: MarchEmission | None = None, step: float, threshold: float,
            runtime=None, read_back: bool = True, stats: bool = False):
-    """Launch cl/raymarch.cl built with ``defines`` (``raymarch_defines``, or the phase, LIT,
-    SKIP_EMPTY and a multiple-scattering source's own) plus those its inputs add (ENV,
-    BG_IMAGE, EMISSION, LIGHT_TAU, RAYMARCH_STATS): without an environment or emission the
-    program is that of a scene without them. ``step`` in world units. Returns what
+    """Launch cl/raymarch.cl built with ``defines``, complete: the plan's
+    (FramePlan.programs["raymarch"]), or ``raymarch_defines`` with ``input_defines``. The
+    inputs are checked against them (an environment, a background image, emission planes
+    exactly where the defines say so); only ``stats`` adds one (RAYMARCH_STATS: counters for
+    the benchmarks, no change to the image). ``step`` in world units. Returns what
     ``raymarch`` returns."""
     rt = runtime or get_runtime()
     if step is None or not step > 0:
         raise ClvolError(f"step must be > 0 (world units), got {step}")
-    if light.quantity not in LIGHT_QUANTITIES:
-        raise ClvolError(f"light_quantity {light.quantity!r}: one of {LIGHT_QUANTITIES}")
     if defines.get("LIT") and light.field is None:
         raise ClvolError("a lit march (LIT 1) needs the light field")
-    defines = dict(defines, LIGHT_TAU=int(light.quantity == "optical_depth"))
-    if stats:
-        defines["RAYMARCH_STATS"] = 1
     dummy = _Dummy(rt)     # one 1-float buffer for whichever input is absent
     args = (_volume_args(volume, rt) + _light_field_args(light, rt, dummy)
             + _ms_args(ms, dummy) + _camera_args(camera) + _light_args(light, ms)
             + (np.float32(step), np.float32(threshold)))
     scalars = list(_SCALARS)
     extra, layers = (), LAYERS
+    env_channels = em_channels = None
     if environment.env is not None:
-        extra += _env_args(environment, rt, defines)
+        env_channels, more = _env_args(environment, rt)
+        extra += more
         scalars += _ENV_SCALARS
     if environment.bg_image is not None:
-        extra += _bg_args(environment, camera, rt, defines)
+        extra += _bg_args(environment, camera, rt)
         scalars += _BG_SCALARS
     if emission is not None:
-        extra += _emission_args(emission, rt, defines)
+        em_channels, more = _emission_args(emission, rt)
+        extra += more
         scalars += _EM_SCALARS
         layers = LAYERS + (("emission", 3),)
+    _check_input_defines(defines, input_defines(
+        light.quantity, env_channels, environment.bg_image is not None, em_channels,
+        emission is not None and emission.em_box))
+    if stats:
+        defines = dict(defines, RAYMARCH_STATS=1)
     k = rt.program("raymarch", defines).kernel("raymarch", scalars)
     outs, n_tiles = _outputs(camera, layers, stats, rt)
     args += tuple(outs[name] for name, _ in LAYERS) + (outs["stats"],) + extra
@@ -357,40 +394,53 @@ def _light_args(light: MarchLight, ms: MarchMs) -> tuple:
             f4(light.background), np.float32(ms.a), np.float32(ms.b), np.float32(ms.c))
 
 
-def _env_args(e: MarchEnvironment, rt, defines: dict) -> tuple:
-    """The ENV arguments; adds ENV and ENV_CHANNELS (1: grey planes as given, 3: the packed
-    device layout) to ``defines``."""
-    env = e.env if isinstance(e.env, DeviceArray) else env_device_layout(e.env)
-    env = _device(env, rt)
+def _check_input_defines(defines: dict, inputs: dict) -> None:
+    """The defines the inputs imply (``input_defines``) must be the given ones: a plan that
+    says ENV without a sky field, or a sky field the plan did not foresee, is a bug."""
+    keys = ("LIGHT_TAU", "ENV", "ENV_CHANNELS", "BG_IMAGE", "EMISSION", "EMISSION_CHANNELS",
+            "EMISSION_BOX")
+    given = {k: defines[k] for k in keys if defines.get(k) is not None}
+    if given != inputs:
+        raise ClvolError(f"raymarch: the defines {given} do not match the inputs {inputs}")
+
+
+def _env_shape(env) -> tuple[int, int]:
+    """(channels, n) of an environment field in its device layout (``env_device_layout``,
+    or a DeviceArray of it): 1 for grey planes (2, n, n, n), 3 for the packed RGB layout
+    (n, n, n, ENV_PACK)."""
     shape = tuple(env.shape)
     if len(shape) == 4 and shape[0] == 2 and len(set(shape[1:])) == 1:
-        channels, n = 1, shape[1]
-    elif len(shape) == 4 and shape[3] == ENV_PACK and len(set(shape[:3])) == 1:
-        channels, n = 3, shape[0]
-    else:
-        raise ClvolError(f"env must be (2 C, n, n, n) with C = 1 or 3 (or its device "
-                         f"layout, env_device_layout), got {shape}")
-    defines.update(ENV=1, ENV_CHANNELS=channels)
-    return env.buffer, np.int32(n), f4(e.env_min), np.float32(e.env_size), f4(e.env_colour)
+        return 1, shape[1]
+    if len(shape) == 4 and shape[3] == ENV_PACK and len(set(shape[:3])) == 1:
+        return 3, shape[0]
+    raise ClvolError(f"env must be (2 C, n, n, n) with C = 1 or 3 (or its device "
+                     f"layout, env_device_layout), got {shape}")
 
 
-def _bg_args(e: MarchEnvironment, camera: MarchCamera, rt, defines: dict) -> tuple:
+def _env_args(e: MarchEnvironment, rt) -> tuple:
+    """(ENV_CHANNELS, the ENV arguments)."""
+    env = e.env if isinstance(e.env, DeviceArray) else env_device_layout(e.env)
+    channels, n = _env_shape(env)
+    env = _device(env, rt)
+    return channels, (env.buffer, np.int32(n), f4(e.env_min), np.float32(e.env_size),
+                      f4(e.env_colour))
+
+
+def _bg_args(e: MarchEnvironment, camera: MarchCamera, rt) -> tuple:
     bg = _device(e.bg_image, rt)
     if tuple(bg.shape) != (camera.height, camera.width, 3):
         raise ClvolError(f"bg_image must be ({camera.height}, {camera.width}, 3), got {bg.shape}")
-    defines["BG_IMAGE"] = 1
     return (bg.buffer,)
 
 
-def _emission_args(e: MarchEmission, rt, defines: dict) -> tuple:
-    """The EMISSION arguments but the output layer (launch appends it)."""
+def _emission_args(e: MarchEmission, rt) -> tuple:
+    """(EMISSION_CHANNELS, the EMISSION arguments but the output layer: launch appends it)."""
     em = _device(e.emission, rt)
     if len(em.shape) != 4 or em.shape[0] not in (1, 3):
         raise ClvolError(f"emission must be (C, ez, ey, ex) with C = 1 or 3, got {em.shape}")
-    defines.update(EMISSION=1, EMISSION_CHANNELS=em.shape[0], EMISSION_BOX=int(bool(e.em_box)))
     ez, ey, ex = em.shape[1:]
-    return (em.buffer, np.int32(ex), np.int32(ey), np.int32(ez), f4(e.em_min), f4(e.em_max),
-            f4(e.em_colour))
+    return em.shape[0], (em.buffer, np.int32(ex), np.int32(ey), np.int32(ez), f4(e.em_min),
+                         f4(e.em_max), f4(e.em_colour))
 
 
 def _outputs(camera: MarchCamera, layers, stats: bool, rt) -> tuple[dict, int]:

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ClvolError
+from ..features.layout import DEFAULT_LAMBDA  # the contract's graded-transmittance lambda
 from ..runtime import DeviceArray, Runtime, padded
 from .constants import kernel_constant
 from .grid import f4
@@ -36,7 +37,6 @@ from .pyramid import Pyramid
 
 METHODS = ("sweep", "brute")
 QUANTITIES = ("transmittance", "optical_depth")
-DEFAULT_LAMBDA = 0.6
 
 
 @dataclass(eq=False)
@@ -203,6 +203,19 @@ def sweep_width_define(width: int):
     """-D SWEEP_WIDTH of a sweep ``width`` columns wide: the vector one is written ``LANES``
     (the device's lane width, cl/include/lanes.h), so a bundle's options hold for any device."""
     return "LANES" if width > 1 else 1
+
+
+def sweep_programs(sizes) -> dict:
+    """{program name: defines} of the sweeps over cubes of these ``sizes`` (voxels per side):
+    "transmittance_wL" (LANES-wide columns) for levels of at least VECTOR_MIN_N voxels,
+    "transmittance_w1" for smaller ones (as ``_sweep_level`` builds them on a device of more
+    than one lane)."""
+    out = {}
+    for n in sorted(set(int(n) for n in sizes), reverse=True):
+        wide = n >= VECTOR_MIN_N
+        out["transmittance_wL" if wide else "transmittance_w1"] = {
+            "SWEEP_WIDTH": sweep_width_define(16 if wide else 1)}
+    return out
 
 
 def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,

@@ -134,6 +134,12 @@ def sky_key(light, k: int):
     return ("constant", tuple(light.environment), k)
 
 
+def sky_channels(light, grey_albedo: bool) -> int:
+    """The sky cells' colour planes (``make_sky``; the march's ENV_CHANNELS): 1 for a
+    constant sky over a grey albedo, else 3."""
+    return 1 if getattr(light, "environment_map", None) is None and grey_albedo else 3
+
+
 def make_sky(light, k: int, grey_albedo: bool = True) -> Sky:
     """The cells of ``light``'s environment. A constant sky is grey (C = 1, coloured once per
     ray) when the albedo is grey too; otherwise (a map, or a coloured albedo, whose multiple
@@ -144,7 +150,7 @@ def make_sky(light, k: int, grey_albedo: bool = True) -> Sky:
     if m is None:
         L = np.asarray(light.environment, np.float64)
         om = np.full(k, omega)
-        if grey_albedo:
+        if sky_channels(light, grey_albedo) == 1:
             return Sky(dirs, np.full((k, 1), omega), tuple(L), 1, om)
         return Sky(dirs, np.tile(L * omega, (k, 1)), (1.0, 1.0, 1.0), 3, om)
     rgb = np.asarray(light.environment_texels(), np.float64)
@@ -288,10 +294,11 @@ class SkyNetwork:
     cells per call, the oldest first (MRPNN's few directions per frame, accumulated); the
     others keep their last positions' values and ``pending`` counts them."""
 
-    def __init__(self, weights, grid, medium, runtime, device_medium):
-        from .ms.network import NetworkSource, shipped_weights
-        self.net = NetworkSource(shipped_weights() if weights is None else weights, grid,
-                                 medium, runtime, device_medium=device_medium)
+    def __init__(self, source, weights, grid, medium, runtime, device_medium):
+        # ``source``: the frame's network source class (clvol/render/ms/), which makes the
+        # evaluator and owns the active-point rule
+        self.source = source
+        self.net = source.sky_evaluator(weights, grid, medium, runtime, device_medium)
         self._active = None
         self._cells = None        # (key, F (J, P, Cf) float32, origin per cell, order)
         self.pending = 0          # stale cells left after the last call
@@ -300,16 +307,15 @@ class SkyNetwork:
 
     def active(self, cube_min, cube_size, n, reach) -> np.ndarray:
         """The field voxels the march can read where there is density (the network lattice's
-        rule, clvol/render/ms/network.py ``lattice_reach_mask``, over the field's cube); all
-        of them for ``reach`` None (the plan's rule with shortcuts off)."""
-        from .ms.network import lattice_reach_mask
+        rule, the source's ``active_points``, over the field's cube); all of them for
+        ``reach`` None (the plan's rule with shortcuts off)."""
         key = (tuple(cube_min), float(cube_size), n, reach)
         if reach is None:                   # shortcuts off: every voxel
             return np.ones(n ** 3, bool)
         if self._active is None or self._active[0] != key:
             lo = np.asarray(cube_min, np.float64)
-            self._active = (key, lattice_reach_mask(self.net.grid, n, reach,
-                                                    box=(lo, lo + cube_size)))
+            self._active = (key, self.source.active_points(self.net.grid, n, reach,
+                                                           box=(lo, lo + cube_size)))
         return self._active[1]
 
     def field(self, cells: Sky, medium, cube_min, cube_size, n, origin, reach,

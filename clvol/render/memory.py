@@ -74,7 +74,7 @@ def gib(n: float) -> str:
     return f"{n / 2**30:.2f} GiB"
 
 
-def check_frame_memory(method: str, width: int, height: int, supersample: int = 1,
+def check_frame_memory(method: str, width: int, height: int, supersample: int,
                        device=None) -> int:
     """Refuse (ClvolError, one line) a frame whose image would not fit the budget; return
     the estimate in bytes."""

@@ -144,8 +144,8 @@ def coverage(scene, grid, pt) -> np.ndarray:
     marcher's layer) on the path tracer's own device medium, not a noisy count of escaping
     paths, so alpha carries no Monte Carlo noise while ``total`` does (docs/pathtrace.md)."""
     import dataclasses
-    from ..kernels.raymarch import (MarchCamera, MarchLight, MarchMs, MarchVolume, launch,
-                                    raymarch_defines)
+    from ..kernels.raymarch import (MarchCamera, MarchLight, MarchMs, MarchVolume,
+                                    input_defines, launch, raymarch_defines)
     dm = pt.dm
     key = (scene.camera, float(scene.medium.density_scale))
     kept = dm.cache.get("coverage")
@@ -158,8 +158,9 @@ def coverage(scene, grid, pt) -> np.ndarray:
     cell = ((np.asarray(grid.bbox_max, np.float64) - np.asarray(grid.bbox_min, np.float64))
             / np.asarray(np.shape(grid.density)[::-1], np.float64))        # x, y, z
     step = COVERAGE_STEP * float(cell.min())
-    evt, outs = launch(defines=raymarch_defines([], lit=False, source="none", octaves=1,
-                                                channels=1, skip_empty=True),
+    evt, outs = launch(defines=dict(raymarch_defines([], lit=False, source="none", octaves=1,
+                                                     channels=1, skip_empty=True),
+                                    **input_defines("transmittance")),
                        volume=MarchVolume(dm.density, grid.bbox_min, grid.bbox_max,
                                           scene.medium.density_scale, dm.majorant, dm.block),
                        camera=MarchCamera(cam.origin, fwd, right, up, cam.tan_half_fov,

@@ -37,13 +37,16 @@ from .environment import ENV_MS_NETWORK
 class VolumeFacts:
     """What the plan needs to know of the volume, once per density: its resolution and
     cells, and (computed on first use: only the network sources ask) its largest optical
-    thickness along an axis at density scale 1."""
+    thickness along an axis at density scale 1; with ``emission`` (the scene's EmissionGrid,
+    clvol/emission.py) its colour planes and whether it has a box of its own."""
 
-    def __init__(self, grid):
+    def __init__(self, grid, emission=None):
         self.resolution = tuple(int(n) for n in grid.resolution)
         self.cell = float(np.min(grid.cell_size))        # the smallest voxel side
         self.grid = grid
         self._ot = None
+        self.emission_channels = None if emission is None else int(emission.channels)
+        self.emission_box = bool(emission is not None and emission.own_box)
 
     @property
     def max_optical_thickness(self) -> float:
@@ -82,7 +85,9 @@ class FramePlan:
     camera: object                  # the marched camera (supersampled: S x the pixels)
     lobes: tuple                    # (g, weight) per lobe the kernel evaluates (none: isotropic)
     ms: MsPlan                      # the source's kernel defines, octaves, effects
-    defines: dict                   # cl/raymarch.cl's -D defines
+    defines: dict                   # cl/raymarch.cl's -D defines of the source and phase
+    programs: dict                  # program name -> -D defines, every program of the frame
+    programs_pocl: dict             # program name -> the defines PoCL adds (Clang builtins)
     channels: int                   # colour planes marched for F_ms
     background: tuple               # constant radiance behind the medium
     env_scatter: bool               # the environment lights the medium
@@ -97,7 +102,7 @@ class FramePlan:
     step_voxels: float
     step: float                     # world units
     threshold: float
-    light_resolution: int           # 0 when unlit
+    light_resolution: int           # the light field's side (0: the volume is not known)
     light_interp: str
     supersample: int
     lattice_reach: float | None     # the network's active-point rule (None: every point)
@@ -105,6 +110,13 @@ class FramePlan:
     simulated: tuple
     skipped: tuple
     keys: dict                      # stage -> what it depends on (clvol/render/stages.py)
+
+    def device_programs(self, pocl: bool) -> dict:
+        """``programs`` as a device builds them: with ``programs_pocl`` added on PoCL."""
+        if not pocl:
+            return self.programs
+        return {name: dict(d, **self.programs_pocl.get(name, {}))
+                for name, d in self.programs.items()}
 
     def header(self, label: str) -> dict:
         """The header entries that state this plan (``label``: the source's description)."""
@@ -123,7 +135,7 @@ class FramePlan:
             "raymarch.step": self.step,
             "raymarch.threshold": self.threshold,
             "raymarch.skip_empty": self.skip_empty,
-            "raymarch.light_resolution": self.light_resolution,
+            "raymarch.light_resolution": self.light_resolution if self.lit else 0,
             "raymarch.light_interp": self.light_interp,
             "raymarch.supersample": self.supersample,
             "raymarch.channels_marched": self.channels,
@@ -133,6 +145,19 @@ class FramePlan:
 
 
 MAX_LIGHT_RESOLUTION = 256    # the light field's largest side (its pyramid's base)
+
+# The program names whose OpenCL source is another's (the others are named after their
+# cl/<name>.cl): the sweeps' widths and the gather's bake; "sky_" + a name is the sky's own
+# build of a network program where it differs from the sun's (``_programs``).
+PROGRAM_SOURCES = {"transmittance_w1": "transmittance", "transmittance_wL": "transmittance",
+                   "gather_bake": "gather"}
+SKY_PREFIX = "sky_"
+
+
+def program_source(name: str) -> str:
+    """The cl/<stem>.cl a program of ``FramePlan.programs`` is built from."""
+    name = name.removeprefix(SKY_PREFIX)
+    return PROGRAM_SOURCES.get(name, name)
 
 
 def auto_light_resolution(resolution, cap: int = MAX_LIGHT_RESOLUTION) -> int:
@@ -144,13 +169,20 @@ def auto_light_resolution(resolution, cap: int = MAX_LIGHT_RESOLUTION) -> int:
     return min(1 << max(0, (n - 1).bit_length()), cap)
 
 
+def light_resolution_for(option, resolution) -> int:
+    """The light field's resolution: the ``light_resolution`` option, or for None the
+    default for a grid of ``resolution`` (``auto_light_resolution``)."""
+    return int(option or auto_light_resolution(resolution))
+
+
 def plan_frame(scene, options, volume: VolumeFacts | None = None,
-               domain: dict | None = None) -> FramePlan:
+               domain: dict | None = None, weights=None) -> FramePlan:
     """The plan of one ray-marched frame of ``scene`` (its camera, light and medium) with the
     method's ``options`` (a mapping with the raymarch options, clvol/render/options.py).
     ``volume``: the density's facts (None: thinness and the domain are not judged, as for a
     source that never reads them); ``domain``: the network's training domain from its weight
-    file (None for other sources)."""
+    file (None for other sources); ``weights``: that file's MlpWeights (the network's
+    programs; None: they are not planned)."""
     o = options
     medium, light, camera = scene.medium, scene.light, scene.camera
     shortcuts, skip_empty, s = bool(o["shortcuts"]), bool(o["skip_empty"]), int(o["supersample"])
@@ -173,22 +205,63 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
     defines = dict(phase_defines(list(lobes)))
     defines.update(LIT=int(lit), SKIP_EMPTY=int(skip_empty))
     defines.update(ms.defines)
-    light_res = 0
-    if lit and volume is not None:
-        light_res = int(o["light_resolution"] or auto_light_resolution(volume.resolution))
+    # resolved for an unlit frame too (the bundle's C host may light it later); the header
+    # and the programs count it only where it is used
+    light_res = (light_resolution_for(o["light_resolution"], volume.resolution)
+                 if volume is not None else 0)
     # the network's lattice skips points no density sample reads (shortcuts on)
     reach = (cls.lattice_reach_for(volume, o["step"]) if lit and shortcuts and volume is not None
              else None)
+    programs, pocl = _programs(scene, o, defines, lit, light_res, env, volume,
+                               cls if lit else None, source_class(choice.name), weights)
     return FramePlan(
         configured_source=o["ms"], source=choice.name, warning=choice.warning,
         thin=choice.thin, lit=lit, shortcuts=shortcuts, skip_empty=skip_empty, camera=camera,
-        lobes=lobes, ms=ms, defines=defines, channels=ms.channels or 1, **env,
+        lobes=lobes, ms=ms, defines=defines, programs=programs, programs_pocl=pocl,
+        channels=ms.channels or 1, **env,
         step_voxels=float(o["step"]),
         step=float(o["step"]) * (volume.cell if volume is not None else 1.0),
         threshold=float(o["threshold"]), light_resolution=light_res,
         light_interp=o["light_interp"], supersample=s, lattice_reach=reach,
         emission=getattr(scene, "emission", None) is not None, simulated=tuple(sim),
         skipped=tuple(skip), keys=_stage_keys(cls, camera, light, medium, shortcuts, lobes, env))
+
+
+def _programs(scene, o, defines, lit, light_res, env, volume, lit_source, chosen,
+              weights) -> tuple[dict, dict]:
+    """(programs, programs_pocl): every program the frame builds, by name, with its -D
+    defines: the majorant's and the march's always; the light field's pyramid and sweeps
+    when lit; the network's (its source's ``network_programs``) where it serves the sun or
+    the sky. ``programs_pocl``: what PoCL adds to some of them."""
+    from ..kernels.raymarch import input_defines
+    from ..kernels.transmittance import sweep_programs
+    from .environment import sky_channels
+    medium, light = scene.medium, scene.light
+    emission = getattr(scene, "emission", None) is not None and volume is not None
+    march = dict(defines, **input_defines(
+        o["light_interp"],
+        env_channels=sky_channels(light, medium.is_grey) if env["env_scatter"] else None,
+        bg_image=env["env_background"] == "map",
+        emission_channels=volume.emission_channels if emission else None,
+        emission_box=emission and volume.emission_box))
+    programs, pocl = {"majorant": {}}, {}
+    if lit and light_res:
+        programs.update(pyramid={}, transmittance={}, **sweep_programs([light_res]))
+    if weights is not None:
+        for cls, shortcuts in ((lit_source, bool(o["shortcuts"])),
+                               (chosen if env["env_ms"] == ENV_MS_NETWORK else None, True)):
+            if cls is None:
+                continue
+            more, more_pocl = cls.network_programs(medium, shortcuts, weights)
+            for name, d in more.items():
+                if name.startswith("transmittance_w") and name in programs:
+                    continue                        # a sweep width both need: one program
+                key = name if programs.get(name, d) == d else SKY_PREFIX + name
+                programs[key] = d
+                if name in more_pocl:
+                    pocl[key] = more_pocl[name]
+    programs["raymarch"] = march
+    return programs, pocl
 
 
 def light_key(light_dir, density_scale) -> tuple:

@@ -23,20 +23,19 @@ from ..errors import ClvolError
 from ..kernels.majorant import DEFAULT_BLOCK
 from ..kernels.medium import DeviceMedium
 from ..kernels.pyramid import MAX_BASE_RESOLUTION
-from ..kernels.raymarch import LIGHT_QUANTITIES, launch
+from ..kernels.raymarch import DEFAULT_THRESHOLD, LIGHT_QUANTITIES, launch
 from ..features.layout import is_power_of_two
 from ..runtime import get_runtime
 from .ms.base import MsSource
-from .plan import MAX_LIGHT_RESOLUTION, light_key, plan_frame
+from .plan import MAX_LIGHT_RESOLUTION, light_key, light_resolution_for, plan_frame
 from .stages import Stage
-from .plan import auto_light_resolution as plan_light_resolution
 
 # Segment length in voxels of the density grid. Half a voxel, because at one voxel the
 # single scattering alone left RMSE x100 0.54-0.85 against the path tracer on dense scenes
 # (every bench scene has 0.5-0.94 optical depths per voxel) and 0.19-0.33 at half a voxel
 # with the 4x light field below (docs/raymarch.md, "Step and light field").
 DEFAULT_STEP = 0.5
-DEFAULT_THRESHOLD = 1e-3   # early termination when T_cam falls below this
+DEFAULT_SUPERSAMPLE = 1
 MAX_SUPERSAMPLE = 8
 
 
@@ -103,11 +102,6 @@ def check_env_options(env_directions, env_resolution, env_ms_directions=None, en
                          f"power of two from 4 to 256")
 
 
-def auto_light_resolution(grid) -> int:
-    """The light field's default resolution for ``grid`` (clvol/render/plan.py decides it)."""
-    return plan_light_resolution(grid.resolution)
-
-
 class RayMarcher:
     """A volume kept on the device for many frames: density, majorant grid, light field.
 
@@ -125,7 +119,7 @@ class RayMarcher:
         self.rt = runtime or get_runtime()
         self.grid = grid
         self.medium = medium
-        self.light_resolution = light_resolution or auto_light_resolution(grid)
+        self.light_resolution = light_resolution_for(light_resolution, grid.resolution)
         if light_interp not in LIGHT_QUANTITIES:
             raise ClvolError(f"raymarch option light_interp = {light_interp!r}: choose one of "
                              f"{list(LIGHT_QUANTITIES)}")
@@ -168,7 +162,7 @@ class RayMarcher:
         self.dm = device_medium
         self.block = self.dm.block
         self.density, self.majorant = self.dm.density, self.dm.majorant
-        self.light_resolution = light_resolution or auto_light_resolution(grid)
+        self.light_resolution = light_resolution_for(light_resolution, grid.resolution)
         self._light.drop()
         self._env_T = None
         self._env_field.drop()
@@ -239,7 +233,7 @@ class RayMarcher:
         from ..kernels.raymarch import (MarchCamera, MarchEmission, MarchEnvironment,
                                         MarchLight, MarchMs, MarchVolume)
         res = launch(
-            defines=plan.defines,
+            defines=plan.programs["raymarch"],
             volume=MarchVolume(self.density, g.bbox_min, g.bbox_max, self.medium.density_scale,
                                self.majorant, self.block),
             camera=MarchCamera(camera.origin, fwd, right, up, camera.tan_half_fov,
@@ -322,9 +316,13 @@ class RayMarcher:
         if plan.env_ms != E.ENV_MS_NETWORK:
             return None
         if self._env_net is None or self._env_net.net.grid is not self.grid:
-            self._env_net = E.SkyNetwork(plan.env_weights or None, self.grid, self.medium,
-                                         self.rt, self.dm)
+            from .ms import source_class
+            self._env_net = E.SkyNetwork(source_class(plan.source), plan.env_weights or None,
+                                         self.grid, self.medium, self.rt, self.dm)
             self.count("env_network_setup")
+        programs = plan.device_programs(self.rt.is_pocl)
+        sky = "sky_gather_mlp" if "sky_gather_mlp" in programs else "gather_mlp"
+        self._env_net.net.programs = {"gather_mlp": programs[sky]} if sky in programs else None
         cells = self._env_ms_sky.get(plan.keys["env_ms_sky"], lambda: E.make_sky(
             light, plan.env_ms_directions, self.medium.is_grey))
         return self._env_net.field(cells, self.medium, pyr.cube_min, pyr.cube_size,
@@ -372,59 +370,15 @@ def add_arguments(group) -> None:
 
 
 def _source_arguments(group) -> None:
-    from .ms.network import DEFAULT_NETWORK_RESOLUTION
-    from .ms import source_classes
-    from .ms.view import (DEFAULT_VIEW_BLOCK, DEFAULT_VIEW_KNOTS, DEFAULT_VIEW_SAMPLES,
-                       STILL_SAMPLES, STOCHASTIC_BLOCKS_ACROSS)
-    group.add_argument("--ms", choices=sorted(source_classes()), default="network",
-                       help="multiple-scattering source: network (the trained network on "
-                            "a world lattice, default), view (the trained network at the "
-                            "camera's view), stochastic (the network at one free-flight "
-                            "point per pixel block per frame, accumulated), wrenninge "
-                            "(analytic octaves), grid (precomputed F_ms, --ms-grid), none "
-                            "(single scattering only)")
-    group.add_argument("--weights", metavar="FILE.npz",
-                       help="network weight file for --ms network (default: the shipped "
-                            "model, clvol/data/weights/full_albedo.npz)")
-    group.add_argument("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
-                       help=f"F_ms lattice points per side filled by the network (default "
-                            f"{DEFAULT_NETWORK_RESOLUTION})")
-    group.add_argument("--view-block", type=int, default=None, metavar="B",
-                       help=f"--ms view and stochastic: pixels per block side; each block's "
-                            f"queries serve its pixels (default {DEFAULT_VIEW_BLOCK} for "
-                            f"view; for stochastic about {STOCHASTIC_BLOCKS_ACROSS} blocks "
-                            f"across the image: 2 at 128^2, 4 at 256^2)")
-    group.add_argument("--view-samples", type=int, default=DEFAULT_VIEW_SAMPLES, metavar="N",
-                       help=f"--ms stochastic: free-flight samples per block drawn per frame "
-                            f"(default {DEFAULT_VIEW_SAMPLES}; a still view accumulates them "
-                            f"up to {STILL_SAMPLES} per block)")
-    group.add_argument("--view-knots", type=int, default=DEFAULT_VIEW_KNOTS, metavar="K",
-                       help=f"--ms view: network queries per block, at the quantiles of the "
-                            f"camera's in-scattering weight (default {DEFAULT_VIEW_KNOTS})")
-    group.add_argument("--ms-grid", metavar="FILE.npz",
-                       help="precomputed F_ms grid (arrays values, bbox_min, bbox_max) for --ms grid")
-    group.add_argument("--ms-directions", type=int, default=0, metavar="K",
-                       help="network: fill F_ms at K fixed directions per lattice point once per "
-                            "light and blend them for each camera (camera motion then costs no "
-                            "network evaluation; 0 = a lattice per camera position, default)")
-    group.add_argument("--ms-refresh", type=int, default=1, metavar="K",
-                       help="network: when only the camera moves, refill 1/K of the lattice per "
-                            "frame (interleaved; the rest keeps earlier positions' values until "
-                            "its turn; default 1 = all of it)")
-    group.add_argument("--no-domain-fallback", dest="domain_fallback", action="store_false",
-                       help="use the network even for a scene outside the domain its weight "
-                            "file was trained on (default: warn and use the measured fallback, "
-                            "docs/raymarch.md)")
-    group.add_argument("--octaves", type=int, default=3, help="Wrenninge octaves N (default 3)")
-    group.add_argument("--ms-a", type=float, default=0.5,
-                       help="octave extinction multiplier a (default 0.5)")
-    group.add_argument("--ms-b", type=float, default=0.5,
-                       help="octave contribution multiplier b (default 0.5; keep b <= a)")
-    group.add_argument("--ms-c", type=float, default=0.5,
-                       help="octave eccentricity multiplier c (default 0.5)")
+    """Each multiple-scattering source's own options (clvol/render/ms/, ``source_options``)."""
+    from .ms import source_options
+    for opt in source_options():
+        group.add_argument(*opt.flags, **opt.kwargs)
 
 
 def _march_arguments(group) -> None:
+    from .environment import (DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_MS_DIRECTIONS,
+                              DEFAULT_ENV_RESOLUTION)
     group.add_argument("--max-order", type=int, default=None, metavar="K",
                        help="highest scattering order: 1 = single scattering only (the ray "
                             "marcher then uses --ms none); the ray marcher has no other limit")
@@ -444,24 +398,27 @@ def _march_arguments(group) -> None:
                             "(default) or the optical depth (docs/raymarch.md)")
     group.add_argument("--env-directions", type=int, default=None, metavar="K",
                        help="environment light: sky directions (cells) whose transmittance "
-                            "fields light the medium (default 64; docs/raymarch.md)")
+                            f"fields light the medium (default {DEFAULT_ENV_DIRECTIONS}; "
+                            f"docs/raymarch.md)")
     group.add_argument("--env-resolution", type=int, default=None, metavar="N",
-                       help="environment light: voxels per side of each direction's "
-                            "transmittance field (power of two; default 32)")
+                       help=f"environment light: voxels per side of each direction's "
+                            f"transmittance field (power of two; default "
+                            f"{DEFAULT_ENV_RESOLUTION})")
     group.add_argument("--env-ms", choices=["network", "escape"], default=None,
                        help="environment light's multiple scattering: the network for "
                             "--env-ms-directions sky cells (default wherever the network "
                             "serves the sun) or the escape model (cheaper, less accurate; "
                             "docs/raymarch.md)")
     group.add_argument("--env-ms-directions", type=int, default=None, metavar="J",
-                       help="environment light: sky cells the network is evaluated for "
-                            "(default 32; each is one network call per camera position)")
+                       help=f"environment light: sky cells the network is evaluated for "
+                            f"(default {DEFAULT_ENV_MS_DIRECTIONS}; each is one network call "
+                            f"per camera position)")
     group.add_argument("--env-ms-per-frame", type=int, default=0, metavar="M",
                        help="environment light: after a camera move, evaluate the network "
                             "for at most M sky cells per frame, the others keeping earlier "
                             "positions' values until their turn (default 0 = all at once)")
-    group.add_argument("--supersample", type=int, default=1,
-                       help="S x S rays per pixel (default 1)")
+    group.add_argument("--supersample", type=int, default=DEFAULT_SUPERSAMPLE,
+                       help=f"S x S rays per pixel (default {DEFAULT_SUPERSAMPLE})")
     group.add_argument("--no-skip-empty", dest="skip_empty", action="store_false",
                        help="march through empty majorant blocks too (same image, slower)")
     group.add_argument("--no-shortcuts", dest="shortcuts", action="store_false",

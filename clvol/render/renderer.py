@@ -83,6 +83,7 @@ class Renderer:
         self.source = None
         self._sources: dict = {}
         self.domain = None
+        self.weights = None
         self._facts = self._facts_grid = None
         if self.method == "raymarch":
             self._setup_raymarch()
@@ -178,6 +179,7 @@ class Renderer:
             o.set("ms_grid", self.source.ms_grid)
         self._sources = {self.source.name: self.source}
         self.domain = self.source.training_domain()     # None: a source without a network
+        self.weights = self.source.network_weights()    # the same file's MlpWeights, or None
         unused = o.unused()
         if unused:
             raise ClvolError(_unused_message(unused[0], o["ms"]))
@@ -192,8 +194,8 @@ class Renderer:
                                     medium=_checked("medium", medium, self.scene.medium))
         if self._facts is None or self._facts_grid is not self.grid:
             from .plan import VolumeFacts
-            self._facts, self._facts_grid = VolumeFacts(self.grid), self.grid
-        plan = plan_frame(scene, self.options, self._facts, self.domain)
+            self._facts, self._facts_grid = VolumeFacts(self.grid, self.emission), self.grid
+        plan = plan_frame(scene, self.options, self._facts, self.domain, self.weights)
         if plan.warning and plan.warning not in self._warned:
             print(f"clvol: warning: {plan.warning}", file=sys.stderr)
             self._warned.add(plan.warning)
@@ -237,7 +239,8 @@ class Renderer:
                 source.prepare(SourceFrame(grid, plan.camera, light, medium, self.rt,
                                            plan.shortcuts, self._count, plan.lattice_reach,
                                            rm.dm, plan.step, plan.threshold,
-                                           plan.keys["ms"]))
+                                           plan.keys["ms"],
+                                           plan.device_programs(self.rt.is_pocl)))
             else:
                 source.skip()
             with Stopwatch() as sw_light:

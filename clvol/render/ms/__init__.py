@@ -12,10 +12,13 @@ from ...errors import ClvolError
 from .network import NetworkMs
 from .grid import GridMs
 from .analytic import NoMs, OctavesMs
+from .base import SourceOption, option
 from .view import StochasticViewMs, ViewMs
 
+# In the order --ms's help lists them (their options follow in the same order).
 SOURCES: dict[str, type] = {cls.name: cls for cls in
-                            (NoMs, OctavesMs, GridMs, NetworkMs, ViewMs, StochasticViewMs)}
+                            (NetworkMs, ViewMs, StochasticViewMs, OctavesMs, GridMs, NoMs)}
+DEFAULT_SOURCE = NetworkMs.name
 
 
 def source_classes() -> dict[str, type]:
@@ -27,3 +30,20 @@ def source_class(ms: str) -> type:
     if ms not in SOURCES:
         raise ClvolError(f"raymarch option ms = {ms!r}: choose one of {sorted(SOURCES)}")
     return SOURCES[ms]
+
+
+def source_options() -> list[SourceOption]:
+    """The ray marcher's source options: ``--ms`` (its help lists each source's ``summary``),
+    then every source's own ``options``, each once (the sources that share one, such as
+    ``--weights``, declare the same object)."""
+    entries = ", ".join(f"{name} ({cls.summary}{', default' if name == DEFAULT_SOURCE else ''})"
+                        for name, cls in SOURCES.items())
+    out = [option("--ms", choices=sorted(SOURCES), default=DEFAULT_SOURCE,
+                  help=f"multiple-scattering source: {entries}")]
+    seen = {"ms"}
+    for cls in SOURCES.values():
+        for opt in cls.options:
+            if opt.name not in seen:
+                seen.add(opt.name)
+                out.append(opt)
+    return out

@@ -3,7 +3,7 @@ octaves, evaluated in the kernel from the light field (no data of their own)."""
 from __future__ import annotations
 
 from ...kernels.raymarch import ms_defines
-from .base import MsPlan, MsSource, Octaves
+from .base import MsPlan, MsSource, Octaves, option
 
 
 class NoMs(MsSource):
@@ -15,8 +15,19 @@ class OctavesMs(MsSource):
     """Wrenninge octaves evaluated in the kernel from the light field: no data of its own."""
     name = "wrenninge"
     label = "Wrenninge octaves (analytic multiple scattering)"
+    summary = "analytic octaves"
     multiple_scattering = True
     bundle_supported = True
+    options = (
+        option("--octaves", type=int, default=Octaves.n,
+               help=f"Wrenninge octaves N (default {Octaves.n})"),
+        option("--ms-a", type=float, default=Octaves.a,
+               help=f"octave extinction multiplier a (default {Octaves.a:g})"),
+        option("--ms-b", type=float, default=Octaves.b,
+               help=f"octave contribution multiplier b (default {Octaves.b:g}; keep b <= a)"),
+        option("--ms-c", type=float, default=Octaves.c,
+               help=f"octave eccentricity multiplier c (default {Octaves.c:g})"),
+    )
 
     def __init__(self, octaves: Octaves = Octaves()):
         self.octaves = octaves.check()

@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...errors import ClvolError
-from ...kernels.raymarch import MAX_OCTAVES, MS_SOURCE_DEFINES, ms_defines
+from ...kernels.raymarch import (DEFAULT_OCTAVE_MULTIPLIER, DEFAULT_OCTAVES, DEFAULT_THRESHOLD,
+                                 MAX_OCTAVES, MS_SOURCE_DEFINES, ms_defines)
 
 
 # --------------------------------------------------------------------------- data
@@ -44,12 +45,12 @@ class Octaves:
     phase eccentricity. Energy condition (Wrenninge et al.): an octave's contribution
     multiplier must not exceed its extinction multiplier, i.e. ``b <= a`` in this formula's
     letters (the paper writes it "a <= b" with the roles of the letters swapped;
-    docs/raymarch.md). Defaults a = b = c = 0.5, n = 3 satisfy it.
+    docs/raymarch.md). The defaults (clvol/kernels/raymarch.py: a = b = c) satisfy it.
     """
-    n: int = 3
-    a: float = 0.5
-    b: float = 0.5
-    c: float = 0.5
+    n: int = DEFAULT_OCTAVES
+    a: float = DEFAULT_OCTAVE_MULTIPLIER
+    b: float = DEFAULT_OCTAVE_MULTIPLIER
+    c: float = DEFAULT_OCTAVE_MULTIPLIER
 
     @property
     def energy_conserving(self) -> bool:
@@ -78,6 +79,35 @@ class Octaves:
             if not ok:
                 raise bad(name, v, "must be in (0, 1]" if lo_open else "must be in [0, 1]")
         return self
+
+
+# --------------------------------------------------------------------------- options
+
+@dataclass(frozen=True)
+class SourceOption:
+    """One render option a source reads: its CLI flags and argparse keywords (type, default,
+    help ...). The sources' options are collected from the registry
+    (clvol/render/ms/__init__.py ``source_options``) into the ray marcher's option table
+    (clvol/render/options.py), which the CLI, the Renderer and the viewer share."""
+    flags: tuple
+    kwargs: dict = field(default_factory=dict, hash=False, compare=False)
+
+    @property
+    def name(self) -> str:
+        """The Python keyword (argparse's ``dest``)."""
+        return self.kwargs.get("dest") or self.flags[0][2:].replace("-", "_")
+
+    @property
+    def default(self):
+        action = self.kwargs.get("action")
+        return (action == "store_false") if action in ("store_true", "store_false") \
+            else self.kwargs.get("default")
+
+
+def option(*flags, **kwargs) -> SourceOption:
+    """A source's option as argparse takes it: ``option("--ms-a", type=float, default=0.5,
+    help=...)``."""
+    return SourceOption(tuple(flags), kwargs)
 
 
 # --------------------------------------------------------------------------- interface
@@ -124,8 +154,10 @@ class SourceFrame:
     device_medium: object = None  # the volume on the device (clvol/kernels/medium.py): its
                                   # density, pyramids and cache (data as long as the volume)
     step: float = 0.0         # the march's segment length (world units) ...
-    threshold: float = 1e-3   # ... and its early-termination transmittance
+    threshold: float = DEFAULT_THRESHOLD   # ... and its early-termination transmittance
     key: object = None        # the plan's keys["ms"]: what the source's data depends on
+    programs: dict | None = None  # the plan's programs with this device's additions
+                                  # (FramePlan.device_programs): the defines it builds with
 
 
 class MsSource:
@@ -140,6 +172,24 @@ class MsSource:
     multiple_scattering = False   # it adds orders >= 2 (refused with --max-order 1)
     uses_network = False          # the trained network computes its F_ms (and the sky's)
     bundle_supported = False      # the C host (clvol bundle, examples/c/) implements it
+    summary = "single scattering only"   # its entry in --ms's help
+    # The render options it reads (flag, default, help): its own table, collected into the
+    # CLI's and the Renderer's by the registry (several sources may list the same one).
+    options: tuple = ()
+
+    @classmethod
+    def option(cls, name: str) -> SourceOption:
+        """This source's declared option ``name``."""
+        for opt in cls.options:
+            if opt.name == name:
+                return opt
+        raise KeyError(f"--ms {cls.name} has no option {name!r}")
+
+    @classmethod
+    def read(cls, o, name: str):
+        """Option ``name`` from render options ``o`` (recorded as read), or its declared
+        default where ``o`` lacks it (a partial dict, as the tests pass)."""
+        return o[name] if name in o else cls.option(name).default
 
     @classmethod
     def choose_for(cls, medium, options, volume, domain) -> SourceChoice:
@@ -164,6 +214,44 @@ class MsSource:
 
     def training_domain(self) -> dict | None:
         """The validity domain of the weights this source evaluates, or None (no network)."""
+        return None
+
+    # What the C host's bundle (clvol/bundle.py) and the sky's network share
+    # (clvol/render/environment.py) ask of a network source; None or empty for the others.
+    lattice_points_per_launch: int | None = None   # the most lattice points one launch takes
+
+    def network_weights(self):
+        """The checked weights (clvol/features/weights.py MlpWeights) it evaluates, or None."""
+        return None
+
+    @classmethod
+    def domain_rules(cls) -> dict:
+        """The numbers of its ``choose_for`` rules ({rule: value}; the bundle's manifest)."""
+        return {}
+
+    @classmethod
+    def outside_training_domain(cls, domain: dict, medium) -> list[str]:
+        """The ways ``medium`` lies outside the weights' ``domain`` (empty: inside)."""
+        return []
+
+    @classmethod
+    def active_points(cls, grid, resolution, reach: float, box=None):
+        """Boolean mask over a lattice's points ([z][y][x], over ``box`` or the volume's):
+        those with density within ``reach`` (the plan's ``lattice_reach``), or None."""
+        return None
+
+    @classmethod
+    def network_programs(cls, medium, shortcuts: bool, weights, fused: bool | None = None):
+        """(programs, pocl): {program name: -D defines} of the kernels its network runs for
+        ``medium`` with ``weights`` (MlpWeights), and the defines PoCL adds to some of them;
+        ({}, {}) for a source without a network. ``fused`` (None: the Python host's choice):
+        gather and network in one kernel, else two (the C host's)."""
+        return {}, {}
+
+    @classmethod
+    def sky_evaluator(cls, weights, grid, medium, runtime, device_medium):
+        """The network evaluator of the sky's F_ms fields (``weights`` None: the shipped
+        model), or None for a source without a network."""
         return None
 
     @classmethod

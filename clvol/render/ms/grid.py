@@ -8,7 +8,7 @@ import numpy as np
 
 from ...errors import ClvolError
 from ...kernels.raymarch import ms_defines
-from .base import MsPlan, MsSource
+from .base import MsPlan, MsSource, option
 
 
 @dataclass(frozen=True)
@@ -104,7 +104,11 @@ class GridMs(MsSource):
     ``prepare``; the lattice goes to the device once per grid and colour layout."""
     name = "grid"
     label = "precomputed F_ms grid"
+    summary = "precomputed F_ms, --ms-grid"
     multiple_scattering = True
+    options = (option("--ms-grid", metavar="FILE.npz",
+                      help="precomputed F_ms grid (arrays values, bbox_min, bbox_max) for "
+                           "--ms grid"),)
     what = "precomputed F_ms grid"
 
     def __init__(self, ms_grid: MsGrid | None = None, runtime=None):

@@ -24,7 +24,7 @@ from ...features.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_t
 from ...runtime import DeviceArray, Stopwatch, get_runtime
 from ..sphere import fibonacci_directions, spherical_barycentric
 from .grid import GridMs, MsGrid, check_ms_grid, ms_lattice
-from .base import MsPlan, MsSource, SourceChoice
+from .base import MsPlan, MsSource, SourceChoice, option
 
 DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
 NETWORK_CHUNK = 32768             # lattice points per gather + MLP launch (~100 MiB of features)
@@ -185,6 +185,10 @@ class NetworkSource:
         self.graded_keep = 1
         self.graded_builds = 0
         self.fused = FUSED_DEFAULT if fused is None else bool(fused)
+        # The frame's planned programs (FramePlan.device_programs; the owner sets them each
+        # frame): the fused kernel is built with their "gather_mlp" defines. None: formed
+        # by the kernel wrappers (tests, benchmarks).
+        self.programs: dict | None = None
 
     def _pyramid(self, grid, device_medium):
         if device_medium is None:
@@ -327,11 +331,13 @@ class NetworkSource:
                 args = (self.mlp, self.pyramid, graded, pts[sl], om[sl], l, medium,
                         float(alb[0]), self.weights.level_weights, self.weights.level_bias,
                         None if grey else alb)   # grey: the config's albedo is the medium's
+                planned = None if self.programs is None else self.programs["gather_mlp"]
                 with Stopwatch() as sw:
                     if host:
-                        out[sl] = gather_mlp(*args)
+                        out[sl] = gather_mlp(*args, defines=planned)
                     else:
-                        gather_mlp(*args, out=out, out_index=out_index[sl], nonfinite=nonfinite)
+                        gather_mlp(*args, out=out, out_index=out_index[sl], nonfinite=nonfinite,
+                                   defines=planned)
                         rt.finish()
                 info["network"] += sw.seconds
         else:
@@ -356,13 +362,40 @@ class NetworkSource:
         return (out if host else None), info
 
 
+# The options every network-backed source reads (this module's and view.py's).
+WEIGHTS_OPTION = option(
+    "--weights", metavar="FILE.npz",
+    help="network weight file for --ms network (default: the shipped model, "
+         "clvol/data/weights/full_albedo.npz)")
+DOMAIN_FALLBACK_OPTION = option(
+    "--no-domain-fallback", dest="domain_fallback", action="store_false",
+    help="use the network even for a scene outside the domain its weight file was trained "
+         "on (default: warn and use the measured fallback, docs/raymarch.md)")
+
+
 class NetworkMs(GridMs):
     """The network's lattice marched like a precomputed grid. The lattice depends on the
     camera position (omega toward it), the light direction and the medium; ``prepare``
     refills it only when one of those changed."""
     name = "network"
+    summary = "the trained network on a world lattice"
     uses_network = True
     bundle_supported = True            # the C host's network on the world lattice
+    options = (
+        WEIGHTS_OPTION,
+        option("--ms-resolution", type=int, default=DEFAULT_NETWORK_RESOLUTION,
+               help=f"F_ms lattice points per side filled by the network (default "
+                    f"{DEFAULT_NETWORK_RESOLUTION})"),
+        option("--ms-directions", type=int, default=0, metavar="K",
+               help="network: fill F_ms at K fixed directions per lattice point once per "
+                    "light and blend them for each camera (camera motion then costs no "
+                    "network evaluation; 0 = a lattice per camera position, default)"),
+        option("--ms-refresh", type=int, default=1, metavar="K",
+               help="network: when only the camera moves, refill 1/K of the lattice per "
+                    "frame (interleaved; the rest keeps earlier positions' values until "
+                    "its turn; default 1 = all of it)"),
+        DOMAIN_FALLBACK_OPTION,
+    )
 
     @classmethod
     def choose_for(cls, medium, options, volume, domain) -> SourceChoice:
@@ -390,6 +423,50 @@ class NetworkMs(GridMs):
         msg = (f"scene outside the network's training domain ({'; '.join(out)}): {what} "
                f"(docs/raymarch.md)")
         return SourceChoice(alt or configured, warning=msg)
+
+    lattice_points_per_launch = NETWORK_CHUNK
+
+    def network_weights(self):
+        return load_network_weights(self.weights_path)
+
+    @classmethod
+    def domain_rules(cls) -> dict:
+        return {"thin_optical_thickness": THIN_OPTICAL_THICKNESS,
+                "backward_limit": BACKWARD_LIMIT, "backward_albedo": BACKWARD_ALBEDO}
+
+    @classmethod
+    def outside_training_domain(cls, domain: dict, medium) -> list[str]:
+        return outside_domain(domain, medium)
+
+    @classmethod
+    def active_points(cls, grid, resolution, reach: float, box=None):
+        return lattice_reach_mask(grid, resolution, reach, box=box)
+
+    @classmethod
+    def network_programs(cls, medium, shortcuts: bool, weights, fused: bool | None = None):
+        """The programs ``NetworkSource`` builds: the pyramid's sweeps (graded
+        transmittance), the gather's bake, and the gather with the network (fused, as
+        ``FUSED_DEFAULT``) or apart; one colour plane for a grey medium with shortcuts."""
+        from ...kernels import gather as kg
+        from ...kernels import mlp as km
+        from ...kernels.pyramid import n_levels
+        from ...kernels.transmittance import sweep_programs
+        base = int(weights.contract["base_resolution"])
+        channels = 1 if shortcuts and medium.is_grey else 3
+        gather = kg.program_defines(base, kg._lobes(medium), render=True)
+        mlp = km.kernel_defines(weights.arch, channels, True)
+        programs = dict(sweep_programs([base >> lv for lv in range(n_levels(base))]),
+                        gather_bake={})
+        if FUSED_DEFAULT if fused is None else fused:
+            programs["gather_mlp"] = dict(gather, **mlp)
+            return programs, {"gather_mlp": dict(kg.POCL_DEFINES, **km.POCL_DEFINES)}
+        programs.update(gather=gather, mlp=mlp)
+        return programs, {"gather": dict(kg.POCL_DEFINES), "mlp": dict(km.POCL_DEFINES)}
+
+    @classmethod
+    def sky_evaluator(cls, weights, grid, medium, runtime, device_medium):
+        return NetworkSource(shipped_weights() if weights is None else weights, grid, medium,
+                             runtime, device_medium=device_medium)
 
     @classmethod
     def network_reach(cls, volume, step_voxels: float) -> float:
@@ -452,13 +529,14 @@ class NetworkMs(GridMs):
                 frame.runtime.finish()
             self.setup_seconds = sw.seconds
             self._key = None
+        self.net.programs = frame.programs
 
     @classmethod
     def from_options(cls, o, runtime=None) -> "NetworkMs":
-        r = o.get("ms_resolution")
-        o.get("domain_fallback")        # read by plan_frame for every network source
-        return cls(o.get("weights"), DEFAULT_NETWORK_RESOLUTION if r is None else r, runtime,
-                   o.get("ms_directions", 0), o.get("ms_refresh", 1))
+        r = cls.read(o, "ms_resolution")
+        cls.read(o, "domain_fallback")  # read by plan_frame for every network source
+        return cls(cls.read(o, "weights"), DEFAULT_NETWORK_RESOLUTION if r is None else r,
+                   runtime, cls.read(o, "ms_directions"), cls.read(o, "ms_refresh"))
 
     def training_domain(self) -> dict:
         """The validity domain the weight file records (clvol/features/weights.py); loading it

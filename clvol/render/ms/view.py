@@ -20,11 +20,21 @@ import numpy as np
 from ...errors import ClvolError
 from ...kernels.raymarch import ms_defines
 from ...runtime import Stopwatch
-from .network import NetworkMs
-from .base import MsPlan
+from .network import DOMAIN_FALLBACK_OPTION, WEIGHTS_OPTION, NetworkMs
+from .base import MsPlan, option
 
 DEFAULT_VIEW_BLOCK = 4     # pixels per block side
 DEFAULT_VIEW_KNOTS = 4     # query depths per block
+# The stochastic source's default block: about this many blocks across the image's longer
+# side (block = max(1, round(side / 64)): 2 at 96^2-128^2, 4 at 256^2, 8 at 512^2). Its frame
+# cost scales with the blocks, and at 64 across a 256^2 camera move costs about 1.5x the plain
+# march (docs/raymarch.md, "Stochastic view-space F_ms").
+STOCHASTIC_BLOCKS_ACROSS = 64
+VIEW_BLOCK_OPTION = option(        # read by both view-space sources
+    "--view-block", type=int, default=None, metavar="B",
+    help=f"--ms view and stochastic: pixels per block side; each block's queries serve its "
+         f"pixels (default {DEFAULT_VIEW_BLOCK} for view; for stochastic about "
+         f"{STOCHASTIC_BLOCKS_ACROSS} blocks across the image: 2 at 128^2, 4 at 256^2)")
 VIEW_RAYS = 2              # sample rays per block side for the depth quantiles (at most
                            # one per pixel: a 1-pixel block gets one ray)
 # The depth pass marches at this many march steps per segment: its cost (the view_depths
@@ -51,8 +61,17 @@ def check_view_options(block, knots):
 class ViewMs(NetworkMs):
     """The network at ``knots`` depths per ``block`` x ``block`` pixels of the camera's view."""
     name = "view"
+    summary = "the trained network at the camera's view"
     what = "view-space F_ms table"
     bundle_supported = False           # Python only (docs/embedding.md)
+    options = (
+        WEIGHTS_OPTION,
+        VIEW_BLOCK_OPTION,
+        option("--view-knots", type=int, default=DEFAULT_VIEW_KNOTS, metavar="K",
+               help=f"--ms view: network queries per block, at the quantiles of the "
+                    f"camera's in-scattering weight (default {DEFAULT_VIEW_KNOTS})"),
+        DOMAIN_FALLBACK_OPTION,
+    )
 
     @classmethod
     def lattice_reach_for(cls, volume, step_voxels: float) -> None:
@@ -73,10 +92,10 @@ class ViewMs(NetworkMs):
 
     @classmethod
     def from_options(cls, o, runtime=None) -> "ViewMs":
-        block = o.get("view_block")
-        o.get("domain_fallback")        # read by plan_frame for every network source
-        return cls(o.get("weights"), DEFAULT_VIEW_BLOCK if block is None else block,
-                   o.get("view_knots", DEFAULT_VIEW_KNOTS), runtime)
+        block = cls.read(o, "view_block")
+        cls.read(o, "domain_fallback")  # read by plan_frame for every network source
+        return cls(cls.read(o, "weights"), DEFAULT_VIEW_BLOCK if block is None else block,
+                   cls.read(o, "view_knots"), runtime)
 
     @property
     def label(self) -> str:
@@ -157,9 +176,8 @@ class ViewMs(NetworkMs):
 
     @classmethod
     def _block_knots(cls, camera, o) -> tuple[int, int]:
-        block = o.get("view_block")
-        return (DEFAULT_VIEW_BLOCK if block is None else block,
-                o.get("view_knots", DEFAULT_VIEW_KNOTS))
+        block = cls.read(o, "view_block")
+        return (DEFAULT_VIEW_BLOCK if block is None else block, cls.read(o, "view_knots"))
 
     @classmethod
     def plan_for(cls, medium, camera, shortcuts: bool, options) -> MsPlan:
@@ -201,11 +219,6 @@ class ViewMs(NetworkMs):
 
 # --------------------------------------------------------------------------- stochastic
 
-# The stochastic source's default block: about this many blocks across the image's longer
-# side (block = max(1, round(side / 64)): 2 at 96^2-128^2, 4 at 256^2, 8 at 512^2). Its frame
-# cost scales with the blocks, and at 64 across a 256^2 camera move costs about 1.5x the plain
-# march (docs/raymarch.md, "Stochastic view-space F_ms").
-STOCHASTIC_BLOCKS_ACROSS = 64
 DEFAULT_VIEW_SAMPLES = 1
 MAX_VIEW_SAMPLES = 4096
 # A still view stops drawing after this many draws per block (a thin block, whose ray often
@@ -261,7 +274,18 @@ class StochasticViewMs(ViewMs):
     when the camera moves. The marcher reads the block means as a one-knot view table
     (MS_SOURCE 3, VIEW_K 1): F_ms constant along each ray, blended across blocks."""
     name = "stochastic"
+    summary = ("the network at one free-flight point per pixel block per frame, "
+               "accumulated")
     what = "stochastic view-space F_ms table"
+    options = (
+        WEIGHTS_OPTION,
+        VIEW_BLOCK_OPTION,
+        option("--view-samples", type=int, default=DEFAULT_VIEW_SAMPLES, metavar="N",
+               help=f"--ms stochastic: free-flight samples per block drawn per frame "
+                    f"(default {DEFAULT_VIEW_SAMPLES}; a still view accumulates them "
+                    f"up to {STILL_SAMPLES} per block)"),
+        DOMAIN_FALLBACK_OPTION,
+    )
 
     def __init__(self, weights=None, block: int | None = None,
                  samples: int = DEFAULT_VIEW_SAMPLES, seed: int = 0, runtime=None):
@@ -276,9 +300,9 @@ class StochasticViewMs(ViewMs):
 
     @classmethod
     def from_options(cls, o, runtime=None) -> "StochasticViewMs":
-        o.get("domain_fallback")        # read by plan_frame for every network source
-        return cls(o.get("weights"), o.get("view_block"),
-                   o.get("view_samples", DEFAULT_VIEW_SAMPLES), o.get("seed", 0), runtime)
+        cls.read(o, "domain_fallback")  # read by plan_frame for every network source
+        return cls(cls.read(o, "weights"), cls.read(o, "view_block"),
+                   cls.read(o, "view_samples"), o.get("seed", 0), runtime)
 
     @property
     def label(self) -> str:
@@ -431,7 +455,7 @@ class StochasticViewMs(ViewMs):
 
     @classmethod
     def _block_knots(cls, camera, o) -> tuple[int, int]:
-        block = o.get("view_block")
+        block = cls.read(o, "view_block")
         return (auto_block(camera.width, camera.height) if block is None else block), 1
 
     @staticmethod
