@@ -377,7 +377,8 @@ def _source_arguments(group) -> None:
                        help="multiple-scattering source: network (the trained network on "
                             "a world lattice, default), view (the trained network at the "
                             "camera's view), stochastic (the network at one free-flight "
-                            "point per pixel block per frame, accumulated), wrenninge "
+                            "point per pixel block per frame, accumulated), progressive "
+                            "(stochastic, refined toward path-traced F_ms while still), wrenninge "
                             "(analytic octaves), grid (precomputed F_ms, --ms-grid), none "
                             "(single scattering only)")
     group.add_argument("--weights", metavar="FILE.npz",
@@ -395,6 +396,13 @@ def _source_arguments(group) -> None:
                        help=f"--ms stochastic: free-flight samples per block drawn per frame "
                             f"(default {DEFAULT_VIEW_SAMPLES}; a still view accumulates them "
                             f"up to {STILL_SAMPLES} per block)")
+    group.add_argument("--progressive-rounds", type=int, default=1, metavar="N",
+                       help="--ms progressive: refinement rounds per render without --time "
+                            "(default 1); a --time render records its count in the header "
+                            "(raymarch.progressive_rounds): this reproduces it bit for bit")
+    group.add_argument("--time", type=float, default=None, metavar="SECONDS",
+                       help="--ms progressive: refine for this wall time after the first "
+                            "frame (rounds depend on the machine; the header records them)")
     group.add_argument("--view-knots", type=int, default=DEFAULT_VIEW_KNOTS, metavar="K",
                        help=f"--ms view: network queries per block, at the quantiles of the "
                             f"camera's in-scattering weight (default {DEFAULT_VIEW_KNOTS})")
