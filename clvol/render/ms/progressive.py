@@ -66,6 +66,10 @@ ESTIMATORS = ("cv_smooth", "cv", "shrink", "mean", "network")
 # by a zero F_ms), and a pooled variance at least VAR_FLOOR (relative units, squared).
 SCALE_FLOOR = 1e-3
 VAR_FLOOR = 1e-12
+NOISE_SAFETY = 1.0           # the residual variances are taken this many times their estimate
+MIN_DOF = 32                 # degrees of freedom (points beyond a block's first) before paths count
+SPREAD_SIGMAS = 3.0          # a level's pooled spread: its estimate less this many standard errors
+SAFETY_POINTS = 2.0          # ... times (1 + this / mean points per block)
 PRIOR_POINTS = 2.0           # the pooled residual variance's weight in a block's own, in points
 
 
@@ -141,19 +145,24 @@ def estimate(m_nn, n, s_r, q_r, mode: str = "cv_smooth", radius: int = SMOOTH_RA
     # dominate.
     wt = sc * sc
     dof = (np.maximum(n - 1, 0) * wt).reshape(C, -1).sum(axis=1)
-    if float(np.maximum(n - 1, 0).sum()) >= 2:
-        s2 = _ratio((dev * wt).reshape(C, -1).sum(axis=1), dof)
-    elif e2 is not None and n.sum() > 0:                         # paths' own noise only
-        s2 = _ratio(np.asarray(e2, np.float64).reshape(C, -1).sum(axis=1),
-                    (n * wt).reshape(C, -1).sum(axis=1))
-    else:
-        s2 = np.full(C, np.inf)
+    if float(np.maximum(n - 1, 0).sum()) < MIN_DOF and mode != "mean":
+        # too few blocks with two points: a residual's spread is unknown (the paths' own
+        # standard errors, from PATHS_PER_QUERY heavy-tailed paths, understate it): the
+        # network alone
+        zero = np.zeros(C)
+        return m_nn.copy(), {"s2": np.full(C, np.inf), "b2": zero, "d2": zero,
+                             "error": None, "error_network": None}
+    # Few points per block: variances estimated from few heavy-tailed residuals understate the
+    # noise (measured: the first rounds crept above the network on oof_sphcu_back), so they are
+    # taken (1 + SAFETY_POINTS / mean points per block) times larger, a factor that tends to 1
+    safety = NOISE_SAFETY * (1.0 + SAFETY_POINTS * has.sum() / max(float(n.sum()), 1.0))
+    s2 = safety * _ratio((dev * wt).reshape(C, -1).sum(axis=1), dof)
     s2 = np.maximum(s2, VAR_FLOOR)[:, None, None]
     # Per block: the pooled value as a prior (PRIOR_POINTS points' worth) beside the block's own
     # deviations, and never below its points' own path noise (e2: a dim block's relative path
     # noise is far above a bright one's).
-    own = _ratio(dev + PRIOR_POINTS * s2, np.maximum(n - 1, 0) + PRIOR_POINTS)
-    paths = (_ratio(np.asarray(e2, np.float64) / (sc * sc), n * np.ones_like(mean))
+    own = _ratio(safety * dev + PRIOR_POINTS * s2, np.maximum(n - 1, 0) + PRIOR_POINTS)
+    paths = (safety * _ratio(np.asarray(e2, np.float64) / (sc * sc), n * np.ones_like(mean))
              if e2 is not None else 0.0)
     s2b = np.where(has, np.maximum(np.maximum(own, paths), s2), 0.0)   # (C, by, bx)
     if mode == "network":                                        # no paths (the baseline)
@@ -170,7 +179,7 @@ def estimate(m_nn, n, s_r, q_r, mode: str = "cv_smooth", radius: int = SMOOTH_RA
         wsum = np.where(where, wt, 0.0).reshape(C, -1).sum(axis=1)
         return _ratio(np.where(where, x * wt, 0.0).reshape(C, -1).sum(axis=1), wsum)
     v_l = np.where(has, _ratio(s2b, n * np.ones_like(mean)), np.inf)
-    if mode in ("cv", "shrink") or radius <= 0:
+    if mode in ("cv", "shrink"):
         x = mean - centre
         b2 = np.maximum(pooled(x * x - np.where(has, v_l, 0.0), has), VAR_FLOOR)[:, None, None]
         w = np.where(has, b2 / (b2 + np.where(has, v_l, 1.0)), 0.0)
@@ -204,7 +213,14 @@ def estimate(m_nn, n, s_r, q_r, mode: str = "cv_smooth", radius: int = SMOOTH_RA
         hl = ns > 0
         v = np.where(hl, _ratio(nv, ns * ns * np.ones_like(m)), 0.0)
         d = m - m_up
-        tau2 = np.maximum(pooled(d * d - (v - v_up), hl), VAR_FLOOR)[:, None, None]
+        # The pooled spread is an average over about G independent neighbourhoods (1 for the
+        # whole image), so its noise is ~ sqrt(2 / G) x (spread + noise): it is taken
+        # SPREAD_SIGMAS of those below its estimate (a coarse level moves the image only
+        # where its residual stands out of its noise; the margin -> 0 with the noise).
+        groups = (1.0 if lev is None else
+                  max(float(hl.sum()) / (2 * lev + 1) ** 2, 1.0))
+        margin = SPREAD_SIGMAS * np.sqrt(2.0 / groups) * pooled(v, hl)
+        tau2 = np.maximum(pooled(d * d - (v - v_up), hl) - margin, VAR_FLOOR)[:, None, None]
         w = np.where(hl, tau2 / (tau2 + v), 0.0)
         est = est + w * (m - est)
         var = np.where(hl, (1.0 - w) ** 2 * var + w * v, var + tau2)
@@ -250,6 +266,9 @@ class ProgressiveViewMs(StochasticViewMs):
         self.paths = None
         self.rounds_done = 0            # refinement rounds of this view
         self.estimate_info = None
+        # Optional stand-in for the path tracer (tests): path_query(points, omegas, n_paths,
+        # seed) -> {"Fms": (N, 3), "Fms_se": (N, 3)}, as point_query's
+        self.path_query = None
 
     @classmethod
     def from_options(cls, o, runtime=None) -> "ProgressiveViewMs":
@@ -313,9 +332,14 @@ class ProgressiveViewMs(StochasticViewMs):
             scene = SimpleNamespace(medium=frame.medium, light=frame.light, volume=None)
             path_seed = (self.seed * 0x9E3779B1 + index) % (1 << 32)
             with Stopwatch() as sw:
-                kw = {"device_medium": dm, "majorant_block": dm.block} if dm is not None else {}
-                q = point_query(scene, pts[chosen], -dirs[chosen], self.paths_per_query,
-                                seed=path_seed, grid=frame.grid, runtime=frame.runtime, **kw)
+                if self.path_query is not None:
+                    q = self.path_query(pts[chosen], -dirs[chosen], self.paths_per_query,
+                                        path_seed)
+                else:
+                    kw = ({"device_medium": dm, "majorant_block": dm.block} if dm is not None
+                          else {})
+                    q = point_query(scene, pts[chosen], -dirs[chosen], self.paths_per_query,
+                                    seed=path_seed, grid=frame.grid, runtime=frame.runtime, **kw)
             t["paths"] = sw.seconds
             C = len(h.sums)
             f_pt = q["Fms"][:, :C] if C == 3 else q["Fms"].mean(axis=1, keepdims=True)
@@ -429,9 +453,7 @@ class ProgressiveViewMs(StochasticViewMs):
                      else np.zeros(1))
         err = est.get("error")
         err_nn = est.get("error_network")
-        mean_err = float(np.sqrt(np.mean(err[full] ** 2))) if err is not None and full.any() else float("nan")
-        mean_nn = (float(np.sqrt(np.mean(err_nn[full] ** 2))) if err_nn is not None and full.any()
-                   else float("nan"))
+        known = err is not None and err_nn is not None and full is not None and full.any()
         h.update({
             "raymarch.progressive_estimator": self.estimator,
             "raymarch.progressive_rounds": self.rounds_done,
@@ -441,8 +463,10 @@ class ProgressiveViewMs(StochasticViewMs):
                 f"mean {per_block.mean():.1f}, min {per_block.min():.0f}, "
                 f"max {per_block.max():.0f}"),
             "raymarch.progressive_error": (
-                f"{100 * mean_err:.2f}% of F_ms, estimated RMS over blocks (network alone: "
-                f"{100 * mean_nn:.2f}%)"),
+                f"{100 * np.sqrt(np.mean(err[full] ** 2)):.2f}% of F_ms, estimated RMS over "
+                f"blocks (network alone: {100 * np.sqrt(np.mean(err_nn[full] ** 2)):.2f}%)"
+                if known else "unknown (no block has two path-traced points yet: the "
+                              "network's F_ms)"),
             "seconds.progressive_paths": round(info.get("paths", 0.0), 4),
         })
         if self.budget is not None:
