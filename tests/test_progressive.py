@@ -189,11 +189,12 @@ def test_source_converges_to_the_path_traced_table():
     image sits at -50% (the network's error); refined, the mean relative error falls below
     2% (the stochastic source with the true F as its query: the same bound)."""
     scene = _scene(**{"medium.preset": "smoke", "medium.density_scale": 8.0})
-    r = _progressive(scene, view_block=2, seed=1, progressive_rounds=40)
-    first = r.render()
+    r = _progressive(scene, view_block=2, seed=1)
+    first = r.render()                      # the first frame of a view: the network only
     rel0 = _relative_error(scene, first, lambda dep: S * dep)
     assert np.median(rel0) == pytest.approx(-0.5, abs=0.05)
-    res = r.render()
+    for _ in range(40):                     # then a round per render (the viewer's frames)
+        res = r.render()
     rel = _relative_error(scene, res, lambda dep: S * dep)
     assert abs(np.mean(rel)) < 0.02 and np.median(np.abs(rel)) < 0.05
     h = res.header
@@ -231,14 +232,19 @@ def test_real_paths_reproducible_and_reset_by_changes():
     imgs = []
     for _ in range(2):
         r = Renderer(scene, "raymarch", ms="progressive", seed=7, progressive_rounds=3)
-        r.render()
-        res = r.render()
+        res = r.render()                    # the first frame and 3 rounds, in one render
         imgs.append(res.layers["total"])
     np.testing.assert_array_equal(imgs[0], imgs[1])
     h = res.header
     assert h["raymarch.progressive_rounds"] == 3 and h["raymarch.progressive_paths_per_query"] == 4
     assert float(h["raymarch.progressive_paths_per_block"].split()[1].rstrip(",")) > 0
+    assert "F_ms" in h["raymarch.progressive_error"]
+    r = Renderer(scene, "raymarch", ms="progressive", seed=7)
     src = r.source
+    r.render()
+    assert src.paths.n.sum() == 0           # a first frame: no paths
+    r.render()
+    assert src.paths.n.sum() > 0
     cam = dataclasses.replace(scene.camera, origin=(0.1, 0.3, 2.4))
     moved = r.render(camera=cam)
     assert moved.header["raymarch.progressive_rounds"] == 0 and src.paths.n.sum() == 0
@@ -252,17 +258,41 @@ def test_real_paths_reproducible_and_reset_by_changes():
 
 def test_time_budget_records_its_rounds():
     scene = _scene(**{"camera.width": 16, "camera.height": 12})
-    r = Renderer(scene, "raymarch", ms="progressive", seed=2, time=0.3)
-    r.render()
-    res = r.render()
+    res = Renderer(scene, "raymarch", ms="progressive", seed=2, time=0.3).render()
     assert res.header["raymarch.progressive_time"] == 0.3
     assert res.header["raymarch.progressive_rounds"] >= 1
+
+
+def test_cli_render_progressive(tmp_path, capsys):
+    """clvol render --ms progressive --time / --progressive-rounds; the header says the
+    rounds, paths per block and estimated error; --time with another source is refused."""
+    from clvol.cli import main
+    from clvol.image import read_exr
+    from scene_toml import CAMERA, write_scene
+    scene = write_scene(tmp_path / "s.toml", volume={"generator": "cloud", "resolution": 16},
+                        medium={"preset": "cloud", "density_scale": 20.0},
+                        light={"direction": [0.3, 1.0, 0.4]},
+                        camera={**CAMERA, "origin": [0.0, 0.2, 2.2], "width": 12, "height": 10})
+    out = tmp_path / "o.exr"
+    assert main(["render", str(scene), "-o", str(out), "--ms", "progressive", "--time", "0.2",
+                 "--seed", "4"]) == 0
+    h = read_exr(out).header
+    rounds = int(h["raymarch.progressive_rounds"])
+    assert rounds >= 1 and "paths_per_block" in " ".join(h)
+    again = tmp_path / "p.exr"
+    assert main(["render", str(scene), "-o", str(again), "--ms", "progressive",
+                 "--progressive-rounds", str(rounds), "--seed", "4"]) == 0
+    np.testing.assert_array_equal(read_exr(out).rgb, read_exr(again).rgb)
+    capsys.readouterr()
+    assert main(["render", str(scene), "-o", str(out), "--ms", "stochastic", "--time", "1"]) == 2
+    assert "progressive" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("opts, msg", [
     ({"progressive_rounds": 0}, "progressive_rounds"),
     ({"time": -1.0}, "time"),
     ({"time": float("nan")}, "time"),
+    ({"time": 1.0, "progressive_rounds": 2}, "not both"),
 ])
 def test_bad_options_are_refused(opts, msg):
     with pytest.raises(ClvolError, match=msg):

@@ -396,10 +396,10 @@ def _source_arguments(group) -> None:
                        help=f"--ms stochastic: free-flight samples per block drawn per frame "
                             f"(default {DEFAULT_VIEW_SAMPLES}; a still view accumulates them "
                             f"up to {STILL_SAMPLES} per block)")
-    group.add_argument("--progressive-rounds", type=int, default=1, metavar="N",
-                       help="--ms progressive: refinement rounds per render without --time "
-                            "(default 1); a --time render records its count in the header "
-                            "(raymarch.progressive_rounds): this reproduces it bit for bit")
+    group.add_argument("--progressive-rounds", type=int, default=None, metavar="N",
+                       help="--ms progressive: refinement rounds per render instead of --time "
+                            "(a --time render records its count in the header, "
+                            "raymarch.progressive_rounds: N reproduces it bit for bit)")
     group.add_argument("--time", type=float, default=None, metavar="SECONDS",
                        help="--ms progressive: refine for this wall time after the first "
                             "frame (rounds depend on the machine; the header records them)")

@@ -39,10 +39,12 @@ the network history as the stochastic source does and drops the paths (F_ms depe
 direction toward the camera); a light, medium or density change starts afresh.
 
 Reproducible: the rounds are numbered; round i's draw, choice and paths use streams keyed by
-(seed, i). ``time`` (--time) is a wall budget per render after its first frame: how many
-rounds fit depends on the machine, and the header records them (``raymarch.progressive_rounds``);
-``progressive_rounds`` (--progressive-rounds) gives that count instead, the same image bit for
-bit on the same device.
+(seed, i). Rounds per render: ``time`` (--time) refines for that wall time after the render's
+first frame (how many rounds fit depends on the machine, so the header records them,
+``raymarch.progressive_rounds``); ``progressive_rounds`` (--progressive-rounds N) makes N
+instead, the same image bit for bit on the same device and seed; with neither, a render of a
+still view makes one round and the first frame of a view none (the viewer's frames: a moving
+camera costs what a stochastic frame costs).
 """
 from __future__ import annotations
 
@@ -59,7 +61,6 @@ PATHS_PER_QUERY = 4          # paths per path-traced point (a round's paths: PAT
                              # the chosen points)
 ROUND_FRACTION = 0.5         # at most this share of a round's points is path-traced
 SMOOTH_RADIUS = 2            # the neighbourhood of the first level: (2 R + 1)^2 blocks
-DEFAULT_ROUNDS = 1           # refinement rounds per render without --time
 MAX_ROUNDS = 100_000
 ESTIMATORS = ("cv_smooth", "cv", "shrink", "mean", "network")
 # Relative floors: a block's scale is at least SCALE_FLOOR x the brightest block's (no division
@@ -74,7 +75,7 @@ PRIOR_POINTS = 2.0           # the pooled residual variance's weight in a block'
 
 
 def check_progressive_options(rounds, budget):
-    if not (_is_int(rounds) and 1 <= rounds <= MAX_ROUNDS):
+    if rounds is not None and not (_is_int(rounds) and 1 <= rounds <= MAX_ROUNDS):
         raise ClvolError(f"raymarch option progressive_rounds = {rounds!r}: an integer from 1 "
                          f"to {MAX_ROUNDS} (refinement rounds per render)")
     if budget is not None and (isinstance(budget, bool) or
@@ -255,10 +256,13 @@ class ProgressiveViewMs(StochasticViewMs):
     what = "progressive view-space F_ms table (network + path-traced residual)"
 
     def __init__(self, weights=None, block: int | None = None, seed: int = 0,
-                 rounds: int = DEFAULT_ROUNDS, budget: float | None = None, runtime=None):
+                 rounds: int | None = None, budget: float | None = None, runtime=None):
         super().__init__(weights, block, 1, seed, runtime)
         check_progressive_options(rounds, budget)
-        self.rounds, self.budget = int(rounds), (None if budget is None else float(budget))
+        if rounds is not None and budget is not None:
+            raise ClvolError("--ms progressive: give --time or --progressive-rounds, not both")
+        self.rounds = None if rounds is None else int(rounds)
+        self.budget = None if budget is None else float(budget)
         self.estimator = "cv_smooth"
         self.radius = SMOOTH_RADIUS
         self.paths_per_query = PATHS_PER_QUERY
@@ -274,7 +278,7 @@ class ProgressiveViewMs(StochasticViewMs):
     def from_options(cls, o, runtime=None) -> "ProgressiveViewMs":
         o.get("domain_fallback")        # read by plan_frame for every network source
         return cls(o.get("weights"), o.get("view_block"), o.get("seed", 0),
-                   o.get("progressive_rounds", DEFAULT_ROUNDS), o.get("time"), runtime)
+                   o.get("progressive_rounds"), o.get("time"), runtime)
 
     @property
     def label(self) -> str:
@@ -399,20 +403,23 @@ class ProgressiveViewMs(StochasticViewMs):
                 times[k] = times.get(k, 0.0) + v
 
         rounds = 0
-        if fresh or moved or h.camera is None:
+        first = fresh or moved or h.camera is None
+        if first:
             # the first frame of a view: the network only (what a stochastic frame costs)
             self.paths = _Paths(len(h.sums), by, bx)
             self.rounds_done = 0
             add(self._round(frame, h, with_paths=False, moved=moved))
             h.camera = cam
             h.still = 0
-        else:
+        if not first or self.budget is not None or self.rounds is not None:
+            # a still view refines: --time or --progressive-rounds after the first frame too
+            # (one render, as clvol render makes), else one round per render (the viewer's)
             t0 = time.perf_counter()
             while True:
                 add(self._round(frame, h, with_paths=True))
                 rounds += 1
                 if self.budget is None:
-                    if rounds >= self.rounds:
+                    if rounds >= (self.rounds or 1):
                         break
                 else:
                     spent = time.perf_counter() - t0
