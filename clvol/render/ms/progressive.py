@@ -113,46 +113,25 @@ def block_scale(m_nn: np.ndarray) -> np.ndarray:
     return np.maximum(m, floor)
 
 
-def estimate(m_nn, n, s_r, q_r, mode: str = "cv_smooth", radius: int = SMOOTH_RADIUS,
-             s_pt=None, q_pt=None, e2=None):
-    """The table's F_ms per block and the estimate's relative error.
+def _pooled(x, wt, where):
+    """The wt-weighted mean of x (C, by, bx) over the blocks ``where``, per channel (C,)."""
+    C = len(wt)
+    wsum = np.where(where, wt, 0.0).reshape(C, -1).sum(axis=1)
+    return _ratio(np.where(where, x * wt, 0.0).reshape(C, -1).sum(axis=1), wsum)
 
-    m_nn (C, by, bx): the block's mean network F_ms; n (by, bx): its path-traced points;
-    s_r, q_r (C, by, bx): the sums of the residual F_pt - F_nn over them and of its square;
-    s_pt, q_pt: the same for F_pt itself (mode "shrink" only); e2 (C, by, bx): the sum of the
-    points' squared path standard errors (the variance's fallback before any block has two
-    points). Returns (F (C, by, bx) float64, info) with info {"s2", "b2", "d2": pooled relative
-    variances per channel, "error": relative RMS error per block (by, bx) expected of F,
-    "error_network": that of the network alone}."""
-    if mode not in ESTIMATORS:
-        raise ClvolError(f"progressive estimator {mode!r}: one of {ESTIMATORS}")
-    m_nn = np.asarray(m_nn, np.float64)
-    n = np.asarray(n, np.float64)
-    sc = block_scale(m_nn)
+
+def _variances(n, s, q, sc, e2):
+    """(mean, s2 (C, 1, 1), s2b (C, by, bx)) of the relative sums s, q: the block means, the
+    pooled per-point variance and each block's (module doc of ``estimate``)."""
+    C = len(s)
     has = n > 0
-    C = len(m_nn)
-    if mode == "shrink":
-        if s_pt is None or q_pt is None:
-            raise ClvolError("progressive estimator 'shrink' needs s_pt and q_pt")
-        s, q = np.asarray(s_pt, np.float64) / sc, np.asarray(q_pt, np.float64) / (sc * sc)
-        centre = m_nn / sc          # shrink the mean of F_pt / sc toward m_nn / sc
-    else:
-        s, q = np.asarray(s_r, np.float64) / sc, np.asarray(q_r, np.float64) / (sc * sc)
-        centre = np.zeros_like(m_nn)
-    mean = _ratio(s, n)                                          # (C, by, bx)
+    mean = _ratio(s, n * np.ones_like(s))                        # (C, by, bx)
     dev = np.where(n > 1, np.maximum(q - s * mean, 0.0), 0.0)   # sum of squared deviations
     # Pooled over blocks with weights sc^2 (the block's F_ms squared): a relative variance
     # in which dim blocks, whose relative residuals are large and matter little, do not
     # dominate.
     wt = sc * sc
     dof = (np.maximum(n - 1, 0) * wt).reshape(C, -1).sum(axis=1)
-    if float(np.maximum(n - 1, 0).sum()) < MIN_DOF and mode != "mean":
-        # too few blocks with two points: a residual's spread is unknown (the paths' own
-        # standard errors, from PATHS_PER_QUERY heavy-tailed paths, understate it): the
-        # network alone
-        zero = np.zeros(C)
-        return m_nn.copy(), {"s2": np.full(C, np.inf), "b2": zero, "d2": zero,
-                             "error": None, "error_network": None}
     # Few points per block: variances estimated from few heavy-tailed residuals understate the
     # noise (measured: the first rounds crept above the network on oof_sphcu_back), so they are
     # taken (1 + SAFETY_POINTS / mean points per block) times larger, a factor that tends to 1
@@ -163,50 +142,92 @@ def estimate(m_nn, n, s_r, q_r, mode: str = "cv_smooth", radius: int = SMOOTH_RA
     # deviations, and never below its points' own path noise (e2: a dim block's relative path
     # noise is far above a bright one's).
     own = _ratio(safety * dev + PRIOR_POINTS * s2, np.maximum(n - 1, 0) + PRIOR_POINTS)
-    paths = (safety * _ratio(np.asarray(e2, np.float64) / (sc * sc), n * np.ones_like(mean))
+    paths = (safety * _ratio(np.asarray(e2, np.float64) / wt, n * np.ones_like(mean))
              if e2 is not None else 0.0)
-    s2b = np.where(has, np.maximum(np.maximum(own, paths), s2), 0.0)   # (C, by, bx)
-    if mode == "network":                                        # no paths (the baseline)
-        return m_nn.copy(), {"s2": s2[:, 0, 0], "b2": np.zeros(C), "d2": np.zeros(C),
-                             "error": np.zeros(n.shape), "error_network": np.zeros(n.shape)}
-    if mode == "mean":                                           # no shrinkage (diagnostic)
-        v = np.where(has, _ratio(s2b, n * np.ones_like(mean)), 0.0)
-        return m_nn + mean * sc, {"s2": s2[:, 0, 0], "b2": np.zeros(C), "d2": np.zeros(C),
-                                  "error": np.sqrt(np.mean(v, axis=0)),
-                                  "error_network": np.zeros(n.shape)}
+    return mean, s2, np.where(has, np.maximum(np.maximum(own, paths), s2), 0.0)
 
-    def pooled(x, where):
-        """The sc^2-weighted mean of x over the blocks ``where`` (per channel)."""
-        wsum = np.where(where, wt, 0.0).reshape(C, -1).sum(axis=1)
-        return _ratio(np.where(where, x * wt, 0.0).reshape(C, -1).sum(axis=1), wsum)
-    v_l = np.where(has, _ratio(s2b, n * np.ones_like(mean)), np.inf)
+
+def estimate(m_nn, n, s_r, q_r, mode: str = "cv_smooth", radius: int = SMOOTH_RADIUS,
+             s_pt=None, q_pt=None, e2=None):
+    """The table's F_ms per block and the estimate's relative error.
+
+    m_nn (C, by, bx): the block's mean network F_ms; n (by, bx): its path-traced points;
+    s_r, q_r (C, by, bx): the sums of the residual F_pt - F_nn over them and of its square;
+    s_pt, q_pt: the same for F_pt itself (mode "shrink" only); e2 (C, by, bx): the sum of the
+    points' squared path standard errors (a floor of each block's variance). Returns
+    (F (C, by, bx) float64, info) with info {"s2": the pooled relative per-point variance per
+    channel, "b2": the network's relative error variance (summed over the levels), "d2": the
+    finest level's, "error": relative RMS error per block (by, bx) expected of F (None while
+    fewer than MIN_DOF points lie beyond their block's first: then F is the network's),
+    "error_network": that of the network alone}."""
+    if mode not in ESTIMATORS:
+        raise ClvolError(f"progressive estimator {mode!r}: one of {ESTIMATORS}")
+    m_nn = np.asarray(m_nn, np.float64)
+    n = np.asarray(n, np.float64)
+    sc = block_scale(m_nn)
+    C = len(m_nn)
+    if mode == "shrink":
+        if s_pt is None or q_pt is None:
+            raise ClvolError("progressive estimator 'shrink' needs s_pt and q_pt")
+        s, q = np.asarray(s_pt, np.float64) / sc, np.asarray(q_pt, np.float64) / (sc * sc)
+        centre = m_nn / sc          # shrink the mean of F_pt / sc toward m_nn / sc
+    else:
+        s, q = np.asarray(s_r, np.float64) / sc, np.asarray(q_r, np.float64) / (sc * sc)
+        centre = np.zeros_like(m_nn)
+    zero = np.zeros(C)
+    if float(np.maximum(n - 1, 0).sum()) < MIN_DOF and mode != "mean":
+        # too few blocks with two points: a residual's spread is unknown (the paths' own
+        # standard errors, from PATHS_PER_QUERY heavy-tailed paths, understate it): the
+        # network alone
+        return m_nn.copy(), {"s2": np.full(C, np.inf), "b2": zero, "d2": zero,
+                             "error": None, "error_network": None}
+    mean, s2, s2b = _variances(n, s, q, sc, e2)
+    has = n > 0
+    v_l = np.where(has, _ratio(s2b, n * np.ones_like(mean)), 0.0)
+    if mode in ("network", "mean"):       # no paths (the baseline); no shrinkage (diagnostic)
+        f = m_nn.copy() if mode == "network" else m_nn + mean * sc
+        err = np.zeros(n.shape) if mode == "network" else np.sqrt(np.mean(v_l, axis=0))
+        return f, {"s2": s2[:, 0, 0], "b2": zero, "d2": zero, "error": err,
+                   "error_network": np.zeros(n.shape)}
     if mode in ("cv", "shrink"):
         x = mean - centre
-        b2 = np.maximum(pooled(x * x - np.where(has, v_l, 0.0), has), VAR_FLOOR)[:, None, None]
+        b2 = np.maximum(_pooled(x * x - v_l, sc * sc, has), VAR_FLOOR)[:, None, None]
         w = np.where(has, b2 / (b2 + np.where(has, v_l, 1.0)), 0.0)
-        r = w * x
-        err = np.sqrt(np.where(has, w * np.where(has, v_l, 0.0), b2))
-        info = {"s2": s2[:, 0, 0], "b2": b2[:, 0, 0], "d2": np.zeros(C)}
-        f = (centre + r) * sc if mode == "shrink" else m_nn + r * sc
-        return f, dict(info, error=np.sqrt(np.mean(err * err, axis=0)),
-                       error_network=np.sqrt(np.mean(np.broadcast_to(b2, err.shape), axis=0)))
-    # Levels, coarse to fine: the whole image, neighbourhoods of 4 R and of R blocks, the
-    # block. Each level's residual mean m is shrunk toward the estimate of the level above,
-    # est += w (m - est), w = tau2 / (tau2 + v): v its noise, tau2 the pooled spread of the
-    # level's true means about the coarser level's (mean of (m - m_up)^2 - (v - v_up); the
-    # neighbourhoods nest, so the covariance of m and m_up is v_up).
+        err = np.sqrt(np.where(has, w * v_l, b2))
+        f = (centre + w * x) * sc if mode == "shrink" else m_nn + w * x * sc
+        return f, {"s2": s2[:, 0, 0], "b2": b2[:, 0, 0], "d2": zero,
+                   "error": np.sqrt(np.mean(err * err, axis=0)),
+                   "error_network": np.sqrt(np.mean(np.broadcast_to(b2, err.shape), axis=0))}
+    est, var, spread, tau2 = _levels(n, s, s2b, sc, radius)
+    return m_nn + est * sc, {
+        "s2": s2[:, 0, 0], "b2": spread, "d2": tau2,
+        "error": np.sqrt(np.mean(var, axis=0)),
+        "error_network": np.sqrt(np.mean(np.broadcast_to(spread[:, None, None], var.shape),
+                                         axis=0))}
+
+
+def _levels(n, s, s2b, sc, radius):
+    """cv_smooth's shrinkage through the levels, coarse to fine: the whole image,
+    neighbourhoods of 4 R and of R blocks, the block. Each level's residual mean m is shrunk
+    toward the estimate of the level above, est += w (m - est), w = tau2 / (tau2 + v): v its
+    noise, tau2 the pooled spread of the level's true means about the coarser level's (mean
+    of (m - m_up)^2 - (v - v_up); the neighbourhoods nest, so the covariance of m and m_up
+    is v_up). Returns (est, its posterior variance under that model, the spreads' sum per
+    channel, the finest level's spread)."""
+    C = len(s)
+    wt = sc * sc
     levels = [None] + ([4 * radius, radius] if radius > 0 else []) + [0]
-    est = np.zeros_like(mean)
-    m_up, v_up = np.zeros_like(mean), np.zeros_like(mean)
-    var = np.zeros_like(mean)          # the estimate's posterior variance (the model's)
+    est = np.zeros_like(s)
+    m_up, v_up = np.zeros_like(s), np.zeros_like(s)
+    var = np.zeros_like(s)             # the estimate's posterior variance (the model's)
     spread = np.zeros(C)               # sum of tau2 over the levels: the network's error
     for lev in levels:
         if lev is None:                # the whole image
             tot = float(n.sum())
             ns = np.full(n.shape, tot)
-            m = np.broadcast_to(_ratio(s.reshape(C, -1).sum(axis=1), np.full(C, tot))[:, None, None],
-                                mean.shape)
-            nv = np.broadcast_to((n * s2b).reshape(C, -1).sum(axis=1)[:, None, None], mean.shape)
+            m = np.broadcast_to(_ratio(s.reshape(C, -1).sum(axis=1),
+                                       np.full(C, tot))[:, None, None], s.shape)
+            nv = np.broadcast_to((n * s2b).reshape(C, -1).sum(axis=1)[:, None, None], s.shape)
         else:
             ns = box_sum(n, lev)
             m = _ratio(box_sum(s, lev), ns * np.ones_like(s))
@@ -218,20 +239,16 @@ def estimate(m_nn, n, s_r, q_r, mode: str = "cv_smooth", radius: int = SMOOTH_RA
         # whole image), so its noise is ~ sqrt(2 / G) x (spread + noise): it is taken
         # SPREAD_SIGMAS of those below its estimate (a coarse level moves the image only
         # where its residual stands out of its noise; the margin -> 0 with the noise).
-        groups = (1.0 if lev is None else
-                  max(float(hl.sum()) / (2 * lev + 1) ** 2, 1.0))
-        margin = SPREAD_SIGMAS * np.sqrt(2.0 / groups) * pooled(v, hl)
-        tau2 = np.maximum(pooled(d * d - (v - v_up), hl) - margin, VAR_FLOOR)[:, None, None]
+        groups = 1.0 if lev is None else max(float(hl.sum()) / (2 * lev + 1) ** 2, 1.0)
+        margin = SPREAD_SIGMAS * np.sqrt(2.0 / groups) * _pooled(v, wt, hl)
+        tau2 = np.maximum(_pooled(d * d - (v - v_up), wt, hl) - margin,
+                          VAR_FLOOR)[:, None, None]
         w = np.where(hl, tau2 / (tau2 + v), 0.0)
         est = est + w * (m - est)
         var = np.where(hl, (1.0 - w) ** 2 * var + w * v, var + tau2)
         spread += tau2[:, 0, 0]
         m_up, v_up = np.where(hl, m, m_up), np.where(hl, v, v_up)
-    info = {"s2": s2[:, 0, 0], "b2": spread, "d2": tau2[:, 0, 0],
-            "error": np.sqrt(np.mean(var, axis=0)),
-            "error_network": np.sqrt(np.mean(np.broadcast_to(spread[:, None, None], var.shape),
-                                             axis=0))}
-    return m_nn + est * sc, info
+    return est, var, spread, tau2[:, 0, 0]
 
 
 # --------------------------------------------------------------------------- the source
