@@ -478,6 +478,7 @@ class ProgressiveViewMs(StochasticViewMs):
         err = est.get("error")
         err_nn = est.get("error_network")
         known = err is not None and err_nn is not None and full is not None and full.any()
+        resolved = known and float(np.max(est.get("b2", 0.0))) > 10 * VAR_FLOOR
         h.update({
             "raymarch.progressive_estimator": self.estimator,
             "raymarch.progressive_rounds": self.rounds_done,
@@ -489,8 +490,10 @@ class ProgressiveViewMs(StochasticViewMs):
             "raymarch.progressive_error": (
                 f"{100 * np.sqrt(np.mean(err[full] ** 2)):.2f}% of F_ms, estimated RMS over "
                 f"blocks (network alone: {100 * np.sqrt(np.mean(err_nn[full] ** 2)):.2f}%)"
-                if known else "unknown (no block has two path-traced points yet: the "
-                              "network's F_ms)"),
+                if resolved else
+                "not resolved yet (the paths do not yet separate the network's error from "
+                "their own noise: the network's F_ms)" if known else
+                "unknown (too few blocks with two path-traced points yet: the network's F_ms)"),
             "seconds.progressive_paths": round(info.get("paths", 0.0), 4),
         })
         if self.budget is not None:
