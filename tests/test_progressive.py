@@ -304,3 +304,23 @@ def test_progressive_options_are_refused_by_other_sources():
         Renderer(_scene(), "raymarch", ms="stochastic", progressive_rounds=3)
     with pytest.raises(ClvolError, match="progressive"):
         Renderer(_scene(), "raymarch", ms="network", time=1.0)
+
+
+def test_paths_go_first_to_bright_blocks():
+    """Scheduling: a network stand-in 10x brighter on the image's left half (world x < 0)
+    draws more paths there (selection probability ~ F_ms / sqrt(points + 1), at most half
+    of a round's points)."""
+    scene = _scene(**{"medium.preset": "smoke", "medium.density_scale": 8.0})
+    r = Renderer(scene, "raymarch", ms="progressive", view_block=2, seed=5)
+    r.source.query = lambda p, w: np.where(p[:, :1] < 0, 1.0, 0.1).repeat(3, 1)
+    r.source.path_query = _stand_in_paths(scene)
+    for _ in range(8):
+        r.render()
+    src = r.source
+    paths, count = src.paths.paths, src.history.count
+    bx = paths.shape[1]
+    left, right = paths[:, : bx // 2][count[:, : bx // 2] > 0], paths[:, bx - bx // 2:][
+        count[:, bx - bx // 2:] > 0]
+    assert left.mean() > 1.5 * right.mean() > 0
+    drawn = (count > 0).sum()
+    assert src.paths.n.sum() <= 0.5 * 8 * drawn + 1e-9
