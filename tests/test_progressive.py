@@ -15,7 +15,7 @@ from clvol.errors import ClvolError
 from clvol.render.ms import progressive as pg
 from clvol.render.renderer import Renderer
 from reference import progressive as twin
-from test_stochastic_source import S, _distance_query, _relative_error
+from test_stochastic_source import S, _relative_error
 from test_view_source import _scene
 
 
@@ -26,7 +26,8 @@ def _synthetic(rng, by=12, bx=15, C=3, points=3.0, sigma=0.4, bias=None, empty=0
     path-traced points whose residuals are the truth plus noise of relative std ``sigma``.
     Returns (m_nn, truth F, n, s_r, q_r, s_pt, q_pt, e2)."""
     yy, xx = np.mgrid[0:by, 0:bx]
-    m_nn = 0.1 + 0.05 * np.sin(xx / 3.0)[None] * np.ones((C, 1, 1)) + 0.01 * np.arange(C)[:, None, None]
+    m_nn = (0.1 + 0.05 * np.sin(xx / 3.0)[None] * np.ones((C, 1, 1))
+            + 0.01 * np.arange(C)[:, None, None])
     if bias is None:      # smooth: the network's error varies slowly across the image
         bias = 0.15 * np.cos(yy / 4.0)[None] + 0.05 * np.arange(C)[:, None, None]
     truth = m_nn * (1.0 + bias)
@@ -125,9 +126,9 @@ def test_consistent_with_paths_without_end(mode):
 def test_never_worse_than_the_network_at_the_first_budgets():
     """Noisy points (0.3-100 per block, path noise 3x the F_ms itself: 4 paths of a
     heavy-tailed estimator; the network off by 5-20%): over 20 draws the mean squared
-    relative error of cv_smooth is within 5% of the network's at every budget (measured: at most
-    +4%, at 10 points), and below 0.8 of
-    it at 100 points per block (0.67 measured). Planted: "mean" (the residual without shrinkage) is worse
+    relative error of cv_smooth is within 5% of the network's at every budget (measured: at
+    most +4%, at 10 points), and below 0.8 of it at 100 points per block (0.67 measured).
+    Planted: "mean" (the residual without shrinkage) is worse
     than the network at 0.3 and 1 point."""
     rng = np.random.default_rng(5)
     for points in (0.3, 1.0, 3.0, 10.0, 100.0):
@@ -140,7 +141,6 @@ def test_never_worse_than_the_network_at_the_first_budgets():
             e_cv += rel(pg.estimate(m_nn, n, s_r, q_r, "cv_smooth", 2, e2=e2)[0])
             e_mean += rel(pg.estimate(m_nn, n, s_r, q_r, "mean", 2, e2=e2)[0])
         assert e_cv <= e_net * 1.05, (points, e_cv, e_net)
-        print(points, e_cv / e_net, e_mean / e_net)
         if points >= 100.0:
             assert e_cv < 0.8 * e_net, (points, e_cv, e_net)
         if points <= 1.0:
@@ -179,7 +179,8 @@ def _stand_in_paths(scene, gain=1.0, noise=0.0):
 def _progressive(scene, net_gain=0.5, noise=0.0, **opts):
     r = Renderer(scene, "raymarch", ms="progressive", **opts)
     o = np.asarray(scene.camera.origin)
-    r.source.query = lambda p, w: (net_gain * S * np.linalg.norm(p - o, axis=1))[:, None].repeat(3, 1)
+    r.source.query = lambda p, w: (net_gain * S * np.linalg.norm(p - o, axis=1))[:, None].repeat(
+        3, 1)
     r.source.path_query = _stand_in_paths(scene, 1.0, noise)
     return r
 

@@ -287,6 +287,7 @@ class ProgressiveViewMs(StochasticViewMs):
         self.paths = None
         self.rounds_done = 0            # refinement rounds of this view
         self.estimate_info = None
+        self._evaluations = 1           # network evaluations per point (3: colour)
         # Optional stand-in for the path tracer (tests): path_query(points, omegas, n_paths,
         # seed) -> {"Fms": (N, 3), "Fms_se": (N, 3)}, as point_query's
         self.path_query = None
@@ -301,7 +302,8 @@ class ProgressiveViewMs(StochasticViewMs):
     def label(self) -> str:
         from pathlib import Path
         return (f"network multiple scattering at the camera's view, refined by path-traced "
-                f"point queries ({self.block}x{self.block}-pixel blocks, {self._paths_per_block():.0f} "
+                f"point queries ({self.block}x{self.block}-pixel blocks, "
+                f"{self._paths_per_block():.0f} "
                 f"paths per block so far; weights {Path(str(self.weights_path)).name})")
 
     def _paths_per_block(self) -> float:
@@ -447,7 +449,8 @@ class ProgressiveViewMs(StochasticViewMs):
         table, est = self.table_now()
         self.estimate_info = est
         self.refining = True             # a still view keeps refining (never idles)
-        self.info = dict(times, evaluations=getattr(self, "_evaluations", 1), blocks=int((h.count > 0).sum()),
+        self.info = dict(times, evaluations=self._evaluations,
+                         blocks=int((h.count > 0).sum()),
                          samples=int(h.count.max(initial=0)), rounds=rounds)
         self.table = frame.runtime.upload(table)
         if self.net.graded_builds != builds:
