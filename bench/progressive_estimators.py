@@ -4,6 +4,7 @@ docs/accuracy.md, "The estimator, decided by measurement").
     python bench/progressive_estimators.py [--scenes cloud_a1_side cloud_a1_back oof_sphcu_back]
         [--size 64] [--ref-spp 1024] [--rounds 1 4 16 64 128]
         [--estimators network shrink cv cv_smooth] [--reference-file NAME=FILE.npz ...]
+        [--time SECONDS ...]
 
 Per scene: ``--ms progressive`` with seeds 21 and 22, one round per render (the first render
 is the network-only first frame); at each checkpoint the table is recomputed from the same
@@ -12,7 +13,8 @@ Scores are bench/neural_quality.py's ``scores`` against its two-half references 
 its cache, made when missing; ``--reference-file`` takes an existing cache file instead):
 "single" is one seed's image with the reference's noise removed (what a user sees), "bias"
 the two seeds' mean with both noises removed. The first line per scene is the stochastic
-source with 64 samples per block (the network's converged table).
+source with 64 samples per block (the network's converged table). ``--time``: instead, whole
+``--ms progressive --time T`` renders (as clvol render makes them), scored the same way.
 """
 from __future__ import annotations
 
@@ -83,6 +85,36 @@ def run_scene(name, size, spp, rounds, estimators, files):
     print(f"{name}: {time.perf_counter() - t0:.1f} s for both seeds", flush=True)
 
 
+def run_timed(name, size, spp, budgets, files):
+    """--time mode: per budget, ``clvol render --ms progressive --time T`` (a fresh Renderer,
+    one render: the first frame and the rounds that fit) with each seed; noise-corrected
+    scores of one seed's image and of the bias (both seeds)."""
+    scene = nq.bench_scene(nq.SCENES[name], size)
+    grid = scene.volume.load()
+    h1, h2 = references(name, scene, grid, spp, files)
+    net = [Renderer(scene, "raymarch", grid=grid, ms="stochastic", seed=s, view_samples=64,
+                    domain_fallback=False).render().layers["total"] for s in SEEDS]
+    sc = nq.scores(net[0], h1, h2, with_flip=False)
+    print(f"{name}: stochastic 64 samples (network): single {sc['rmse100']:.3f}, reference "
+          f"floor {sc['ref_floor_rmse100']:.3f}", flush=True)
+    Renderer(scene, "raymarch", grid=grid, ms="progressive", progressive_rounds=1,
+             domain_fallback=False).render()                      # build kernels
+    for t in budgets:
+        imgs, heads = [], []
+        for seed in SEEDS:
+            t0 = time.perf_counter()
+            res = Renderer(scene, "raymarch", grid=grid, ms="progressive", seed=seed, time=t,
+                           domain_fallback=False).render()
+            heads.append((time.perf_counter() - t0, res.header))
+            imgs.append(res.layers["total"])
+        one = nq.scores(imgs[0], h1, h2, with_flip=False)
+        both = nq.scores(0.5 * (imgs[0] + imgs[1]), h1, h2, with_flip=False, test_halves=imgs)
+        wall, h = heads[0]
+        print(f"{name:16s} --time {t:g}: {wall:.2f} s wall, {h['raymarch.progressive_rounds']} "
+              f"rounds, paths/block {h['raymarch.progressive_paths_per_block']}: single "
+              f"{one['rmse100']:.3f}   bias {both['rmse100']:.3f}", flush=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenes", nargs="+",
@@ -93,13 +125,19 @@ def main(argv=None) -> int:
     ap.add_argument("--estimators", nargs="+", default=["network", "shrink", "cv", "cv_smooth"],
                     choices=list(pg.ESTIMATORS))
     ap.add_argument("--reference-file", nargs="*", default=[], metavar="NAME=FILE.npz")
+    ap.add_argument("--time", type=float, nargs="*", default=None, metavar="SECONDS",
+                    help="instead: one --time render per budget and seed (the whole source, "
+                         "the default estimator)")
     args = ap.parse_args(argv)
     files = dict(x.split("=", 1) for x in args.reference_file)
     print(machine())
     print(f"size {args.size}, rounds {args.rounds}, seeds {SEEDS}, paths per query "
           f"{pg.PATHS_PER_QUERY}, round fraction {pg.ROUND_FRACTION}")
     for name in args.scenes:
-        run_scene(name, args.size, args.ref_spp, sorted(args.rounds), args.estimators, files)
+        if args.time:
+            run_timed(name, args.size, args.ref_spp, args.time, files)
+        else:
+            run_scene(name, args.size, args.ref_spp, sorted(args.rounds), args.estimators, files)
     print(machine())                                     # the load after the run
     return 0
 
