@@ -11,23 +11,25 @@ points and, while the view is still, also path-traces some of them (clvol/render
 
 with m_nn the block's mean network F_ms over all its points and sc its scale (m_nn, floored),
 and r_hat the relative residual's estimate: a control variate (the network is the control;
-only the residual's mean is estimated from paths, not F itself), shrunk in two levels by
-empirical Bayes (``estimate``, mode "cv_smooth", the default):
+only the residual's mean is estimated from paths, not F itself), shrunk through levels by
+empirical Bayes (``estimate``, mode "cv_smooth", the default). The levels, coarse to fine, are
+the whole image, neighbourhoods of (8 R + 1)^2 and (2 R + 1)^2 blocks (R = SMOOTH_RADIUS) and
+the block; each level's residual mean m (noise v = its points' variance over their count
+squared) is shrunk toward the coarser level's estimate by w = tau2 / (tau2 + v), with tau2
+the measured spread of that level's true means about the coarser level's (pooled over the
+image: mean of (m - m_up)^2 - (v - v_up), less SPREAD_SIGMAS standard errors of that mean).
 
-  - the residual mean over a (2 R + 1)^2 neighbourhood of blocks, m_s, shrunk toward 0 by
-    w_s = b2 / (b2 + v_s), with v_s = s2 / (points in the neighbourhood) its noise and b2 the
-    measured spread of the network's error across the image (pooled: mean of m_s^2 - v_s);
-  - the block's own residual mean m_l, shrunk toward that by w_l = d2 / (d2 + v_l), with
-    v_l = s2 / n and d2 the measured spread of block residuals about their neighbourhoods'
-    (pooled: mean of (m_l - m_s)^2 - (v_l - v_s)).
-
-s2 is the per-point variance of the relative residual (the paths' noise and the network's
-point-to-point error), pooled over the image per channel. Few paths: v large, w small, the
-entry stays at the network's; paths without end: v_l -> 0, w_l -> 1, the entry -> the block's
-path-traced mean, the path-traced table's bound (consistent). The alternatives measured
-against it (docs/accuracy.md, "Progressive"): "cv" (one level, no neighbourhood) and "shrink"
-(the issue's (k F_nn + sum F_pt) / (k + n) on F itself, k = s2 / b2 from the same pooling).
-The NumPy twin is reference/progressive.py.
+The per-point variance of the relative residual (the paths' noise and the network's
+point-to-point error) is pooled over the image per channel (weights F_ms^2), used as a prior
+for each block's own, floored by its points' path standard errors, and taken (1 +
+SAFETY_POINTS / points per block) times larger while points are few; nothing moves from the
+network before MIN_DOF points lie beyond their block's first. Few paths: v large, w small, the
+entry stays at the network's; paths without end: every v -> 0, every w -> 1, the entry -> the
+block's path-traced mean, the path-traced table's bound (consistent). The alternatives
+measured against it (docs/accuracy.md, "Progressive"): "cv" (one level, the block) and
+"shrink" (the issue's (k F_nn + sum F_pt) / (k + n) on F itself, k = s2 / b2 from the same
+pooling); "network" and "mean" (no shrinkage) are the two ends. The NumPy twin is
+reference/progressive.py.
 
 Scheduling: each round draws one point per block (as a stochastic frame) and path-traces up
 to ``ROUND_FRACTION`` of them, block b chosen with probability proportional to
@@ -67,9 +69,9 @@ ESTIMATORS = ("cv_smooth", "cv", "shrink", "mean", "network")
 # by a zero F_ms), and a pooled variance at least VAR_FLOOR (relative units, squared).
 SCALE_FLOOR = 1e-3
 VAR_FLOOR = 1e-12
-NOISE_SAFETY = 1.0           # the residual variances are taken this many times their estimate
 MIN_DOF = 32                 # degrees of freedom (points beyond a block's first) before paths count
 SPREAD_SIGMAS = 3.0          # a level's pooled spread: its estimate less this many standard errors
+NOISE_SAFETY = 1.0           # the residual variances are taken this many times their estimate ...
 SAFETY_POINTS = 2.0          # ... times (1 + this / mean points per block)
 PRIOR_POINTS = 2.0           # the pooled residual variance's weight in a block's own, in points
 
