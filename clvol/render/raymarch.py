@@ -396,13 +396,9 @@ def _source_arguments(group) -> None:
                        help=f"--ms stochastic: free-flight samples per block drawn per frame "
                             f"(default {DEFAULT_VIEW_SAMPLES}; a still view accumulates them "
                             f"up to {STILL_SAMPLES} per block)")
-    group.add_argument("--progressive-rounds", type=int, default=None, metavar="N",
-                       help="--ms progressive: refinement rounds per render instead of --time "
-                            "(a --time render records its count in the header, "
-                            "raymarch.progressive_rounds: N reproduces it bit for bit)")
-    group.add_argument("--time", type=float, default=None, metavar="SECONDS",
-                       help="--ms progressive: refine for this wall time after the first "
-                            "frame (rounds depend on the machine; the header records them)")
+    from .ms.progressive import PROGRESSIVE_OPTIONS
+    for flags, kw in PROGRESSIVE_OPTIONS:          # --progressive-rounds, --time
+        group.add_argument(*flags, **kw)
     group.add_argument("--view-knots", type=int, default=DEFAULT_VIEW_KNOTS, metavar="K",
                        help=f"--ms view: network queries per block, at the quantiles of the "
                             f"camera's in-scattering weight (default {DEFAULT_VIEW_KNOTS})")

@@ -76,6 +76,20 @@ SAFETY_POINTS = 2.0          # ... times (1 + this / mean points per block)
 PRIOR_POINTS = 2.0           # the pooled residual variance's weight in a block's own, in points
 
 
+# The source's own options, (flags, argparse keywords): the ray marcher's option list adds them.
+PROGRESSIVE_OPTIONS = (
+    (("--progressive-rounds",), dict(
+        type=int, default=None, metavar="N",
+        help="--ms progressive: refinement rounds per render instead of --time (a --time "
+             "render records its count in the header, raymarch.progressive_rounds: N "
+             "reproduces it bit for bit with the same --seed)")),
+    (("--time",), dict(
+        type=float, default=None, metavar="SECONDS",
+        help="--ms progressive: refine for this wall time after the first frame (the rounds "
+             "that fit depend on the machine; the header records them)")),
+)
+
+
 def check_progressive_options(rounds, budget):
     if rounds is not None and not (_is_int(rounds) and 1 <= rounds <= MAX_ROUNDS):
         raise ClvolError(f"raymarch option progressive_rounds = {rounds!r}: an integer from 1 "
@@ -272,6 +286,7 @@ class ProgressiveViewMs(StochasticViewMs):
     """The stochastic view, refined toward path-traced F_ms while the view is still (module
     doc)."""
     name = "progressive"
+    summary = "the stochastic view refined toward path-traced F_ms while the view is still"
     what = "progressive view-space F_ms table (network + path-traced residual)"
 
     def __init__(self, weights=None, block: int | None = None, seed: int = 0,
