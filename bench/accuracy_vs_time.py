@@ -24,6 +24,10 @@ untimed run at the smallest setting):
                        the median whole frame (a draw, the queries and the march); light update
                        = the N frames since the change, summed (what an image of that quality
                        costs after a change; the first frame rebuilds the light field)
+  raymarch/progressive + that source refined by path-traced point queries (--ms progressive),
+                       after --progressive checkpoints (default 0.1, 0.3, 1, 3, 10, 30 s of wall
+                       time since a light change): frame = the march; light update = the wall
+                       time since the change (the first frame and the rounds)
 Times: "frame" is what one more image costs (the march for the ray marcher; the whole render
 for the path tracer), "light update" what a light change costs once (the light field, and the
 lattice fill for the grid source). Errors: the MRPNN metric (RMSE x 100 of tonemapped 8-bit luminance), relMSE and RMSE against the
@@ -92,6 +96,13 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "out" / "bench"))
     ap.add_argument("--weights", default=str(ROOT / "clvol" / "data" / "weights" / "full_albedo.npz"),
                     help="network weight file for the raymarch/network points ('' to skip them)")
+    ap.add_argument("--progressive", type=float, nargs="*", default=[0.1, 0.3, 1, 3, 10, 30],
+                    metavar="SECONDS",
+                    help="checkpoints (wall seconds after a light change) of the "
+                         "raymarch/progressive rows (none: skip them)")
+    ap.add_argument("--only", nargs="*", default=None, metavar="METHOD",
+                    help="run only these method groups (pathtrace, simple, grid, network, "
+                         "view, stochastic, progressive; default all)")
     args = ap.parse_args(argv)
     if args.quick:
         args.size, args.ref_spp = 64, 256
@@ -122,7 +133,10 @@ def main(argv=None) -> int:
 
     print("\nmethod              setting                        frame  light upd.   error vs reference")
     spps = (1, 4, 16, 64) if args.quick else (1, 4, 16, 64, 256)
-    for spp in spps:
+    def want(group):
+        return args.only is None or group in args.only
+
+    for spp in (spps if want("pathtrace") else ()):
         repeats = 3 if spp <= 16 else 1
         res, s = median_of(repeats, lambda: render_pathtrace(scene, spp=spp, seed=1, grid=grid,
                                                            progress=False))
@@ -142,12 +156,12 @@ def main(argv=None) -> int:
 
     light_s = median_of(3, light_change)[1] / 2  # two light changes per run
     cam = scene.camera
-    for ms in ("none", "wrenninge"):
+    for ms in (("none", "wrenninge") if want("simple") else ()):
         for step in (2.0, 1.0, 0.5):
             rm.march_with(cam, scene.light, ms, step=step)  # compile this variant, untimed
             (layers, _), s = median_of(3, lambda: rm.march_with(cam, scene.light, ms, step=step))
             record(f"raymarch/{ms}", f"step {step:g} voxel", layers, s, light_s)
-    for lattice in ((8,) if args.quick else (8, 16)):
+    for lattice in ((8,) if args.quick else (8, 16)) if want("grid") else ():
         def query(points, omegas):
             return point_query(scene, points, omegas, n_paths=64, seed=2, grid=grid)["Fms"]
         msg, fill_s = timed(lambda: fill_ms_grid(scene, lattice, query, grid.bbox_min,
@@ -159,7 +173,7 @@ def main(argv=None) -> int:
     if args.weights and Path(args.weights).exists():
         src = NetworkSource(args.weights, grid, scene.medium, rt)
         unit_other = other / np.linalg.norm(other)
-        for lattice in ((16, 32) if args.quick else (16, 32, 64)):
+        for lattice in ((16, 32) if args.quick else (16, 32, 64)) if want("network") else ():
             src.fill(unit_other, lattice, origin=scene.camera.origin)   # compile and bake once, untimed
 
             def network_change():
@@ -179,7 +193,7 @@ def main(argv=None) -> int:
         # field, the query depths, the gather and the network (from the render's header).
         import dataclasses
         from clvol.render.renderer import Renderer
-        for block in ((4,) if args.quick else (4, 2, 1)):
+        for block in ((4,) if args.quick else (4, 2, 1)) if want("view") else ():
             r = Renderer(scene, "raymarch", grid=grid, ms="view", view_block=block,
                          weights=args.weights)
             moved = dataclasses.replace(scene.light, direction=tuple(unit_other))
@@ -198,7 +212,7 @@ def main(argv=None) -> int:
         r = Renderer(scene, "raymarch", grid=grid, ms="stochastic", weights=args.weights)
         r.render(light=dataclasses.replace(scene.light, direction=tuple(unit_other)))  # compile
         walls = []
-        for frame in range(1, 65):
+        for frame in range(1, 65) if want("stochastic") else ():
             res, s = timed(r.render)          # the first after the change resets the history
             walls.append(s)
             if frame in (1, 4, 16, 64):
@@ -207,6 +221,27 @@ def main(argv=None) -> int:
                 record("raymarch/stochastic",
                        f"block {r.source.block}, {frame} frame{'s' * (frame > 1)}",
                        res.layers, float(np.median(walls)), float(sum(walls)))
+        # Progressive (--ms progressive): the stochastic view refined by path-traced point
+        # queries. After a light change (which starts it afresh): the first frame, then rounds
+        # until each checkpoint of wall time since the change; the error after that long.
+        if args.progressive and want("progressive"):
+            r = Renderer(scene, "raymarch", grid=grid, ms="progressive", weights=args.weights,
+                         seed=3)
+            r.render(light=dataclasses.replace(scene.light, direction=tuple(unit_other)))
+            r.render(light=dataclasses.replace(scene.light, direction=tuple(unit_other)))
+            t0 = time.perf_counter()
+            res = r.render()                             # the change: the first frame
+            for cp in args.progressive:
+                left = cp - (time.perf_counter() - t0)
+                if left > 0:
+                    r.source.budget = left
+                    res = r.render()
+                spent = time.perf_counter() - t0
+                h = res.header
+                record("raymarch/progressive",
+                       f"{cp:g} s ({h['raymarch.progressive_rounds']} rounds, "
+                       f"{h['raymarch.progressive_paths_per_block'].split(',')[0]} paths/block)",
+                       res.layers, float(h["seconds.march"]), spent)
     elif args.weights:
         print(f"raymarch/network skipped: no weight file {args.weights}")
 
@@ -243,7 +278,7 @@ def svg_plot(rows, title: str, w: int = 640, h: int = 420) -> str:
     colours = {"pathtrace": "#1f77b4", "raymarch/none": "#7f7f7f",
                "raymarch/wrenninge": "#ff7f0e", "raymarch/grid": "#2ca02c",
                "raymarch/network": "#d62728", "raymarch/view": "#9467bd",
-               "raymarch/stochastic": "#8c564b"}
+               "raymarch/stochastic": "#8c564b", "raymarch/progressive": "#e377c2"}
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" '
            f'font-family="sans-serif" font-size="11">',
            f'<rect width="{w}" height="{h}" fill="white"/>',

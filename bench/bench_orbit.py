@@ -2,7 +2,8 @@
 single-scattering march of the same frames, in one run.
 
     python bench/bench_orbit.py [--frames 5] [--sizes 256 512] [--volumes cloud cloud128 cloud256]
-                                [--ms network|view|stochastic] [--view-block B] [--view-knots K]
+                                [--ms network|view|stochastic|progressive] [--view-block B]
+                                [--view-knots K]
                                 [--view-samples N]
 
 Volumes: ``cloud`` (examples' cloud, 96^3, tests/data/scenes/cloud.toml) and the same cloud
@@ -116,7 +117,8 @@ def main(argv=None) -> int:
     ap.add_argument("--ms-refresh", type=int, default=None,
                     help="network progressive refresh, 1/K of the lattice per camera move "
                          "(default: the Renderer's)")
-    ap.add_argument("--ms", choices=["network", "view", "stochastic"], default="network",
+    ap.add_argument("--ms", choices=["network", "view", "stochastic", "progressive"],
+                    default="network",
                     help="the multiple-scattering source of the timed method (default network)")
     ap.add_argument("--view-block", type=int, default=None, help="--ms view: block side")
     ap.add_argument("--view-knots", type=int, default=None, help="--ms view: queries per block")
@@ -125,7 +127,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     reads = {"network": ("ms_resolution", "ms_directions", "ms_refresh"),
              "view": ("view_block", "view_knots"),
-             "stochastic": ("view_block", "view_samples")}[args.ms]
+             "stochastic": ("view_block", "view_samples"),
+             "progressive": ("view_block",)}[args.ms]
     unused = [n for n in ("ms_resolution", "ms_directions", "ms_refresh", "view_block",
                           "view_knots", "view_samples") if getattr(args, n) and n not in reads]
     if unused:

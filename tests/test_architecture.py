@@ -341,7 +341,7 @@ def source_checks(path: Path, classes, names) -> list[str]:
 
 def test_source_names_are_read_from_the_registry():
     assert registered_source_names() == {"none", "wrenninge", "grid", "network", "view",
-                                         "stochastic"}
+                                         "stochastic", "progressive"}
 
 
 def test_source_checks_are_found(tmp_path):

@@ -49,7 +49,9 @@ def add_arguments(group) -> None:
                        help="highest scattering order simulated (1 = single scattering only; "
                             "default: all)")
     group.add_argument("--time", type=float, default=None, metavar="SECONDS",
-                       help="wall-time budget: stop after the last sample pass that fits")
+                       help="wall-time budget: stop after the last sample pass that fits (ray "
+                            "marcher --ms progressive: refine this long after the first frame; "
+                            "the header records the rounds, --progressive-rounds N repeats them)")
     group.add_argument("--majorant-block", type=int, default=DEFAULT_BLOCK, metavar="B",
                        help=f"voxels per majorant-grid cell for delta tracking (default "
                             f"{DEFAULT_BLOCK}; 0 = one global majorant)")

@@ -33,6 +33,9 @@ class ViewerMessageError(ClvolError):
 METHODS: dict[str, dict] = {
     "stochastic": {"method": "raymarch", "ms": "stochastic", "env_ms_per_frame": 1},
     "network": {"env_ms_per_frame": 1},                       # the 32^3 network lattice
+    # the stochastic view refined by path-traced point queries while still (issue 38; not the
+    # default yet: docs/accuracy.md, "Progressive")
+    "progressive": {"method": "raymarch", "ms": "progressive", "env_ms_per_frame": 1},
     "wrenninge": {"method": "raymarch", "ms": "wrenninge"},
     "single": {"method": "raymarch", "ms": "none"},
     "pathtrace": {"method": "pathtrace"},

@@ -4,7 +4,8 @@ An explicit table: every source module is imported here and listed once, so read
 never depends on which module happened to be imported first (no registration by import side
 effect). The interface is base.py's; the sources are analytic.py's (none, wrenninge), grid.py's
 (grid), network.py's (network: the paper's world lattice) and view.py's (view, stochastic: the
-network where the camera sees). This module sits above them all (they never import it).
+network where the camera sees), progressive.py's (progressive: that refined by path-traced
+point queries). This module sits above them all (they never import it).
 """
 from __future__ import annotations
 
@@ -14,10 +15,12 @@ from .grid import GridMs
 from .analytic import NoMs, OctavesMs
 from .base import SourceOption, option
 from .view import StochasticViewMs, ViewMs
+from .progressive import ProgressiveViewMs
 
 # In the order --ms's help lists them (their options follow in the same order).
 SOURCES: dict[str, type] = {cls.name: cls for cls in
-                            (NetworkMs, ViewMs, StochasticViewMs, OctavesMs, GridMs, NoMs)}
+                            (NetworkMs, ViewMs, StochasticViewMs, ProgressiveViewMs, OctavesMs,
+                             GridMs, NoMs)}
 DEFAULT_SOURCE = NetworkMs.name
 
 

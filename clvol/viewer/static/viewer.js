@@ -108,9 +108,9 @@ function onFrame(buffer) {
   $("fps").textContent = span > 0 ? ((clvol.frameTimes.length - 1) / span).toFixed(1) : "-";
   $("framems").textContent = meta.frame_ms.toFixed(1) + " ms (" + meta.width + "\u00d7" + meta.height + ")";
   // the path tracer's samples per pixel; the stochastic source's samples per pixel block
-  $("spplabel").textContent = meta.method === "stochastic" ? "samples" : "spp";
-  $("spp").textContent = meta.method === "pathtrace" || meta.method === "stochastic"
-    ? String(meta.spp) : "-";
+  const perBlock = meta.method === "stochastic" || meta.method === "progressive";
+  $("spplabel").textContent = perBlock ? "samples" : "spp";
+  $("spp").textContent = meta.method === "pathtrace" || perBlock ? String(meta.spp) : "-";
   $("stages").textContent = Object.entries(meta.stages_ms)
     .map(([k, v]) => k + ": " + v.toFixed(1) + " ms").join("\n");
   $("effects").textContent = Object.entries(meta.effects).map(([k, v]) => k + ": " + v).join("\n");
