@@ -116,7 +116,7 @@ def scene_points(scene_path: Path, pixels: int, paths: int, seed: int, base: int
               (f"high order (mean exponent >= {med:.0f})", lit & (ebar >= med)))
 
     def score(y) -> dict:
-        F_hat = a ** 4 * np.expm1(np.asarray(y, np.float64))
+        F_hat = a ** 4 * np.maximum(np.expm1(np.asarray(y, np.float64)), 0.0)   # the decode's clamp
         out = {}
         for name, keep in groups:
             k = keep[rows]

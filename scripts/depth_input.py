@@ -5,8 +5,7 @@ side experiment (the renderer's gather bakes linear T; this changes only what th
     python scripts/depth_input.py DATA[,DATA...] OUT --scenes S.toml [S.toml ...]
         [--steps 3000] [--pixels 24] [--paths 128] [-- train options]
 
-Two models of the base size are trained from scratch on the same samples, the same seed and
-steps: ``linear`` reads the graded transmittance levels T_m as the renderer does today;
+Two models of the base size are trained from scratch on the same samples, seeds and steps: ``linear`` reads the graded transmittance levels T_m as the renderer does today;
 ``depth`` reads min(-log T_m, DEPTH_CLAMP) / DEPTH_CLAMP at every level (0: transparent, 1:
 DEPTH_CLAMP optical depths or more). Each is scored on the held-out shards (eq. 20 loss) and
 at the points each scene's camera sees (scripts/albedo_response.py: path-traced per-order
@@ -16,6 +15,7 @@ exponent). docs/neural.md, "An optical-depth input", has a run.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -49,7 +49,8 @@ def main(argv=None) -> int:
     ap.add_argument("--albedo-draws", type=int, default=4)
     ap.add_argument("--pixels", type=int, default=24)
     ap.add_argument("--paths", type=int, default=128)
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seeds", default="0", help="training seeds, comma-separated (each arm "
+                    "is trained once per seed; the labels are made once)")
     args = ap.parse_args(argv)
 
     import torch
@@ -60,7 +61,8 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cfg = tr.RunConfig(steps=args.steps, batch=args.batch, seed=args.seed, floor=float("inf"),
+    seeds = [int(x) for x in args.seeds.split(",") if x]
+    cfg = tr.RunConfig(steps=args.steps, batch=args.batch, seed=seeds[0], floor=float("inf"),
                        eval_every=args.steps, checkpoint_every=args.steps)
     folders = [load_shards(d) for d in args.data.split(",") if d]
     splits = [tr.split_shards(f, cfg) for f in folders]
@@ -74,27 +76,27 @@ def main(argv=None) -> int:
     scenes = [scene_points(Path(s), args.pixels, args.paths, seed=1) for s in args.scenes]
 
     rows = {}
-    for arm in ("linear", "depth"):
-        enc = (lambda lv: lv) if arm == "linear" else as_depth
-        tr_s, he_s = with_levels(train, enc(train.levels)), with_levels(held, enc(held.levels))
-        trainer = tr.Trainer(tr_s, cfg, Architecture(n_levels=train.levels.shape[1],
-                                                     albedo_input="log1m"))
-        trainer.run(args.steps, checkpoint=out / f"{arm}.pt", held=he_s, log=None)
-        loss = tr.evaluate(trainer.model, he_s)
-        print(f"{arm}: held-out loss {loss:.3e}", flush=True)
-        rows[arm] = {"held_out": loss, "scenes": []}
-        for sc in scenes:
-            h = with_levels(sc["samples"], enc(sc["samples"].levels))
-            y = tr.predict(trainer.model, h).astype(np.float64)
-            rows[arm]["scenes"].append(sc["score"](y))
-    print("\n| scene | points | group | model | " + " | ".join(f"a = {x}" for x in ALBEDOS) + " |")
-    print("|---|---|---|---|" + "---|" * len(ALBEDOS))
+    for seed in seeds:
+        run = dataclasses.replace(cfg, seed=seed)
+        for arm in ("linear", "depth"):
+            enc = (lambda lv: lv) if arm == "linear" else as_depth
+            tr_s, he_s = with_levels(train, enc(train.levels)), with_levels(held, enc(held.levels))
+            trainer = tr.Trainer(tr_s, run, Architecture(n_levels=train.levels.shape[1],
+                                                         albedo_input="log1m"))
+            trainer.run(args.steps, checkpoint=out / f"{arm}_{seed}.pt", held=he_s, log=None)
+            loss = tr.evaluate(trainer.model, he_s)
+            print(f"seed {seed}, {arm}: held-out loss {loss:.3e}", flush=True)
+            rows[arm, seed] = [sc["score"](tr.predict(trainer.model, with_levels(
+                sc["samples"], enc(sc["samples"].levels))).astype(np.float64)) for sc in scenes]
+    print("\n| scene | points | group | model | seed | " + " | ".join(f"a = {x}" for x in ALBEDOS) + " |")
+    print("|---|---|---|---|---|" + "---|" * len(ALBEDOS))
     for i, sc in enumerate(scenes):
-        for name in rows["linear"]["scenes"][i]:
+        for name in rows["linear", seeds[0]][i]:
             for arm in ("linear", "depth"):
-                g = rows[arm]["scenes"][i][name]
-                print(f"| {sc['name']} | {g['points']} | {name} | {arm} | " +
-                      " | ".join(f"{g['ratio'][x]:.3f}" for x in ALBEDOS) + " |")
+                for seed in seeds:
+                    g = rows[arm, seed][i][name]
+                    print(f"| {sc['name']} | {g['points']} | {name} | {arm} | {seed} | " +
+                          " | ".join(f"{g['ratio'][x]:.3f}" for x in ALBEDOS) + " |")
     return 0
 
 
