@@ -118,6 +118,16 @@ def _as_float(value) -> float:
 MAX_OPTICAL_DEPTH = 1e37
 
 
+def check_optical_range(density_scale: float, max_density: float, length: float,
+                        name: str = "density_scale", over: str = "the box's diagonal") -> None:
+    """The one rule on optical range (MAX_OPTICAL_DEPTH): density_scale x the largest density x
+    ``length`` (the longest path the caller's rays take, named ``over`` in the message)."""
+    if not density_scale * max_density * length < MAX_OPTICAL_DEPTH:
+        raise ClvolError(f"{name} = {density_scale!r} times the largest density {max_density:g} "
+                         f"over {over} gives optical depths beyond float32 range; rescale the "
+                         f"density")
+
+
 def _check_args(pyramid, density_scale, lam, method, quantity) -> tuple[float, float]:
     if not isinstance(pyramid, Pyramid):
         raise ClvolError(f"expected a Pyramid (clvol.kernels.pyramid.build_pyramid), "
@@ -125,11 +135,8 @@ def _check_args(pyramid, density_scale, lam, method, quantity) -> tuple[float, f
     s = _as_float(density_scale)
     if not (np.isfinite(s) and s >= 0):
         raise ClvolError(f"density_scale = {density_scale!r} must be a finite number >= 0")
-    # The largest optical depth must stay a finite float32 (inf * 0 would make NaN).
-    worst = s * pyramid.max_density * pyramid.cube_size * np.sqrt(3.0)
-    if not worst < MAX_OPTICAL_DEPTH:
-        raise ClvolError(f"density_scale = {density_scale!r} times the largest density over the "
-                         f"cube gives optical depths beyond float32 range; rescale the density")
+    check_optical_range(s, pyramid.max_density, pyramid.cube_size * np.sqrt(3.0),
+                        over="the cube's diagonal")
     lam_f = _as_float(lam)
     if not 0 < lam_f <= 1:
         raise ClvolError(f"lambda = {lam!r} must be in (0, 1] (the seed uses 0.6)")

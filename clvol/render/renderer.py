@@ -298,12 +298,9 @@ class Renderer:
         if getattr(self, "_max_density_of", None) is not g:
             self._max_density = float(np.max(g.density, initial=0.0))
             self._max_density_of = g
-        worst = medium.density_scale * self._max_density * float(np.linalg.norm(g.extent))
-        from ..kernels.transmittance import MAX_OPTICAL_DEPTH
-        if not worst < MAX_OPTICAL_DEPTH:
-            raise ClvolError(f"medium.density_scale = {medium.density_scale!r} times the "
-                             f"largest density {self._max_density:g} over the box's diagonal "
-                             f"gives optical depths beyond float32 range; rescale the density")
+        from ..kernels.transmittance import check_optical_range
+        check_optical_range(medium.density_scale, self._max_density,
+                            float(np.linalg.norm(g.extent)), name="medium.density_scale")
 
     def render(self, camera=None, light=None, medium=None, seed: int | None = None,
                grid=None, emission=None) -> RenderResult:
