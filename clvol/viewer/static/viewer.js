@@ -111,6 +111,10 @@ function onFrame(buffer) {
   const perBlock = meta.method === "stochastic" || meta.method === "progressive";
   $("spplabel").textContent = perBlock ? "samples" : "spp";
   $("spp").textContent = meta.method === "pathtrace" || perBlock ? String(meta.spp) : "-";
+  // the progressive source's path-traced points per block so far (its header's mean)
+  const paths = meta.header["raymarch.progressive_paths_per_block"];
+  const mean = paths ? String(paths).split(",")[0].replace("mean ", "") : "";
+  $("paths").textContent = meta.method === "progressive" && mean ? mean + " per block" : "-";
   $("stages").textContent = Object.entries(meta.stages_ms)
     .map(([k, v]) => k + ": " + v.toFixed(1) + " ms").join("\n");
   $("effects").textContent = Object.entries(meta.effects).map(([k, v]) => k + ": " + v).join("\n");
