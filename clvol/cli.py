@@ -74,8 +74,8 @@ def _check_builds(entry) -> list[str]:
 
 def _cmd_info(args) -> int:
     from . import __version__
-    from .runtime import (choose_device, describe_devices, describe_lanes, device_lanes,
-                          list_devices)
+    from .runtime import (choose_device, describe_devices, describe_lanes, describe_workarounds,
+                          device_lanes, list_devices)
     print(f"clvol {__version__}")
     print(describe_devices(args.device))
     try:
@@ -90,7 +90,7 @@ def _cmd_info(args) -> int:
     for e in entries:
         print(f"code paths on {e.spec} ({e.kind}):")
         for ln in _code_paths(e.kind, e.device.max_compute_units, device_lanes(e),
-                              describe_lanes(e)):
+                              describe_lanes(e)) + describe_workarounds(e):
             print(f"  {ln}")
         if args.check:
             print(f"build check on {e.spec} {e.label} (8x8 renders of a 32^3 cloud):",

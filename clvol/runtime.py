@@ -272,6 +272,37 @@ def describe_lanes(e: DeviceEntry) -> str:
     return f"lanes: {lanes} per work-item ({why}; -D LANES of every program)"
 
 
+# --------------------------------------------------------------------------- driver workarounds
+
+def is_rusticl(e: DeviceEntry) -> bool:
+    """Mesa's rusticl (platform "rusticl"; llvmpipe on a CPU, or a Mesa GPU driver)."""
+    return "rusticl" in e.platform.name.lower()
+
+
+def driver_defines(e: DeviceEntry) -> dict:
+    """``-D`` defines every program gets on this device to work around its driver; empty on
+    PoCL and Oclgrind (their code is the default one). On Mesa's rusticl (22.3.6, llvmpipe;
+    docs/opencl.md, "rusticl"), where the default render stalled in the network's kernels,
+    ``MLP_DENSE_ARRAY`` (cl/include/mlp_core.h): the dense layers with their accumulators in an
+    array (the same fma chains in the same order: bit-identical sums). rusticl's NIR passes,
+    run at clCreateKernel, took 2.3 s for one dense() of the default form (16 and 8 named
+    accumulators, a pointer induction) on 8 inputs and 8 outputs, and had not finished the
+    network's after 300 s at ~4 GB; with the array form mlp_forward is created in 8.6 s and
+    gather_mlp in 6.6 s at 16 lanes."""
+    if is_rusticl(e):
+        return {"MLP_DENSE_ARRAY": 1}
+    return {}
+
+
+def describe_workarounds(e: DeviceEntry) -> list[str]:
+    """``clvol info``'s line for the driver workarounds this device gets (driver_defines)."""
+    d = driver_defines(e)
+    if not d:
+        return []
+    return [f"driver workarounds: {' '.join('-D' + k for k in sorted(d))} on every program "
+            f"(rusticl: the network's kernels otherwise stall in clCreateKernel)"]
+
+
 # --------------------------------------------------------------------------- programs
 
 def first_build_error(log: str) -> str:
@@ -440,6 +471,7 @@ class Runtime:
         self.device = entry.device
         self.reason = why
         self.lanes = device_lanes(entry)   # -D LANES of every program (cl/include/lanes.h)
+        self.driver_defines = driver_defines(entry)   # workarounds, on every program
         self.profiling = profiling
         self.context = cl.Context([self.device])
         props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
@@ -469,7 +501,8 @@ class Runtime:
         src_hash = _sources_hash(path)
         options = tuple(["-I", str(include_dir()), f"-DCLVOL_SOURCES_HASH=0x{src_hash}",
                          f"-DLANES={self.lanes}"]
-                        + _define_flags(defines) + list(extra_options))
+                        + _define_flags(dict(self.driver_defines, **(defines or {})))
+                        + list(extra_options))
         key = (src_hash, options, self.entry.spec)
         prog = self._programs.get(key)
         if prog is None:

@@ -120,6 +120,21 @@ def test_load_paths_agree(weights, net):
         assert np.array_equal(a, net.forward(f, c))
 
 
+def test_dense_forms_agree(weights, net):
+    """The dense layers' array form (-D MLP_DENSE_ARRAY, what rusticl gets: clvol/runtime.py
+    driver_defines) sums the same terms in the same order as the named-accumulator form:
+    bit-identical outputs (compared where the default form builds in reasonable time)."""
+    arr = MlpKernel(weights, defines={"MLP_DENSE_ARRAY": 1})
+    f, c = ref.random_inputs(37, np.random.default_rng(5), lobes=LOBES[1])
+    a = arr.forward(f, c)
+    _assert_y(a, ref.forward(weights.params, ARCH, f, c))
+    if not net.rt.driver_defines.get("MLP_DENSE_ARRAY"):
+        assert np.array_equal(a, net.forward(f, c))
+        alb = (0.9, 0.95, 1.0)
+        assert np.array_equal(arr.forward(f, c, channel_albedo=alb, decode=True),
+                              net.forward(f, c, channel_albedo=alb, decode=True))
+
+
 def test_packed_layout(weights):
     """Normalisation first, then W^T padded to 8 outputs and the bias, in execution order."""
     packed = pack_params(weights)

@@ -76,6 +76,30 @@ __constant int HEADW[HEAD_DEPTH] = {HEAD_WIDTHS};
     y[OFF] = A; y[OFF + 1] = B; y[OFF + 2] = C; y[OFF + 3] = D; \
     y[OFF + 4] = E; y[OFF + 5] = F; y[OFF + 6] = G; y[OFF + 7] = H
 
+#ifdef MLP_DENSE_ARRAY
+/* The same sums in the same order (each output: its bias, then fma over the inputs in order,
+ * so the results are bit-identical), with the 8 accumulators of a block in an array and no
+ * pointer induction. For Mesa's rusticl (22.3, llvmpipe): its NIR passes at clCreateKernel took
+ * 2.3 s for one dense() of the named-accumulator form below on 8 inputs and 8 outputs, against
+ * 0.05 s for this one, and never finished the network's ~150 calls (docs/opencl.md, "rusticl");
+ * clvol/runtime.py's driver_defines sets it on rusticl. */
+__attribute__((always_inline))
+static inline __global const float *dense(__global const float *p, const int n_in, const int n_out,
+                                          const V *x, V *y, const int relu) {
+    const int np = PAD8(n_out);
+    __global const float *bias = p + n_in * np;
+    for (int o = 0; o < np; o += 8) {
+        V acc[8];
+        for (int r = 0; r < 8; ++r) acc[r] = (V)(bias[o + r]);
+        for (int i = 0; i < n_in; ++i) {
+            const V xi = x[i];
+            for (int r = 0; r < 8; ++r) acc[r] = fma(xi, (V)(p[i * np + o + r]), acc[r]);
+        }
+        for (int r = 0; r < 8; ++r) y[o + r] = relu ? fmax(acc[r], 0.0f) : acc[r];
+    }
+    return bias + np;
+}
+#else
 __attribute__((always_inline))
 static inline __global const float *dense(__global const float *p, const int n_in, const int n_out,
                                           const V *x, V *y, const int relu) {
@@ -107,6 +131,7 @@ static inline __global const float *dense(__global const float *p, const int n_i
     }
     return bias + np;
 }
+#endif
 
 /* One value per lane: src[off[j] + idx] for the LANES queries (off: lane offsets, clamped to
  * n-1). */
