@@ -365,8 +365,8 @@ class NetworkSource:
 # The options every network-backed source reads (this module's and view.py's).
 WEIGHTS_OPTION = option(
     "--weights", metavar="FILE.npz",
-    help="network weight file for --ms network (default: the shipped model, "
-         "clvol/data/weights/full_albedo.npz)")
+    help="network weight file of the network sources (network, view, stochastic, "
+         "progressive; default: the shipped model, clvol/data/weights/full_albedo.npz)")
 DOMAIN_FALLBACK_OPTION = option(
     "--no-domain-fallback", dest="domain_fallback", action="store_false",
     help="use the network even for a scene outside the domain its weight file was trained "

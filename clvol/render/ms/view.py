@@ -30,11 +30,11 @@ DEFAULT_VIEW_KNOTS = 4     # query depths per block
 # cost scales with the blocks, and at 64 across a 256^2 camera move costs about 1.5x the plain
 # march (docs/raymarch.md, "Stochastic view-space F_ms").
 STOCHASTIC_BLOCKS_ACROSS = 64
-VIEW_BLOCK_OPTION = option(        # read by both view-space sources
+VIEW_BLOCK_OPTION = option(        # read by every view-space source
     "--view-block", type=int, default=None, metavar="B",
-    help=f"--ms view and stochastic: pixels per block side; each block's queries serve its "
-         f"pixels (default {DEFAULT_VIEW_BLOCK} for view; for stochastic about "
-         f"{STOCHASTIC_BLOCKS_ACROSS} blocks across the image: 2 at 128^2, 4 at 256^2)")
+    help=f"--ms view, stochastic and progressive: pixels per block side; each block's "
+         f"queries serve its pixels (default {DEFAULT_VIEW_BLOCK} for view; for the others "
+         f"about {STOCHASTIC_BLOCKS_ACROSS} blocks across the image: 2 at 128^2, 4 at 256^2)")
 VIEW_RAYS = 2              # sample rays per block side for the depth quantiles (at most
                            # one per pixel: a 1-pixel block gets one ray)
 # The depth pass marches at this many march steps per segment: its cost (the view_depths
