@@ -1087,6 +1087,70 @@ int pt_count(vi mask) {
     return n;
 }
 
+/* The tentative collisions of the lanes of hit at t + tau / sm (sm their majorant, tb the
+ * end of their cell): a flight's is real with probability sigma / sm (H_ACCEPT), a shadow
+ * ray's ratio T takes 1 - sigma / sm (roulette below PT_T_RR); lanes that go on draw their
+ * next tau. Moves t and tau; returns ev with those lanes' next steps, H_FINISH at a bound. */
+__attribute__((always_inline))
+vi pt_collide_v(pt_lanes *S, vi hit, vi mode, vf sm, vf tb, float stall_len, vf *t_, vf *tau_,
+                vi ev, const pt_medium *m, const pt_light *L, uint2 key) {
+    vf t = *t_, tau = *tau_;
+    /* tau / sm <= tb - t, so the hit stays inside the segment (clamped for rounding). */
+    vf th = fmin(t + tau / sm, tb);
+    /* this collision moved t by less than a stall (or not at all; NaN counts) */
+    vi stuck = hit & ~(th - t >= stall_len);
+    t = select(t, th, hit);
+    vi steps = VLOAD(S->steps) - hit;
+    VSTORE(steps, S->steps);
+    vi stall = select(select((vi)(0), VLOAD(S->stall) + 1, stuck), VLOAD(S->stall), ~hit);
+    VSTORE(stall, S->stall);
+    vi bound = hit & ((steps >= PT_MAX_STEPS) | (stall >= PT_MAX_STALLS));
+    vi shadow = mode == PT_SHADOW;
+#ifdef PT_ENVMAP
+    vf dx = select(VLOAD(S->wx), VLOAD(S->lx), shadow);
+    vf dy = select(VLOAD(S->wy), VLOAD(S->ly), shadow);
+    vf dz = select(VLOAD(S->wz), VLOAD(S->lz), shadow);
+#else
+    vf dx = select(VLOAD(S->wx), (vf)(L->dir.x), shadow);
+    vf dy = select(VLOAD(S->wy), (vf)(L->dir.y), shadow);
+    vf dz = select(VLOAD(S->wz), (vf)(L->dir.z), shadow);
+#endif
+    pt_lanes_refill(S, hit, key);   /* accept or roulette, then tau: <= 2 draws */
+    vf sigma = pt_sigma_lanes(m, VLOAD(S->ox) + th * dx, VLOAD(S->oy) + th * dy,
+                              VLOAD(S->oz) + th * dz, hit);
+    vi fl = hit & ~shadow, sh = hit & shadow;
+    vi accept = (vi)(0), kill = (vi)(0);
+    if (any(fl)) {
+        /* Real with probability sigma / sigma_maj (u * sm < sigma: no division). */
+        accept = fl & (pt_lanes_take(S, fl) * sm < sigma);
+    }
+    if (any(sh)) {
+        /* sm > 0 at a tentative collision; rounding can put sigma a hair above sm. */
+        vf T = VLOAD(S->T);
+        T = select(T, T * fmax((vf)(0.0f), 1.0f - sigma / sm), sh);
+        vi low = sh & (T < PT_T_RR);
+        if (any(low)) {
+            /* Roulette: T survives with probability T / PT_T_RR, then is PT_T_RR. */
+            kill = low & (pt_lanes_take(S, low) * PT_T_RR >= T);
+            T = select(T, (vf)(PT_T_RR), low);
+            T = select(T, (vf)(0.0f), kill);
+        }
+        VSTORE(T, S->T);
+    }
+    vi more = hit & ~accept & ~kill;
+    if (any(more)) tau = select(tau, -log(1.0f - pt_lanes_take(S, more)), more);
+    ev = select(ev, (vi)(H_ACCEPT), accept);
+    ev = select(ev, (vi)(H_NEE_DONE), kill);
+    if (any(bound)) {
+        /* A bound: the path ends here with what it has (row's truncated word 2). */
+        ev = select(ev, (vi)(H_FINISH), bound);
+        VSTORE(select(VLOAD(S->truncated), (vi)(2), bound), S->truncated);
+    }
+    *t_ = t;
+    *tau_ = tau;
+    return ev;
+}
+
 /* The one tracking loop (images and point queries). */
 __attribute__((always_inline))
 void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
@@ -1129,7 +1193,7 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
         vi cx = VLOAD(S.cx), cy = VLOAD(S.cy), cz = VLOAD(S.cz);
         /* maj_dda_track of majorant.h: every lane walks cells (cheap) until its next
          * tentative collision or the box exit; then the collisions are processed together. */
-        vi ev = (vi)(0), hit = (vi)(0), todo = act, bound = (vi)(0);
+        vi ev = (vi)(0), hit = (vi)(0), todo = act;
         vf sm = (vf)(0.0f), tb;
         for (;;) {
             tb = fmin(fmin(fmin(tnx, tny), tnz), te);
@@ -1164,59 +1228,8 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
         }
         VSTORE(cx, S.cx); VSTORE(cy, S.cy); VSTORE(cz, S.cz);
         VSTORE(tnx, S.tnx); VSTORE(tny, S.tny); VSTORE(tnz, S.tnz);
-        if (any(hit)) {
-            /* tau / sm <= tb - t, so the hit stays inside the segment (clamped for rounding). */
-            vf th = fmin(t + tau / sm, tb);
-            /* this collision moved t by less than a stall (or not at all; NaN counts) */
-            vi stuck = hit & ~(th - t >= stall_len);
-            t = select(t, th, hit);
-            vi steps = VLOAD(S.steps) - hit;
-            VSTORE(steps, S.steps);
-            vi stall = select(select((vi)(0), VLOAD(S.stall) + 1, stuck), VLOAD(S.stall), ~hit);
-            VSTORE(stall, S.stall);
-            bound = hit & ((steps >= PT_MAX_STEPS) | (stall >= PT_MAX_STALLS));
-            vi shadow = mode == PT_SHADOW;
-#ifdef PT_ENVMAP
-            vf dx = select(VLOAD(S.wx), VLOAD(S.lx), shadow);
-            vf dy = select(VLOAD(S.wy), VLOAD(S.ly), shadow);
-            vf dz = select(VLOAD(S.wz), VLOAD(S.lz), shadow);
-#else
-            vf dx = select(VLOAD(S.wx), (vf)(L->dir.x), shadow);
-            vf dy = select(VLOAD(S.wy), (vf)(L->dir.y), shadow);
-            vf dz = select(VLOAD(S.wz), (vf)(L->dir.z), shadow);
-#endif
-            pt_lanes_refill(&S, hit, key);   /* accept or roulette, then tau: <= 2 draws */
-            vf sigma = pt_sigma_lanes(m, VLOAD(S.ox) + th * dx, VLOAD(S.oy) + th * dy,
-                                      VLOAD(S.oz) + th * dz, hit);
-            vi fl = hit & ~shadow, sh = hit & shadow;
-            vi accept = (vi)(0), kill = (vi)(0);
-            if (any(fl)) {
-                /* Real with probability sigma / sigma_maj (u * sm < sigma: no division). */
-                accept = fl & (pt_lanes_take(&S, fl) * sm < sigma);
-            }
-            if (any(sh)) {
-                /* sm > 0 at a tentative collision; rounding can put sigma a hair above sm. */
-                vf T = VLOAD(S.T);
-                T = select(T, T * fmax((vf)(0.0f), 1.0f - sigma / sm), sh);
-                vi low = sh & (T < PT_T_RR);
-                if (any(low)) {
-                    /* Roulette: T survives with probability T / PT_T_RR, then is PT_T_RR. */
-                    kill = low & (pt_lanes_take(&S, low) * PT_T_RR >= T);
-                    T = select(T, (vf)(PT_T_RR), low);
-                    T = select(T, (vf)(0.0f), kill);
-                }
-                VSTORE(T, S.T);
-            }
-            vi more = hit & ~accept & ~kill;
-            if (any(more)) tau = select(tau, -log(1.0f - pt_lanes_take(&S, more)), more);
-            ev = select(ev, (vi)(H_ACCEPT), accept);
-            ev = select(ev, (vi)(H_NEE_DONE), kill);
-            if (any(bound)) {
-                /* A bound: the path ends here with what it has (row's truncated word 2). */
-                ev = select(ev, (vi)(H_FINISH), bound);
-                VSTORE(select(VLOAD(S.truncated), (vi)(2), bound), S.truncated);
-            }
-        }
+        if (any(hit))
+            ev = pt_collide_v(&S, hit, mode, sm, tb, stall_len, &t, &tau, ev, m, L, key);
         VSTORE(t, S.t);
         VSTORE(tau, S.tau);
         VSTORE(select(pend, ev, act), S.pend);
