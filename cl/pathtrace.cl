@@ -618,6 +618,439 @@ void pt_set_beta_v(pt_lanes *S, vi mask, vf r, vf g, vf b) {
 #define H_RAY 8         /* start the ray of S.mode from S.o */
 #define H_ENV_NEE 9     /* PT_ENVMAP: sample the map, start its shadow ray */
 
+#ifdef PT_EMISSION
+/* beta (1 - albedo) Le(x) at a real collision, before the albedo enters beta: slots 9..11
+ * for the first collision (k = 0: seen unscattered), 12..14 for later ones. */
+__attribute__((always_inline))
+void pt_add_emission_v(pt_lanes *S, vi e, const pt_medium *m, const pt_light *L, vf br, vf bg,
+                       vf bb) {
+    vf px = VLOAD(S->ox), py = VLOAD(S->oy), pz = VLOAD(S->oz);
+    vf l0 = pt_emission_lanes(m, 0, px, py, pz, e);
+#if PT_EMISSION_CHANNELS == 3
+    vf l1 = pt_emission_lanes(m, 1, px, py, pz, e);
+    vf l2 = pt_emission_lanes(m, 2, px, py, pz, e);
+#else
+    vf l1 = l0, l2 = l0;
+#endif
+#ifdef PT_GREY
+    const float ar = 1.0f - L->albedo, ag = ar, ab = ar;
+#else
+    const float ar = 1.0f - L->albedo.r, ag = 1.0f - L->albedo.g,
+                ab = 1.0f - L->albedo.b;
+#endif
+    vf er = br * (ar * m->em_colour.x) * l0;
+    vf eg = bg * (ag * m->em_colour.y) * l1;
+    vf eb = bb * (ab * m->em_colour.z) * l2;
+    vi first = e & (VLOAD(S->k) == 0), later = e & (VLOAD(S->k) != 0);
+    VSTORE(VLOAD(S->acc[9]) + select((vf)(0.0f), er, first), S->acc[9]);
+    VSTORE(VLOAD(S->acc[10]) + select((vf)(0.0f), eg, first), S->acc[10]);
+    VSTORE(VLOAD(S->acc[11]) + select((vf)(0.0f), eb, first), S->acc[11]);
+    VSTORE(VLOAD(S->acc[12]) + select((vf)(0.0f), er, later), S->acc[12]);
+    VSTORE(VLOAD(S->acc[13]) + select((vf)(0.0f), eg, later), S->acc[13]);
+    VSTORE(VLOAD(S->acc[14]) + select((vf)(0.0f), eb, later), S->acc[14]);
+}
+#endif
+
+/* H_ACCEPT: the collision becomes vertex k + 1 (with PT_EMISSION its emission is added
+ * first); beta takes the albedo. */
+__attribute__((always_inline))
+vi pt_on_accept(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L) {
+    vi e = h == H_ACCEPT;
+    if (!any(e)) return h;
+    vf t = VLOAD(S->t);
+    VSTORE(select(VLOAD(S->ox), VLOAD(S->ox) + t * VLOAD(S->wx), e), S->ox);
+    VSTORE(select(VLOAD(S->oy), VLOAD(S->oy) + t * VLOAD(S->wy), e), S->oy);
+    VSTORE(select(VLOAD(S->oz), VLOAD(S->oz) + t * VLOAD(S->wz), e), S->oz);
+    vf br, bg, bb;
+    pt_beta_v(S, &br, &bg, &bb);
+#ifdef PT_EMISSION
+    pt_add_emission_v(S, e, m, L, br, bg, bb);
+#endif
+#ifdef PT_GREY
+    pt_set_beta_v(S, e, br * L->albedo, br, br);
+#else
+    pt_set_beta_v(S, e, br * L->albedo.r, bg * L->albedo.g, bb * L->albedo.b);
+#endif
+    VSTORE(VLOAD(S->k) - e, S->k);
+    h = select(h, (vi)(H_VERTEX), e);
+    return h;
+}
+
+#ifdef PT_ENVMAP
+/* An escaped flight sees the map's L(w), MIS-weighted against the env NEE unless k = 0
+ * (camera ray). */
+__attribute__((always_inline))
+void pt_add_envmap_escape_v(pt_lanes *S, vi e, const pt_light *L) {
+    float lr[PT_LANES], lg[PT_LANES], lb[PT_LANES], lp[PT_LANES];
+    int on[PT_LANES];
+    VSTORE(e, on);
+    for (int j = 0; j < PT_LANES; ++j) {
+        lr[j] = lg[j] = lb[j] = lp[j] = 0.0f;
+        if (!on[j]) continue;
+        float4 t = pt_env_lookup(L, (float3)(S->wx[j], S->wy[j], S->wz[j]));
+        lr[j] = t.x; lg[j] = t.y; lb[j] = t.z; lp[j] = t.w;
+    }
+    vf pf = VLOAD(S->pf), pe = VLOAD(lp);
+    vf den = pf * pf + pe * pe;
+    vf wm = select((vf)(0.0f), pf * pf / den, den > 0.0f);
+    wm = select(wm, (vf)(1.0f), VLOAD(S->k) == 0);
+    vf br, bg, bb;
+    pt_beta_v(S, &br, &bg, &bb);
+    pt_add_v(S, e, VLOAD(S->k), VLOAD(lr) * br * wm, VLOAD(lg) * bg * wm,
+             VLOAD(lb) * bb * wm);
+}
+#endif
+
+/* H_ESCAPE: the flight left the box: the environment it sees, then the path's row. */
+__attribute__((always_inline))
+vi pt_on_escape(pt_lanes *S, vi h, const pt_light *L) {
+    vi e = h == H_ESCAPE;
+    if (!any(e)) return h;
+#ifdef PT_ENV
+    vf br, bg, bb;
+    pt_beta_v(S, &br, &bg, &bb);
+    pt_add_v(S, e, VLOAD(S->k), L->env.r * br, L->env.g * bg, L->env.b * bb);
+#endif
+#ifdef PT_ENVMAP
+    pt_add_envmap_escape_v(S, e, L);
+#endif
+    h = select(h, (vi)(H_FINISH), e);
+    return h;
+}
+
+/* H_FINISH: write the path's row. */
+__attribute__((always_inline))
+vi pt_on_finish(pt_lanes *S, vi h, const pt_job *J) {
+    vi e = h == H_FINISH;
+    if (!any(e)) return h;
+    int fin[PT_LANES];
+    VSTORE(e, fin);
+    for (int j = 0; j < PT_LANES; ++j) {
+        if (!fin[j]) continue;
+        __global float *o = J->out + PT_ROW * (size_t)S->path[j];
+        for (int c = 0; c < 9; ++c) o[c] = S->acc[c][j];
+        o[9] = (float)S->vertices[j];
+        o[10] = (float)S->steps[j];
+        o[11] = (float)S->truncated[j];
+#ifdef PT_EMISSION
+        for (int c = 9; c < PT_ACC; ++c) o[c + 3] = S->acc[c][j];
+#endif
+    }
+    h = select(h, (vi)(H_START), e);
+    return h;
+}
+
+/* Camera rays of the lanes of e through their jittered pixels (col, row) (camera_ray of
+ * grid.h); k = 0 until the first real collision (then beta = albedo). */
+__attribute__((always_inline))
+void pt_camera_rays_v(pt_lanes *S, vi e, const pt_job *J, vi col, vi row, uint2 key) {
+    pt_lanes_refill(S, e, key);
+    vf px = VCONVERT_F(col) + pt_lanes_take(S, e);
+    vf py = VCONVERT_F(row) + pt_lanes_take(S, e);
+    float fw = (float)J->width, fh = (float)J->height;
+    vf sx = (2.0f * px / fw - 1.0f) * J->tan_half * (fw / fh);
+    vf sy = (1.0f - 2.0f * py / fh) * J->tan_half;
+    vf dx = J->cam_f.x + sx * J->cam_r.x + sy * J->cam_u.x;
+    vf dy = J->cam_f.y + sx * J->cam_r.y + sy * J->cam_u.y;
+    vf dz = J->cam_f.z + sx * J->cam_r.z + sy * J->cam_u.z;
+    vf len = sqrt(dx * dx + dy * dy + dz * dz);
+    VSTORE(select(VLOAD(S->wx), dx / len, e), S->wx);
+    VSTORE(select(VLOAD(S->wy), dy / len, e), S->wy);
+    VSTORE(select(VLOAD(S->wz), dz / len, e), S->wz);
+    VSTORE(select(VLOAD(S->ox), (vf)(J->cam_o.x), e), S->ox);
+    VSTORE(select(VLOAD(S->oy), (vf)(J->cam_o.y), e), S->oy);
+    VSTORE(select(VLOAD(S->oz), (vf)(J->cam_o.z), e), S->oz);
+    VSTORE(select(VLOAD(S->k), (vi)(0), e), S->k);
+    VSTORE(select(VLOAD(S->mode), (vi)(PT_FLIGHT), e), S->mode);
+}
+
+/* Per lane of e: the next path of the launch (J->n or more when none is left), its stream
+ * and sample, the query's point or the pixel (col, row; integer division has no vector
+ * instruction here). */
+__attribute__((always_inline))
+void pt_take_paths(pt_lanes *S, vi e, const pt_job *J, int col[PT_LANES], int row[PT_LANES]) {
+    int st[PT_LANES];
+    VSTORE(e, st);
+    for (int j = 0; j < PT_LANES; ++j) {
+        col[j] = row[j] = 0;
+        if (!st[j]) continue;
+        int g = (int)min(atomic_inc(J->next), (uint)J->n);
+        S->path[j] = g;
+        if (g >= J->n) continue;
+        int sj = g / J->nstream, stream = g - sj * J->nstream;
+        S->slo[j] = (uint)stream;
+        S->sample[j] = J->sample0 + (uint)sj;
+#ifdef PT_ORDER_BINS
+        {   /* the path's bins start at 0 (the row is its own: no other path adds) */
+            __global float *o = J->out + PT_ROW * (size_t)g + PT_OUT;
+            for (int b = 0; b < 2 * PT_ORDER_BINS; ++b) o[b] = 0.0f;
+        }
+#endif
+        if (J->is_query) {
+            /* Vertex 1 at p with beta = 1, w = -omega. */
+            float3 p = vload3(stream, J->points), w = -vload3(stream, J->omegas);
+            S->ox[j] = p.x; S->oy[j] = p.y; S->oz[j] = p.z;
+            S->wx[j] = w.x; S->wy[j] = w.y; S->wz[j] = w.z;
+        } else {
+            row[j] = stream / J->width;
+            col[j] = stream - row[j] * J->width;
+        }
+    }
+}
+
+/* H_START: the lanes take the launch's next paths (PT_IDLE when none is left) and start
+ * them: a query at its vertex 1, an image path with its camera ray. */
+__attribute__((always_inline))
+vi pt_on_start(pt_lanes *S, vi h, const pt_job *J, uint2 key) {
+    vi e = h == H_START;
+    if (!any(e)) return h;
+    int col[PT_LANES], row[PT_LANES];
+    pt_take_paths(S, e, J, col, row);
+    vi none = e & (VLOAD(S->path) >= J->n);
+    VSTORE(select(VLOAD(S->mode), (vi)(PT_IDLE), none), S->mode);
+    h = select(h, (vi)(H_NONE), none);
+    e &= ~none;
+    VSTORE(select(VLOAD(S->shi), (vu)(0u), e), S->shi);
+    VSTORE(select(VLOAD(S->block), (vu)(0u), e), S->block);
+    VSTORE(select(VLOAD(S->used), (vi)(8), e), S->used);   /* nothing buffered */
+    for (int c = 0; c < PT_ACC; ++c) VSTORE(select(VLOAD(S->acc[c]), (vf)(0.0f), e), S->acc[c]);
+    VSTORE(select(VLOAD(S->steps), (vi)(0), e), S->steps);
+    VSTORE(select(VLOAD(S->stall), (vi)(0), e), S->stall);
+    VSTORE(select(VLOAD(S->vertices), (vi)(0), e), S->vertices);
+    VSTORE(select(VLOAD(S->truncated), (vi)(0), e), S->truncated);
+    pt_set_beta_v(S, e, (vf)(1.0f), (vf)(1.0f), (vf)(1.0f));
+    if (J->is_query) {
+        VSTORE(select(VLOAD(S->k), (vi)(1), e), S->k);
+        h = select(h, (vi)(H_VERTEX), e);
+    } else {
+        pt_camera_rays_v(S, e, J, VLOAD(col), VLOAD(row), key);
+        h = select(h, (vi)(H_RAY), e);
+    }
+    return h;
+}
+
+/* H_VERTEX: a scattering vertex at S.o: the sun's shadow ray (NEE), then the env NEE or
+ * the next direction. */
+__attribute__((always_inline))
+vi pt_on_vertex(pt_lanes *S, vi h, const pt_light *L) {
+    vi e = h == H_VERTEX;
+    if (!any(e)) return h;
+    vf br, bg, bb;
+    pt_beta_v(S, &br, &bg, &bb);
+    vi dead = e & (fmax(fmax(br, bg), bb) <= 0.0f);   /* albedo 0: nothing arrives */
+    h = select(h, (vi)(H_FINISH), dead);
+    e &= ~dead;
+    VSTORE(VLOAD(S->vertices) - e, S->vertices);
+#ifdef PT_ENVMAP
+    h = select(h, (vi)(H_ENV_NEE), e);
+#else
+    h = select(h, (vi)(H_CONTINUE), e);
+#endif
+#ifndef PT_NO_SUN
+    /* Also tested at run time, so the general build of a sunless scene draws the
+     * same random numbers as the PT_NO_SUN build. (fmax, not ||: LLVM turns a
+     * float || into a 'freeze' that Oclgrind cannot run.) */
+    if (fmax(fmax(L->sun.r, L->sun.g), L->sun.b) > 0.0f) {
+        /* Cosine between propagation directions: dot(-l, -w) = dot(l, w). */
+        vf mu = L->dir.x * VLOAD(S->wx) + L->dir.y * VLOAD(S->wy) + L->dir.z * VLOAD(S->wz);
+        VSTORE(select(VLOAD(S->f), pt_phase_eval_v(mu, L->lobe_g, L->lobe_w), e), S->f);
+        VSTORE(select(VLOAD(S->T), (vf)(1.0f), e), S->T);
+        VSTORE(select(VLOAD(S->mode), (vi)(PT_SHADOW), e), S->mode);
+#ifdef PT_ENVMAP
+        VSTORE(select(VLOAD(S->lx), (vf)(L->dir.x), e), S->lx);
+        VSTORE(select(VLOAD(S->ly), (vf)(L->dir.y), e), S->ly);
+        VSTORE(select(VLOAD(S->lz), (vf)(L->dir.z), e), S->lz);
+        VSTORE(select(VLOAD(S->envnee), (vi)(0), e), S->envnee);
+#endif
+        h = select(h, (vi)(H_RAY), e);
+    }
+#endif
+    return h;
+}
+
+#ifdef PT_ORDER_BINS
+/* The sun NEE's first channel v at the lanes of mask into the path's order bins: the bin of
+ * exponent k - 1, and its weighted sum. */
+__attribute__((always_inline))
+void pt_add_order_bins(const pt_lanes *S, vi mask, const pt_job *J, vf v) {
+    int on[PT_LANES];
+    float val[PT_LANES];
+    VSTORE(mask, on);
+    VSTORE(v, val);
+    for (int j = 0; j < PT_LANES; ++j) {
+        if (!on[j]) continue;
+        int ex = S->k[j] - 1, b = pt_order_bin(ex);
+        __global float *o = J->out + PT_ROW * (size_t)S->path[j] + PT_OUT;
+        o[b] += val[j];
+        o[PT_ORDER_BINS + b] += val[j] * (float)ex;
+    }
+}
+#endif
+
+#ifdef PT_ENVMAP
+/* H_NEE_DONE of the env NEE's shadow ray: add beta L f w_env / p_env T as order k, then
+ * continue; returns h, and takes those lanes out of e. */
+__attribute__((always_inline))
+vi pt_env_nee_done(pt_lanes *S, vi h, vi *e_) {
+    vi e = *e_;
+    vi en = e & (VLOAD(S->envnee) != 0);
+    if (any(en)) {
+        vf br, bg, bb;
+        pt_beta_v(S, &br, &bg, &bb);
+        vf T = VLOAD(S->T);
+        pt_add_v(S, en, VLOAD(S->k), VLOAD(S->ec[0]) * br * T,
+                 VLOAD(S->ec[1]) * bg * T, VLOAD(S->ec[2]) * bb * T);
+        VSTORE(select(VLOAD(S->envnee), (vi)(0), en), S->envnee);
+        h = select(h, (vi)(H_CONTINUE), en);
+        e &= ~en;
+    }
+    *e_ = e;
+    return h;
+}
+#endif
+
+/* H_NEE_DONE: a shadow ray is done with transmittance S.T: the env NEE's (PT_ENVMAP) or
+ * the sun's, whose f T beta sun is added as order k. */
+__attribute__((always_inline))
+vi pt_on_nee_done(pt_lanes *S, vi h, const pt_light *L, const pt_job *J) {
+    vi e = h == H_NEE_DONE;
+#ifdef PT_ENVMAP
+    h = pt_env_nee_done(S, h, &e);
+#endif
+    if (!any(e)) return h;
+    vf s = VLOAD(S->f) * VLOAD(S->T);
+#ifdef PT_TEST_BIAS
+    s *= PT_TEST_BIAS;
+#endif
+    vf br, bg, bb;
+    pt_beta_v(S, &br, &bg, &bb);
+    pt_add_v(S, e, VLOAD(S->k), L->sun.r * br * s, L->sun.g * bg * s, L->sun.b * bb * s);
+#ifdef PT_ORDER_BINS
+    pt_add_order_bins(S, e & (VLOAD(S->k) >= 2), J, L->sun.r * br * s);
+#endif
+#ifdef PT_ENVMAP
+    h = select(h, (vi)(H_ENV_NEE), e);
+#else
+    h = select(h, (vi)(H_CONTINUE), e);
+#endif
+    return h;
+}
+
+#ifdef PT_ENVMAP
+/* H_ENV_NEE: sample a direction from the map and start its shadow ray (weights f w_env /
+ * p_env into S.ec); lanes with nothing to sample continue. */
+__attribute__((always_inline))
+vi pt_on_env_nee(pt_lanes *S, vi h, const pt_light *L, const pt_job *J, uint2 key) {
+    vi e = h == H_ENV_NEE;
+    if (!any(e)) return h;
+    pt_lanes_refill(S, e, key);   /* 2 draws: row, column */
+    vf u0 = pt_lanes_take(S, e);
+    vf u1 = pt_lanes_take(S, e);
+    float a0[PT_LANES], a1[PT_LANES], dx[PT_LANES], dy[PT_LANES], dz[PT_LANES];
+    float lr[PT_LANES], lg[PT_LANES], lb[PT_LANES], lp[PT_LANES];
+    int on[PT_LANES];
+    VSTORE(e, on); VSTORE(u0, a0); VSTORE(u1, a1);
+    for (int j = 0; j < PT_LANES; ++j) {
+        dx[j] = dy[j] = 0.0f; dz[j] = 1.0f;
+        lr[j] = lg[j] = lb[j] = lp[j] = 0.0f;
+        if (!on[j]) continue;
+        float3 d;
+        float4 t = pt_env_sample(L, a0[j], a1[j], &d);
+        dx[j] = d.x; dy[j] = d.y; dz[j] = d.z;
+        lr[j] = t.x; lg[j] = t.y; lb[j] = t.z; lp[j] = t.w;
+    }
+    vf ddx = VLOAD(dx), ddy = VLOAD(dy), ddz = VLOAD(dz), pe = VLOAD(lp);
+    /* Cosine between propagation directions: dot(-d, -w) = dot(d, w). */
+    vf mu = ddx * VLOAD(S->wx) + ddy * VLOAD(S->wy) + ddz * VLOAD(S->wz);
+    vf f = pt_phase_eval_v(mu, L->lobe_g, L->lobe_w);
+#ifdef PT_SINGLE_ONLY
+    vi last = e;
+#else
+    vi last = VLOAD(S->k) == J->max_order;
+#endif
+    /* f w_env / p_env: f / p_env at the last vertex, else f p_env / (p_env^2 + f^2);
+     * p_env > 0 for a drawn texel (pt_cdf_find), guarded all the same. */
+    vf s = select(f * pe / (pe * pe + f * f), f / pe, last);
+    vi go = e & (pe > 0.0f);
+    s = select((vf)(0.0f), s, go);
+    VSTORE(select(VLOAD(S->ec[0]), VLOAD(lr) * s, e), S->ec[0]);
+    VSTORE(select(VLOAD(S->ec[1]), VLOAD(lg) * s, e), S->ec[1]);
+    VSTORE(select(VLOAD(S->ec[2]), VLOAD(lb) * s, e), S->ec[2]);
+    VSTORE(select(VLOAD(S->lx), ddx, go), S->lx);
+    VSTORE(select(VLOAD(S->ly), ddy, go), S->ly);
+    VSTORE(select(VLOAD(S->lz), ddz, go), S->lz);
+    VSTORE(select(VLOAD(S->T), (vf)(1.0f), go), S->T);
+    VSTORE(select(VLOAD(S->mode), (vi)(PT_SHADOW), go), S->mode);
+    VSTORE(select(VLOAD(S->envnee), (vi)(1), go), S->envnee);
+    h = select(h, (vi)(H_RAY), go);
+    h = select(h, (vi)(H_CONTINUE), e & ~go);
+    return h;
+}
+#endif
+
+/* H_CONTINUE: the order cap, Russian roulette, then a phase-sampled direction for the
+ * next flight. */
+__attribute__((always_inline))
+vi pt_on_continue(pt_lanes *S, vi h, const pt_light *L, const pt_job *J, uint2 key) {
+    vi e = h == H_CONTINUE;
+    if (!any(e)) return h;
+#ifdef PT_SINGLE_ONLY
+    h = select(h, (vi)(H_FINISH), e);
+#else
+    vi k = VLOAD(S->k);
+    vi stop = e & (k == J->max_order);
+    VSTORE(select(VLOAD(S->truncated), (vi)(1), e & ~stop & (k >= PT_MAX_VERTICES)),
+           S->truncated);
+    stop |= e & (k >= PT_MAX_VERTICES);
+    e &= ~stop;
+    pt_lanes_refill(S, e, key);   /* roulette + 3 for the direction: <= 4 draws */
+    vi rr = e & (k >= PT_RR_START);
+    if (any(rr)) {
+        vf br, bg, bb;
+        pt_beta_v(S, &br, &bg, &bb);
+        vf q = fmin((vf)(1.0f), fmax(fmax(br, bg), bb));
+        vi die = rr & (pt_lanes_take(S, rr) >= q);
+        stop |= die;
+        e &= ~die;
+        rr &= ~die;
+        pt_set_beta_v(S, rr, br / q, bg / q, bb / q);
+    }
+    h = select(h, (vi)(H_FINISH), stop);
+    if (any(e)) {
+        vf u0 = pt_lanes_take(S, e);   /* in this order */
+        vf u1 = pt_lanes_take(S, e);
+        vf u2 = pt_lanes_take(S, e);
+        vf wx = VLOAD(S->wx), wy = VLOAD(S->wy), wz = VLOAD(S->wz);
+        vf nx = wx, ny = wy, nz = wz;
+        pt_phase_sample_v(&nx, &ny, &nz, L->lobe_g, L->lobe_w, u0, u1, u2);
+#ifdef PT_ENVMAP
+        VSTORE(select(VLOAD(S->pf), pt_phase_eval_v(wx * nx + wy * ny + wz * nz,
+                                                    L->lobe_g, L->lobe_w), e), S->pf);
+#endif
+        VSTORE(select(wx, nx, e), S->wx);
+        VSTORE(select(wy, ny, e), S->wy);
+        VSTORE(select(wz, nz, e), S->wz);
+        VSTORE(select(VLOAD(S->mode), (vi)(PT_FLIGHT), e), S->mode);
+        h = select(h, (vi)(H_RAY), e);
+    }
+#endif
+    return h;
+}
+
+/* H_RAY: start the ray of S.mode from S.o; lanes whose ray misses the box go on to their
+ * next step at once. */
+__attribute__((always_inline))
+vi pt_on_ray(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, uint2 key) {
+    vi e = h == H_RAY;
+    if (!any(e)) return h;
+    vi miss = pt_rays_v(S, e, m, L, key);
+    /* A shadow ray that misses: T = 1 (set at the vertex); a flight: escape. */
+    vi shadow = VLOAD(S->mode) == PT_SHADOW;
+    h = select(h, (vi)(H_NONE), e);
+    h = select(h, select((vi)(H_ESCAPE), (vi)(H_NEE_DONE), shadow), miss);
+    return h;
+}
+
 /* Run every lane with a pending step to its next ray (or to PT_IDLE when the launch has
  * no paths left), all lanes together, one step kind after the other. A lane's steps (and
  * its draws) still come in its own path's order. */
@@ -625,344 +1058,17 @@ __attribute__((always_inline))
 void pt_events(pt_lanes *S, vi h, const pt_medium *m, const pt_light *L, const pt_job *J,
                uint2 key) {
     for (;;) {
-        vi e = h == H_ACCEPT;
-        if (any(e)) {
-            vf t = VLOAD(S->t);
-            VSTORE(select(VLOAD(S->ox), VLOAD(S->ox) + t * VLOAD(S->wx), e), S->ox);
-            VSTORE(select(VLOAD(S->oy), VLOAD(S->oy) + t * VLOAD(S->wy), e), S->oy);
-            VSTORE(select(VLOAD(S->oz), VLOAD(S->oz) + t * VLOAD(S->wz), e), S->oz);
-            vf br, bg, bb;
-            pt_beta_v(S, &br, &bg, &bb);
-#ifdef PT_EMISSION
-            {   /* beta (1 - albedo) Le(x) before the albedo enters beta: slots 9..11 for the
-                 * first collision (k = 0: seen unscattered), 12..14 for later ones */
-                vf px = VLOAD(S->ox), py = VLOAD(S->oy), pz = VLOAD(S->oz);
-                vf l0 = pt_emission_lanes(m, 0, px, py, pz, e);
-#if PT_EMISSION_CHANNELS == 3
-                vf l1 = pt_emission_lanes(m, 1, px, py, pz, e);
-                vf l2 = pt_emission_lanes(m, 2, px, py, pz, e);
-#else
-                vf l1 = l0, l2 = l0;
-#endif
-#ifdef PT_GREY
-                const float ar = 1.0f - L->albedo, ag = ar, ab = ar;
-#else
-                const float ar = 1.0f - L->albedo.r, ag = 1.0f - L->albedo.g,
-                            ab = 1.0f - L->albedo.b;
-#endif
-                vf er = br * (ar * m->em_colour.x) * l0;
-                vf eg = bg * (ag * m->em_colour.y) * l1;
-                vf eb = bb * (ab * m->em_colour.z) * l2;
-                vi first = e & (VLOAD(S->k) == 0), later = e & (VLOAD(S->k) != 0);
-                VSTORE(VLOAD(S->acc[9]) + select((vf)(0.0f), er, first), S->acc[9]);
-                VSTORE(VLOAD(S->acc[10]) + select((vf)(0.0f), eg, first), S->acc[10]);
-                VSTORE(VLOAD(S->acc[11]) + select((vf)(0.0f), eb, first), S->acc[11]);
-                VSTORE(VLOAD(S->acc[12]) + select((vf)(0.0f), er, later), S->acc[12]);
-                VSTORE(VLOAD(S->acc[13]) + select((vf)(0.0f), eg, later), S->acc[13]);
-                VSTORE(VLOAD(S->acc[14]) + select((vf)(0.0f), eb, later), S->acc[14]);
-            }
-#endif
-#ifdef PT_GREY
-            pt_set_beta_v(S, e, br * L->albedo, br, br);
-#else
-            pt_set_beta_v(S, e, br * L->albedo.r, bg * L->albedo.g, bb * L->albedo.b);
-#endif
-            VSTORE(VLOAD(S->k) - e, S->k);
-            h = select(h, (vi)(H_VERTEX), e);
-        }
-        e = h == H_ESCAPE;
-        if (any(e)) {
-#ifdef PT_ENV
-            vf br, bg, bb;
-            pt_beta_v(S, &br, &bg, &bb);
-            pt_add_v(S, e, VLOAD(S->k), L->env.r * br, L->env.g * bg, L->env.b * bb);
-#endif
+        h = pt_on_accept(S, h, m, L);
+        h = pt_on_escape(S, h, L);
+        h = pt_on_finish(S, h, J);
+        h = pt_on_start(S, h, J, key);
+        h = pt_on_vertex(S, h, L);
+        h = pt_on_nee_done(S, h, L, J);
 #ifdef PT_ENVMAP
-            {   /* L(w), MIS-weighted against the env NEE unless k = 0 (camera ray) */
-                float lr[PT_LANES], lg[PT_LANES], lb[PT_LANES], lp[PT_LANES];
-                int on[PT_LANES];
-                VSTORE(e, on);
-                for (int j = 0; j < PT_LANES; ++j) {
-                    lr[j] = lg[j] = lb[j] = lp[j] = 0.0f;
-                    if (!on[j]) continue;
-                    float4 t = pt_env_lookup(L, (float3)(S->wx[j], S->wy[j], S->wz[j]));
-                    lr[j] = t.x; lg[j] = t.y; lb[j] = t.z; lp[j] = t.w;
-                }
-                vf pf = VLOAD(S->pf), pe = VLOAD(lp);
-                vf den = pf * pf + pe * pe;
-                vf wm = select((vf)(0.0f), pf * pf / den, den > 0.0f);
-                wm = select(wm, (vf)(1.0f), VLOAD(S->k) == 0);
-                vf br, bg, bb;
-                pt_beta_v(S, &br, &bg, &bb);
-                pt_add_v(S, e, VLOAD(S->k), VLOAD(lr) * br * wm, VLOAD(lg) * bg * wm,
-                         VLOAD(lb) * bb * wm);
-            }
+        h = pt_on_env_nee(S, h, L, J, key);
 #endif
-            h = select(h, (vi)(H_FINISH), e);
-        }
-        e = h == H_FINISH;
-        if (any(e)) {
-            int fin[PT_LANES];
-            VSTORE(e, fin);
-            for (int j = 0; j < PT_LANES; ++j) {
-                if (!fin[j]) continue;
-                __global float *o = J->out + PT_ROW * (size_t)S->path[j];
-                for (int c = 0; c < 9; ++c) o[c] = S->acc[c][j];
-                o[9] = (float)S->vertices[j];
-                o[10] = (float)S->steps[j];
-                o[11] = (float)S->truncated[j];
-#ifdef PT_EMISSION
-                for (int c = 9; c < PT_ACC; ++c) o[c + 3] = S->acc[c][j];
-#endif
-            }
-            h = select(h, (vi)(H_START), e);
-        }
-        e = h == H_START;
-        if (any(e)) {
-            /* Per lane: the path index, its stream and sample, the query's point or the
-             * pixel (integer division has no vector instruction here). */
-            int st[PT_LANES], col[PT_LANES], row[PT_LANES];
-            VSTORE(e, st);
-            for (int j = 0; j < PT_LANES; ++j) {
-                col[j] = row[j] = 0;
-                if (!st[j]) continue;
-                int g = (int)min(atomic_inc(J->next), (uint)J->n);
-                S->path[j] = g;
-                if (g >= J->n) continue;
-                int sj = g / J->nstream, stream = g - sj * J->nstream;
-                S->slo[j] = (uint)stream;
-                S->sample[j] = J->sample0 + (uint)sj;
-#ifdef PT_ORDER_BINS
-                {   /* the path's bins start at 0 (the row is its own: no other path adds) */
-                    __global float *o = J->out + PT_ROW * (size_t)g + PT_OUT;
-                    for (int b = 0; b < 2 * PT_ORDER_BINS; ++b) o[b] = 0.0f;
-                }
-#endif
-                if (J->is_query) {
-                    /* Vertex 1 at p with beta = 1, w = -omega. */
-                    float3 p = vload3(stream, J->points), w = -vload3(stream, J->omegas);
-                    S->ox[j] = p.x; S->oy[j] = p.y; S->oz[j] = p.z;
-                    S->wx[j] = w.x; S->wy[j] = w.y; S->wz[j] = w.z;
-                } else {
-                    row[j] = stream / J->width;
-                    col[j] = stream - row[j] * J->width;
-                }
-            }
-            vi none = e & (VLOAD(S->path) >= J->n);
-            VSTORE(select(VLOAD(S->mode), (vi)(PT_IDLE), none), S->mode);
-            h = select(h, (vi)(H_NONE), none);
-            e &= ~none;
-            VSTORE(select(VLOAD(S->shi), (vu)(0u), e), S->shi);
-            VSTORE(select(VLOAD(S->block), (vu)(0u), e), S->block);
-            VSTORE(select(VLOAD(S->used), (vi)(8), e), S->used);   /* nothing buffered */
-            for (int c = 0; c < PT_ACC; ++c) VSTORE(select(VLOAD(S->acc[c]), (vf)(0.0f), e), S->acc[c]);
-            VSTORE(select(VLOAD(S->steps), (vi)(0), e), S->steps);
-            VSTORE(select(VLOAD(S->stall), (vi)(0), e), S->stall);
-            VSTORE(select(VLOAD(S->vertices), (vi)(0), e), S->vertices);
-            VSTORE(select(VLOAD(S->truncated), (vi)(0), e), S->truncated);
-            pt_set_beta_v(S, e, (vf)(1.0f), (vf)(1.0f), (vf)(1.0f));
-            if (J->is_query) {
-                VSTORE(select(VLOAD(S->k), (vi)(1), e), S->k);
-                h = select(h, (vi)(H_VERTEX), e);
-            } else {
-                /* Camera ray through the jittered pixel (camera_ray of grid.h); k = 0
-                 * until its first real collision (then beta = albedo). */
-                pt_lanes_refill(S, e, key);
-                vf px = VCONVERT_F(VLOAD(col)) + pt_lanes_take(S, e);
-                vf py = VCONVERT_F(VLOAD(row)) + pt_lanes_take(S, e);
-                float fw = (float)J->width, fh = (float)J->height;
-                vf sx = (2.0f * px / fw - 1.0f) * J->tan_half * (fw / fh);
-                vf sy = (1.0f - 2.0f * py / fh) * J->tan_half;
-                vf dx = J->cam_f.x + sx * J->cam_r.x + sy * J->cam_u.x;
-                vf dy = J->cam_f.y + sx * J->cam_r.y + sy * J->cam_u.y;
-                vf dz = J->cam_f.z + sx * J->cam_r.z + sy * J->cam_u.z;
-                vf len = sqrt(dx * dx + dy * dy + dz * dz);
-                VSTORE(select(VLOAD(S->wx), dx / len, e), S->wx);
-                VSTORE(select(VLOAD(S->wy), dy / len, e), S->wy);
-                VSTORE(select(VLOAD(S->wz), dz / len, e), S->wz);
-                VSTORE(select(VLOAD(S->ox), (vf)(J->cam_o.x), e), S->ox);
-                VSTORE(select(VLOAD(S->oy), (vf)(J->cam_o.y), e), S->oy);
-                VSTORE(select(VLOAD(S->oz), (vf)(J->cam_o.z), e), S->oz);
-                VSTORE(select(VLOAD(S->k), (vi)(0), e), S->k);
-                VSTORE(select(VLOAD(S->mode), (vi)(PT_FLIGHT), e), S->mode);
-                h = select(h, (vi)(H_RAY), e);
-            }
-        }
-        e = h == H_VERTEX;
-        if (any(e)) {
-            vf br, bg, bb;
-            pt_beta_v(S, &br, &bg, &bb);
-            vi dead = e & (fmax(fmax(br, bg), bb) <= 0.0f);   /* albedo 0: nothing arrives */
-            h = select(h, (vi)(H_FINISH), dead);
-            e &= ~dead;
-            VSTORE(VLOAD(S->vertices) - e, S->vertices);
-#ifdef PT_ENVMAP
-            h = select(h, (vi)(H_ENV_NEE), e);
-#else
-            h = select(h, (vi)(H_CONTINUE), e);
-#endif
-#ifndef PT_NO_SUN
-            /* Also tested at run time, so the general build of a sunless scene draws the
-             * same random numbers as the PT_NO_SUN build. (fmax, not ||: LLVM turns a
-             * float || into a 'freeze' that Oclgrind cannot run.) */
-            if (fmax(fmax(L->sun.r, L->sun.g), L->sun.b) > 0.0f) {
-                /* Cosine between propagation directions: dot(-l, -w) = dot(l, w). */
-                vf mu = L->dir.x * VLOAD(S->wx) + L->dir.y * VLOAD(S->wy) + L->dir.z * VLOAD(S->wz);
-                VSTORE(select(VLOAD(S->f), pt_phase_eval_v(mu, L->lobe_g, L->lobe_w), e), S->f);
-                VSTORE(select(VLOAD(S->T), (vf)(1.0f), e), S->T);
-                VSTORE(select(VLOAD(S->mode), (vi)(PT_SHADOW), e), S->mode);
-#ifdef PT_ENVMAP
-                VSTORE(select(VLOAD(S->lx), (vf)(L->dir.x), e), S->lx);
-                VSTORE(select(VLOAD(S->ly), (vf)(L->dir.y), e), S->ly);
-                VSTORE(select(VLOAD(S->lz), (vf)(L->dir.z), e), S->lz);
-                VSTORE(select(VLOAD(S->envnee), (vi)(0), e), S->envnee);
-#endif
-                h = select(h, (vi)(H_RAY), e);
-            }
-#endif
-        }
-        e = h == H_NEE_DONE;
-#ifdef PT_ENVMAP
-        {   /* the env NEE's shadow ray: add beta L f w_env / p_env T as order k */
-            vi en = e & (VLOAD(S->envnee) != 0);
-            if (any(en)) {
-                vf br, bg, bb;
-                pt_beta_v(S, &br, &bg, &bb);
-                vf T = VLOAD(S->T);
-                pt_add_v(S, en, VLOAD(S->k), VLOAD(S->ec[0]) * br * T,
-                         VLOAD(S->ec[1]) * bg * T, VLOAD(S->ec[2]) * bb * T);
-                VSTORE(select(VLOAD(S->envnee), (vi)(0), en), S->envnee);
-                h = select(h, (vi)(H_CONTINUE), en);
-                e &= ~en;
-            }
-        }
-#endif
-        if (any(e)) {
-            vf s = VLOAD(S->f) * VLOAD(S->T);
-#ifdef PT_TEST_BIAS
-            s *= PT_TEST_BIAS;
-#endif
-            vf br, bg, bb;
-            pt_beta_v(S, &br, &bg, &bb);
-            pt_add_v(S, e, VLOAD(S->k), L->sun.r * br * s, L->sun.g * bg * s, L->sun.b * bb * s);
-#ifdef PT_ORDER_BINS
-            {
-                int on[PT_LANES];
-                float val[PT_LANES];
-                VSTORE(e & (VLOAD(S->k) >= 2), on);
-                VSTORE(L->sun.r * br * s, val);
-                for (int j = 0; j < PT_LANES; ++j) {
-                    if (!on[j]) continue;
-                    int ex = S->k[j] - 1, b = pt_order_bin(ex);
-                    __global float *o = J->out + PT_ROW * (size_t)S->path[j] + PT_OUT;
-                    o[b] += val[j];
-                    o[PT_ORDER_BINS + b] += val[j] * (float)ex;
-                }
-            }
-#endif
-#ifdef PT_ENVMAP
-            h = select(h, (vi)(H_ENV_NEE), e);
-#else
-            h = select(h, (vi)(H_CONTINUE), e);
-#endif
-        }
-#ifdef PT_ENVMAP
-        e = h == H_ENV_NEE;
-        if (any(e)) {
-            pt_lanes_refill(S, e, key);   /* 2 draws: row, column */
-            vf u0 = pt_lanes_take(S, e);
-            vf u1 = pt_lanes_take(S, e);
-            float a0[PT_LANES], a1[PT_LANES], dx[PT_LANES], dy[PT_LANES], dz[PT_LANES];
-            float lr[PT_LANES], lg[PT_LANES], lb[PT_LANES], lp[PT_LANES];
-            int on[PT_LANES];
-            VSTORE(e, on); VSTORE(u0, a0); VSTORE(u1, a1);
-            for (int j = 0; j < PT_LANES; ++j) {
-                dx[j] = dy[j] = 0.0f; dz[j] = 1.0f;
-                lr[j] = lg[j] = lb[j] = lp[j] = 0.0f;
-                if (!on[j]) continue;
-                float3 d;
-                float4 t = pt_env_sample(L, a0[j], a1[j], &d);
-                dx[j] = d.x; dy[j] = d.y; dz[j] = d.z;
-                lr[j] = t.x; lg[j] = t.y; lb[j] = t.z; lp[j] = t.w;
-            }
-            vf ddx = VLOAD(dx), ddy = VLOAD(dy), ddz = VLOAD(dz), pe = VLOAD(lp);
-            /* Cosine between propagation directions: dot(-d, -w) = dot(d, w). */
-            vf mu = ddx * VLOAD(S->wx) + ddy * VLOAD(S->wy) + ddz * VLOAD(S->wz);
-            vf f = pt_phase_eval_v(mu, L->lobe_g, L->lobe_w);
-#ifdef PT_SINGLE_ONLY
-            vi last = e;
-#else
-            vi last = VLOAD(S->k) == J->max_order;
-#endif
-            /* f w_env / p_env: f / p_env at the last vertex, else f p_env / (p_env^2 + f^2);
-             * p_env > 0 for a drawn texel (pt_cdf_find), guarded all the same. */
-            vf s = select(f * pe / (pe * pe + f * f), f / pe, last);
-            vi go = e & (pe > 0.0f);
-            s = select((vf)(0.0f), s, go);
-            VSTORE(select(VLOAD(S->ec[0]), VLOAD(lr) * s, e), S->ec[0]);
-            VSTORE(select(VLOAD(S->ec[1]), VLOAD(lg) * s, e), S->ec[1]);
-            VSTORE(select(VLOAD(S->ec[2]), VLOAD(lb) * s, e), S->ec[2]);
-            VSTORE(select(VLOAD(S->lx), ddx, go), S->lx);
-            VSTORE(select(VLOAD(S->ly), ddy, go), S->ly);
-            VSTORE(select(VLOAD(S->lz), ddz, go), S->lz);
-            VSTORE(select(VLOAD(S->T), (vf)(1.0f), go), S->T);
-            VSTORE(select(VLOAD(S->mode), (vi)(PT_SHADOW), go), S->mode);
-            VSTORE(select(VLOAD(S->envnee), (vi)(1), go), S->envnee);
-            h = select(h, (vi)(H_RAY), go);
-            h = select(h, (vi)(H_CONTINUE), e & ~go);
-        }
-#endif
-        e = h == H_CONTINUE;
-        if (any(e)) {
-#ifdef PT_SINGLE_ONLY
-            h = select(h, (vi)(H_FINISH), e);
-#else
-            vi k = VLOAD(S->k);
-            vi stop = e & (k == J->max_order);
-            VSTORE(select(VLOAD(S->truncated), (vi)(1), e & ~stop & (k >= PT_MAX_VERTICES)),
-                   S->truncated);
-            stop |= e & (k >= PT_MAX_VERTICES);
-            e &= ~stop;
-            pt_lanes_refill(S, e, key);   /* roulette + 3 for the direction: <= 4 draws */
-            vi rr = e & (k >= PT_RR_START);
-            if (any(rr)) {
-                vf br, bg, bb;
-                pt_beta_v(S, &br, &bg, &bb);
-                vf q = fmin((vf)(1.0f), fmax(fmax(br, bg), bb));
-                vi die = rr & (pt_lanes_take(S, rr) >= q);
-                stop |= die;
-                e &= ~die;
-                rr &= ~die;
-                pt_set_beta_v(S, rr, br / q, bg / q, bb / q);
-            }
-            h = select(h, (vi)(H_FINISH), stop);
-            if (any(e)) {
-                vf u0 = pt_lanes_take(S, e);   /* in this order */
-                vf u1 = pt_lanes_take(S, e);
-                vf u2 = pt_lanes_take(S, e);
-                vf wx = VLOAD(S->wx), wy = VLOAD(S->wy), wz = VLOAD(S->wz);
-                vf nx = wx, ny = wy, nz = wz;
-                pt_phase_sample_v(&nx, &ny, &nz, L->lobe_g, L->lobe_w, u0, u1, u2);
-#ifdef PT_ENVMAP
-                VSTORE(select(VLOAD(S->pf), pt_phase_eval_v(wx * nx + wy * ny + wz * nz,
-                                                            L->lobe_g, L->lobe_w), e), S->pf);
-#endif
-                VSTORE(select(wx, nx, e), S->wx);
-                VSTORE(select(wy, ny, e), S->wy);
-                VSTORE(select(wz, nz, e), S->wz);
-                VSTORE(select(VLOAD(S->mode), (vi)(PT_FLIGHT), e), S->mode);
-                h = select(h, (vi)(H_RAY), e);
-            }
-#endif
-        }
-        e = h == H_RAY;
-        if (any(e)) {
-            vi miss = pt_rays_v(S, e, m, L, key);
-            /* A shadow ray that misses: T = 1 (set at the vertex); a flight: escape. */
-            vi shadow = VLOAD(S->mode) == PT_SHADOW;
-            h = select(h, (vi)(H_NONE), e);
-            h = select(h, select((vi)(H_ESCAPE), (vi)(H_NEE_DONE), shadow), miss);
-        }
+        h = pt_on_continue(S, h, L, J, key);
+        h = pt_on_ray(S, h, m, L, key);
         if (!any(h != H_NONE)) return;
     }
 }
@@ -979,6 +1085,70 @@ int pt_count(vi mask) {
     VSTORE(mask, a);
     for (int j = 0; j < PT_LANES; ++j) n -= a[j];
     return n;
+}
+
+/* The tentative collisions of the lanes of hit at t + tau / sm (sm their majorant, tb the
+ * end of their cell): a flight's is real with probability sigma / sm (H_ACCEPT), a shadow
+ * ray's ratio T takes 1 - sigma / sm (roulette below PT_T_RR); lanes that go on draw their
+ * next tau. Moves t and tau; returns ev with those lanes' next steps, H_FINISH at a bound. */
+__attribute__((always_inline))
+vi pt_collide_v(pt_lanes *S, vi hit, vi mode, vf sm, vf tb, float stall_len, vf *t_, vf *tau_,
+                vi ev, const pt_medium *m, const pt_light *L, uint2 key) {
+    vf t = *t_, tau = *tau_;
+    /* tau / sm <= tb - t, so the hit stays inside the segment (clamped for rounding). */
+    vf th = fmin(t + tau / sm, tb);
+    /* this collision moved t by less than a stall (or not at all; NaN counts) */
+    vi stuck = hit & ~(th - t >= stall_len);
+    t = select(t, th, hit);
+    vi steps = VLOAD(S->steps) - hit;
+    VSTORE(steps, S->steps);
+    vi stall = select(select((vi)(0), VLOAD(S->stall) + 1, stuck), VLOAD(S->stall), ~hit);
+    VSTORE(stall, S->stall);
+    vi bound = hit & ((steps >= PT_MAX_STEPS) | (stall >= PT_MAX_STALLS));
+    vi shadow = mode == PT_SHADOW;
+#ifdef PT_ENVMAP
+    vf dx = select(VLOAD(S->wx), VLOAD(S->lx), shadow);
+    vf dy = select(VLOAD(S->wy), VLOAD(S->ly), shadow);
+    vf dz = select(VLOAD(S->wz), VLOAD(S->lz), shadow);
+#else
+    vf dx = select(VLOAD(S->wx), (vf)(L->dir.x), shadow);
+    vf dy = select(VLOAD(S->wy), (vf)(L->dir.y), shadow);
+    vf dz = select(VLOAD(S->wz), (vf)(L->dir.z), shadow);
+#endif
+    pt_lanes_refill(S, hit, key);   /* accept or roulette, then tau: <= 2 draws */
+    vf sigma = pt_sigma_lanes(m, VLOAD(S->ox) + th * dx, VLOAD(S->oy) + th * dy,
+                              VLOAD(S->oz) + th * dz, hit);
+    vi fl = hit & ~shadow, sh = hit & shadow;
+    vi accept = (vi)(0), kill = (vi)(0);
+    if (any(fl)) {
+        /* Real with probability sigma / sigma_maj (u * sm < sigma: no division). */
+        accept = fl & (pt_lanes_take(S, fl) * sm < sigma);
+    }
+    if (any(sh)) {
+        /* sm > 0 at a tentative collision; rounding can put sigma a hair above sm. */
+        vf T = VLOAD(S->T);
+        T = select(T, T * fmax((vf)(0.0f), 1.0f - sigma / sm), sh);
+        vi low = sh & (T < PT_T_RR);
+        if (any(low)) {
+            /* Roulette: T survives with probability T / PT_T_RR, then is PT_T_RR. */
+            kill = low & (pt_lanes_take(S, low) * PT_T_RR >= T);
+            T = select(T, (vf)(PT_T_RR), low);
+            T = select(T, (vf)(0.0f), kill);
+        }
+        VSTORE(T, S->T);
+    }
+    vi more = hit & ~accept & ~kill;
+    if (any(more)) tau = select(tau, -log(1.0f - pt_lanes_take(S, more)), more);
+    ev = select(ev, (vi)(H_ACCEPT), accept);
+    ev = select(ev, (vi)(H_NEE_DONE), kill);
+    if (any(bound)) {
+        /* A bound: the path ends here with what it has (row's truncated word 2). */
+        ev = select(ev, (vi)(H_FINISH), bound);
+        VSTORE(select(VLOAD(S->truncated), (vi)(2), bound), S->truncated);
+    }
+    *t_ = t;
+    *tau_ = tau;
+    return ev;
 }
 
 /* The one tracking loop (images and point queries). */
@@ -1023,7 +1193,7 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
         vi cx = VLOAD(S.cx), cy = VLOAD(S.cy), cz = VLOAD(S.cz);
         /* maj_dda_track of majorant.h: every lane walks cells (cheap) until its next
          * tentative collision or the box exit; then the collisions are processed together. */
-        vi ev = (vi)(0), hit = (vi)(0), todo = act, bound = (vi)(0);
+        vi ev = (vi)(0), hit = (vi)(0), todo = act;
         vf sm = (vf)(0.0f), tb;
         for (;;) {
             tb = fmin(fmin(fmin(tnx, tny), tnz), te);
@@ -1058,59 +1228,8 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
         }
         VSTORE(cx, S.cx); VSTORE(cy, S.cy); VSTORE(cz, S.cz);
         VSTORE(tnx, S.tnx); VSTORE(tny, S.tny); VSTORE(tnz, S.tnz);
-        if (any(hit)) {
-            /* tau / sm <= tb - t, so the hit stays inside the segment (clamped for rounding). */
-            vf th = fmin(t + tau / sm, tb);
-            /* this collision moved t by less than a stall (or not at all; NaN counts) */
-            vi stuck = hit & ~(th - t >= stall_len);
-            t = select(t, th, hit);
-            vi steps = VLOAD(S.steps) - hit;
-            VSTORE(steps, S.steps);
-            vi stall = select(select((vi)(0), VLOAD(S.stall) + 1, stuck), VLOAD(S.stall), ~hit);
-            VSTORE(stall, S.stall);
-            bound = hit & ((steps >= PT_MAX_STEPS) | (stall >= PT_MAX_STALLS));
-            vi shadow = mode == PT_SHADOW;
-#ifdef PT_ENVMAP
-            vf dx = select(VLOAD(S.wx), VLOAD(S.lx), shadow);
-            vf dy = select(VLOAD(S.wy), VLOAD(S.ly), shadow);
-            vf dz = select(VLOAD(S.wz), VLOAD(S.lz), shadow);
-#else
-            vf dx = select(VLOAD(S.wx), (vf)(L->dir.x), shadow);
-            vf dy = select(VLOAD(S.wy), (vf)(L->dir.y), shadow);
-            vf dz = select(VLOAD(S.wz), (vf)(L->dir.z), shadow);
-#endif
-            pt_lanes_refill(&S, hit, key);   /* accept or roulette, then tau: <= 2 draws */
-            vf sigma = pt_sigma_lanes(m, VLOAD(S.ox) + th * dx, VLOAD(S.oy) + th * dy,
-                                      VLOAD(S.oz) + th * dz, hit);
-            vi fl = hit & ~shadow, sh = hit & shadow;
-            vi accept = (vi)(0), kill = (vi)(0);
-            if (any(fl)) {
-                /* Real with probability sigma / sigma_maj (u * sm < sigma: no division). */
-                accept = fl & (pt_lanes_take(&S, fl) * sm < sigma);
-            }
-            if (any(sh)) {
-                /* sm > 0 at a tentative collision; rounding can put sigma a hair above sm. */
-                vf T = VLOAD(S.T);
-                T = select(T, T * fmax((vf)(0.0f), 1.0f - sigma / sm), sh);
-                vi low = sh & (T < PT_T_RR);
-                if (any(low)) {
-                    /* Roulette: T survives with probability T / PT_T_RR, then is PT_T_RR. */
-                    kill = low & (pt_lanes_take(&S, low) * PT_T_RR >= T);
-                    T = select(T, (vf)(PT_T_RR), low);
-                    T = select(T, (vf)(0.0f), kill);
-                }
-                VSTORE(T, S.T);
-            }
-            vi more = hit & ~accept & ~kill;
-            if (any(more)) tau = select(tau, -log(1.0f - pt_lanes_take(&S, more)), more);
-            ev = select(ev, (vi)(H_ACCEPT), accept);
-            ev = select(ev, (vi)(H_NEE_DONE), kill);
-            if (any(bound)) {
-                /* A bound: the path ends here with what it has (row's truncated word 2). */
-                ev = select(ev, (vi)(H_FINISH), bound);
-                VSTORE(select(VLOAD(S.truncated), (vi)(2), bound), S.truncated);
-            }
-        }
+        if (any(hit))
+            ev = pt_collide_v(&S, hit, mode, sm, tb, stall_len, &t, &tau, ev, m, L, key);
         VSTORE(t, S.t);
         VSTORE(tau, S.tau);
         VSTORE(select(pend, ev, act), S.pend);

@@ -284,6 +284,446 @@ void store_lanes(__global float *out, int channels, int ch, vL v, iL idx, iL val
         if (ok[j]) out[(size_t)id[j] * channels + ch] = val[j];
 }
 
+/* Planes of the F_ms sums: one for the octaves (grey), MS_CHANNELS for a grid or table.
+ * Sums of 1 or 3 planes give RGB as planes [0], [N / 2], [N - 1]: a grey plane serves all three. */
+#if MS_SOURCE >= 2
+#define MS_PLANES MS_CHANNELS
+#else
+#define MS_PLANES 1
+#endif
+
+/* A tile's running sums along its rays, one lane per ray. Colour enters after the march. */
+typedef struct {
+    vL T;                          /* T_cam */
+    vL S;                          /* sum of w T_light: single scattering before f and colour */
+    vL A, D;                       /* sum of w (alpha) and of w t_s (depth before / A) */
+#if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
+    vL Mo[MS_OCTAVES - 1];         /* one sum per octave; its phase weight comes after */
+#endif
+#if MS_SOURCE >= 1
+    vL M[MS_PLANES];               /* F_ms, weighted */
+#endif
+#if ENV
+    vL ES[ENV_CHANNELS], EM[ENV_CHANNELS];   /* the environment's single and multiple */
+#endif
+#if EMISSION
+    vL EE[EMISSION_CHANNELS];      /* Le, weighted: (1 - albedo) and colour come after */
+#endif
+} MarchSums;
+
+__attribute__((always_inline))
+MarchSums march_sums_new(void) {
+    MarchSums m;
+    MarchSums *s = &m;
+    s->T = (vL)(1.0f);
+    s->S = s->A = s->D = (vL)(0.0f);
+#if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
+    for (int i = 0; i < MS_OCTAVES - 1; ++i) s->Mo[i] = (vL)(0.0f);
+#endif
+#if MS_SOURCE >= 1
+    for (int c = 0; c < MS_PLANES; ++c) s->M[c] = (vL)(0.0f);
+#endif
+#if ENV
+    for (int c = 0; c < ENV_CHANNELS; ++c) s->ES[c] = s->EM[c] = (vL)(0.0f);
+#endif
+#if EMISSION
+    for (int c = 0; c < EMISSION_CHANNELS; ++c) s->EE[c] = (vL)(0.0f);
+#endif
+    return m;
+}
+
+/* A tile's camera rays o + t d, one a lane, from one origin. */
+typedef struct {
+    float ox, oy, oz;
+    vL dx, dy, dz;
+} TileRays;
+
+/* Camera rays of the tile's lanes: camera_ray of grid.h, lane by lane. */
+__attribute__((always_inline))
+TileRays camera_raysL(iL px, iL py, int width, int height, float tan_half, float4 origin,
+                      float4 forward, float4 right, float4 up) {
+    const vL sx = (2.0f * (convert_vL(px) + 0.5f) / (float)width - 1.0f) * tan_half
+                   * ((float)width / (float)height);
+    const vL sy = (1.0f - 2.0f * (convert_vL(py) + 0.5f) / (float)height) * tan_half;
+    vL x = forward.x + sx * right.x + sy * up.x;
+    vL y = forward.y + sx * right.y + sy * up.y;
+    vL z = forward.z + sx * right.z + sy * up.z;
+    const vL len = sqrt(x * x + y * y + z * z);  /* >= 1: forward is orthogonal */
+    const TileRays r = {origin.x, origin.y, origin.z, x / len, y / len, z / len};
+    return r;
+}
+
+/* Box entry and exit from t = 0 (box_intersect of grid.h, lane by lane); returns the lanes
+ * that hit. Missed and invalid lanes get the empty interval [0, 0]: finite, never active. */
+__attribute__((always_inline))
+iL box_spanL(const TileRays *r, float4 bmin, float4 bmax, iL valid, vL *t0, vL *t1) {
+    vL lo = (vL)(0.0f), hi = (vL)(INFINITY);
+    iL miss = ~valid;
+#define SLAB(D, O, MN, MX)                                                              \
+    {                                                                                   \
+        const iL zero = D == 0.0f;                                                     \
+        miss |= zero & (iL)((O < MN || O > MX) ? -1 : 0);                              \
+        const vL inv = 1.0f / D;                                                       \
+        const vL ta = (MN - O) * inv, tb = (MX - O) * inv;                             \
+        lo = select(fmax(lo, fmin(ta, tb)), lo, zero);                                  \
+        hi = select(fmin(hi, fmax(ta, tb)), hi, zero);                                  \
+    }
+    SLAB(r->dx, r->ox, bmin.x, bmax.x)
+    SLAB(r->dy, r->oy, bmin.y, bmax.y)
+    SLAB(r->dz, r->oz, bmin.z, bmax.z)
+#undef SLAB
+    miss |= lo > hi;
+    *t0 = select(lo, (vL)(0.0f), miss);
+    *t1 = select(hi, (vL)(0.0f), miss);
+    return ~miss;
+}
+
+/* The phase function per lane at mu = dot(-l, omega): omega is constant along a camera ray,
+ * so it is evaluated once per ray, not per step. */
+__attribute__((always_inline))
+vL ray_phaseL(vL mu, float4 lobe_g, float4 lobe_w) {
+    float m[LANES], f[LANES];
+    vstoreL(mu, 0, m);
+    for (int j = 0; j < LANES; ++j) f[j] = phase_eval(m[j], lobe_g, lobe_w);
+    return vloadL(0, f);
+}
+
+#if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
+/* Each octave's weight b^i f(mu; g c^i) per lane, once per ray. */
+__attribute__((always_inline))
+void octave_weights(vL mu, float4 lobe_g, float4 lobe_w, float oct_b, float oct_c,
+                    float ow[MS_OCTAVES - 1][LANES]) {
+    float m[LANES];
+    vstoreL(mu, 0, m);
+    float ci = 1.0f, bi = 1.0f;
+    for (int i = 0; i < MS_OCTAVES - 1; ++i) {
+        ci *= oct_c;
+        bi *= oct_b;
+        /* Component-wise: Oclgrind 21.10's uninitialised-value checker crashed on the
+         * float4 * float form here. */
+        const float4 gi = (float4)(lobe_g.x * ci, lobe_g.y * ci, lobe_g.z * ci, lobe_g.w * ci);
+        for (int j = 0; j < LANES; ++j) ow[i][j] = bi * phase_eval(m[j], gi, lobe_w);
+    }
+}
+#endif
+
+#if MS_SOURCE == 3
+/* A lane's knots of the view table: depth vd[k], F_ms v0 + sum of ramps dv[k] over
+ * [vd[k], vd[k+1]] (the piecewise-linear interpolant as a sum of clamped ramps: no per-step
+ * search). */
+typedef struct {
+    vL vd[VIEW_K], vinv[VIEW_K], v0[MS_CHANNELS], dv[MS_CHANNELS][VIEW_K];
+} ViewKnots;
+
+/* Each pixel's knots: the bilinear blend, knot by knot, of its four nearest non-empty
+ * blocks' knots (weights renormalised; the kernel header gives the table's layout). */
+__attribute__((always_inline))
+void view_knotsL(__global const float *ms_grid, int gx, int gy, int gz, iL px, iL py,
+                 ViewKnots *kn) {
+    const int plane = gx * gy * gz;
+    float kd[VIEW_K][LANES], kv[MS_CHANNELS][VIEW_K][LANES];
+    int pxs[LANES], pys[LANES];
+    vstoreL(px, 0, pxs);
+    vstoreL(py, 0, pys);
+    for (int j = 0; j < LANES; ++j) {
+        /* Bilinear between block centres (block i's centre is pixel position (i + 1/2) B). */
+        const float u = clamp(((float)pxs[j] + 0.5f) / (float)VIEW_BLOCK - 0.5f, 0.0f, (float)(gy - 1));
+        const float v = clamp(((float)pys[j] + 0.5f) / (float)VIEW_BLOCK - 0.5f, 0.0f, (float)(gz - 1));
+        const int i0 = (int)u, j0 = (int)v;
+        const int i1 = min(i0 + 1, gy - 1), j1 = min(j0 + 1, gz - 1);
+        const float fu = u - (float)i0, fv = v - (float)j0;
+        const int blk[4] = {j0 * gy + i0, j0 * gy + i1, j1 * gy + i0, j1 * gy + i1};
+        float bw[4] = {(1.0f - fu) * (1.0f - fv), fu * (1.0f - fv), (1.0f - fu) * fv, fu * fv};
+        float sum = 0.0f;
+        for (int q = 0; q < 4; ++q) {
+            if (ms_grid[blk[q] * gx] < 0.0f) bw[q] = 0.0f;   /* empty block */
+            sum += bw[q];
+        }
+        /* sum = 0 only where no neighbour saw medium: no knots, F_ms = 0 */
+        const float inv = sum > 0.0f ? 1.0f / sum : 0.0f;
+        for (int k = 0; k < VIEW_K; ++k) {
+            float a = 0.0f;
+            for (int q = 0; q < 4; ++q) a += bw[q] * inv * ms_grid[blk[q] * gx + k];
+            kd[k][j] = a;
+            for (int c = 0; c < MS_CHANNELS; ++c) {
+                float b = 0.0f;
+                for (int q = 0; q < 4; ++q)
+                    b += bw[q] * inv * ms_grid[(1 + c) * plane + blk[q] * gx + k];
+                kv[c][k][j] = b;
+            }
+        }
+    }
+    for (int k = 0; k < VIEW_K; ++k) kn->vd[k] = vloadL(0, kd[k]);
+    for (int k = 0; k + 1 < VIEW_K; ++k)
+        kn->vinv[k] = 1.0f / fmax(kn->vd[k + 1] - kn->vd[k], (vL)(1e-30f));
+    for (int c = 0; c < MS_CHANNELS; ++c) {
+        kn->v0[c] = vloadL(0, kv[c][0]);
+        for (int k = 0; k + 1 < VIEW_K; ++k)
+            kn->dv[c][k] = vloadL(0, kv[c][k + 1]) - vloadL(0, kv[c][k]);
+    }
+}
+#endif
+
+#if SKIP_EMPTY
+/* Lanes whose segment midpoint lies in an empty majorant block jump to the block's exit; a
+ * few passes let lanes cross several empty blocks before the next lookup. Moves k, ta and
+ * active; returns the majorant reads (LANES lanes each). */
+__attribute__((always_inline))
+uint skip_empty_blocksL(__global const float *majorant, int mx, int my, int mz, float3 bsize,
+                        float4 bmin, const TileRays *r, vL t0, vL t1, float step, vL *k,
+                        vL *ta, iL *active) {
+    uint reads = 0;
+    for (int pass = 0; pass < SKIP_PASSES; ++pass) {
+        /* Untruncated midpoint of the current segment (0 for idle lanes: stays finite). */
+        const vL tq = select((vL)(0.0f), *ta + 0.5f * step, *active);
+        const iL bx = convert_iL(clamp((r->ox + tq * r->dx - bmin.x) / bsize.x, (vL)(0.0f),
+                                       (vL)((float)(mx - 1))));
+        const iL by = convert_iL(clamp((r->oy + tq * r->dy - bmin.y) / bsize.y, (vL)(0.0f),
+                                       (vL)((float)(my - 1))));
+        const iL bz = convert_iL(clamp((r->oz + tq * r->dz - bmin.z) / bsize.z, (vL)(0.0f),
+                                       (vL)((float)(mz - 1))));
+        const iL empty = *active & (gatherL(majorant, (bz * my + by) * mx + bx) == 0.0f);
+        ++reads;
+        if (!any(empty)) break;
+        const vL t_exit = fmin(fmin(
+            slab_exitL(r->ox, r->dx, bmin.x + convert_vL(bx) * bsize.x, bsize.x),
+            slab_exitL(r->oy, r->dy, bmin.y + convert_vL(by) * bsize.y, bsize.y)),
+            slab_exitL(r->oz, r->dz, bmin.z + convert_vL(bz) * bsize.z, bsize.z));
+        /* First segment whose untruncated midpoint is at or past the block's exit;
+         * at least one segment of progress whatever the rounding. */
+        const vL k_star = ceil((t_exit - t0) / step - 0.5f);
+        *k = select(*k, fmax(*k + 1.0f, k_star), empty);
+        *ta = t0 + *k * step;
+        *active &= *ta < t1;
+    }
+    return reads;
+}
+#endif
+
+/* One segment [ta, ta + len] of each lane: returns its optical depth tau (sigma_t at the
+ * midpoint); e = e^-tau, w = T_cam (1 - e^-tau) its weight, ts where its source is read. */
+__attribute__((always_inline))
+vL segmentL(__global const float *density, int nx, int ny, int nz, float4 bmin, float3 cell,
+            float density_scale, const TileRays *r, vL ta, vL len, vL T, vL *e, vL *w,
+            vL *ts) {
+    const vL tm = ta + 0.5f * len;
+    const vL qx = r->ox + tm * r->dx, qy = r->oy + tm * r->dy, qz = r->oz + tm * r->dz;
+    const vL tau = density_scale * lookupL(density, nx, ny, nz,
+                                             (qx - bmin.x) / cell.x - 0.5f,
+                                             (qy - bmin.y) / cell.y - 0.5f,
+                                             (qz - bmin.z) / cell.z - 0.5f) * len;
+    /* 1 - e^-tau without cancellation: its series below 0.1 (truncation < tau^4/120
+     * relative), 1 - e^-tau above (rounding < 1.2e-7 / tau relative). Cheaper than
+     * expm1, which PoCL evaluates 4x slower than exp on float16. */
+    *e = exp(-tau);
+    const vL a_seg = select(1.0f - *e,
+                             tau * (1.0f - tau * (0.5f - tau * ((1.0f / 6.0f) - tau * (1.0f / 24.0f)))),
+                             tau < 0.1f);
+    *w = T * a_seg;
+    /* Where in the segment the light is scattered toward the camera, on average: the
+     * fraction frac = 1/tau - e^-tau / (1 - e^-tau) of its length (1/2 for thin segments,
+     * ~1/tau for opaque ones). Reading the source there rather than at the midpoint makes
+     * the segment integral exact for a source varying linearly along it; the density
+     * stays the midpoint's. Series below H_SERIES_BELOW (the direct form cancels; its 0/0
+     * at tau = 0 is never selected). */
+    const vL frac = select(1.0f / tau - *e / a_seg,
+                            0.5f - tau * (1.0f / 12.0f - tau * tau * (1.0f / 720.0f)),
+                            tau < H_SERIES_BELOW);
+    *ts = ta + frac * len;
+    return tau;
+}
+
+#if LIT
+/* Single scattering from the light field at the source point (T_light, or its optical depth
+ * with LIGHT_TAU), and with source 1 the Wrenninge octaves from it. */
+__attribute__((always_inline))
+void add_sunL(MarchSums *s, vL w, vL rx, vL ry, vL rz, __global const float *light, int ln,
+              float4 cube_min, float cube_size, float oct_a) {
+    const float lcell = cube_size / (float)ln;
+    /* Trilinear; -log T_light (>= 0; +inf where T underflowed to 0, and the octaves'
+     * exp(-a^i inf) = 0 then, a > 0 being enforced). */
+    const vL lf = lookupL(light, ln, ln, ln,
+                          (rx - cube_min.x) / lcell - 0.5f,
+                          (ry - cube_min.y) / lcell - 0.5f,
+                          (rz - cube_min.z) / lcell - 0.5f);
+#if LIGHT_TAU
+    const vL t_l = exp(-lf);
+#define TAU_L lf
+#else
+    const vL t_l = lf;
+#define TAU_L (-log(lf))
+#endif
+    s->S += w * t_l;
+#if MS_SOURCE == 1 && MS_OCTAVES > 1
+    /* T_light^(a^i) = exp(-a^i tau_l). */
+    const vL tau_l = TAU_L;
+    float ai = 1.0f;
+    for (int i = 0; i < MS_OCTAVES - 1; ++i) {
+        ai *= oct_a;
+        s->Mo[i] += w * exp(-ai * tau_l);
+    }
+#endif
+#undef TAU_L
+}
+#endif
+
+#if LIT && MS_SOURCE == 2
+/* Source 2: F_ms trilinear in the precomputed grid over gmin..gmax at the source point. */
+__attribute__((always_inline))
+void add_ms_gridL(MarchSums *s, vL w, vL rx, vL ry, vL rz, __global const float *ms_grid,
+                  int gx, int gy, int gz, float4 gmin, float4 gmax) {
+    const float3 gcell = (gmax.xyz - gmin.xyz) / (float3)((float)gx, (float)gy, (float)gz);
+    const int plane = gx * gy * gz;
+    const vL ux = (rx - gmin.x) / gcell.x - 0.5f;
+    const vL uy = (ry - gmin.y) / gcell.y - 0.5f;
+    const vL uz = (rz - gmin.z) / gcell.z - 0.5f;
+    for (int c = 0; c < MS_CHANNELS; ++c)
+        s->M[c] += w * lookupL(ms_grid + c * plane, gx, gy, gz, ux, uy, uz);
+}
+#endif
+
+#if LIT && MS_SOURCE == 3
+/* Source 3: F_ms at depth ts along the lane's ray, piecewise linear between its knots. */
+__attribute__((always_inline))
+void add_ms_viewL(MarchSums *s, vL w, vL ts, const ViewKnots *kn) {
+    vL ramp[VIEW_K];
+    for (int k = 0; k + 1 < VIEW_K; ++k)
+        ramp[k] = clamp((ts - kn->vd[k]) * kn->vinv[k], 0.0f, 1.0f);
+    vL f[MS_CHANNELS];
+    for (int c = 0; c < MS_CHANNELS; ++c) f[c] = kn->v0[c];
+    for (int k = 0; k + 1 < VIEW_K; ++k)
+        for (int c = 0; c < MS_CHANNELS; ++c) f[c] += kn->dv[c][k] * ramp[k];
+    for (int c = 0; c < MS_CHANNELS; ++c) s->M[c] += w * f[c];
+}
+#endif
+
+#if ENV
+/* The environment's source field at the source point (sky light is constant over the
+ * medium's colour, so it is a field of its own, not a light lookup). */
+__attribute__((always_inline))
+void add_environmentL(MarchSums *s, vL w, vL rx, vL ry, vL rz, __global const float *env,
+                      int en, float4 env_min, float env_size) {
+    const float ecell = env_size / (float)en;
+    const vL ex = (rx - env_min.x) / ecell - 0.5f;
+    const vL ey = (ry - env_min.y) / ecell - 0.5f;
+    const vL ez = (rz - env_min.z) / ecell - 0.5f;
+#if ENV_CHANNELS == 1
+    s->ES[0] += w * lookupL(env, en, en, en, ex, ey, ez);
+    s->EM[0] += w * lookupL(env + en * en * en, en, en, en, ex, ey, ez);
+#else
+    float e6[6][LANES];
+    lookupL_env6(env, en, ex, ey, ez, e6);
+    for (int c = 0; c < 3; ++c) {
+        s->ES[c] += w * vloadL(0, e6[c]);
+        s->EM[c] += w * vloadL(0, e6[3 + c]);
+    }
+#endif
+}
+#endif
+
+#if EMISSION
+/* Emission at the source point: T_cam (1 - e^-tau) Le(x_ts); Le = 0 outside its own box
+ * (EMISSION_BOX). (1 - albedo) and the colour are applied once per ray. */
+__attribute__((always_inline))
+void add_emissionL(MarchSums *s, vL w, vL rx, vL ry, vL rz, __global const float *em,
+                   int emx, int emy, int emz, float4 em_min, float4 em_max) {
+    const float3 emcell = (em_max.xyz - em_min.xyz) / (float3)((float)emx, (float)emy, (float)emz);
+    const int emplane = emx * emy * emz;
+    const vL ux = (rx - em_min.x) / emcell.x - 0.5f;
+    const vL uy = (ry - em_min.y) / emcell.y - 0.5f;
+    const vL uz = (rz - em_min.z) / emcell.z - 0.5f;
+#if EMISSION_BOX
+    const iL in_em = (rx >= em_min.x) & (rx <= em_max.x) & (ry >= em_min.y) &
+                      (ry <= em_max.y) & (rz >= em_min.z) & (rz <= em_max.z);
+    const vL we = select((vL)(0.0f), w, in_em);
+#else
+    const vL we = w;
+#endif
+    for (int c = 0; c < EMISSION_CHANNELS; ++c)
+        s->EE[c] += we * lookupL(em + c * emplane, emx, emy, emz, ux, uy, uz);
+}
+#endif
+
+#if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
+/* The octaves' sums into F_ms, each with its per-ray phase weight. */
+__attribute__((always_inline))
+void fold_octavesL(MarchSums *s, float ow[MS_OCTAVES - 1][LANES]) {
+    for (int i = 0; i < MS_OCTAVES - 1; ++i) s->M[0] += vloadL(0, ow[i]) * s->Mo[i];
+}
+#endif
+
+/* The sun's single and multiple layers (RGB) from the sums: colour once per ray. */
+__attribute__((always_inline))
+void sun_layersL(const MarchSums *s, vL f0, float4 albedo, float4 irradiance, vL sgl[3],
+                 vL mul[3]) {
+    const float3 ae = albedo.xyz * irradiance.xyz;
+    for (int c = 0; c < 3; ++c) sgl[c] = mul[c] = (vL)(0.0f);
+#if LIT
+    sgl[0] = ae.x * (f0 * s->S); sgl[1] = ae.y * (f0 * s->S); sgl[2] = ae.z * (f0 * s->S);
+#if MS_SOURCE >= 1
+    mul[0] = ae.x * s->M[0]; mul[1] = ae.y * s->M[MS_PLANES / 2];
+    mul[2] = ae.z * s->M[MS_PLANES - 1];
+#endif
+#endif
+}
+
+#if ENV
+/* The environment's share of the single and multiple layers, coloured once per ray. */
+__attribute__((always_inline))
+void add_environment_layersL(const MarchSums *s, float4 env_colour, vL sgl[3], vL mul[3]) {
+    sgl[0] += env_colour.x * s->ES[0]; sgl[1] += env_colour.y * s->ES[ENV_CHANNELS / 2];
+    sgl[2] += env_colour.z * s->ES[ENV_CHANNELS - 1];
+    mul[0] += env_colour.x * s->EM[0]; mul[1] += env_colour.y * s->EM[ENV_CHANNELS / 2];
+    mul[2] += env_colour.z * s->EM[ENV_CHANNELS - 1];
+}
+#endif
+
+__attribute__((always_inline))
+void store_rgb(__global float *out, const vL v[3], iL pix, iL valid) {
+    for (int c = 0; c < 3; ++c) store_lanes(out, 3, c, v[c], pix, valid);
+}
+
+/* A tile's layers into the images: total (with the background seen through T_cam), single,
+ * multiple, alpha, depth, and with EMISSION the emission layer. Padding lanes are not stored. */
+__attribute__((always_inline))
+void store_tileL(const MarchSums *s, const vL sgl[3], const vL mul[3], iL pix, iL valid,
+                 float4 background, float4 albedo, __global float *total,
+                 __global float *single, __global float *multiple, __global float *alpha,
+                 __global float *depth
+#if BG_IMAGE
+                 , __global const float *bg_image
+#endif
+#if EMISSION
+                 , float4 em_colour, __global float *emission_out
+#endif
+                 ) {
+    vL bg[3];
+#if BG_IMAGE
+    /* Padding lanes read pixel 0 (never stored). */
+    const iL bgi = select((iL)(0), pix, valid) * 3;
+    for (int c = 0; c < 3; ++c) bg[c] = gatherL(bg_image, bgi + c);
+#else
+    bg[0] = (vL)(background.x); bg[1] = (vL)(background.y); bg[2] = (vL)(background.z);
+#endif
+    store_rgb(single, sgl, pix, valid);
+    store_rgb(multiple, mul, pix, valid);
+    vL tot[3];
+#if EMISSION
+    /* sigma_a Le = sigma_t (1 - albedo) em_colour planes: colour once per ray. */
+    const float3 ea = (float3)(1.0f) - albedo.xyz;
+    const vL emi[3] = {(ea.x * em_colour.x) * s->EE[0],
+                       (ea.y * em_colour.y) * s->EE[EMISSION_CHANNELS / 2],
+                       (ea.z * em_colour.z) * s->EE[EMISSION_CHANNELS - 1]};
+    store_rgb(emission_out, emi, pix, valid);
+    for (int c = 0; c < 3; ++c) tot[c] = sgl[c] + mul[c] + emi[c] + s->T * bg[c];
+#else
+    for (int c = 0; c < 3; ++c) tot[c] = sgl[c] + mul[c] + s->T * bg[c];
+#endif
+    store_rgb(total, tot, pix, valid);
+    store_lanes(alpha, 1, 0, s->A, pix, valid);
+    store_lanes(depth, 1, 0, select((vL)(0.0f), s->D / s->A, s->A > 0.0f), pix, valid);
+}
+
 __kernel void raymarch(
     __global const float *density, const int nx, const int ny, const int nz,
     const float4 bmin, const float4 bmax, const float density_scale,
@@ -323,154 +763,26 @@ __kernel void raymarch(
     const iL py = ty * TILE_ROWS + (LANE_IOTA >> (iL)(2));
     const iL valid = (px < width) & (py < height);
 
-    /* Camera rays: camera_ray of grid.h, lane by lane. */
-    const vL sx = (2.0f * (convert_vL(px) + 0.5f) / (float)width - 1.0f) * tan_half
-                   * ((float)width / (float)height);
-    const vL sy = (1.0f - 2.0f * (convert_vL(py) + 0.5f) / (float)height) * tan_half;
-    vL dx = forward.x + sx * right.x + sy * up.x;
-    vL dy = forward.y + sx * right.y + sy * up.y;
-    vL dz = forward.z + sx * right.z + sy * up.z;
-    {
-        const vL len = sqrt(dx * dx + dy * dy + dz * dz);  /* >= 1: forward is orthogonal */
-        dx /= len; dy /= len; dz /= len;
-    }
-    const float ox = origin.x, oy = origin.y, oz = origin.z;
+    const TileRays rays = camera_raysL(px, py, width, height, tan_half, origin, forward, right,
+                                       up);
+    vL t0, t1;
+    const iL hit = box_spanL(&rays, bmin, bmax, valid, &t0, &t1);
 
-    /* Box entry and exit (box_intersect of grid.h, lane by lane), from t = 0. */
-    vL lo = (vL)(0.0f), hi = (vL)(INFINITY);
-    iL miss = ~valid;
-#define SLAB(D, O, MN, MX)                                                              \
-    {                                                                                   \
-        const iL zero = D == 0.0f;                                                     \
-        miss |= zero & (iL)((O < MN || O > MX) ? -1 : 0);                              \
-        const vL inv = 1.0f / D;                                                       \
-        const vL ta = (MN - O) * inv, tb = (MX - O) * inv;                             \
-        lo = select(fmax(lo, fmin(ta, tb)), lo, zero);                                  \
-        hi = select(fmin(hi, fmax(ta, tb)), hi, zero);                                  \
-    }
-    SLAB(dx, ox, bmin.x, bmax.x)
-    SLAB(dy, oy, bmin.y, bmax.y)
-    SLAB(dz, oz, bmin.z, bmax.z)
-#undef SLAB
-    miss |= lo > hi;
-    /* Missed lanes get the empty interval [0, 0]: finite, never active. */
-    const vL t0 = select(lo, (vL)(0.0f), miss), t1 = select(hi, (vL)(0.0f), miss);
-    const iL hit = ~miss;
-
-    /* Per-ray phase values: omega is constant along a camera ray, so the phase function
-     * (and each octave's) is evaluated once per ray, not per step. */
-    const vL mu = dx * light_dir.x + dy * light_dir.y + dz * light_dir.z;  /* dot(-l, omega) */
-    vL f0;
+    /* dot(-l, omega) */
+    const vL mu = rays.dx * light_dir.x + rays.dy * light_dir.y + rays.dz * light_dir.z;
+    const vL f0 = ray_phaseL(mu, lobe_g, lobe_w);
 #if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
-    float ow[MS_OCTAVES - 1][LANES];  /* octave weights b^i f(mu; g c^i) per lane */
+    float ow[MS_OCTAVES - 1][LANES];
+    octave_weights(mu, lobe_g, lobe_w, oct_b, oct_c, ow);
 #endif
-    {
-        float m[LANES], f[LANES];
-        vstoreL(mu, 0, m);
-        for (int j = 0; j < LANES; ++j) f[j] = phase_eval(m[j], lobe_g, lobe_w);
-        f0 = vloadL(0, f);
-#if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
-        float ci = 1.0f, bi = 1.0f;
-        for (int i = 0; i < MS_OCTAVES - 1; ++i) {
-            ci *= oct_c;
-            bi *= oct_b;
-            /* Component-wise: Oclgrind 21.10's uninitialised-value checker crashed on the
-             * float4 * float form here. */
-            const float4 gi = (float4)(lobe_g.x * ci, lobe_g.y * ci, lobe_g.z * ci, lobe_g.w * ci);
-            for (int j = 0; j < LANES; ++j) ow[i][j] = bi * phase_eval(m[j], gi, lobe_w);
-        }
-#endif
-    }
-
 #if MS_SOURCE == 3
-    /* The lane's knots: depth vd[k], F_ms v0 + sum of ramps dv[k] over [vd[k], vd[k+1]]
-     * (the piecewise-linear interpolant as a sum of clamped ramps: no per-step search). */
-    vL vd[VIEW_K], vinv[VIEW_K], v0[MS_CHANNELS], dv[MS_CHANNELS][VIEW_K];
-    {
-        const int plane = gx * gy * gz;
-        float kd[VIEW_K][LANES], kv[MS_CHANNELS][VIEW_K][LANES];
-        int pxs[LANES], pys[LANES];
-        vstoreL(px, 0, pxs);
-        vstoreL(py, 0, pys);
-        for (int j = 0; j < LANES; ++j) {
-            /* Bilinear between block centres (block i's centre is pixel position (i + 1/2) B). */
-            const float u = clamp(((float)pxs[j] + 0.5f) / (float)VIEW_BLOCK - 0.5f, 0.0f, (float)(gy - 1));
-            const float v = clamp(((float)pys[j] + 0.5f) / (float)VIEW_BLOCK - 0.5f, 0.0f, (float)(gz - 1));
-            const int i0 = (int)u, j0 = (int)v;
-            const int i1 = min(i0 + 1, gy - 1), j1 = min(j0 + 1, gz - 1);
-            const float fu = u - (float)i0, fv = v - (float)j0;
-            const int blk[4] = {j0 * gy + i0, j0 * gy + i1, j1 * gy + i0, j1 * gy + i1};
-            float bw[4] = {(1.0f - fu) * (1.0f - fv), fu * (1.0f - fv), (1.0f - fu) * fv, fu * fv};
-            float sum = 0.0f;
-            for (int q = 0; q < 4; ++q) {
-                if (ms_grid[blk[q] * gx] < 0.0f) bw[q] = 0.0f;   /* empty block */
-                sum += bw[q];
-            }
-            /* sum = 0 only where no neighbour saw medium: no knots, F_ms = 0 */
-            const float inv = sum > 0.0f ? 1.0f / sum : 0.0f;
-            for (int k = 0; k < VIEW_K; ++k) {
-                float a = 0.0f;
-                for (int q = 0; q < 4; ++q) a += bw[q] * inv * ms_grid[blk[q] * gx + k];
-                kd[k][j] = a;
-                for (int c = 0; c < MS_CHANNELS; ++c) {
-                    float b = 0.0f;
-                    for (int q = 0; q < 4; ++q)
-                        b += bw[q] * inv * ms_grid[(1 + c) * plane + blk[q] * gx + k];
-                    kv[c][k][j] = b;
-                }
-            }
-        }
-        for (int k = 0; k < VIEW_K; ++k) vd[k] = vloadL(0, kd[k]);
-        for (int k = 0; k + 1 < VIEW_K; ++k)
-            vinv[k] = 1.0f / fmax(vd[k + 1] - vd[k], (vL)(1e-30f));
-        for (int c = 0; c < MS_CHANNELS; ++c) {
-            v0[c] = vloadL(0, kv[c][0]);
-            for (int k = 0; k + 1 < VIEW_K; ++k)
-                dv[c][k] = vloadL(0, kv[c][k + 1]) - vloadL(0, kv[c][k]);
-        }
-    }
+    ViewKnots knots;
+    view_knotsL(ms_grid, gx, gy, gz, px, py, &knots);
 #endif
     const float3 cell = (bmax.xyz - bmin.xyz) / (float3)((float)nx, (float)ny, (float)nz);
-#if SKIP_EMPTY
-    const float3 bsize = cell * (float)block;
-#endif
-    const float lcell = cube_size / (float)ln;
-#if MS_SOURCE == 2
-    const float3 gcell = (gmax.xyz - gmin.xyz) / (float3)((float)gx, (float)gy, (float)gz);
-    const int plane = gx * gy * gz;
-#endif
 
-    vL k = (vL)(0.0f), T = (vL)(1.0f), S = (vL)(0.0f), A = (vL)(0.0f), D = (vL)(0.0f);
-#if MS_SOURCE == 1 && LIT && MS_OCTAVES > 1
-    /* One sum per octave; its per-ray phase weight is applied after the march. */
-    vL Mo[MS_OCTAVES - 1];
-    for (int i = 0; i < MS_OCTAVES - 1; ++i) Mo[i] = (vL)(0.0f);
-#endif
-#if MS_SOURCE == 1 || (MS_SOURCE >= 2 && MS_CHANNELS == 1)
-    vL M = (vL)(0.0f);
-#elif MS_SOURCE >= 2
-    vL M0 = (vL)(0.0f), M1 = (vL)(0.0f), M2 = (vL)(0.0f);
-#endif
-
-#if ENV
-    const float ecell = env_size / (float)en;
-    const int eplane = en * en * en;
-#if ENV_CHANNELS == 1
-    vL ES = (vL)(0.0f), EM = (vL)(0.0f);
-#else
-    vL ES0 = (vL)(0.0f), ES1 = (vL)(0.0f), ES2 = (vL)(0.0f);
-    vL EM0 = (vL)(0.0f), EM1 = (vL)(0.0f), EM2 = (vL)(0.0f);
-#endif
-#endif
-#if EMISSION
-    const float3 emcell = (em_max.xyz - em_min.xyz) / (float3)((float)emx, (float)emy, (float)emz);
-    const int emplane = emx * emy * emz;
-#if EMISSION_CHANNELS == 1
-    vL EE = (vL)(0.0f);
-#else
-    vL EE0 = (vL)(0.0f), EE1 = (vL)(0.0f), EE2 = (vL)(0.0f);
-#endif
-#endif
+    vL k = (vL)(0.0f);
+    MarchSums s = march_sums_new();
 #if RAYMARCH_STATS
     uint n_iter = 0, n_lit = 0, n_maj = 0, n_active = 0;
 #endif
@@ -480,251 +792,71 @@ __kernel void raymarch(
          * 2^24, or step below t's float32 rounding: a camera far from a small box); nowhere
          * else does this hold, so it changes no image that can be marched (the host reports
          * when it may bind: clvol/render/raymarch.py march_bound). */
-        iL active = hit & (ta < t1) & (T >= threshold) & (t0 + (k + 1.0f) * step > ta);
+        iL active = hit & (ta < t1) & (s.T >= threshold) & (t0 + (k + 1.0f) * step > ta);
         if (!any(active)) break;
+#if SKIP_EMPTY
+        const uint reads = skip_empty_blocksL(majorant, mx, my, mz, cell * (float)block, bmin,
+                                              &rays, t0, t1, step, &k, &ta, &active);
+#endif
 #if RAYMARCH_STATS
         ++n_iter;
-#endif
 #if SKIP_EMPTY
-        /* A lane whose segment midpoint lies in an empty block jumps to the block's exit;
-         * a few passes let lanes cross several empty blocks before the next lookup. */
-        for (int pass = 0; pass < SKIP_PASSES; ++pass) {
-            /* Untruncated midpoint of the current segment (0 for idle lanes: stays finite). */
-            const vL tq = select((vL)(0.0f), ta + 0.5f * step, active);
-            const iL bx = convert_iL(clamp((ox + tq * dx - bmin.x) / bsize.x, (vL)(0.0f),
-                                                   (vL)((float)(mx - 1))));
-            const iL by = convert_iL(clamp((oy + tq * dy - bmin.y) / bsize.y, (vL)(0.0f),
-                                                   (vL)((float)(my - 1))));
-            const iL bz = convert_iL(clamp((oz + tq * dz - bmin.z) / bsize.z, (vL)(0.0f),
-                                                   (vL)((float)(mz - 1))));
-            const iL empty = active & (gatherL(majorant, (bz * my + by) * mx + bx) == 0.0f);
-#if RAYMARCH_STATS
-            ++n_maj;
+        n_maj += reads;
 #endif
-            if (!any(empty)) break;
-            const vL t_exit = fmin(fmin(
-                slab_exitL(ox, dx, bmin.x + convert_vL(bx) * bsize.x, bsize.x),
-                slab_exitL(oy, dy, bmin.y + convert_vL(by) * bsize.y, bsize.y)),
-                slab_exitL(oz, dz, bmin.z + convert_vL(bz) * bsize.z, bsize.z));
-            /* First segment whose untruncated midpoint is at or past the block's exit;
-             * at least one segment of progress whatever the rounding. */
-            const vL k_star = ceil((t_exit - t0) / step - 0.5f);
-            k = select(k, fmax(k + 1.0f, k_star), empty);
-            ta = t0 + k * step;
-            active &= ta < t1;
-        }
-#endif
-#if RAYMARCH_STATS
-        {
-            const iL one = active & (iL)(1);
-            n_active += (uint)LANE_SUM(one);
-        }
+        n_active += (uint)LANE_SUM(active & (iL)(1));
 #endif
         const vL len = select((vL)(0.0f), fmin(ta + step, t1) - ta, active);
         ta = select((vL)(0.0f), ta, active);
-        const vL tm = ta + 0.5f * len;
-        const vL qx = ox + tm * dx, qy = oy + tm * dy, qz = oz + tm * dz;
-        const vL tau = density_scale * lookupL(density, nx, ny, nz,
-                                                 (qx - bmin.x) / cell.x - 0.5f,
-                                                 (qy - bmin.y) / cell.y - 0.5f,
-                                                 (qz - bmin.z) / cell.z - 0.5f) * len;
-        /* 1 - e^-tau without cancellation: its series below 0.1 (truncation < tau^4/120
-         * relative), 1 - e^-tau above (rounding < 1.2e-7 / tau relative). Cheaper than
-         * expm1, which PoCL evaluates 4x slower than exp on float16. */
-        const vL e = exp(-tau);
-        const vL a_seg = select(1.0f - e,
-                                 tau * (1.0f - tau * (0.5f - tau * ((1.0f / 6.0f) - tau * (1.0f / 24.0f)))),
-                                 tau < 0.1f);
-        const vL w = T * a_seg;
-        /* Where in the segment the light is scattered toward the camera, on average: the
-         * fraction frac = 1/tau - e^-tau / (1 - e^-tau) of its length (1/2 for thin segments,
-         * ~1/tau for opaque ones). Reading the source there rather than at the midpoint makes
-         * the segment integral exact for a source varying linearly along it; the density
-         * stays the midpoint's. Series below H_SERIES_BELOW (the direct form cancels; its 0/0
-         * at tau = 0 is never selected). */
-        const vL frac = select(1.0f / tau - e / a_seg,
-                                0.5f - tau * (1.0f / 12.0f - tau * tau * (1.0f / 720.0f)),
-                                tau < H_SERIES_BELOW);
-        const vL ts = ta + frac * len;
-        const vL rx = ox + ts * dx, ry = oy + ts * dy, rz = oz + ts * dz;
-#if LIT
-        /* Segments where all lanes are empty add nothing: skip the light lookup. */
+        vL e, w, ts;
+        const vL tau = segmentL(density, nx, ny, nz, bmin, cell, density_scale, &rays, ta, len,
+                                s.T, &e, &w, &ts);
+        const vL rx = rays.ox + ts * rays.dx, ry = rays.oy + ts * rays.dy;
+        const vL rz = rays.oz + ts * rays.dz;
+        /* Segments where all lanes are empty add nothing: no source lookups. */
         if (any(tau > 0.0f)) {
+#if LIT
 #if RAYMARCH_STATS
             ++n_lit;
 #endif
-            /* The light field, trilinear; -log T_light (>= 0; +inf where T underflowed to 0,
-             * and the octaves' exp(-a^i inf) = 0 then, a > 0 being enforced). */
-            const vL lf = lookupL(light, ln, ln, ln,
-                                    (rx - cube_min.x) / lcell - 0.5f,
-                                    (ry - cube_min.y) / lcell - 0.5f,
-                                    (rz - cube_min.z) / lcell - 0.5f);
-#if LIGHT_TAU
-            const vL t_l = exp(-lf);
-#define TAU_L lf
-#else
-            const vL t_l = lf;
-#define TAU_L (-log(lf))
-#endif
-            S += w * t_l;
-#if MS_SOURCE == 1 && MS_OCTAVES > 1
-            /* T_light^(a^i) = exp(-a^i tau_l). */
-            const vL tau_l = TAU_L;
-            float ai = 1.0f;
-            for (int i = 0; i < MS_OCTAVES - 1; ++i) {
-                ai *= oct_a;
-                Mo[i] += w * exp(-ai * tau_l);
-            }
-#elif MS_SOURCE == 2
-            const vL ux = (rx - gmin.x) / gcell.x - 0.5f;
-            const vL uy = (ry - gmin.y) / gcell.y - 0.5f;
-            const vL uz = (rz - gmin.z) / gcell.z - 0.5f;
-#if MS_CHANNELS == 1
-            M += w * lookupL(ms_grid, gx, gy, gz, ux, uy, uz);
-#else
-            M0 += w * lookupL(ms_grid, gx, gy, gz, ux, uy, uz);
-            M1 += w * lookupL(ms_grid + plane, gx, gy, gz, ux, uy, uz);
-            M2 += w * lookupL(ms_grid + 2 * plane, gx, gy, gz, ux, uy, uz);
-#endif
+            add_sunL(&s, w, rx, ry, rz, light, ln, cube_min, cube_size, oct_a);
+#if MS_SOURCE == 2
+            add_ms_gridL(&s, w, rx, ry, rz, ms_grid, gx, gy, gz, gmin, gmax);
 #elif MS_SOURCE == 3
-            vL ramp[VIEW_K];
-            for (int k = 0; k + 1 < VIEW_K; ++k)
-                ramp[k] = clamp((ts - vd[k]) * vinv[k], 0.0f, 1.0f);
-#if MS_CHANNELS == 1
-            vL f = v0[0];
-            for (int k = 0; k + 1 < VIEW_K; ++k) f += dv[0][k] * ramp[k];
-            M += w * f;
-#else
-            vL f0_ = v0[0], f1_ = v0[1], f2_ = v0[2];
-            for (int k = 0; k + 1 < VIEW_K; ++k) {
-                f0_ += dv[0][k] * ramp[k];
-                f1_ += dv[1][k] * ramp[k];
-                f2_ += dv[2][k] * ramp[k];
-            }
-            M0 += w * f0_;
-            M1 += w * f1_;
-            M2 += w * f2_;
+            add_ms_viewL(&s, w, ts, &knots);
 #endif
-#endif
-        }
 #endif
 #if ENV
-        /* The environment's source field at the same source point (sky light is constant
-         * over the medium's colour, so it is a field of its own, not a light lookup). */
-        if (any(tau > 0.0f)) {
-            const vL ex = (rx - env_min.x) / ecell - 0.5f;
-            const vL ey = (ry - env_min.y) / ecell - 0.5f;
-            const vL ez = (rz - env_min.z) / ecell - 0.5f;
-#if ENV_CHANNELS == 1
-            ES += w * lookupL(env, en, en, en, ex, ey, ez);
-            EM += w * lookupL(env + eplane, en, en, en, ex, ey, ez);
-#else
-            float e6[6][LANES];
-            lookupL_env6(env, en, ex, ey, ez, e6);
-            ES0 += w * vloadL(0, e6[0]);
-            ES1 += w * vloadL(0, e6[1]);
-            ES2 += w * vloadL(0, e6[2]);
-            EM0 += w * vloadL(0, e6[3]);
-            EM1 += w * vloadL(0, e6[4]);
-            EM2 += w * vloadL(0, e6[5]);
-#endif
-        }
+            add_environmentL(&s, w, rx, ry, rz, env, en, env_min, env_size);
 #endif
 #if EMISSION
-        /* Emission at the segment's source point: T_cam (1 - e^-tau) Le(x_ts); (1 - albedo)
-         * and the colour are applied once per ray. */
-        if (any(tau > 0.0f)) {
-            const vL ux = (rx - em_min.x) / emcell.x - 0.5f;
-            const vL uy = (ry - em_min.y) / emcell.y - 0.5f;
-            const vL uz = (rz - em_min.z) / emcell.z - 0.5f;
-#if EMISSION_BOX
-            const iL in_em = (rx >= em_min.x) & (rx <= em_max.x) & (ry >= em_min.y) &
-                              (ry <= em_max.y) & (rz >= em_min.z) & (rz <= em_max.z);
-            const vL we = select((vL)(0.0f), w, in_em);
-#else
-            const vL we = w;
-#endif
-#if EMISSION_CHANNELS == 1
-            EE += we * lookupL(em, emx, emy, emz, ux, uy, uz);
-#else
-            EE0 += we * lookupL(em, emx, emy, emz, ux, uy, uz);
-            EE1 += we * lookupL(em + emplane, emx, emy, emz, ux, uy, uz);
-            EE2 += we * lookupL(em + 2 * emplane, emx, emy, emz, ux, uy, uz);
+            add_emissionL(&s, w, rx, ry, rz, em, emx, emy, emz, em_min, em_max);
 #endif
         }
-#endif
-        A += w;
+        s.A += w;
         /* Depth: the same mean position, t_a + frac * len, weighted by this segment's share
          * of the extinction (exact for a constant sigma_t over the segment). */
-        D += w * ts;
-        T *= e;
+        s.D += w * ts;
+        s.T *= e;
         k += select((vL)(0.0f), (vL)(1.0f), active);
     }
 
-#if MS_SOURCE == 1 && LIT && MS_OCTAVES > 1
-    for (int i = 0; i < MS_OCTAVES - 1; ++i) M += vloadL(0, ow[i]) * Mo[i];
+#if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
+    fold_octavesL(&s, ow);
 #endif
-    /* Colour, once per ray. */
-    const float3 ae = albedo.xyz * irradiance.xyz;
-    vL s_r = (vL)(0.0f), s_g = (vL)(0.0f), s_b = (vL)(0.0f);
-    vL m_r = (vL)(0.0f), m_g = (vL)(0.0f), m_b = (vL)(0.0f);
-#if LIT
-    s_r = ae.x * (f0 * S); s_g = ae.y * (f0 * S); s_b = ae.z * (f0 * S);
-#if MS_SOURCE == 1 || (MS_SOURCE >= 2 && MS_CHANNELS == 1)
-    m_r = ae.x * M; m_g = ae.y * M; m_b = ae.z * M;
-#elif MS_SOURCE >= 2
-    m_r = ae.x * M0; m_g = ae.y * M1; m_b = ae.z * M2;
-#endif
-#endif
+    vL sgl[3], mul[3];   /* single and multiple, RGB */
+    sun_layersL(&s, f0, albedo, irradiance, sgl, mul);
 #if ENV
-#if ENV_CHANNELS == 1
-    s_r += env_colour.x * ES; s_g += env_colour.y * ES; s_b += env_colour.z * ES;
-    m_r += env_colour.x * EM; m_g += env_colour.y * EM; m_b += env_colour.z * EM;
-#else
-    s_r += env_colour.x * ES0; s_g += env_colour.y * ES1; s_b += env_colour.z * ES2;
-    m_r += env_colour.x * EM0; m_g += env_colour.y * EM1; m_b += env_colour.z * EM2;
+    add_environment_layersL(&s, env_colour, sgl, mul);
 #endif
-#endif
-    const iL pix = py * width + px;
+    store_tileL(&s, sgl, mul, py * width + px, valid, background, albedo, total, single,
+                multiple, alpha, depth
 #if BG_IMAGE
-    /* Padding lanes read pixel 0 (never stored). */
-    const iL bgi = select((iL)(0), pix, valid) * 3;
-    const vL bg_r = gatherL(bg_image, bgi), bg_g = gatherL(bg_image, bgi + 1),
-              bg_b = gatherL(bg_image, bgi + 2);
-#else
-#define bg_r background.x
-#define bg_g background.y
-#define bg_b background.z
+                , bg_image
 #endif
-    store_lanes(single, 3, 0, s_r, pix, valid);
-    store_lanes(single, 3, 1, s_g, pix, valid);
-    store_lanes(single, 3, 2, s_b, pix, valid);
-    store_lanes(multiple, 3, 0, m_r, pix, valid);
-    store_lanes(multiple, 3, 1, m_g, pix, valid);
-    store_lanes(multiple, 3, 2, m_b, pix, valid);
 #if EMISSION
-    /* sigma_a Le = sigma_t (1 - albedo) em_colour planes: colour once per ray. */
-    const float3 ea = (float3)(1.0f) - albedo.xyz;
-#if EMISSION_CHANNELS == 1
-    const vL e_r = (ea.x * em_colour.x) * EE, e_g = (ea.y * em_colour.y) * EE,
-              e_b = (ea.z * em_colour.z) * EE;
-#else
-    const vL e_r = (ea.x * em_colour.x) * EE0, e_g = (ea.y * em_colour.y) * EE1,
-              e_b = (ea.z * em_colour.z) * EE2;
+                , em_colour, emission_out
 #endif
-    store_lanes(emission_out, 3, 0, e_r, pix, valid);
-    store_lanes(emission_out, 3, 1, e_g, pix, valid);
-    store_lanes(emission_out, 3, 2, e_b, pix, valid);
-    store_lanes(total, 3, 0, s_r + m_r + e_r + T * bg_r, pix, valid);
-    store_lanes(total, 3, 1, s_g + m_g + e_g + T * bg_g, pix, valid);
-    store_lanes(total, 3, 2, s_b + m_b + e_b + T * bg_b, pix, valid);
-#else
-    store_lanes(total, 3, 0, s_r + m_r + T * bg_r, pix, valid);
-    store_lanes(total, 3, 1, s_g + m_g + T * bg_g, pix, valid);
-    store_lanes(total, 3, 2, s_b + m_b + T * bg_b, pix, valid);
-#endif
-    store_lanes(alpha, 1, 0, A, pix, valid);
-    store_lanes(depth, 1, 0, select((vL)(0.0f), D / A, A > 0.0f), pix, valid);
+                );
 #if RAYMARCH_STATS
     /* Per tile: march iterations (each one density lookup on LANES lanes), iterations
      * with a light lookup, majorant reads (LANES lanes each) and active lane-segments. */

@@ -116,8 +116,8 @@ def _shadow_rate_bias(text: str) -> str:
         text, r"vf tau = -log\(1\.0f - pt_lanes_take\(S, ok\)\);",
         "vf tau = -log(1.0f - pt_lanes_take(S, ok)) / select((vf)(1.0f), (vf)(1.01f), shadow);")
     return _exactly_once(
-        text, r"tau = select\(tau, -log\(1\.0f - pt_lanes_take\(&S, more\)\), more\);",
-        "tau = select(tau, -log(1.0f - pt_lanes_take(&S, more)) / "
+        text, r"tau = select\(tau, -log\(1\.0f - pt_lanes_take\(S, more\)\), more\);",
+        "tau = select(tau, -log(1.0f - pt_lanes_take(S, more)) / "
         "select((vf)(1.0f), (vf)(1.01f), shadow), more);")
 
 
