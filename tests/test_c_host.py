@@ -151,12 +151,15 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
 
     rt = rtm.get_runtime()
     built = set()
-    orig = rt.program
+    orig = rtm.Runtime.program
 
-    def recording(stem, defines=None, extra_options=()):
-        built.add((stem, tuple(rtm._define_flags(defines))))
-        return orig(stem, defines, extra_options)
-    monkeypatch.setattr(rt, "program", recording)
+    # Patched on the class: patching the shared instance would leave, after undo, the bound
+    # method as an instance attribute that hides later class patches (tests/test_plan.py's)
+    def recording(self, stem, defines=None, extra_options=()):
+        if self is rt:
+            built.add((stem, tuple(rtm._define_flags(defines))))
+        return orig(self, stem, defines, extra_options)
+    monkeypatch.setattr(rtm.Runtime, "program", recording)
     # The C host launches the gather and the network as two kernels; Python's default fuses
     # them (cl/gather_mlp.cl, the same bits: tests/test_gather_mlp.py). The programs are
     # compared with Python's unfused path, the image with both.

@@ -116,6 +116,10 @@ def variants() -> list[tuple[str, str, dict]]:
             for pocl in (False, True):
                 v.append((f"gather_mlp-{k}-c{ch}-p{int(pocl)}", "gather_mlp",
                           dict(_gather(LOBES[k], True, pocl), **_mlp(ch, True, pocl))))
+    # the dense layers' array form, a driver workaround (clvol/runtime.py driver_defines: rusticl)
+    v.append(("mlp-dense-array", "mlp", dict(_mlp(3, True, False), MLP_DENSE_ARRAY=1)))
+    v.append(("gather_mlp-dense-array", "gather_mlp",
+              dict(_gather(LOBES["mhg3"], True, False), **_mlp(1, True, False), MLP_DENSE_ARRAY=1)))
     for k, d in (("k4", {"VIEW_K": 4, "VIEW_BLOCK": 4, "VIEW_RAYS": 2}),
                  ("jitter", {"VIEW_K": 2, "VIEW_BLOCK": 8, "VIEW_RAYS": 1, "VIEW_JITTER": 1}),
                  ("flight", {"VIEW_K": 1, "VIEW_BLOCK": 4, "VIEW_RAYS": 1, "VIEW_JITTER": 1,
