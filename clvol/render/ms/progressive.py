@@ -59,7 +59,7 @@ from ...errors import ClvolError
 from ...runtime import Stopwatch
 from .base import option
 from .view import (DOMAIN_FALLBACK_OPTION, STILL_SAMPLES, VIEW_BLOCK_OPTION, WEIGHTS_OPTION,
-                   StochasticViewMs, _History, _is_int, auto_block)
+                   StochasticViewMs, _is_int)
 
 PATHS_PER_QUERY = 4          # paths per path-traced point (a round's paths: PATHS_PER_QUERY x
                              # the chosen points)
@@ -414,24 +414,10 @@ class ProgressiveViewMs(StochasticViewMs):
         return t, info
 
     def prepare(self, frame) -> None:
-        from ...kernels.viewdepth import block_grid
         self.info = {}
-        self._ensure_network(frame)
-        if self._history_grid is not frame.grid:
-            self.history = None                          # a new density: start again
-            self._history_grid = frame.grid
-        cam, m = frame.camera, frame.medium
-        grey = frame.shortcuts and m.is_grey
-        self.block = (auto_block(cam.width, cam.height) if self.fixed_block is None
-                      else self.fixed_block)
-        bx, by = block_grid(cam.width, cam.height, self.block)
-        h = self.history
-        fresh = h is None or frame.key is None or h.key != frame.key
-        if fresh:
-            h = self.history = _History(frame.key, 1 if grey else 3, by, bx)
-        moved = h.camera is not None and (tuple(h.camera.origin) != tuple(cam.origin) or
-                                          not np.array_equal(np.concatenate(h.camera.basis()),
-                                                             np.concatenate(cam.basis())))
+        h, fresh, moved = self._frame_history(frame)
+        cam = frame.camera
+        by, bx = h.count.shape
         builds = self.net.graded_builds
         times = {"light": 0.0, "gather": 0.0, "network": 0.0, "points": 0}
 

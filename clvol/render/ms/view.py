@@ -387,27 +387,35 @@ class StochasticViewMs(ViewMs):
         h.sums, h.count, h.depth = sums, count, depth
         h.still = 0
 
-    def prepare(self, frame) -> None:
+    def _frame_history(self, frame):
+        """(history, fresh, moved) for this frame: the network ready, the block size chosen,
+        the history started again for a new density or key (light, medium, image layout),
+        and whether the camera moved since the history's last frame."""
         from ...kernels.viewdepth import block_grid
-        if self.info:
-            self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0,
-                             reproject=0.0, points=0)
         self._ensure_network(frame)
         if self._history_grid is not frame.grid:
             self.history = None                          # a new density: start again
             self._history_grid = frame.grid
-        cam, m = frame.camera, frame.medium
-        grey = frame.shortcuts and m.is_grey
+        cam = frame.camera
+        grey = frame.shortcuts and frame.medium.is_grey
         self.block = (auto_block(cam.width, cam.height) if self.fixed_block is None
                       else self.fixed_block)
-        key = frame.key
         bx, by = block_grid(cam.width, cam.height, self.block)
         h = self.history
-        if h is None or key is None or h.key != key:
-            h = self.history = _History(key, 1 if grey else 3, by, bx)
+        fresh = h is None or frame.key is None or h.key != frame.key
+        if fresh:
+            h = self.history = _History(frame.key, 1 if grey else 3, by, bx)
         moved = h.camera is not None and (tuple(h.camera.origin) != tuple(cam.origin) or
                                           not np.array_equal(np.concatenate(h.camera.basis()),
                                                              np.concatenate(cam.basis())))
+        return h, fresh, moved
+
+    def prepare(self, frame) -> None:
+        if self.info:
+            self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0,
+                             reproject=0.0, points=0)
+        h, _, moved = self._frame_history(frame)
+        cam = frame.camera
         if not moved and h.still >= STILL_SAMPLES:
             self.refining = False
             return                                       # converged: nothing to draw
