@@ -28,7 +28,7 @@ Sources (``source``):
     "none"       F_ms = 0                                       (single scattering only)
     "wrenninge"  F_ms = sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i)   (Wrenninge octaves;
                  every lobe's g is scaled by c^i)
-    "grid"       F_ms = trilinear lookup in a precomputed RGB (or grey) grid of F_ms values
+    "lattice"       F_ms = trilinear lookup in a precomputed RGB (or grey) grid of F_ms values
     "view"       F_ms from the view-space table (1 + C, by, bx, K): per block of view_block^2
                  pixels, K distances along the camera rays (plane 0; -1 marks an empty block)
                  and F_ms there (planes 1..C). A pixel's knots blend the four nearest blocks'
@@ -131,7 +131,7 @@ def octave_weights(mu, lobes, octaves, b, c):
 def raymarch(density, bbox_min, bbox_max, density_scale,
              majorant, block,
              light, cube_min, cube_size,
-             ms_grid, ms_bbox_min, ms_bbox_max,
+             ms_lattice, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
              light_dir, irradiance, albedo, lobes, background,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
@@ -147,7 +147,7 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     light        [n][n][n] the exact light transmittance field (lambda = 1) over the cube
                  cube_min .. cube_min + cube_size: T_light, or its optical depth with
                  light_quantity="optical_depth"
-    ms_grid      (C, gz, gy, gx), C = 1 or 3, F_ms over ms_bbox_min..ms_bbox_max ("grid" source)
+    ms_lattice      (C, gz, gy, gx), C = 1 or 3, F_ms over ms_bbox_min..ms_bbox_max ("lattice" source)
     camera       origin, basis (forward, right, up), tan(fov_y / 2), width x height
     light_dir    unit, toward the light; irradiance E, albedo, background: RGB
     lobes        (g, weight) pairs, empty for isotropic
@@ -172,19 +172,19 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         ow = octave_weights(mu, lobes, octaves, b, c)
         oa = np.array([a ** i for i in range(1, octaves)])
     light_cell = float(cube_size) / light.shape[0]
-    if source == "grid":
-        ms_grid = np.asarray(ms_grid)
+    if source == "lattice":
+        ms_lattice = np.asarray(ms_lattice)
         gmin, gmax = np.asarray(ms_bbox_min, f64), np.asarray(ms_bbox_max, f64)
-        gcell = (gmax - gmin) / np.array(ms_grid.shape[1:][::-1], f64)
+        gcell = (gmax - gmin) / np.array(ms_lattice.shape[1:][::-1], f64)
 
     if source == "view":
-        vd, vv = view_knots(np.asarray(ms_grid, f64), view_block, width, height)
+        vd, vv = view_knots(np.asarray(ms_lattice, f64), view_block, width, height)
     t0, t1 = box_intersect(np.broadcast_to(o, d.shape), d, bmin, bmax, tmin=0.0)
     k = np.zeros(n_rays)
     T = np.ones(n_rays)
     S = np.zeros(n_rays)
-    M = np.zeros((n_rays, ms_grid.shape[0] if source == "grid" else
-                  ms_grid.shape[0] - 1 if source == "view" else 1))
+    M = np.zeros((n_rays, ms_lattice.shape[0] if source == "lattice" else
+                  ms_lattice.shape[0] - 1 if source == "view" else 1))
     A = np.zeros(n_rays)
     D = np.zeros(n_rays)
     if env is not None:
@@ -240,9 +240,9 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
             S += w * (np.exp(-lf) if light_quantity == "optical_depth" else lf)
             if source == "wrenninge" and octaves > 1:
                 M[:, 0] += w * (ow * np.exp(-oa[:, None] * tau_l[None, :])).sum(axis=0)
-            elif source == "grid":
-                for ch in range(ms_grid.shape[0]):
-                    M[:, ch] += w * _lookup(ms_grid[ch], gmin, gcell, ps)
+            elif source == "lattice":
+                for ch in range(ms_lattice.shape[0]):
+                    M[:, ch] += w * _lookup(ms_lattice[ch], gmin, gcell, ps)
             elif source == "view":
                 M += w[:, None] * view_interp(vd, vv, ts)
         if env is not None:

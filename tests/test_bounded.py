@@ -39,7 +39,7 @@ CHILD = textwrap.dedent('''
     import clvol
     from clvol.errors import ClvolError
     from clvol.scene import scene_from_dict
-    from clvol.volume.grid import Grid
+    from clvol.volume.grid import DensityGrid
     case = json.loads(sys.argv[1])
     d = {"volume": {"generator": "cloud", "seed": 3, "resolution": 16},
          "medium": {"preset": "cloud", "density_scale": 30.0},
@@ -58,7 +58,7 @@ CHILD = textwrap.dedent('''
             dens = np.full((8, 9, 10), g.get("value", 1.0), np.float32)
             if "corner" in g:
                 dens[:2, :2, :2] = g["corner"]
-            grid = Grid.from_array(dens, g.get("bmin", (-0.5,) * 3), g.get("bmax", (0.5,) * 3))
+            grid = DensityGrid.from_array(dens, g.get("bmin", (-0.5,) * 3), g.get("bmax", (0.5,) * 3))
         scene = scene_from_dict(d, "<bounded>")
         opts = dict(case.get("options", {}))
         extra = opts.pop("extra_defines", None)

@@ -155,12 +155,12 @@ def _as_affine(data: bytes, h: float, t, kind: str) -> bytes:
 
 @pytest.mark.parametrize("kind,h", [("AffineMap", 0.1), ("UnitaryMap", 1.0)])
 def test_affine_and_unitary_maps_keep_their_translation(tmp_path, kind, h):
-    from clvol.volume.grid import Grid
+    from clvol.volume.grid import DensityGrid
     from clvol.volume.vdb import read_vdb, write_vdb
     rng = np.random.default_rng(3)
     d = (0.1 + rng.random((5, 4, 6))).astype(np.float32)        # (nz, ny, nx)
     lo = np.array([0.35, -1.25, 2.05])
-    g = Grid(d, lo, lo + h * np.array([6, 4, 5]))
+    g = DensityGrid(d, lo, lo + h * np.array([6, 4, 5]))
     write_vdb(tmp_path / "st.vdb", g)
     plain = read_vdb(tmp_path / "st.vdb")
     raw = (tmp_path / "st.vdb").read_bytes()
@@ -272,10 +272,10 @@ def test_a_base_sized_grid_on_the_device_is_copied_only_when_its_box_is_a_cube(b
     x and z: errors of the order of the density itself. The cubic box is the copy itself."""
     from clvol.kernels.pyramid import build_pyramid
     from clvol.runtime import get_runtime
-    from clvol.volume.grid import Grid
+    from clvol.volume.grid import DensityGrid
     from reference.pyramid import resample_to_cube
     d = (0.2 + np.random.default_rng(4).random((8, 8, 8))).astype(np.float32)
-    g = Grid.from_array(d, (0.0, 0.0, 0.0), bmax)
+    g = DensityGrid.from_array(d, (0.0, 0.0, 0.0), bmax)
     rt = get_runtime()
     want, cube_min, size = resample_to_cube(d, (0.0, 0.0, 0.0), bmax, 8)
     for density in (None, rt.upload(d)):

@@ -105,7 +105,7 @@ def check_env_options(env_directions, env_resolution, env_ms_directions=None, en
 class RayMarcher:
     """A volume kept on the device for many frames: density, majorant grid, light field.
 
-    ``grid``: clvol Grid; ``medium``: clvol Medium (``set_medium`` changes it). The volume's
+    ``grid``: clvol DensityGrid; ``medium``: clvol Medium (``set_medium`` changes it). The volume's
     device data is its DeviceMedium's (clvol/kernels/medium.py): the light field (T_light, or
     its optical depth with light_interp="optical_depth", on the pyramid's cube) is asked of it
     by ``set_light`` (the light-change cost) and kept until the light direction or the density
@@ -254,7 +254,7 @@ class RayMarcher:
     def march_with(self, camera, light, ms: str = "wrenninge", *, read_back: bool = True,
                    stats: bool = False, **options):
         """One frame with a source that needs no preparation (none, wrenninge, grid), planned
-        from raymarch ``options`` (``ms_grid=``, ``octaves=``, ``step=`` ...; the others
+        from raymarch ``options`` (``ms_lattice=``, ``octaves=``, ``step=`` ...; the others
         default): the benchmarks' and tests' short form of plan_frame + march."""
         from ..scene import Scene
         from .options import bind

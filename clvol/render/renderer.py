@@ -93,12 +93,12 @@ class Renderer:
 
     def set_density(self, grid, emission=None) -> None:
         """Render a new density from the next frame on (module doc: what it recomputes).
-        ``grid``: a clvol Grid (any shape and box); ``emission``: its EmissionGrid
+        ``grid``: a clvol DensityGrid (any shape and box); ``emission``: its EmissionGrid
         (clvol/emission.py) when the scene has ``[emission]`` (required then: the renderer
         cannot know which file the new density came from; refused otherwise)."""
-        from ..volume.grid import Grid
-        if not isinstance(grid, Grid):
-            raise ClvolError(f"set_density: expected a clvol.volume.grid.Grid, got "
+        from ..volume.grid import DensityGrid
+        if not isinstance(grid, DensityGrid):
+            raise ClvolError(f"set_density: expected a clvol.volume.grid.DensityGrid, got "
                              f"{type(grid).__name__}")
         has_em = getattr(self.scene, "emission", None) is not None
         if has_em and emission is None:
@@ -175,8 +175,8 @@ class Renderer:
             o[always]
         self.source = make_source(o["ms"], o, self.rt)
         self.source.count = self._count
-        if "ms_grid" in o.read:      # a grid source read its file: the plans take the MsGrid
-            o.set("ms_grid", self.source.ms_grid)
+        if "ms_lattice" in o.read:      # a grid source read its file: the plans take the FmsLattice
+            o.set("ms_lattice", self.source.ms_lattice)
         self._sources = {self.source.name: self.source}
         self.domain = self.source.training_domain()     # None: a source without a network
         self.weights = self.source.network_weights()    # the same file's MlpWeights, or None
@@ -342,7 +342,7 @@ class Renderer:
 def source_reads(ms: str) -> set:
     """The options the source ``ms`` reads, found by letting it build itself from the
     defaults and recording what it read (a grid source without a grid still reads
-    ``ms_grid`` before it refuses)."""
+    ``ms_lattice`` before it refuses)."""
     from .ms import source_class
     from .options import bind
     probe = bind("raymarch", {})
