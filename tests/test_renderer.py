@@ -358,3 +358,17 @@ def test_public_names_are_listed_and_misspelled_options_get_a_suggestion():
     assert {"Renderer", "RenderResult", "load_scene"} <= set(dir(clvol))
     with pytest.raises(ClvolError, match=r"unknown render option 'stpe': did you mean 'step'\?"):
         clvol.Renderer(clvol.load_scene(DATA.parents[1] / "examples" / "cloud.toml"), stpe=2)
+
+
+def test_renderer_dispatches_every_method_through_its_table():
+    """The Renderer's method table and the CLI's METHODS name the same methods, and a name
+    outside the table is refused in one line before any device work."""
+    from clvol.render import METHODS
+    from clvol.render.renderer import Renderer
+    assert set(Renderer._METHODS) == set(METHODS)
+    for setup, frame, supersample in Renderer._METHODS.values():
+        for attr in (frame, supersample) + ((setup,) if setup else ()):
+            assert callable(getattr(Renderer, attr))
+    from clvol.errors import ClvolError
+    with pytest.raises(ClvolError, match="splat"):
+        Renderer(clvol.load_scene(Path(__file__).parents[1] / "examples" / "cloud.toml"), "splat")
