@@ -215,8 +215,7 @@ def sweep_width_define(width: int):
 def sweep_programs(sizes) -> dict:
     """{program name: defines} of the sweeps over cubes of these ``sizes`` (voxels per side):
     "transmittance_wL" (LANES-wide columns) for levels of at least VECTOR_MIN_N voxels,
-    "transmittance_w1" for smaller ones (as ``_sweep_level`` builds them on a device of more
-    than one lane)."""
+    "transmittance_w1" for smaller ones (``_sweep_level`` builds each level by this rule)."""
     out = {}
     for n in sorted(set(int(n) for n in sizes), reverse=True):
         wide = n >= VECTOR_MIN_N
@@ -229,9 +228,10 @@ def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
                  out_depth: bool, out: DeviceArray, out_off: int) -> None:
     n = pyr.resolution(level)
     a, sa, su, sv, inv_la = sweep_geometry(light_dir)
-    width = rt.lanes if n >= VECTOR_MIN_N else 1   # LANES: the device's (runtime.py)
-    k = rt.program("transmittance", {"SWEEP_WIDTH": sweep_width_define(width)}).kernel(
-        "transmittance_sweep_block", _SWEEP_ARGS)
+    # the plan's rule for this level's program (LANES is never 1: cl/include/lanes.h)
+    (defines,) = sweep_programs([n]).values()
+    width = rt.lanes if defines["SWEEP_WIDTH"] == "LANES" else 1
+    k = rt.program("transmittance", defines).kernel("transmittance_sweep_block", _SWEEP_ARGS)
     layout, offs = sweep_layout(pyr, a)
     steps = sweep_steps(n, light_dir)
     stab = np.array([s[:3] for s in steps], np.int32)
