@@ -35,7 +35,8 @@ from clvol.render.ms.view import STILL_SAMPLES, view_jitter
 from clvol.render.renderer import Renderer
 from clvol.scene import load_scene
 
-from test_capi import OK, UNSUPPORTED, capi, lib   # noqa: F401  (fixtures: the built library)
+from test_capi import OK, UNSUPPORTED, _hex, _sanitizer_clean, _Server   # the C API's helpers
+from test_capi import asan_serve, capi, lib   # noqa: F401  (fixtures: the built library)
 
 ROOT = Path(__file__).resolve().parents[1]
 LIGHT_RES = 32
@@ -302,3 +303,36 @@ def test_bundle_cli_writes_the_view_keys(tmp_path):
             "-DVIEW_FREE_FLIGHT=1"} <= set(opts)
     assert "-DVIEW_BLOCK=3" in keys["program.raymarch.options"].split()
     assert "-DMS_SOURCE=3" in keys["program.raymarch.options"].split()
+
+
+def test_view_stage_clean_under_the_sanitizers(asan_serve, view_bundle, tmp_path):
+    """The stochastic bundle through the AddressSanitizer + UBSan build (test_capi serve):
+    still frames, moves (reprojection), a light change, a refused size, a size with the same
+    block, a new density (with a density of zero somewhere: empty blocks) and a reopen; every
+    call answers OK (or UNSUPPORTED for the size) and every image is finite; no report."""
+    from clvol.volume.generators import generate
+    dens = tmp_path / "d.f32"
+    g = np.array(generate("cloud", seed=2, resolution=12).density, np.float32)
+    g[:, :, :3] = 0.0
+    np.ascontiguousarray(g, "<f4").tofile(dens)
+    nz, ny, nx = g.shape
+
+    def cam(angle, w, h):
+        v = list(_eye(angle)) + list(TARGET) + list(UP) + [FOV]
+        return "camera " + " ".join(_hex(x) for x in v) + f" {w} {h}"
+
+    server = _Server(*asan_serve)
+    try:
+        assert server.call(f"open {view_bundle}") == "open 0 0 "
+        calls = [cam(0.0, 48, 40), "render", "render", cam(0.2, 48, 40), "render",
+                 "light " + " ".join(_hex(x) for x in (-0.4, 0.8, 0.45, 1.0, 1.2, 1.4)),
+                 "render", cam(0.4, 40, 30), "render", f"density {nx} {ny} {nz} {dens}",
+                 "render", cam(0.5, 40, 30), "render"]
+        for line in calls:
+            assert server.call(line) == f"{line.split()[0]} 0 0 ", line
+        out = server.call(cam(0.5, 200, 160))
+        assert out.startswith(f"camera {UNSUPPORTED} 0 ") and "view blocks of 3" in out, out
+        assert server.call(f"open {view_bundle}") == "open 0 0 "
+        assert server.call("render") == "render 0 0 "
+    finally:
+        _sanitizer_clean(server)
