@@ -102,7 +102,7 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     m = _Manifest()
     _write_sources(m, scene, out)
     _write_programs(m, b)
-    _write_host_constants(m)
+    _write_host_constants(m, b)
     _write_volume(m, b, out)
     _write_medium_light_camera(m, b)
     _write_raymarch(m, b)
@@ -181,6 +181,11 @@ def _plan(scene, given: dict, runtime, octaves, ms: str = "network") -> _Planned
                          f"does not implement; a bundle renders the sun and a constant "
                          f"background only (docs/embedding.md)")
     network = plan.lit and ran.uses_network
+    if network and view is not None and \
+            plan.programs["raymarch"].get("VIEW_BLOCK") != view["keys"]["block"]:
+        raise ClvolError(f"bundle: the march's VIEW_BLOCK "
+                         f"{plan.programs['raymarch'].get('VIEW_BLOCK')} is not the view "
+                         f"source's block {view['keys']['block']}")
     # Lattice points the network evaluates (the others hold F_ms = 0): the plan's rule.
     active = (np.flatnonzero(configured.active_points(grid, res, plan.lattice_reach))
               if network and view is None else np.zeros(0, np.int64))
@@ -262,7 +267,7 @@ def _write_programs(m: "_Manifest", b: _Planned) -> None:
             m[f"program.{name}.options_pocl"] = _define_flags(pocl[name])
 
 
-def _write_host_constants(m: "_Manifest") -> None:
+def _write_host_constants(m: "_Manifest", b: _Planned) -> None:
     from .kernels import gather as kg
     from .kernels import mlp as km
     from .kernels import raymarch as kr
@@ -280,6 +285,8 @@ def _write_host_constants(m: "_Manifest") -> None:
             "config_dim": layout.CONFIG_DIM,
             "config_albedo": layout.CONFIG_FIELDS.index("albedo"),
             "config_alpha": layout.CONFIG_FIELDS.index("alpha")}
+    if b.source.lattice_points_per_launch:   # the most queries of one gather + MLP launch
+        host["network_chunk"] = int(b.source.lattice_points_per_launch)
     for key, value in host.items():
         m[f"host.{key}"] = value
 

@@ -336,3 +336,26 @@ def test_view_stage_clean_under_the_sanitizers(asan_serve, view_bundle, tmp_path
         assert server.call("render") == "render 0 0 "
     finally:
         _sanitizer_clean(server)
+
+
+def test_network_queries_in_chunks_give_the_same_image(lib, view_bundle, tmp_path):
+    """host.network_chunk (the network source's lattice_points_per_launch, 32768) cuts the
+    gather + MLP into launches; a bundle edited to 257 queries a launch (~1,000 drawn points
+    a frame here: several launches and a partial last one) still renders Python's frames
+    (still, move)."""
+    import shutil
+    edited = tmp_path / "chunked"
+    shutil.copytree(view_bundle, edited)
+    mf = edited / "manifest.txt"
+    text = mf.read_text()
+    assert "host.network_chunk = 32768\n" in text
+    mf.write_text(text.replace("host.network_chunk = 32768\n", "host.network_chunk = 257\n"))
+    both = _Both(lib, edited, _scene())
+    try:
+        for angle in (0.1, 0.1, 0.25):
+            assert both.camera(_eye(angle), TARGET, UP, FOV, 48, 40) == OK
+            got, res = both.render()
+            assert _rel_rms(got[..., :3], res.layers["total"]) <= TOL
+        assert both.py.source.info["points"] > 3 * 257
+    finally:
+        both.close()

@@ -213,6 +213,7 @@ struct clvol_renderer {
     int *active;      /* their [z][y][x] indices, ascending, owned */
     cl_mem d_points, d_omegas, d_order, d_feats, d_config, d_tenter, d_fms, d_planes;
     int net_cap;      /* queries the network's buffers above hold (d_points .. d_fms) */
+    int net_chunk;    /* the most queries one gather + MLP launch takes (host.network_chunk) */
     cl_mem d_out[6];
     int width, height, out_width, out_height;
     double light_dir[3], irradiance[3], background[3];

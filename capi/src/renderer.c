@@ -308,6 +308,10 @@ static void read_host_constants(clvol_host *h) {
              "first (at most 16), then two distinct slots", m->where, h->cfg_albedo, h->cfg_alpha);
     h->tile = mf_int_in(m, "host.raymarch_tile", 1, 16);
     h->rm_local = mf_int_in(m, "host.raymarch_local_size", 1, 1024);
+    /* queries per gather + MLP launch (bundles before the key: all in one launch, at most
+     * the 32^3 lattice they hold) */
+    h->net_chunk = mf_find(m, "host.network_chunk")
+        ? mf_int_in(m, "host.network_chunk", 1, 1 << 24) : 1 << 24;
 }
 
 /* Largest optical thickness of the volume at density scale 1 along x, y or z rows (the
@@ -732,10 +736,11 @@ static uint32_t spread_bits(uint32_t v, int bits) {
 
 /* F_ms at n points toward unit directions omega (gather + MLP, the Python host's
  * NetworkSource.evaluate): fms[q * C + c], clamped at 0; a non-finite value fails, naming
- * `what` and the point. Queries run in Morton order of their coarse cell (only speed: every
- * query is computed alone). The buffers grow to the largest n seen (h->net_cap). */
-static void network_at(clvol_host *h, int n, const double *pts_d, const double *oms_d,
-                       float *fms, const char *what) {
+ * `what` and the point (its index + `first`). Queries run in Morton order of their coarse
+ * cell (only speed: every query is computed alone). The buffers grow to the largest n seen
+ * (h->net_cap); network_at cuts bigger sets into launches of host.network_chunk. */
+static void network_launch(clvol_host *h, int n, const double *pts_d, const double *oms_d,
+                           float *fms, const char *what, long first) {
     const manifest *m = &h->mf;
     const double *l = h->light_dir, *alb = h->albedo;
     int C = h->channels, nq = n > 0 ? n : 1;   /* nq: buffers are never empty */
@@ -821,13 +826,26 @@ static void network_at(clvol_host *h, int n, const double *pts_d, const double *
     for (long i = 0; i < (long)n * C; ++i) {
         if (!isfinite(fms[i]))
             fail(CLVOL_ERROR_OPENCL, "the network produced a non-finite F_ms at %s %ld", what,
-                 i / C);
+                 first + i / C);
         if (!(fms[i] > 0.0f)) fms[i] = 0.0f;
     }
     xfree(pts);
     xfree(oms);
     xfree(cfg);
     xfree(order);
+}
+
+static void network_at(clvol_host *h, long n, const double *pts, const double *oms, float *fms,
+                       const char *what) {
+    long chunk = h->net_chunk;
+    if (n <= chunk) {
+        network_launch(h, (int)n, pts, oms, fms, what, 0);
+        return;
+    }
+    for (long q = 0; q < n; q += chunk) {
+        long k = n - q < chunk ? n - q : chunk;
+        network_launch(h, (int)k, pts + 3 * q, oms + 3 * q, fms + (size_t)q * h->channels, what, q);
+    }
 }
 
 /* F: F_ms at the active lattice points toward the camera, scattered into the planes
@@ -1074,7 +1092,7 @@ static void view_stage(clvol_host *h) {
     }
     if (moved) view_reproject(h, &cam, pts, blk, n0);
     float *fms = xmalloc(sizeof(float) * (size_t)C * (size_t)(np > 0 ? np : 1));
-    network_at(h, (int)np, pts, oms, fms, "view sample");
+    network_at(h, np, pts, oms, fms, "view sample");
     for (long q = 0; q < np; ++q) {
         long b = blk[q];
         for (int c = 0; c < C; ++c) v->sums[(size_t)c * nb + b] += fms[(size_t)q * C + c];
