@@ -69,10 +69,10 @@ def _open(lib, bundle):
 class _Both:
     """One libclvol renderer and one clvol.Renderer driven through the same changes."""
 
-    def __init__(self, lib, bundle, scene, seed=SEED):
+    def __init__(self, lib, bundle, scene, seed=SEED, **options):
         self.lib, self.r = lib, _open(lib, bundle)
         self.py = Renderer(scene, "raymarch", ms="stochastic", light_resolution=LIGHT_RES,
-                           seed=seed)
+                           seed=seed, **options)
         self.cam, self.light = scene.camera, scene.light
 
     def camera(self, origin, target, up, fov, w, h):
@@ -357,5 +357,25 @@ def test_network_queries_in_chunks_give_the_same_image(lib, view_bundle, tmp_pat
             got, res = both.render()
             assert _rel_rms(got[..., :3], res.layers["total"]) <= TOL
         assert both.py.source.info["points"] > 3 * 257
+    finally:
+        both.close()
+
+
+def test_several_draws_a_frame_and_a_fixed_block(lib, tmp_path):
+    """--view-samples 3 (three draws a frame; the move's reprojection uses the first, as
+    Python's) with --view-block 2, at a size whose automatic block would be 1, and then at
+    another size (a fixed block takes any): Python's frames."""
+    opts = dict(view_block=2, view_samples=3)
+    b = write_bundle(_scene(), tmp_path / "b", ms="stochastic", light_resolution=LIGHT_RES,
+                     seed=5, **opts)
+    both = _Both(lib, b, _scene(), seed=5, **opts)
+    try:
+        for angle, w, h in ((0.1, 48, 40), (0.1, 48, 40), (0.3, 48, 40), (0.3, 130, 90)):
+            assert both.camera(_eye(angle), TARGET, UP, FOV, w, h) == OK
+            got, res = both.render()
+            assert _rel_rms(got[..., :3], res.layers["total"]) <= TOL, (angle, w, h)
+        c, p = both.counts()
+        assert c == p and c[2] == 4
+        assert res.header["raymarch.view_accumulated"] == 3
     finally:
         both.close()
