@@ -18,6 +18,9 @@
   (the view table stage), a light change reruns the light stage and restarts the history,
   a still view stops drawing after view.still_samples draws, an irradiance change alone
   draws nothing, an image size whose automatic block differs from the bundle's is refused.
+- Three draws a frame with a fixed block; the network in launches of 257 queries (an edited
+  host.network_chunk); the bundle's programs equal those a Python render builds; the view
+  stage under ASan + UBSan.
 """
 from __future__ import annotations
 
@@ -379,3 +382,39 @@ def test_several_draws_a_frame_and_a_fixed_block(lib, tmp_path):
         assert res.header["raymarch.view_accumulated"] == 3
     finally:
         both.close()
+
+
+def test_the_bundle_records_the_programs_python_builds(view_bundle, monkeypatch):
+    """Every program (stem and -D defines) a Python --ms stochastic render builds on the same
+    runtime is one the bundle lists, and nothing else: the viewdepth draw's defines
+    included (the network's gather and MLP apart, as libclvol runs them; tests/test_c_host.py
+    does the same for the lattice)."""
+    import clvol.render.ms.network as network
+    import clvol.runtime as rtm
+    rt = rtm.get_runtime()
+    built = set()
+    orig = rtm.Runtime.program
+
+    def recording(self, stem, defines=None, extra_options=()):
+        if self is rt:
+            built.add((stem, tuple(sorted(rtm._define_flags(defines)))))
+        return orig(self, stem, defines, extra_options)
+    monkeypatch.setattr(rtm.Runtime, "program", recording)
+    monkeypatch.setattr(network, "FUSED_DEFAULT", False)
+    res = Renderer(_scene(), "raymarch", ms="stochastic", light_resolution=LIGHT_RES, seed=SEED,
+                   runtime=rt).render()
+    assert res.header["raymarch.ms"] == "stochastic"
+    lines = dict(line.split(" = ", 1) for line in
+                 (view_bundle / "manifest.txt").read_text().splitlines()
+                 if " = " in line and not line.startswith("#"))
+    recorded = set()
+    for name in lines["programs"].split():
+        opts = [o for o in lines[f"program.{name}.options"].split()
+                if not o.startswith("-DCLVOL_SOURCES_HASH")]
+        if rt.is_pocl:
+            opts += lines.get(f"program.{name}.options_pocl", "").split()
+        recorded.add((Path(lines[f"program.{name}"]).stem, tuple(sorted(opts))))
+    assert ("viewdepth", tuple(sorted(["-DVIEW_BLOCK=1", "-DVIEW_FREE_FLIGHT=1",
+                                       "-DVIEW_JITTER=1", "-DVIEW_K=1", "-DVIEW_RAYS=1"]))) \
+        in recorded
+    assert built == recorded
