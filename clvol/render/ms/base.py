@@ -221,6 +221,12 @@ class MsSource:
     # (clvol/render/environment.py) ask of a network source; None or empty for the others.
     lattice_points_per_launch: int | None = None   # the most lattice points one launch takes
 
+    def bundle_view(self, camera) -> dict | None:
+        """What the C host's bundle needs of a view-space source for ``camera``: its
+        ``view.*`` manifest keys (``keys``) and the ``viewdepth`` program's defines
+        (``viewdepth``); None for a source without a view table in the C host."""
+        return None
+
     def network_weights(self):
         """The checked weights (clvol/features/weights.py MlpWeights) it evaluates, or None."""
         return None
