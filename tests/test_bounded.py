@@ -95,21 +95,91 @@ PT = {"method": "pathtrace", "options": {"spp": 1}}
 
 
 @pytest.mark.parametrize("name,case", [
+    ("density_scale 1e6", {"scene": {"medium.density_scale": 1e6}}),
+    ("density_scale 1e7, albedo 1", {"scene": {"medium.density_scale": 1e7,
+                                               "medium.albedo": [1.0, 1.0, 1.0]}}),
+    ("density_scale 1e7, albedo 0.9", {"scene": {"medium.density_scale": 1e7,
+                                                 "medium.albedo": [0.9, 0.9, 0.9]}}),
     ("density_scale 1e12", {"scene": {"medium.density_scale": 1e12}}),
     ("density_scale 1e30", {"scene": {"medium.density_scale": 1e30}}),
     ("density 1e30 corner", {"grid": {"value": 0.0, "corner": 1e30}}),
     ("density 1e30 everywhere", {"grid": {"value": 1e30}}),
 ])
-def test_extreme_extinction_stops_at_the_bound_and_says_so(name, case):
-    """An extinction so large that 1/sigma_maj is below the float32 rounding of t: before the
-    bound a path whose tentative collisions all fell in a low-density part of a majorant
-    block never advanced. Now those paths stop after 256 stalls, the image is finite, and
-    the header counts them (> 0 where the camera sees the medium)."""
+def test_extreme_extinction_is_refused_before_rendering(name, case):
+    """A medium whose majorant optical depth per majorant cell is above MAX_CELL_DEPTH
+    (clvol/kernels/transmittance.py check_tracking_depth): its paths would take about that many
+    tentative collisions each (density_scale 1e6-1e7 on a unit cloud took 4-23 s at 32 x 32,
+    1 spp, with 0.3-65% of the paths stopped at PT_MAX_STEPS; 1e12 and up stopped at the
+    stall bound, a black, biased image). Refused in one line, naming the value and the limit,
+    in under 5 s (measured 0.01-0.1 s: nothing is uploaded or built)."""
     r = _run({**PT, **case})
-    assert r["ok"] and r["finite"] and r["shape"] == [32, 32, 3], r
-    assert r["seconds"] < RENDER_S, r
-    if name != "density 1e30 everywhere":     # a homogeneous box accepts every collision
-        assert r["header"]["paths_stopped_at_bound"] > 0, r
+    assert not r["ok"], r
+    assert "\n" not in r["error"] and "above its limit 8192" in r["error"], r
+    assert r["seconds"] < 5.0, r
+
+
+def test_the_tracking_rule_is_the_documented_product_just_either_side():
+    """density_scale x the largest density x the majorant cell's longest side (inside the box)
+    against 2^13, written here from docs/pathtrace.md: the unit cloud (16^3, largest density
+    d) at block 8 has cells 0.5 across, so density_scale = 2^14 / d passes and 1.001 x that
+    does not, and the refusal names the coarsest block that passes (7: 7/8 of the depth); at
+    block 2 (cells 0.125) that scale passes; one global majorant (block 0) spans the box (1
+    across, 16 voxels)."""
+    from clvol.errors import ClvolError
+    from clvol.render.pathtrace import check_walks
+    from clvol.scene import scene_from_dict
+    grid = scene_from_dict({
+        "volume": {"generator": "cloud", "seed": 3, "resolution": 16},
+        "medium": {"preset": "cloud", "density_scale": 30.0},
+        "light": {"direction": [0.0, 0.0, 1.0], "irradiance": [1.0, 1.0, 1.0]},
+        "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.0, 0.0], "fov_y": 30.0,
+                   "width": 8, "height": 8}}, "<rule>").volume.load()
+    assert grid.density.shape == (16, 16, 16)
+    d = float(grid.density.max())
+    edge = 2.0 ** 13 / (0.5 * d)
+    assert check_walks(edge, grid, 8) == pytest.approx(2.0 ** 13)
+    with pytest.raises(ClvolError, match=r"cell 0.5 across \(8 voxels\).*above its limit 8192.*block of 7 voxels or fewer"):
+        check_walks(edge * 1.001, grid, 8)
+    assert check_walks(edge * 1.001, grid, 2) == pytest.approx(2.0 ** 13 * 1.001 / 4)
+    with pytest.raises(ClvolError, match=r"cell 1 across \(16 voxels\).*block of 13 voxels or fewer"):
+        check_walks(edge * 0.6, grid, 0)
+    assert check_walks(edge * 0.49, grid, 0) == pytest.approx(2.0 ** 13 * 0.49 * 2)
+
+
+def test_the_cli_exits_2_on_a_medium_too_thick_to_path_trace(tmp_path):
+    """The issue's command: examples/cloud.toml at density_scale 1e7, 32 x 32 (4-23 s before,
+    bench/bench_thick_media.py): exit 2, one line naming the value and the limit."""
+    import time
+    text = (ROOT / "examples" / "cloud.toml").read_text()
+    text = text.replace("density_scale = 64.0", "density_scale = 1e7")
+    assert "density_scale = 1e7" in text
+    scene = tmp_path / "thick.toml"
+    scene.write_text(text)
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    t = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "clvol", "render", str(scene), "--method",
+                        "pathtrace", "--width", "32", "--height", "32", "--spp", "1", "-o",
+                        str(tmp_path / "out.exr")], cwd=ROOT, env=env, capture_output=True,
+                       text=True, timeout=WALL_S)
+    wall = time.perf_counter() - t
+    assert p.returncode == 2, (p.returncode, p.stderr[-2000:])
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and "density_scale = 10000000.0" in lines[0], lines
+    assert "above its limit 8192" in lines[0] and not (tmp_path / "out.exr").exists()
+    assert wall < RENDER_S, wall       # Python's start and clvol's import included
+
+
+def test_the_stall_bound_stops_paths_and_is_counted():
+    """The stall bound can no longer be met by an image the rule accepts (a stall needs a
+    majorant optical depth of ~2^20 per cell, the rule stops at 2^13), so it is provoked from
+    the host: PT_STALL_FRACTION = 0.5 (of a 0.5-wide cell) with PT_MAX_STALLS = 4 makes almost
+    every tentative collision a stall (mean step 1/sigma_maj ~ 0.01 here), so paths that
+    enter the cloud stop after 4 draws and are counted."""
+    r = _run({**PT, "options": {"extra_defines": {"PT_STALL_FRACTION": 0.5,
+                                                  "PT_MAX_STALLS": 4}}})
+    assert r["ok"] and r["finite"], r
+    assert r["header"]["paths_stopped_at_bound"] > 100, r
+    assert r["header"]["mean_tracking_steps"] <= 4.0, r
 
 
 def test_an_ordinary_scene_hits_no_bound():
@@ -178,7 +248,8 @@ def test_fuzz_found_float32_overflowing_extinction_is_refused(method):
     """Found by the API fuzz's 500-example run (after the bounds): density_scale = 3.4e38
     (float32's largest) with albedo 0 rendered a NaN alpha through the path tracer and the
     unlit march (inf * 0). Both methods now refuse, in one line, what the light field
-    already refused: density_scale x the largest density x the box's diagonal >= 1e37."""
+    already refused: density_scale x the largest density x the box's diagonal >= 1e37. Just
+    below it (1e30) the march renders; the path tracer refuses it by its tracking rule."""
     import clvol
     from clvol.errors import ClvolError
     from clvol.scene import Camera, Light, Medium, Phase, scene_from_dict
@@ -197,8 +268,12 @@ def test_fuzz_found_float32_overflowing_extinction_is_refused(method):
         with pytest.raises(ClvolError, match="beyond float32 range") as e:
             r.render(camera=cam, light=light, medium=medium)
         assert "\n" not in str(e.value)
-    ok = r.render(camera=cam, light=light, medium=Medium(density_scale=1e30, albedo=(0.0, 0.0, 0.0),
-                                                         phase=Phase.isotropic()))
+    below = Medium(density_scale=1e30, albedo=(0.0, 0.0, 0.0), phase=Phase.isotropic())
+    if method == "pathtrace":   # within float32, but far beyond the path tracer's walks
+        with pytest.raises(ClvolError, match="above its limit 8192"):
+            r.render(camera=cam, light=light, medium=below)
+        return
+    ok = r.render(camera=cam, light=light, medium=below)
     assert all(np.isfinite(v).all() for v in ok.layers.values())
 
 
