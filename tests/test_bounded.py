@@ -8,8 +8,10 @@ The bounds (docs/pathtrace.md, "Bounds"; cl/pathtrace.cl, cl/raymarch.cl, cl/vie
   move t by less than 2^-20 of a majorant block (1/sigma_maj below t's float32 rounding, or
   a block that takes millions of draws to cross: density_scale 1e12 on a unit cloud ran past
   60 s before, at 32 x 32 and 1 spp);
-- ray marcher: a ray stops where its next segment would not start past the current one
-  (header ``raymarch.bound`` when the camera and box allow it: t / step >= 2^22);
+- ray marcher: a ray stops where its next segment would not start past the current one;
+  the kernel counts those rays (header ``raymarch.rays_stopped_at_bound``, 0 normally);
+- path tracer images: a medium whose majorant optical depth per majorant cell exceeds 2^13
+  (clvol/kernels/transmittance.py check_tracking_depth) is refused before rendering;
 - view depths: at most 2^22 segments a ray, and no undefined (int) cast of a NaN or huge span.
 
 Each case runs in a child process with a hard timeout (a hang must fail the test, not stall
@@ -71,7 +73,8 @@ CHILD = textwrap.dedent('''
         out.update(ok=True, finite=bool(np.isfinite(rgb).all()), shape=list(rgb.shape),
                    header={k: v for k, v in res.header.items()
                            if k in ("paths_stopped_at_bound", "paths_truncated",
-                                    "mean_tracking_steps", "raymarch.bound")})
+                                    "mean_tracking_steps",
+                                    "raymarch.rays_stopped_at_bound")})
     except ClvolError as e:
         out.update(ok=False, error=str(e))
     out["seconds"] = time.perf_counter() - t
@@ -187,7 +190,7 @@ def test_an_ordinary_scene_hits_no_bound():
     assert r["ok"] and r["finite"], r
     assert r["header"]["paths_stopped_at_bound"] == 0 and r["header"]["paths_truncated"] == 0
     r = _run({"method": "raymarch"})
-    assert r["ok"] and r["finite"] and "raymarch.bound" not in r["header"], r
+    assert r["ok"] and r["finite"] and r["header"]["raymarch.rays_stopped_at_bound"] == 0, r
 
 
 def test_the_step_bound_stops_paths_and_is_counted():
@@ -213,7 +216,10 @@ def test_degenerate_cameras_and_boxes_render_finite(name, case, method):
     assert r["ok"] and r["finite"] and r["shape"] == [32, 32, 3], r
     assert r["seconds"] < RENDER_S, r
     if method == "raymarch" and name == "camera 1e30 away":
-        assert "rays may stop early" in r["header"]["raymarch.bound"], r
+        # the box is thinner than t's float32 rounding step there (t0 == t1): every ray ends
+        # at once at the box's far side, not at the bound (the prediction this count replaced
+        # said "rays may stop early")
+        assert r["header"]["raymarch.rays_stopped_at_bound"] == 0, r
 
 
 @pytest.mark.parametrize("name,case,words", [
@@ -231,16 +237,21 @@ def test_degenerate_inputs_are_refused_in_one_line(name, case, words):
     assert r["seconds"] < 5.0, r
 
 
-def test_the_march_bound_is_predicted_from_the_camera_and_box():
-    from clvol.render.raymarch import MARCH_BOUND_RATIO, march_bound
-    assert march_bound((0, 0, 2.4), (-1, -1, -1), (1, 1, 1), 0.01) is None
-    t = march_bound((0, 0, 1e30), (-1, -1, -1), (1, 1, 1), 0.01)
-    assert t is not None and t >= 1e30
-    # just either side of t_far / step = 2^22
-    far = np.sqrt(3.0 * 0.5 ** 2)                       # origin at a unit box's centre
-    step = far / MARCH_BOUND_RATIO
-    assert march_bound((0, 0, 0), (-0.5,) * 3, (0.5,) * 3, step * 1.001) is None
-    assert march_bound((0, 0, 0), (-0.5,) * 3, (0.5,) * 3, step * 0.999) is not None
+def test_the_march_counts_the_rays_its_bound_stopped():
+    """The kernel counts (atomically) the rays its progress bound stopped, and the header
+    reports that count. The camera 2e6 from the unit cloud with a view 1e-5 degrees high
+    (every ray crosses the box's middle): t's float32 rounding step there is 0.25, the step
+    (half a voxel of 16) 0.031, so t0 + step == t0 and each of the 32 x 32 rays stops at its
+    first segment; the image is the background alone. 2e4 away (rounding step 0.002) every
+    ray is marched and the count is 0."""
+    far = {"camera.origin": [0.0, 0.0, 2e6], "camera.fov_y": 1e-5}
+    r = _run({"method": "raymarch", "scene": far})
+    assert r["ok"] and r["finite"], r
+    assert r["header"]["raymarch.rays_stopped_at_bound"] == 32 * 32, r
+    assert r["seconds"] < RENDER_S, r
+    near = {"camera.origin": [0.0, 0.0, 2e4], "camera.fov_y": 1e-3}
+    r = _run({"method": "raymarch", "scene": near})
+    assert r["ok"] and r["finite"] and r["header"]["raymarch.rays_stopped_at_bound"] == 0, r
 
 
 @pytest.mark.parametrize("method", ["raymarch", "pathtrace"])
