@@ -83,7 +83,9 @@
  *   total, single, multiple   float [height][width][3] out
  *   alpha, depth              float [height][width] out: 1 - T_cam(exit) and the mean
  *              distance of the first extinction event (0 where alpha = 0)
- *   stats      uint [tiles][4] out with RAYMARCH_STATS (else untouched, may be 4 bytes):
+ *   stats      uint [1 + tiles * 4] (1 without RAYMARCH_STATS), word 0 zeroed by the host:
+ *              stats[0] += the rays the progress bound stopped (atomic; the header's
+ *              raymarch.rays_stopped_at_bound); with RAYMARCH_STATS, per tile from word 1:
  *              march iterations, light lookups, majorant reads (each on LANES lanes),
  *              and active lane-segments
  * Global size: ceil(width / 4) * ceil(height / (LANES / 4)) work-items (padded; guarded here).
@@ -786,14 +788,22 @@ __kernel void raymarch(
 #if RAYMARCH_STATS
     uint n_iter = 0, n_lit = 0, n_maj = 0, n_active = 0;
 #endif
+    iL stopped = (iL)(0);   /* lanes the progress bound stopped */
     for (;;) {
         vL ta = t0 + k * step;
         /* Bounded: a lane stops where its next segment would not start past this one (k past
          * 2^24, or step below t's float32 rounding: a camera far from a small box); nowhere
-         * else does this hold, so it changes no image that can be marched (the host reports
-         * when it may bind: clvol/render/raymarch.py march_bound). */
-        iL active = hit & (ta < t1) & (s.T >= threshold) & (t0 + (k + 1.0f) * step > ta);
-        if (!any(active)) break;
+         * else does this hold, so it changes no image that can be marched. A lane it stops
+         * keeps its k and T, so at the last pass it is still one that would go on but for
+         * the bound: those lanes are counted into stats[0] (the header's
+         * raymarch.rays_stopped_at_bound). */
+        const iL go = hit & (ta < t1) & (s.T >= threshold);
+        const iL progress = t0 + (k + 1.0f) * step > ta;
+        iL active = go & progress;
+        if (!any(active)) {
+            stopped = go & ~progress;
+            break;
+        }
 #if SKIP_EMPTY
         const uint reads = skip_empty_blocksL(majorant, mx, my, mz, cell * (float)block, bmin,
                                               &rays, t0, t1, step, &k, &ta, &active);
@@ -857,9 +867,13 @@ __kernel void raymarch(
                 , em_colour, emission_out
 #endif
                 );
+    {
+        const uint n_stopped = (uint)LANE_SUM(stopped & (iL)(1));
+        if (n_stopped) atomic_add(stats, n_stopped);
+    }
 #if RAYMARCH_STATS
     /* Per tile: march iterations (each one density lookup on LANES lanes), iterations
      * with a light lookup, majorant reads (LANES lanes each) and active lane-segments. */
-    vstore4((uint4)(n_iter, n_lit, n_maj, n_active), tile, stats);
+    vstore4((uint4)(n_iter, n_lit, n_maj, n_active), tile, stats + 1);
 #endif
 }

@@ -140,7 +140,8 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              env_size=1.0, env_colour=(1, 1, 1), bg_image=None, emission=None,
              em_min=(0, 0, 0), em_max=(1, 1, 1), em_colour=(1, 1, 1), em_box=False):
     """Render one image. Returns a dict of float64 arrays: total, single, multiple (H, W, 3),
-    alpha, depth (H, W); with ``emission``, also emission (H, W, 3).
+    alpha, depth (H, W); with ``emission``, also emission (H, W, 3); and "stopped_at_bound",
+    the number of rays the progress bound stopped (an int).
 
     density      [nz][ny][nx] raw density over bbox_min..bbox_max (sigma_t = density * scale)
     majorant     [mz][my][mx] per-block majorant (majorant.h), block = fine voxels per block
@@ -202,11 +203,22 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         EE = np.zeros((n_rays, em_c))
     hit = t0 <= t1
     dt = float(step)
+    # The kernel's progress bound, in float32 as the kernel computes it: a ray stops where its
+    # next segment would not start past the current one (float32 t0 + (k + 1) dt == t0 + k
+    # dt: k past 2^24, or dt below t's rounding, a camera far from a small box); elsewhere it
+    # never holds. Those rays are counted ("stopped_at_bound").
+    f32 = np.float32
+    t0_32, dt_32 = t0.astype(f32), f32(dt)
+    stopped = np.zeros(n_rays, bool)
 
     while True:
         ta = np.where(hit, t0 + k * dt, np.inf)
-        active = hit & (ta < t1) & (T >= threshold)
+        go = hit & (ta < t1) & (T >= threshold)
+        with np.errstate(invalid="ignore", over="ignore"):
+            progress = (t0_32 + (k + 1).astype(f32) * dt_32) > (t0_32 + k.astype(f32) * dt_32)
+        active = go & progress
         if not active.any():
+            stopped = go & ~progress
             break
         for _ in range(SKIP_PASSES if skip_empty else 0):
             # Untruncated midpoint of the current segment (0 for idle rays: stays finite).
@@ -281,6 +293,7 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
            "depth": depth.reshape(shape)}
     if emission is not None:
         out["emission"] = emitted.reshape(shape + (3,))
+    out["stopped_at_bound"] = int(np.count_nonzero(stopped))
     return out
 
 

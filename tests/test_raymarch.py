@@ -132,6 +132,7 @@ def test_kernel_matches_twin(case):
     got = kraymarch.raymarch(**kw)
     want = rraymarch.raymarch(**kw)
     _assert_layers_close(got, want)
+    assert got["stopped_at_bound"] == want["stopped_at_bound"] == 0
     if case == "empty":
         # Nothing in the box: the background alone, no alpha, depth 0 by definition.
         np.testing.assert_array_equal(got["alpha"], 0.0)
@@ -143,6 +144,29 @@ def test_kernel_matches_twin(case):
         assert hit.any()
         np.testing.assert_allclose(got["alpha"][hit], 1.0, atol=1e-6)
         assert np.all(got["total"][hit] < 1e-6)        # T_light ~ 0 and no background through
+
+
+def test_kernel_and_twin_count_the_rays_the_progress_bound_stops():
+    """The camera 2e6 from the box, the view narrow enough that every ray crosses it (0.25
+    of half-height at 2e6): float32's rounding step of t there is 0.25, above twice the
+    step (0.05), so t0 + step == t0 and every ray stops at its first segment, counted by the
+    kernel (atomic, stats[0]) and by the twin (its float32 rule), 143 = 13 x 11 each; the
+    layers agree (nothing marched: alpha 0, the background). 2e5 away (rounding step
+    0.016, below the step) every ray marches and both count 0."""
+    for distance, stopped in ((2e6, 13 * 11), (2e5, 0)):
+        kw = _inputs("odd", "none")
+        origin = np.array([0.0, 0.0, distance])
+        f, r, u = look_at(origin, np.zeros(3), (0.0, 1.0, 0.0))
+        kw.update(origin=origin, forward=f, right=r, up=u, tan_half=0.25 / distance)
+        kw = _f32(kw)
+        got = kraymarch.raymarch(**kw)
+        want = rraymarch.raymarch(**kw)
+        assert got["stopped_at_bound"] == want["stopped_at_bound"] == stopped, distance
+        if stopped:
+            _assert_layers_close(got, want)
+            np.testing.assert_array_equal(got["alpha"], 0.0)
+        else:   # (the layers: float32 positions 2e5 away are 0.016 apart, the twin's not)
+            assert got["alpha"].max() > 0.5 and want["alpha"].max() > 0.5     # rays marched
 
 
 @pytest.mark.parametrize("source,octaves", [("none", (3, 0.5, 0.5, 0.5)),

@@ -1153,7 +1153,10 @@ static void march_stage(clvol_host *h) {
         for (int i = 0; i < 6; ++i) release_tracked(h, &h->d_out[i]);
         int ch[6] = {3, 3, 3, 1, 1, 0};
         for (int i = 0; i < 5; ++i) h->d_out[i] = buffer(h, 4 * (size_t)W * H * ch[i], NULL);
-        h->d_out[5] = buffer(h, 4, NULL);   /* stats: unused without RAYMARCH_STATS */
+        /* stats: word 0 counts the rays the march's progress bound stopped (cl/raymarch.cl,
+         * an atomic add; libclvol does not read it), zeroed so the kernel adds to a defined
+         * value; the per-tile counts need RAYMARCH_STATS, which libclvol never sets */
+        h->d_out[5] = zeros(h, 4);
         h->out_width = W;
         h->out_height = H;
     }

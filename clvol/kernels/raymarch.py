@@ -144,7 +144,9 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              env_colour=(1, 1, 1), bg_image=None, emission=None, em_min=(0, 0, 0),
              em_max=(1, 1, 1), em_colour=(1, 1, 1), em_box=False):
     """Launch the ray marcher. Returns {layer: array} (float32; total/single/multiple
-    (H, W, 3), alpha/depth (H, W)), or with ``read_back=False`` (event, {layer: buffer}).
+    (H, W, 3), alpha/depth (H, W)) and "stopped_at_bound" (int: the rays cl/raymarch.cl's
+    progress bound stopped, 0 on any image that can be marched), or with ``read_back=False``
+    (event, {layer: buffer}; "stats" word 0 holds the count).
 
     With ``stats`` the kernel also counts its work (cl/raymarch.cl, RAYMARCH_STATS) and the
     result gets "stats": uint32 (tiles, 4) (iterations, light lookups, majorant reads,
@@ -444,20 +446,26 @@ def _emission_args(e: MarchEmission, rt) -> tuple:
 
 
 def _outputs(camera: MarchCamera, layers, stats: bool, rt) -> tuple[dict, int]:
-    """The output buffers of every layer and the stats (4 counts per tile with ``stats``,
-    else one unused word), and the number of tiles (work-items)."""
+    """The output buffers of every layer and the stats: word 0 the count of rays the
+    progress bound stopped (zeroed on the device), then with ``stats`` 4 counts per tile;
+    and the number of tiles (work-items)."""
     w, h = camera.width, camera.height
     outs = {name: rt.empty((h * w * ch,)) for name, ch in layers}
     n_tiles = -(-w // TILE) * -(-h // tile_rows(rt.lanes))
-    outs["stats"] = rt.empty((n_tiles * 4 if stats else 1,), np.uint32)
+    outs["stats"] = rt.empty((1 + n_tiles * 4 if stats else 1,), np.uint32, zero=True)
     return outs, n_tiles
 
 
 def _read_layers(outs: dict, layers, camera: MarchCamera, stat_tiles: int, evt, rt) -> dict:
+    """The layers, ``stopped_at_bound`` (the rays cl/raymarch.cl's progress bound stopped:
+    an int, read with the stats) and with ``stat_tiles`` the per-tile ``stats``."""
     result = {}
     for name, ch in layers:
         shape = (camera.height, camera.width, 3) if ch == 3 else (camera.height, camera.width)
         result[name] = rt.from_device(outs[name], shape, wait_for=[evt])
+    words = rt.from_device(outs["stats"], (1 + stat_tiles * 4,), np.uint32, wait_for=[evt],
+                           label="march bound count")
+    result["stopped_at_bound"] = int(words[0])
     if stat_tiles:
-        result["stats"] = rt.from_device(outs["stats"], (stat_tiles, 4), np.uint32)
+        result["stats"] = words[1:].reshape(stat_tiles, 4)
     return result

@@ -277,12 +277,9 @@ class Renderer:
             "raymarch.block": int(rm.block),
             "device": self.rt.entry.label,
         })
-        from .raymarch import march_bound
-        t_far = march_bound(plan.camera.origin, grid.bbox_min, grid.bbox_max, plan.step)
-        if t_far is not None:       # cl/raymarch.cl's progress bound may stop rays early
-            header["raymarch.bound"] = (f"rays may stop early: the box reaches {t_far:.4g} "
-                                        f"from the camera, {t_far / plan.step:.3g} steps of "
-                                        f"{plan.step:.3g} (float32 cannot advance past 2^22)")
+        # rays cl/raymarch.cl's progress bound stopped, counted by the kernel (marched rays:
+        # with supersampling, sub-pixel rays); 0 on every image that can be marched
+        header["raymarch.rays_stopped_at_bound"] = int(rm.rays_stopped_at_bound)
         header.update(source.header())
         header.update(rm.env_header(plan))
         return RenderResult(layers, header)
