@@ -56,7 +56,7 @@ def moved_frames(scene, grid, seed: int) -> dict:
     c1 = scene.camera
     c0 = orbit(c1, -3.0)
     out = {}
-    r = Renderer(scene, "raymarch", grid=grid)
+    r = Renderer(scene, "raymarch", grid=grid, ms="network")
     r.render(camera=c0)
     out["lattice"] = r.render(camera=c1).total
     for name, before in (("stochastic_fresh", 0), ("stochastic_moved", 1),

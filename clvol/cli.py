@@ -53,7 +53,7 @@ def _check_builds(entry) -> list[str]:
     from .runtime import get_runtime
     from .scenefile import scene_from_dict
     out = []
-    for method, kw in (("default (raymarch + network MS)", {}),
+    for method, kw in (("default (raymarch + network MS at the view)", {}),
                        ("pathtrace", {"method": "pathtrace", "spp": 1})):
         try:
             sc = scene_from_dict({   # examples/cloud.toml, small
@@ -273,7 +273,7 @@ def _cmd_render(args) -> int:
     renderer = Renderer(scene, args.method, **given_options(args, list(METHODS)))
     if args.frames is not None:
         return _render_frames(args, scene, renderer, png, exposure, tone)
-    result = renderer.render()
+    result = renderer.render(still=True)      # a still image (Renderer.render's ``still``)
     if args.profile:
         rt = get_runtime()
         print("device time per kernel:\n" + rt.timing_report(), file=sys.stderr)

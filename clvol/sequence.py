@@ -130,7 +130,8 @@ def render_sequence(scene, renderer, frames: list[int], on_frame, prefetch: bool
                 loaded = load_frame(scene, n)
             t_wait = time.perf_counter() - t0
             t1 = time.perf_counter()
-            result = renderer.render(grid=loaded.grid, emission=loaded.emission)
+            # each frame is a still image of its density (Renderer.render's ``still``)
+            result = renderer.render(grid=loaded.grid, emission=loaded.emission, still=True)
             t2 = time.perf_counter()
             on_frame(n, result, loaded)
             t3 = time.perf_counter()

@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 
 from clvol.bundle import write_bundle
-from clvol.render.ms.view import STILL_SAMPLES, view_jitter
+from clvol.render.ms.view import MIN_SAMPLES, STILL_SAMPLES, view_jitter
 from clvol.render.renderer import Renderer
 from clvol.scene import load_scene
 
@@ -214,8 +214,8 @@ def test_orbit_matches_python_frame_by_frame(lib, view_bundle):
                 first = res.layers["total"]
                 share = np.sqrt(np.mean(res.layers["multiple"] ** 2) / np.mean(first ** 2))
                 assert share > 0.5            # the view table carries most of the image
-            if what == "light":               # the history restarted: one sample per block
-                assert res.header["raymarch.view_accumulated"] == 1
+            if what == "light":               # the history restarted: MIN_SAMPLES per block
+                assert res.header["raymarch.view_accumulated"] == MIN_SAMPLES
         print(f"orbit: largest relative RMS C vs Python {worst:.3g}")
     finally:
         both.close()
@@ -236,7 +236,8 @@ def test_orbit_matches_python_frame_by_frame(lib, view_bundle):
 # ---------------------------------------------------------------------- the still view
 
 def test_still_view_stops_drawing_as_python_does(lib, tmp_path):
-    """16x12 (automatic block 1): a still view draws STILL_SAMPLES times and then only
+    """16x12 (automatic block 1): a still view draws STILL_SAMPLES times (MIN_SAMPLES in its
+    first frame, then one a frame) and then only
     marches; an irradiance change alone draws nothing; a light direction change restarts the
     history; a move draws again. C's counters equal the Python renderer's after each render,
     and the last image equals Python's."""
@@ -249,24 +250,26 @@ def test_still_view_stops_drawing_as_python_does(lib, tmp_path):
         both.render()        # the bundle's light (libclvol computed its field at create)
         assert both.counts() == ((1, 1, 1, 1),) * 2
         both.set_light((0.3, 0.9, -0.2), (1.0, 1.1, 1.2))   # float32 from here on, as C's
-        for k in range(STILL_SAMPLES + 2):
+        # the new history's first frame draws MIN_SAMPLES, each later one 1, up to STILL_SAMPLES
+        drawing = STILL_SAMPLES - MIN_SAMPLES + 1
+        for k in range(drawing + 2):
             both.render()
             c, p = both.counts()
             assert c == p
-            assert c[1:] == (2, 1 + min(k + 1, STILL_SAMPLES), k + 2)
+            assert c[1:] == (2, 1 + min(k + 1, drawing), k + 2)
         both.set_light((0.3, 0.9, -0.2), (0.5, 0.7, 0.9))          # irradiance alone
         got, res = both.render()
         c, p = both.counts()
-        assert c == p == (1, 2, STILL_SAMPLES + 1, STILL_SAMPLES + 4)
+        assert c == p == (1, 2, drawing + 1, drawing + 4)
         assert _rel_rms(got[..., :3], res.layers["total"]) <= TOL
         both.set_light((-0.5, 0.7, 0.4), (0.5, 0.7, 0.9))          # direction: restart
         both.render()
         c, p = both.counts()
-        assert c == p == (1, 3, STILL_SAMPLES + 2, STILL_SAMPLES + 5)
+        assert c == p == (1, 3, drawing + 2, drawing + 5)
         assert both.camera(_eye(0.35), TARGET, UP, FOV, 16, 12) == OK
         got, res = both.render()
         c, p = both.counts()
-        assert c == p == (1, 3, STILL_SAMPLES + 3, STILL_SAMPLES + 6)
+        assert c == p == (1, 3, drawing + 3, drawing + 6)
         assert _rel_rms(got[..., :3], res.layers["total"]) <= TOL
         # a size whose automatic block (about 64 across) is 2, not the bundle's 1: refused
         # and nothing changes; one with the same block restarts the history
@@ -279,8 +282,8 @@ def test_still_view_stops_drawing_as_python_does(lib, tmp_path):
         assert both.camera(_eye(0.35), TARGET, UP, FOV, 20, 14) == OK
         got, res = both.render()
         c, p = both.counts()
-        assert c == p and c[2] == STILL_SAMPLES + 4
-        assert res.header["raymarch.view_accumulated"] == 1
+        assert c == p and c[2] == drawing + 4
+        assert res.header["raymarch.view_accumulated"] == MIN_SAMPLES
         assert _rel_rms(got[..., :3], res.layers["total"]) <= TOL
     finally:
         both.close()
@@ -379,7 +382,8 @@ def test_several_draws_a_frame_and_a_fixed_block(lib, tmp_path):
             assert _rel_rms(got[..., :3], res.layers["total"]) <= TOL, (angle, w, h)
         c, p = both.counts()
         assert c == p and c[2] == 4
-        assert res.header["raymarch.view_accumulated"] == 3
+        # the last size restarted the history: max(3, MIN_SAMPLES) draws
+        assert res.header["raymarch.view_accumulated"] == max(3, MIN_SAMPLES)
     finally:
         both.close()
 

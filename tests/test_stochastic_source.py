@@ -11,7 +11,7 @@ import pytest
 
 from clvol.errors import ClvolError
 from clvol.render.renderer import Renderer
-from clvol.render.ms.view import MOVE_HISTORY, STILL_SAMPLES
+from clvol.render.ms.view import MIN_SAMPLES, MOVE_HISTORY, STILL_SAMPLES
 from test_view_source import _scene
 
 S = 0.05
@@ -78,9 +78,10 @@ def test_same_seed_same_image_and_another_seed_another():
 def test_still_view_accumulates_then_stops_drawing():
     scene = _scene()
     r = _renderer(scene, _distance_query(scene), view_samples=3)
-    for frame in (1, 2):
+    # a new history draws MIN_SAMPLES (> 3), then each still frame view_samples
+    for want in (MIN_SAMPLES, MIN_SAMPLES + 3):
         res = r.render()
-        assert res.header["raymarch.view_accumulated"] == 3 * frame
+        assert res.header["raymarch.view_accumulated"] == want
     assert r.counts["ms_view_table"] == 2
     r = _renderer(scene, _distance_query(scene), view_samples=STILL_SAMPLES)
     first = r.render()
@@ -188,3 +189,48 @@ def test_refining_flag_ends_for_empty_and_unlit_views():
     assert r.render().header["raymarch.view_refining"] is True
     dark = dataclasses.replace(scene.medium, albedo=(0.0, 0.0, 0.0))
     assert r.render(medium=dark).header["raymarch.view_refining"] is False
+
+
+def test_a_still_render_is_the_64_frame_still_view_and_follows_its_seed():
+    """Renderer.render(still=True) (what clvol render asks for) draws at once what a still
+    view accumulates over STILL_SAMPLES frames: the same draws in the same order, so the image
+    equals the one after that many real-time frames bit for bit; the same seed gives the
+    same image, another seed another one."""
+    from pathlib import Path
+
+    import clvol
+    sc = clvol.load_scene(Path(__file__).resolve().parents[1] / "examples" / "cloud.toml")
+    sc = dataclasses.replace(sc, camera=dataclasses.replace(sc.camera, width=24, height=20))
+    still = clvol.Renderer(sc, seed=3).render(still=True)
+    assert still.header["raymarch.view_accumulated"] == STILL_SAMPLES
+    assert still.header["raymarch.view_refining"] is False
+    r = clvol.Renderer(sc, seed=3)
+    for _ in range(STILL_SAMPLES):
+        frames = r.render()
+    assert np.array_equal(still.total, frames.total)
+    assert np.array_equal(still.total, clvol.Renderer(sc, seed=3).render(still=True).total)
+    other = clvol.Renderer(sc, seed=4).render(still=True).total
+    assert not np.array_equal(still.total, other)
+
+
+def test_a_young_history_draws_up_to_min_samples():
+    """One draw a frame (the default) except where the history is younger than MIN_SAMPLES
+    draws: a new history (the first frame, a light change) draws MIN_SAMPLES at once; under
+    motion the carried min(age, MOVE_HISTORY) plus the frame's own draw suffice, so each
+    moving frame draws one. The draw counter (the RNG stream) advances by exactly the draws
+    made. Planted: without the rule the first frame holds 1 sample per block."""
+    assert MOVE_HISTORY + 1 >= MIN_SAMPLES > 1
+    scene = _scene()
+    r = _renderer(scene, _distance_query(scene))
+    cam = scene.camera
+    res = r.render()
+    assert res.header["raymarch.view_accumulated"] == MIN_SAMPLES
+    assert r.source.draws == MIN_SAMPLES
+    seen = [r.source.draws]
+    for x in (0.02, 0.04, 0.06):
+        res = r.render(camera=dataclasses.replace(cam, origin=(x, 0.3, 2.4)))
+        seen.append(r.source.draws)
+        assert res.header["raymarch.view_accumulated"] == MOVE_HISTORY + 1
+    assert np.diff(seen).tolist() == [1, 1, 1]
+    res = r.render(light=dataclasses.replace(scene.light, direction=(0.0, 1.0, 0.0)))
+    assert res.header["raymarch.view_accumulated"] == MIN_SAMPLES

@@ -149,7 +149,8 @@ enum { SOURCE_NONE, SOURCE_WRENNINGE, SOURCE_NETWORK };
  * _History): the bundle's view.* keys, the draw counter, and per block of the current
  * layout the sums of F_ms, sample counts and depth sums since the history started. */
 typedef struct {
-    int block, block_auto, blocks_across, samples, still_samples, move_history;
+    int block, block_auto, blocks_across, samples, still_samples, move_history, min_samples;
+    int age;                    /* draws the history holds per block (capped through moves) */
     uint32_t seed;
     double step_factor;
     long draws;                 /* draws since clvol_create: the RNG stream's position */

@@ -350,6 +350,8 @@ static void read_view_keys(clvol_host *h) {
     v->samples = mf_int_in(m, "view.samples", 1, 4096);
     v->still_samples = mf_int_in(m, "view.still_samples", 1, 1 << 20);
     v->move_history = mf_int_in(m, "view.move_history", 0, 1 << 20);
+    /* bundles written before the key drew view.samples a frame whatever the history's age */
+    v->min_samples = mf_find(m, "view.min_samples") ? mf_int_in(m, "view.min_samples", 1, 4096) : 1;
     double seed = mf_double(m, "view.seed");
     if (!(seed >= 0 && seed < 4294967296.0 && seed == floor(seed)))
         fail(BUNDLE, "%s: view.seed = %g: an integer in [0, 2^32)", m->where, seed);
@@ -1036,6 +1038,7 @@ static void view_stage(clvol_host *h) {
         v->bx = bx, v->by = by, v->C = C;
         v->have_camera = 0;
         v->still = 0;
+        v->age = 0;
         v->reset = 0;
     }
     view_camera cam = current_camera(h);
@@ -1053,7 +1056,10 @@ static void view_stage(clvol_host *h) {
         v->d_table = buffer(h, sizeof(float) * (size_t)(1 + C) * nb, NULL);
         v->cap = (int)nb;
     }
-    int S = v->samples;
+    /* the history's age once carried through a move (view_reproject keeps move_history), and
+     * the draws that bring it to min_samples (view.py MIN_SAMPLES) */
+    int age = moved && v->age > v->move_history ? v->move_history : v->age;
+    int S = v->samples > v->min_samples - age ? v->samples : v->min_samples - age;
     size_t most = (size_t)nb * S;
     double *pts = xmalloc(sizeof(double) * 3 * most), *oms = xmalloc(sizeof(double) * 3 * most);
     double *t = xmalloc(sizeof(double) * most);
@@ -1106,6 +1112,7 @@ static void view_stage(clvol_host *h) {
     v->cam_tan_half = cam.tan_half;
     v->have_camera = 1;
     v->still += S;
+    v->age = age + S;
     /* the table (1 + C, by, bx, 1): mean depth (-1 where no sample yet), mean F_ms */
     float *table = xmalloc(sizeof(float) * (size_t)(1 + C) * nb);
     for (long b = 0; b < nb; ++b) {

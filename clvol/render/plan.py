@@ -214,6 +214,8 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
              else None)
     programs, pocl = _programs(scene, o, defines, lit, light_res, env, volume,
                                cls if lit else None, source_class(choice.name), weights)
+    if lit:
+        programs.update(ms.programs)      # the source's own (the view sources' depth pass)
     return FramePlan(
         configured_source=o["ms"], source=choice.name, warning=choice.warning,
         thin=choice.thin, lit=lit, shortcuts=shortcuts, skip_empty=skip_empty, camera=camera,

@@ -2,8 +2,9 @@
 
     import clvol, dataclasses
     scene = clvol.load_scene("examples/cloud.toml")
-    r = clvol.Renderer(scene)                      # raymarch + network MS (the paper's method)
-    img = r.render()                               # RenderResult: .total .alpha ... .header
+    r = clvol.Renderer(scene)                      # raymarch + network MS at the view (default)
+    img = r.render()                               # a real-time frame: .total .alpha ... .header
+    still = r.render(still=True)                   # a still image (what clvol render makes)
     cam = dataclasses.replace(scene.camera, origin=(1.0, 0.3, 2.2))
     img = r.render(camera=cam)                     # recomputes only what the camera changes
 
@@ -17,6 +18,8 @@ change invalidates it:
     light_field             light direction or density scale changed
     graded_transmittance    the same, for the network's pyramid
     ms_lattice              camera position, light direction or medium changed (network)
+    ms_view_table           a frame that draws (stochastic, the default: the camera moved or
+                            the view is still refining; clvol/render/ms/view.py)
     env_transmittance       density scale changed (transmittance toward the sky directions)
     env_sky                 the environment (constant sky, map, scale, rotation) changed
     env_field               the same, the albedo or phase, or with an anisotropic phase
@@ -227,7 +230,7 @@ class Renderer:
     def _no_supersample(self) -> int:
         return 1
 
-    def _render_raymarch(self, cam, light, medium, seed=None) -> RenderResult:
+    def _render_raymarch(self, cam, light, medium, seed=None, still=False) -> RenderResult:
         if seed is not None:
             raise ClvolError(f"seed: render(seed=) chooses the path tracer's pass; the "
                              f"raymarch method takes its seed as an option "
@@ -254,7 +257,8 @@ class Renderer:
                                            plan.shortcuts, self._count, plan.lattice_reach,
                                            rm.dm, plan.step, plan.threshold,
                                            plan.keys["ms"],
-                                           plan.device_programs(self.rt.is_pocl)))
+                                           plan.device_programs(self.rt.is_pocl),
+                                           still=still))
             else:
                 source.skip()
             with Stopwatch() as sw_light:
@@ -285,7 +289,8 @@ class Renderer:
         return RenderResult(layers, header)
 
     # ------------------------------------------------------------------ pathtrace
-    def _render_pathtrace(self, cam, light, medium, seed=None) -> RenderResult:
+    def _render_pathtrace(self, cam, light, medium, seed=None, still=False) -> RenderResult:
+        # every path-traced image is a still one: ``still`` changes nothing here
         from .pathtrace import render_pathtrace
         o = self.options
         scene = dataclasses.replace(self.scene, camera=cam, light=light, medium=medium)
@@ -314,7 +319,7 @@ class Renderer:
                             float(np.linalg.norm(g.extent)), name="medium.density_scale")
 
     def render(self, camera=None, light=None, medium=None, seed: int | None = None,
-               grid=None, emission=None) -> RenderResult:
+               grid=None, emission=None, still: bool = False) -> RenderResult:
         """Render with the scene's camera, light and medium, or the ones given (instances of
         clvol.scene.Camera, Light, Medium) for this frame only: the next plain ``render()``
         uses the scene's again. ``grid`` (and, with ``[emission]``, ``emission``): a new
@@ -322,7 +327,12 @@ class Renderer:
         "What persists between calls").
 
         ``seed`` (path tracer only) replaces the ``seed`` option for this frame, so the passes
-        of a progressive render draw independent samples from one Renderer."""
+        of a progressive render draw independent samples from one Renderer.
+
+        ``still``: this frame is a still image, not one of a moving sequence (``clvol render``
+        passes True): an accumulating source (``--ms stochastic``) draws at once what its
+        still view would gather over frames (docs/raymarch.md, "One default"); the image is
+        the same for the same seed. False (a real-time frame) draws ``view_samples``."""
         cam = _checked("camera", camera, self.scene.camera)
         light = _checked("light", light, self.scene.light)
         medium = _checked("medium", medium, self.scene.medium)
@@ -335,10 +345,12 @@ class Renderer:
             raise ClvolError("render(emission=...) goes with grid=...: a new frame's density "
                              "and its emission grid")
         self._check_optical_range(medium)
+        if not isinstance(still, bool):
+            raise ClvolError(f"still: {still!r} must be True or False")
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)
                                  or not 0 <= seed < 2**32):
             raise ClvolError(f"seed: {seed!r} must be an integer in [0, 2^32)")
-        return getattr(self, self._METHODS[self.method][1])(cam, light, medium, seed)
+        return getattr(self, self._METHODS[self.method][1])(cam, light, medium, seed, still)
 
     # method -> (set-up run once by __init__, or None; the frame; the supersampling factor):
     # the one table the Renderer dispatches through (METHODS in clvol/render/__init__.py

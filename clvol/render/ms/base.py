@@ -122,6 +122,8 @@ class MsPlan:
     octaves: Octaves = Octaves()            # oct_a, oct_b, oct_c kernel arguments
     simulated: list = field(default_factory=list)
     skipped: list = field(default_factory=list)
+    programs: dict = field(default_factory=dict)   # the source's own programs (name -> -D
+                                                   # defines) besides the march and network
 
     @property
     def channels(self) -> int | None:
@@ -159,6 +161,8 @@ class SourceFrame:
     key: object = None        # the plan's keys["ms"]: what the source's data depends on
     programs: dict | None = None  # the plan's programs with this device's additions
                                   # (FramePlan.device_programs): the defines it builds with
+    still: bool = False       # a still image (clvol render): an accumulating source draws
+                              # now what its still view would gather over frames
 
 
 class MsSource:

@@ -186,6 +186,7 @@ class ViewMs(NetworkMs):
         grey = bool(shortcuts and medium.is_grey)
         channels = 1 if grey else 3
         p = MsPlan(ms_defines("view", channels=channels, view_k=knots, view_block=block))
+        p.programs["viewdepth"] = cls._depth_defines(block, knots)
         bx, by = block_grid(camera.width, camera.height, block)
         p.simulated.append(cls._simulated(block, knots, bx, by, channels))
         if grey:
@@ -193,6 +194,12 @@ class ViewMs(NetworkMs):
                              "one per query)")
         p.skipped.append(cls._skipped_blocks)
         return p
+
+    @staticmethod
+    def _depth_defines(block: int, knots: int) -> dict:
+        """The view_depths program's defines (``prepare``'s depth pass)."""
+        from ...kernels.viewdepth import view_depth_defines
+        return view_depth_defines(knots, block, min(VIEW_RAYS, block))
 
     @staticmethod
     def _simulated(block, knots, bx, by, channels) -> str:
@@ -229,6 +236,12 @@ STILL_SAMPLES = 64
 # sample weighs at least 1/(MOVE_HISTORY + 1) and the table follows the view (F_ms depends
 # on the direction toward the camera, which the move changed).
 MOVE_HISTORY = 4
+# A frame draws until its history is at least this many draws old (a new history, or one
+# carried through a move after fewer draws): one draw per block leaves the first frames of a
+# back-scattering cloud worse than the analytic octaves (bench/moving_frames.py: RMSE x 100
+# 8.1 and 6.6 against 6.4); four bring them under it. Once the history is older, a moving
+# frame draws view_samples (MOVE_HISTORY carried + the new one already reach it).
+MIN_SAMPLES = 4
 
 
 def auto_block(width: int, height: int) -> int:
@@ -267,6 +280,7 @@ class _History:
         self.depth = np.zeros((by, bx), np.float64)       # sum of sample depths
         self.camera = None                                # the camera of the last draw
         self.still = 0                                    # draws since the last move
+        self.age = 0              # draws the history holds per block (capped through moves)
 
     def table(self) -> np.ndarray:
         """(1 + C, by, bx, 1) float32: mean depth (-1 where no sample yet), mean F_ms."""
@@ -427,15 +441,20 @@ class StochasticViewMs(ViewMs):
         if self.info:
             self.info = dict(self.info, light=0.0, gather=0.0, network=0.0, depths=0.0,
                              reproject=0.0, points=0)
-        h, _, moved = self._frame_history(frame)
+        h, fresh, moved = self._frame_history(frame)
         cam = frame.camera
         if not moved and h.still >= STILL_SAMPLES:
             self.refining = False
             return                                       # converged: nothing to draw
+        # the history's age once carried through a move (_reproject keeps MOVE_HISTORY)
+        age = min(h.age, MOVE_HISTORY) if moved else h.age
+        n_draws = max(self.samples, MIN_SAMPLES - age)
+        if frame.still:     # a still image: draw now what the still view would accumulate
+            n_draws = max(n_draws, STILL_SAMPLES - (0 if moved or fresh else h.still))
         builds = self.net.graded_builds
         with Stopwatch() as sw:
             draws = []
-            for _ in range(self.samples):
+            for _ in range(n_draws):
                 self.draws += 1
                 draws.append(self._draw(frame, self.draws - 1))
         t_depths = sw.seconds
@@ -456,7 +475,8 @@ class StochasticViewMs(ViewMs):
             h.count[full] += 1
             h.depth[full] += t
         h.camera = cam
-        h.still += self.samples
+        h.still += n_draws
+        h.age = age + n_draws
         info.update(depths=t_depths, reproject=t_reproject, blocks=int((h.count > 0).sum()),
                     samples=int(h.count.max()))
         self.refining = h.still < STILL_SAMPLES
@@ -469,15 +489,13 @@ class StochasticViewMs(ViewMs):
     def bundle_view(self, camera) -> dict:
         """The bundle's view.* keys (libclvol repeats prepare with them) and the free-flight
         draw's viewdepth defines, for ``camera``'s image size."""
-        from ...kernels.viewdepth import view_depth_defines
         block = (auto_block(camera.width, camera.height) if self.fixed_block is None
                  else self.fixed_block)
         keys = {"block": block, "block_auto": self.fixed_block is None,
                 "blocks_across": STOCHASTIC_BLOCKS_ACROSS, "samples": self.samples,
-                "seed": self.seed, "still_samples": STILL_SAMPLES,
+                "seed": self.seed, "still_samples": STILL_SAMPLES, "min_samples": MIN_SAMPLES,
                 "move_history": MOVE_HISTORY, "step_factor": VIEW_STEP_FACTOR}
-        return {"keys": keys,
-                "viewdepth": view_depth_defines(1, block, 1, jitter=True, free_flight=True)}
+        return {"keys": keys, "viewdepth": self._depth_defines(block, 1)}
 
     @classmethod
     def key_for(cls, camera, light, medium, shortcuts: bool):
@@ -490,6 +508,12 @@ class StochasticViewMs(ViewMs):
     def _block_knots(cls, camera, o) -> tuple[int, int]:
         block = cls.read(o, "view_block")
         return (auto_block(camera.width, camera.height) if block is None else block), 1
+
+    @staticmethod
+    def _depth_defines(block: int, knots: int) -> dict:
+        """The free-flight draws' defines (``_draw``: one ray and one knot, jittered)."""
+        from ...kernels.viewdepth import view_depth_defines
+        return view_depth_defines(1, block, 1, jitter=True, free_flight=True)
 
     @staticmethod
     def _simulated(block, knots, bx, by, channels) -> str:
