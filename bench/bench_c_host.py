@@ -173,7 +173,7 @@ def main() -> None:
             light_res = int([l for l in (bundle / "manifest.txt").read_text().splitlines()
                              if l.startswith("raymarch.light_resolution")][0].split()[-1])
             # the library keeps the bundle's light resolution on a new density: Python too
-            opts = dict(ms_resolution=args.ms_resolution, light_resolution=light_res)
+            opts = dict(ms="network", ms_resolution=args.ms_resolution, light_resolution=light_res)
             c_figures(lib, bundle, scene, grid, 1)                  # warm both program caches
             Renderer(scene, "raymarch", grid=grid, runtime=rt, **opts).render()
             c = c_figures(lib, bundle, scene, grid, args.frames)

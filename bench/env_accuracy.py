@@ -89,7 +89,7 @@ def main(argv=None) -> int:
                   f"{a.mean() / pt.mean() - 1:+7.3f} {s['rmse100']:8.2f} "
                   f"{s['rmse100_raw']:7.2f}", flush=True)
         if args.order1:
-            march = Renderer(sc).render().layers
+            march = Renderer(sc, ms="network").render().layers
             opaque = march["alpha"].reshape(march["alpha"].shape[:2]) > 0.99
             o1 = Renderer(sc, "pathtrace", spp=args.spp, max_order=1)
             pt1 = 0.5 * (o1.render(seed=13).layers["total"] + o1.render(seed=14).layers["total"])

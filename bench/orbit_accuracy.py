@@ -16,10 +16,12 @@ from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 
-SETTINGS = {"per-position lattice 32^3 (default)": {}, "lattice 64^3": {"ms_resolution": 64},
-            "--ms-refresh 4": {"ms_refresh": 4}, "--ms-refresh 8": {"ms_refresh": 8},
-            "--ms-directions 48": {"ms_directions": 48}, "--ms wrenninge": {"ms": "wrenninge"},
-            "--ms none": {"ms": "none"}}
+NET = {"ms": "network"}
+SETTINGS = {"per-position lattice 32^3": NET, "lattice 64^3": {**NET, "ms_resolution": 64},
+            "--ms-refresh 4": {**NET, "ms_refresh": 4}, "--ms-refresh 8": {**NET, "ms_refresh": 8},
+            "--ms-directions 48": {**NET, "ms_directions": 48},
+            "--ms stochastic (default)": {"ms": "stochastic"},
+            "--ms wrenninge": {"ms": "wrenninge"}, "--ms none": {"ms": "none"}}
 
 
 def main(argv=None) -> int:

@@ -459,20 +459,19 @@ def _packed_tensors(w, pad8) -> list:
 
 def add_arguments(p) -> None:
     from .kernels.raymarch import DEFAULT_THRESHOLD
-    from .render.ms import DEFAULT_SOURCE, source_class
+    from .render.ms import DEFAULT_SOURCE
     from .render.raymarch import DEFAULT_STEP
-    # the defaults are the network source's own (the C host's source)
-    default_res = source_class(DEFAULT_SOURCE).option("ms_resolution").default
     p.add_argument("scene", help="scene .toml file")
     p.add_argument("dir", help="output folder (created)")
     p.add_argument("--weights", metavar="FILE.npz", help="network weights (default: shipped)")
     p.add_argument("--ms", default=DEFAULT_SOURCE,
-                   help="multiple-scattering source: the C host implements network (the world "
-                        "lattice) and stochastic (the view-space table); view and progressive "
-                        "are Python-only and refused (docs/embedding.md)")
+                   help=f"multiple-scattering source (default {DEFAULT_SOURCE}, as clvol render): "
+                        "the C host implements stochastic (the view-space table) and network "
+                        "(the world lattice); view and progressive are Python-only and "
+                        "refused (docs/embedding.md)")
     p.add_argument("--ms-resolution", type=int, default=None,
-                   help=f"--ms network: F_ms lattice points per side (default {default_res}, "
-                        f"at most 32)")
+                   help="--ms network: F_ms lattice points per side (default: as clvol "
+                        "render; at most 32)")
     p.add_argument("--view-block", type=int, default=None, metavar="B",
                    help="--ms stochastic: pixels per block side (default: as clvol render)")
     p.add_argument("--view-samples", type=int, default=None, metavar="N",

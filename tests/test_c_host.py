@@ -165,10 +165,10 @@ def test_c_render_matches_python(host, tmp_path, monkeypatch, name, overrides, g
     # compared with Python's unfused path, the image with both.
     import clvol.render.ms.network as network
     monkeypatch.setattr(network, "FUSED_DEFAULT", False)
-    res = Renderer(scene, "raymarch", ms_resolution=MS_RES, runtime=rt).render()
+    res = Renderer(scene, "raymarch", ms="network", ms_resolution=MS_RES, runtime=rt).render()
     want = res.layers["total"]
     monkeypatch.undo()
-    fused = Renderer(scene, "raymarch", ms_resolution=MS_RES, runtime=rt).render()
+    fused = Renderer(scene, "raymarch", ms="network", ms_resolution=MS_RES, runtime=rt).render()
     np.testing.assert_array_equal(fused.layers["total"], want)
     if scene.medium.albedo[0] > 0:
         assert res.header["raymarch.ms"] == source
@@ -212,7 +212,7 @@ def test_c_render_matches_python_on_a_non_cubic_volume_and_image(host, tmp_path)
     r = run([host / "clvol-render", bundle, tmp_path / "c.pfm"])
     assert r.returncode == 0, r.stderr
     got = read_pfm(tmp_path / "c.pfm")
-    want = Renderer(scene, "raymarch", ms_resolution=MS_RES).render().layers["total"]
+    want = Renderer(scene, "raymarch", ms="network", ms_resolution=MS_RES).render().layers["total"]
     assert got.shape == want.shape == (24, 40, 3) and want.max() > 0
     rel = np.sqrt(np.mean((got - want) ** 2)) / np.sqrt(np.mean(want ** 2))
     assert rel <= 1e-3, f"relative RMS difference C vs Python {rel:.3g}"
@@ -379,7 +379,8 @@ def test_mutated_bundles_fail_cleanly_under_asan(host, tmp_path_factory):
 
 def test_bundle_cli_refuses_bad_options(tmp_path, capsys):
     scene = ROOT / "examples" / "cloud.toml"
-    assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms-resolution", "64"]) == 2
+    assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms", "network",
+                 "--ms-resolution", "64"]) == 2
     assert "ms_resolution = 64: at most 32768 lattice points" in capsys.readouterr().err
     assert main(["bundle", str(scene), str(tmp_path / "b"), "--step", "0"]) == 2
     assert "step = 0.0" in capsys.readouterr().err
@@ -389,7 +390,8 @@ def test_bundle_refuses_a_sky_lit_scene(tmp_path, capsys):
     """The sky's in-scattering and a map background are Python-only: a bundle of
     examples/cloud_sky.toml would render another image in C, so it is refused by name."""
     scene = ROOT / "examples" / "cloud_sky.toml"
-    assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms-resolution", "4"]) == 2
+    assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms", "network",
+                 "--ms-resolution", "4"]) == 2
     err = capsys.readouterr().err
     assert "cloud_sky.toml" in err and "sky" in err and "C host" in err
     assert not (tmp_path / "b").exists()
@@ -411,7 +413,8 @@ def test_bundle_refuses_a_source_the_c_host_lacks(tmp_path, capsys, monkeypatch)
     # the plan's choice is the one the bundle reads: make it choose the view-space source
     monkeypatch.setattr(plan, "choose_source", lambda *a, **k: plan.SourceChoice("view"))
     scene = ROOT / "examples" / "cloud.toml"
-    assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms-resolution", "4"]) == 2
+    assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms", "network",
+                 "--ms-resolution", "4"]) == 2
     err = capsys.readouterr().err
     assert "cloud.toml" in err and "--ms view" in err and "does not implement" in err
     assert not (tmp_path / "b").exists()

@@ -171,7 +171,7 @@ COUNTS = {
 def _python_images(steps, grid):
     """What clvol.Renderer gives after each step (the same changes, through its API)."""
     scene = _scene()
-    opts = dict(ms_resolution=MS_RES, light_resolution=LIGHT_RES)
+    opts = dict(ms="network", ms_resolution=MS_RES, light_resolution=LIGHT_RES)
     r = Renderer(scene, "raymarch", **opts)
     cam, light, medium = scene.camera, scene.light, scene.medium
     out = {}

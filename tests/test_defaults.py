@@ -131,3 +131,38 @@ def test_each_named_default_is_written_once(home, name, carriers):
     value = home_value(home, name)
     bad = [hit for p in modules() for hit in copies(p, home, name, carriers, value)]
     assert not bad, "\n".join(bad)
+
+
+# --------------------------------------------------------------------------- one default
+
+def test_every_front_door_defaults_to_the_same_source(tmp_path):
+    """Issue 39: the CLI, clvol.Renderer, the viewer and clvol bundle (hence libclvol) start
+    from one multiple-scattering source, the registry's DEFAULT_SOURCE, with the same options:
+    the bundle's manifest records the source and view options a Renderer plans with."""
+    import clvol
+    from clvol.cli import build_parser
+    from clvol.render.ms import DEFAULT_SOURCE, source_class
+    from clvol.viewer.state import METHODS as VIEWER_METHODS
+    assert DEFAULT_SOURCE == "stochastic"
+    assert source_class(DEFAULT_SOURCE).bundle_supported     # libclvol renders it
+    # the CLI's --ms default for clvol render and clvol bundle
+    ap = build_parser()
+    scene = str(ROOT / "examples" / "cloud.toml")
+    # (clvol render leaves an option it was not given unset: the Renderer's default applies)
+    assert getattr(ap.parse_args(["render", scene, "-o", "x.exr"]), "ms", DEFAULT_SOURCE) \
+        == DEFAULT_SOURCE
+    assert ap.parse_args(["bundle", scene, str(tmp_path / "b")]).ms == DEFAULT_SOURCE
+    # the Renderer
+    r = clvol.Renderer(clvol.load_scene(scene))
+    assert r.source.name == DEFAULT_SOURCE
+    # the viewer's menu: its first entry is the default
+    label, opts = next(iter(VIEWER_METHODS.items()))
+    assert label == DEFAULT_SOURCE and opts.get("ms") == DEFAULT_SOURCE
+    # the bundle (libclvol's input) as written by clvol bundle with no --ms
+    from clvol.cli import main
+    assert main(["bundle", scene, str(tmp_path / "b"), "--width", "32", "--height", "32"]) == 0
+    lines = (tmp_path / "b" / "manifest.txt").read_text().splitlines()
+    manifest = dict(ln.split("#")[0].split("=", 1) for ln in lines if "=" in ln.split("#")[0])
+    manifest = {k.strip(): v.strip() for k, v in manifest.items()}
+    sources = {k: v for k, v in manifest.items() if k.endswith("source") or k == "ms"}
+    assert DEFAULT_SOURCE in sources.values(), sources

@@ -52,7 +52,7 @@ def _render(monkeypatch, lanes: int, method: str, **kw) -> dict:
 
 
 @pytest.mark.parametrize("method,kw", [
-    ("raymarch", {"ms_resolution": 8}),              # light field, gather + network, march
+    ("raymarch", {"ms": "network", "ms_resolution": 8}),              # light field, gather + network, march
     ("pathtrace", {"spp": 2}),
 ], ids=["default", "pathtrace"])
 def test_a_scene_renders_the_same_bits_at_16_8_and_4_lanes(monkeypatch, method, kw):

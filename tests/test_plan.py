@@ -49,6 +49,7 @@ def no_device(monkeypatch):
 
 
 def _plan(scene, domain, **given):
+    given.setdefault("ms", "network")   # the domain and thin-medium rules, on the lattice source
     return plan_frame(scene, bind("raymarch", given), VolumeFacts(scene.volume.load()), domain)
 
 

@@ -90,12 +90,18 @@ def scene_file(tmp_path_factory):
 
 
 def test_default_is_raymarch_with_the_shipped_network(scene_file):
-    r = clvol.Renderer(clvol.load_scene(scene_file), ms_resolution=8)
+    """The default: the ray marcher with the shipped network at the camera's view (the
+    stochastic source); the lattice is named (ms="network")."""
+    r = clvol.Renderer(clvol.load_scene(scene_file))
     res = r.render()
     h = res.header
-    assert r.method == "raymarch" and h["raymarch.ms"] == "network"
+    assert r.method == "raymarch" and h["raymarch.ms"] == "stochastic"
     assert h["raymarch.weights"].endswith("full_albedo.npz")
     assert "full_albedo.npz" in h["method.description"]
+    assert "network at the camera's view, stochastic" in h["simulated"]
+    r = clvol.Renderer(clvol.load_scene(scene_file), ms="network", ms_resolution=8)
+    res = r.render()
+    h = res.header
     assert "network-filled F_ms lattice 8x8x8" in h["simulated"]
     assert res.total.shape == (10, 12, 3) and res.alpha.shape == (10, 12)
     assert res.multiple.max() > 0
@@ -104,28 +110,31 @@ def test_default_is_raymarch_with_the_shipped_network(scene_file):
 def test_cli_default_names_method_and_weights(scene_file, tmp_path, capsys):
     from clvol.image import read_exr
     out = tmp_path / "d.exr"
-    assert main(["render", str(scene_file), "-o", str(out), "--ms-resolution", "6"]) == 0
+    assert main(["render", str(scene_file), "-o", str(out)]) == 0
     err = capsys.readouterr().err
     assert "  method: raymarch\n" in err
     assert "method.description: ray marching: exact single scattering + network multiple " \
-           "scattering (weights full_albedo.npz)" in err
+           "scattering at the camera's view, stochastic" in err and "full_albedo.npz" in err
     h = read_exr(out).header
-    assert h["method"] == "raymarch" and h["raymarch.ms"] == "network"
+    assert h["method"] == "raymarch" and h["raymarch.ms"] == "stochastic"
     assert str(h["raymarch.weights"]).endswith("full_albedo.npz")
+    # a still image: the still view's samples drawn at once
+    from clvol.render.ms.view import STILL_SAMPLES
+    assert int(h["raymarch.view_accumulated"]) == STILL_SAMPLES
     # The explicit spelling of the default gives the same image.
     out2 = tmp_path / "e.exr"
     assert main(["render", str(scene_file), "-o", str(out2), "--method", "raymarch", "--ms",
-                 "network", "--ms-resolution", "6"]) == 0
+                 "stochastic", "--seed", "0"]) == 0
     np.testing.assert_array_equal(read_exr(out).layers["total"], read_exr(out2).layers["total"])
 
 
 @pytest.mark.parametrize("argv,names", [
     (["--spp", "4"], ["--spp", "raymarch"]),
-    (["--seed", "3"], ["--seed", "raymarch"]),
+    (["--seed", "3", "--ms", "network"], ["--seed", "raymarch"]),
     (["--time", "1"], ["--time", "raymarch"]),
     (["--weights", "x.npz", "--ms", "wrenninge"], ["--weights", "--ms network"]),
     (["--ms-resolution", "8", "--ms", "none"], ["--ms-resolution", "--ms network"]),
-    (["--octaves", "4"], ["--octaves", "--ms wrenninge"]),          # default source: network
+    (["--octaves", "4"], ["--octaves", "--ms wrenninge"]),          # default source: stochastic
     (["--ms-lattice", "g.npz", "--ms", "network"], ["--ms-lattice", "--ms lattice"]),
     (["--max-order", "2"], ["--max-order 2", "raymarch"]),
     (["--max-order", "1", "--ms", "network"], ["--max-order 1", "--ms network"]),
@@ -188,7 +197,7 @@ def test_renderer_recomputes_only_what_a_change_invalidates():
     """Counts per stage after each kind of change, and every image bit-identical to a fresh
     Renderer's on the changed scene (kept state is never stale)."""
     sc = small_scene()
-    opts = dict(ms_resolution=8)
+    opts = dict(ms="network", ms_resolution=8)
     r = clvol.Renderer(sc, **opts)
 
     def step(expect, **change):
@@ -228,21 +237,21 @@ def test_outside_the_domain_warns_and_uses_the_measured_alternative(capsys):
     # albedo 0.2: below the shipped weights' albedo range (0.3-1), where no measurement
     # found an analytic source better: the network is kept, with the warning
     sc = small_scene(albedo=0.2)
-    res = clvol.Renderer(sc, ms_resolution=8).render()
+    res = clvol.Renderer(sc, ms="network", ms_resolution=8).render()
     err = capsys.readouterr().err
     assert err.count("clvol: warning: scene outside the network's training domain") == 1
     assert "albedo 0.2 outside [0.3, 1]" in err and "network is used all the same" in err
     assert "albedo 0.2" in res.header["warning"] and res.header["raymarch.ms"] == "network"
     # g = -0.5 and -0.9 are inside the default model's domain now: no warning, the network
     for g in (-0.5, -0.9):
-        res = clvol.Renderer(small_scene(phase={"type": "hg", "g": g}), ms_resolution=8).render()
+        res = clvol.Renderer(small_scene(phase={"type": "hg", "g": g}), ms="network", ms_resolution=8).render()
         assert "warning" not in res.header and res.header["raymarch.ms"] == "network"
         assert capsys.readouterr().err == ""
     # strongly backward beyond the domain (g -0.95 < -0.9): Wrenninge octaves at high albedo,
     # single scattering at lower albedo
     for albedo, alt in ((0.999, "wrenninge"), (0.6, "none")):
         sc = small_scene(albedo=albedo, phase={"type": "hg", "g": -0.95})
-        r = clvol.Renderer(sc, ms_resolution=8)
+        r = clvol.Renderer(sc, ms="network", ms_resolution=8)
         res = r.render()
         res2 = r.render()
         assert capsys.readouterr().err.count("warning") == 1       # once per Renderer and reason
@@ -250,20 +259,20 @@ def test_outside_the_domain_warns_and_uses_the_measured_alternative(capsys):
         np.testing.assert_array_equal(res.total, clvol.Renderer(sc, ms=alt).render().total)
         np.testing.assert_array_equal(res.total, res2.total)
         assert "network_setup" not in r.counts
-        kept = clvol.Renderer(sc, ms_resolution=8, domain_fallback=False).render()
+        kept = clvol.Renderer(sc, ms="network", ms_resolution=8, domain_fallback=False).render()
         assert kept.header["raymarch.ms"] == "network" and "warning" in kept.header
         capsys.readouterr()
-    inside = clvol.Renderer(small_scene(), ms_resolution=8).render()
+    inside = clvol.Renderer(small_scene(), ms="network", ms_resolution=8).render()
     assert "warning" not in inside.header and capsys.readouterr().err == ""
 
 
 def test_albedo_zero_runs_no_network_and_equals_the_general_path():
     sc = small_scene(albedo=[0.0, 0.0, 0.0])
     sc = dataclasses.replace(sc, light=dataclasses.replace(sc.light, environment=(0.2, 0.3, 0.4)))
-    r = clvol.Renderer(sc, ms_resolution=8)
+    r = clvol.Renderer(sc, ms="network", ms_resolution=8)
     fast = r.render()
     assert "network_setup" not in r.counts and "light_field" not in r.counts
-    general = clvol.Renderer(sc, ms_resolution=8, shortcuts=False).render()
+    general = clvol.Renderer(sc, ms="network", ms_resolution=8, shortcuts=False).render()
     np.testing.assert_array_equal(fast.total, general.total)
     assert fast.alpha.max() > 0.5 and fast.single.max() == 0 and fast.multiple.max() == 0
 
@@ -272,7 +281,7 @@ def test_view_independent_cache_fills_once_per_light():
     """--ms-directions K: K fills per light and medium, then camera positions cost a blend
     (no network evaluation); the blend is a convex combination of the K directions' values."""
     sc = small_scene()
-    r = clvol.Renderer(sc, ms_resolution=8, ms_directions=6)
+    r = clvol.Renderer(sc, ms="network", ms_resolution=8, ms_directions=6)
     r.render()
     assert r.counts["ms_directional_fill"] == 1
     table = r.source._table[1]                          # (K, gz, gy, gx)
@@ -285,7 +294,7 @@ def test_view_independent_cache_fills_once_per_light():
     r.render(light=dataclasses.replace(sc.light, direction=(0.0, 1.0, 0.0)))
     assert r.counts["ms_directional_fill"] == 2
     with pytest.raises(ClvolError, match="ms_directions = 3"):
-        clvol.Renderer(sc, ms_directions=3)
+        clvol.Renderer(sc, ms="network", ms_directions=3)
 
 
 def test_progressive_refresh_converges_to_the_full_lattice():
@@ -293,12 +302,12 @@ def test_progressive_refresh_converges_to_the_full_lattice():
     others follow, and after K frames the image is bit-identical to a full refill's."""
     sc = small_scene()
     moved = dataclasses.replace(sc.camera, origin=(0.9, 0.5, 1.9))
-    r = clvol.Renderer(sc, ms_resolution=8, ms_refresh=3)
+    r = clvol.Renderer(sc, ms="network", ms_resolution=8, ms_refresh=3)
     r.render()
     full_points = r.source.info["points"]
     first = r.render(camera=moved)
     assert r.source.info["points"] < full_points / 2          # one subset of the active points
-    want = _fresh(sc, camera=moved, ms_resolution=8).total
+    want = _fresh(sc, camera=moved, ms="network", ms_resolution=8).total
     assert not np.array_equal(first.total, want)              # two subsets still stale
     r.render(camera=moved)
     last = r.render(camera=moved)
@@ -316,13 +325,13 @@ def test_optically_thin_media_skip_the_network():
     sc = small_scene()
     tau1 = volume_stats(sc.volume.load(), 1.0)["max_optical_thickness"]
     thin = small_scene(density_scale=0.3 / tau1)
-    r = clvol.Renderer(thin, ms_resolution=8)
+    r = clvol.Renderer(thin, ms="network", ms_resolution=8)
     res = r.render()
     assert "network_setup" not in r.counts and "optically thin" in res.header["skipped"]
     np.testing.assert_array_equal(res.total, clvol.Renderer(thin, ms="none").render().total)
-    general = clvol.Renderer(thin, ms_resolution=8, shortcuts=False)
+    general = clvol.Renderer(thin, ms="network", ms_resolution=8, shortcuts=False)
     assert general.render().multiple.max() > 0 and general.counts["network_setup"] == 1
-    thick = clvol.Renderer(small_scene(density_scale=0.6 / tau1), ms_resolution=8)
+    thick = clvol.Renderer(small_scene(density_scale=0.6 / tau1), ms="network", ms_resolution=8)
     thick.render()
     assert thick.counts["network_setup"] == 1
 

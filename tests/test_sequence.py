@@ -73,17 +73,17 @@ def test_set_density_recomputes_only_what_the_density_invalidates(tmp_path):
     sc = load_scene(_frames(tmp_path, 2, emission=False))
     g1 = sc.volume.load()
     g2 = sc.volume.for_frame(2).load()
-    r = clvol.Renderer(sc, ms_resolution=8)
+    r = clvol.Renderer(sc, ms="network", ms_resolution=8)
     r.render()
     before = dict(r.counts)
     img = r.render(grid=g2)
     diff = {k: r.counts[k] - before.get(k, 0) for k in r.counts if r.counts[k] != before.get(k, 0)}
     assert diff == {"device_medium": 1, "network_pyramid": 1, "light_field": 1,
                     "graded_transmittance": 1, "ms_lattice": 1, "march": 1}
-    np.testing.assert_array_equal(img.total, clvol.Renderer(sc, grid=g2, ms_resolution=8)
+    np.testing.assert_array_equal(img.total, clvol.Renderer(sc, grid=g2, ms="network", ms_resolution=8)
                                   .render().total)
     back = r.render(grid=g1)
-    np.testing.assert_array_equal(back.total, clvol.Renderer(sc, grid=g1, ms_resolution=8)
+    np.testing.assert_array_equal(back.total, clvol.Renderer(sc, grid=g1, ms="network", ms_resolution=8)
                                   .render().total)
     # the analytic source: only the density's own stages
     r2 = clvol.Renderer(sc, ms="wrenninge")

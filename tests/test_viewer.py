@@ -208,7 +208,7 @@ async def _next_frame(ws, timeout=60):
 
 async def _settle(ws, method="network"):
     """Switch the connection to ``method`` and return its first frame. The viewer's default,
-    the progressive view, keeps sending frames while it refines; the protocol tests need a
+    the stochastic view, keeps sending frames while it refines; the protocol tests need a
     method that sends one frame per change (the lattice), and frames of the old method
     still in flight are skipped."""
     await ws.send_str(json.dumps({"type": "state", "state": {"method": method}}))
@@ -226,7 +226,7 @@ def test_server_protocol_errors_frames_and_save(server):
         async with aiohttp.ClientSession() as session:
             async with session.ws_connect(url + "ws") as ws:
                 hello = await ws.receive_json()
-                assert hello["type"] == "hello" and hello["state"]["method"] == "progressive"
+                assert hello["type"] == "hello" and hello["state"]["method"] == "stochastic"
                 meta, png = await _settle(ws)
                 assert png[:8] == b"\x89PNG\r\n\x1a\n" and meta["width"] == 64
                 assert meta["header"], "the frame carries the render header"
@@ -491,12 +491,18 @@ def test_page_in_headless_chromium(server, browser, tmp_path):
     d = browser
     d.get(url)
     _wait(d, lambda: _frames(d) >= 1, "the first frame")
-    # The default method is the progressive view: while still, its samples per block climb
-    # and path-traced points arrive in its blocks (the panel shows their mean per block).
-    assert d.execute_script("return document.getElementById('method').value") == "progressive"
-    _wait(d, lambda: _meta(d)["method"] == "progressive" and _meta(d)["spp"] >= 3,
-          "progressive frames refining")
+    # The default method is the stochastic view (every front door's): while still, its
+    # samples per block climb.
+    assert d.execute_script("return document.getElementById('method').value") == "stochastic"
+    _wait(d, lambda: _meta(d)["method"] == "stochastic" and _meta(d)["spp"] >= 6,
+          "stochastic frames refining")
     assert d.find_element(By.ID, "spplabel").text == "samples"
+    # The progressive view (in the menu): path-traced points arrive in its blocks while still
+    # (the panel shows their mean per block).
+    d.execute_script("const m = document.getElementById('method'); m.value = 'progressive';"
+                     "m.dispatchEvent(new Event('change'));")
+    _wait(d, lambda: _meta(d)["method"] == "progressive" and _meta(d)["spp"] >= 6,
+          "progressive frames refining")
     _wait(d, lambda: d.find_element(By.ID, "paths").text.endswith(" per block")
           and float(d.find_element(By.ID, "paths").text.split()[0]) > 0, "paths per block")
     # No horizontal scrollbar: a long menu label once widened the panel past the window.

@@ -22,20 +22,20 @@ class ViewerMessageError(ClvolError):
     """A client message the viewer refuses (the reply names the field and the allowed range)."""
 
 
-# The viewer's method menu: label -> Renderer keyword options. The first is the default:
-# the paper's network at one free-flight point per pixel block per frame, reprojected while
-# the camera moves (clvol/render/ms/view.py), and while the view is still refined toward
-# path-traced F_ms (clvol/render/ms/progressive.py, issue 38): a moved frame costs what the
-# stochastic view's does, a still view keeps getting closer to exact instead of idling at the
-# network's error (docs/accuracy.md, "Progressive"). Both are chosen over the lattice (clvol
-# render's default) because a camera move costs them no refill (docs/accuracy.md, "Defaults").
+# The viewer's method menu: label -> Renderer keyword options. The first is the default, the
+# same source as every other front door's (clvol.render.ms DEFAULT_SOURCE; tests/test_defaults.py
+# holds them together): the paper's network at one free-flight point per pixel block per frame,
+# reprojected while the camera moves and accumulated while it is still (clvol/render/ms/view.py).
+# "progressive" refines a still view further, toward path-traced F_ms (clvol/render/ms/
+# progressive.py; Python only, so not the default). Both beat the lattice ("network") under
+# motion because a camera move costs them no refill (docs/accuracy.md, "Defaults").
 # The interactive methods refresh the network's sky for one sky cell per frame after a camera
 # move (all 32 at once cost about 1 s on 2 CPU cores, docs/raymarch.md "Environment light");
 # a still view refines until every cell is current.
 METHODS: dict[str, dict] = {
-    "progressive": {"method": "raymarch", "ms": "progressive", "env_ms_per_frame": 1},
     "stochastic": {"method": "raymarch", "ms": "stochastic", "env_ms_per_frame": 1},
-    "network": {"env_ms_per_frame": 1},                       # the 32^3 network lattice
+    "progressive": {"method": "raymarch", "ms": "progressive", "env_ms_per_frame": 1},
+    "network": {"method": "raymarch", "ms": "network", "env_ms_per_frame": 1},  # 32^3 lattice
     "wrenninge": {"method": "raymarch", "ms": "wrenninge"},
     "single": {"method": "raymarch", "ms": "none"},
     "pathtrace": {"method": "pathtrace"},

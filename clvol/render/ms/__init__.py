@@ -21,7 +21,10 @@ from .progressive import ProgressiveViewMs
 SOURCES: dict[str, type] = {cls.name: cls for cls in
                             (NetworkMs, ViewMs, StochasticViewMs, ProgressiveViewMs, OctavesMs,
                              LatticeMs, NoMs)}
-DEFAULT_SOURCE = NetworkMs.name
+# One default for every front door (the CLI, clvol.Renderer, the viewer, clvol bundle and
+# libclvol; tests/test_defaults.py holds them together): the stochastic view, whose camera
+# moves cost no lattice refill and which libclvol implements (docs/raymarch.md, "One default").
+DEFAULT_SOURCE = StochasticViewMs.name
 
 
 def source_classes() -> dict[str, type]:
