@@ -48,13 +48,7 @@ __kernel void gather_mlp(__global const float *dens, __global const float *baked
                          __global const int *out_index, const int channel_stride,
                          __global float *out, __global int *nonfinite) {
     const int q0 = get_global_id(0) * LANES;
-#ifdef MLP_FULL_GROUPS
-    /* work-items past N run (on the last query) and store nothing: see mlp_core.h */
-    const int count = q0 < N ? min(LANES, N - q0) : 0;
-#else
     if (q0 >= N) return;
-    const int count = min(LANES, N - q0);
-#endif
     const float3 cmin = cmin4.xyz;
     const float3 l = light4.xyz;
 
@@ -98,6 +92,7 @@ __kernel void gather_mlp(__global const float *dens, __global const float *baked
         }
     }
     x[2 * N_POINTS] = vloadL(0, centre);
-    if (mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, count, channel_stride))
+    if (mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, min(LANES, N - q0),
+                channel_stride))
         atomic_or(nonfinite, 1);
 }

@@ -45,13 +45,7 @@ __kernel void mlp_forward(__global const float *features, __global const float *
                           __global const float *params, const float4 channel_albedo,
                           const int n, __global float *out) {
     const int q0 = get_global_id(0) * LANES;
-#ifdef MLP_FULL_GROUPS
-    /* work-items past n run (on the last query) and store nothing: see mlp_core.h */
-    const int count = q0 < n ? min(LANES, n - q0) : 0;
-#else
     if (q0 >= n) return;
-    const int count = min(LANES, n - q0);
-#endif
 
     int foff[LANES], coff[LANES], dst[LANES];
     for (int j = 0; j < LANES; ++j) {
@@ -64,5 +58,5 @@ __kernel void mlp_forward(__global const float *features, __global const float *
     mlp_config(config, coff, params, cfg, &albedo_cfg);
     V x[N_TYPES * N_POINTS];
     load_features(features, foff, x);
-    mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, count, 1);
+    mlp_run(x, cfg, albedo_cfg, params, channel_albedo, out, dst, min(LANES, n - q0), 1);
 }

@@ -19,12 +19,10 @@ from pathlib import Path
 from .errors import BuildError, ClvolError
 
 
-def _code_paths(kind: str, cus: int, lanes: int, lanes_line: str = "",
-                mlp_group: int = 0) -> list[str]:
+def _code_paths(kind: str, cus: int, lanes: int, lanes_line: str = "") -> list[str]:
     """Which code path each kernel takes on a device of ``kind`` with ``cus`` compute units
     and lane width ``lanes`` (clvol/runtime.py device_lanes): its work per work-item and launch
-    shape (the places the host code asks the device). ``mlp_group``: the network's group size
-    by driver rule (clvol/kernels/mlp.py mlp_group_size; 0: none)."""
+    shape (the places the host code asks the device)."""
     from .kernels.gather import GATHER_LOCAL
     from .kernels.pathtrace import QUERY_LANES, RENDER_LANES, launch_shape
     from .kernels.raymarch import LOCAL_SIZE, TILE, tile_rows
@@ -40,8 +38,7 @@ def _code_paths(kind: str, cus: int, lanes: int, lanes_line: str = "",
         f"queries); {'CPU' if kind != 'gpu' else 'GPU'} launch: a 256^2 frame runs {items} "
         f"work-items in groups of {local[0]}",
         f"mlp, gather_mlp: {lanes} queries per work-item (one a lane, private arrays), groups "
-        f"of {mlp_group if mlp_group else '1 (PoCL stack)' if cpu else 'the driver’s choice'}"
-        f"{' (driver rule: -DMLP_FULL_GROUPS)' if mlp_group else ''}",
+        f"of {'1 (PoCL stack)' if cpu else 'the driver’s choice'}",
         f"gather: one query per work-item ({lanes} template points a chunk), groups of "
         f"{GATHER_LOCAL if cpu else 'the driver’s choice'}",
         f"transmittance sweep: {lanes} columns per work-item on levels of 16 and more, groups "
@@ -77,9 +74,8 @@ def _check_builds(entry) -> list[str]:
 
 def _cmd_info(args) -> int:
     from . import __version__
-    from .kernels.mlp import MLP_FULL_GROUP_SIZE
     from .runtime import (choose_device, describe_devices, describe_lanes, describe_workarounds,
-                          device_lanes, driver_defines, list_devices)
+                          device_lanes, list_devices)
     print(f"clvol {__version__}")
     print(describe_devices(args.device))
     try:
@@ -93,9 +89,8 @@ def _cmd_info(args) -> int:
         entries = [chosen] if args.device else entries
     for e in entries:
         print(f"code paths on {e.spec} ({e.kind}):")
-        group = MLP_FULL_GROUP_SIZE if driver_defines(e).get("MLP_FULL_GROUPS") else 0
         for ln in _code_paths(e.kind, e.device.max_compute_units, device_lanes(e),
-                              describe_lanes(e), group) + describe_workarounds(e):
+                              describe_lanes(e)) + describe_workarounds(e):
             print(f"  {ln}")
         if args.check:
             print(f"build check on {e.spec} {e.label} (8x8 renders of a 32^3 cloud):",

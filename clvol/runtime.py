@@ -300,13 +300,10 @@ DRIVER_RULES: tuple = (
     # one of a * b + c), which llvmpipe compiles at the first launch. PoCL contracts a * b + c
     # into the same fma (bit-identical; tests/test_mlp.py::test_dense_forms_agree); rusticl
     # does not contract, so its sums round twice (within the twins' tolerance).
-    # MLP_FULL_GROUPS: the network's kernels run in groups of 8 work-items (llvmpipe's SIMD
-    # width at 256 bits: kernels/mlp.py launch_items), work-items past the queries store
-    # nothing instead of returning; groups of one left 7 of 8 lanes idle.
     # 4 lanes: llvmpipe runs work-items as SIMD lanes already; explicit vector lanes only
     # multiply the code it compiles at the first launch (the network's mlp_forward: 22 s at 4
     # lanes, not done in 280 s at 16). Lanes are independent: bit-identical at 16, 8 and 4.
-    ("rusticl", {"MLP_DENSE_ARRAY": 1, "MLP_MULADD": 1, "MLP_FULL_GROUPS": 1}, 4),
+    ("rusticl", {"MLP_DENSE_ARRAY": 1, "MLP_MULADD": 1}, 4),
 )
 
 

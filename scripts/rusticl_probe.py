@@ -156,9 +156,14 @@ def child_mlp(lanes, drop):
     got = net.forward(f, c)
     dt = time.perf_counter() - t
     want = ref.forward(w.params, arch, f, c)
+    f2, c2 = ref.random_inputs(4096, np.random.default_rng(6), arch=arch)
+    t = time.perf_counter()
+    net.forward(f2, c2)
+    dt2 = time.perf_counter() - t
     print(f"mlp probe, shipped architecture, {net.rt.lanes:2d} lanes, defines "
           f"{sorted(net.rt.driver_defines)}: first forward {dt:.2f} s; max |error| "
-          f"{np.abs(got - want).max():.2g} (max |y| {np.abs(want).max():.3g})", flush=True)
+          f"{np.abs(got - want).max():.2g} (max |y| {np.abs(want).max():.3g}); then 4,096 "
+          f"queries in {dt2:.2f} s", flush=True)
 
 
 def run_child(args, timeout, env_extra=None):

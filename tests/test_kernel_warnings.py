@@ -117,7 +117,7 @@ def variants() -> list[tuple[str, str, dict]]:
                 v.append((f"gather_mlp-{k}-c{ch}-p{int(pocl)}", "gather_mlp",
                           dict(_gather(LOBES[k], True, pocl), **_mlp(ch, True, pocl))))
     # the dense layers' array form alone, and rusticl's whole rule (clvol/runtime.py
-    # DRIVER_RULES: the array form, a * b + c, full groups)
+    # DRIVER_RULES: the array form with a * b + c)
     rusticl = driver_defines_for("rusticl")
     v.append(("mlp-dense-array", "mlp", dict(_mlp(3, True, False), MLP_DENSE_ARRAY=1)))
     v.append(("mlp-rusticl", "mlp", dict(_mlp(3, True, False), **rusticl)))

@@ -158,8 +158,7 @@ static int run_goldens(clvol_host *h, const char *root) {
                 for (int c = 0; c < 3 && c < na; ++c) ca.s[c] = alb[c];
             set_args(k, "mmm4im", df, dc, dp, &ca, N, v ? dF : dy);
             size_t items = (size_t)(N + qpi - 1) / (size_t)qpi;
-            if (h->mlp_group) launch(h, k, padded(items, (size_t)h->mlp_group), (size_t)h->mlp_group);
-            else if (h->is_cpu) launch(h, k, items, 1);
+            if (h->is_cpu) launch(h, k, items, 1);
             else launch(h, k, padded(items, 64), 0);
             float *got = xmalloc(12 * (size_t)N);
             CL(clEnqueueReadBuffer(h->queue, v ? dF : dy, CL_TRUE, 0, (v ? 12 : 4) * (size_t)N, got,

@@ -791,9 +791,7 @@ static void lattice_stage(clvol_host *h) {
             for (int c = 0; c < 3; ++c) ca.s[c] = (float)alb[c];
         set_args(h->k_mlp, "mmm4im", h->d_feats, h->d_config, h->d_params, &ca, n, h->d_fms);
         size_t items = (size_t)(n + h->lanes - 1) / (size_t)h->lanes;
-        if (h->mlp_group)   /* a driver rule (describe_device): full groups, padded */
-            launch(h, h->k_mlp, padded(items, (size_t)h->mlp_group), (size_t)h->mlp_group);
-        else if (h->is_cpu)
+        if (h->is_cpu)
             launch(h, h->k_mlp, items, 1);
         else
             launch(h, h->k_mlp, padded(items, (size_t)h->pad), 0);

@@ -486,15 +486,13 @@ void open_device(clvol_host *h) {
  * decides them. Mesa's rusticl (22.3.6, llvmpipe; docs/opencl.md, "rusticl"): MLP_DENSE_ARRAY,
  * as the named-accumulator dense layers stall clCreateKernel in a recursive NIR pass; MLP_MULADD,
  * as fma() there is libclc's software fma, inlined at every call, which llvmpipe compiled for
- * minutes at the network's first launch (cl/include/mlp_core.h); MLP_FULL_GROUPS, the network
- * in groups of 8 work-items (llvmpipe's SIMD width; groups of one left 7 lanes of 8 idle); and
- * 4 lanes, as llvmpipe already runs work-items as SIMD lanes and wider vectors only multiply the
+ * minutes at the network's first launch (cl/include/mlp_core.h); and 4 lanes, as llvmpipe already runs work-items as SIMD lanes and wider vectors only multiply the
  * code it compiles (mlp_forward's first launch: 22 s at 4 lanes, over 280 s at 16). */
 static const struct {
     const char *match, *defines;
     int lanes;
 } DRIVER_RULES[] = {
-    {"rusticl", "-DMLP_DENSE_ARRAY=1 -DMLP_FULL_GROUPS=1 -DMLP_MULADD=1", 4},
+    {"rusticl", "-DMLP_DENSE_ARRAY=1 -DMLP_MULADD=1", 4},
 };
 #define N_DRIVER_RULES (sizeof DRIVER_RULES / sizeof DRIVER_RULES[0])
 
@@ -531,8 +529,6 @@ void describe_device(clvol_host *h) {
     /* PoCL gets the Clang-only fast paths the Python host also enables there */
     h->is_pocl = strstr(name, "Portable Computing Language") != NULL;
     h->driver_opts = clvol_driver_defines(name);
-    /* -D MLP_FULL_GROUPS: mlp_forward in groups of 8 (clvol/kernels/mlp.py mlp_group_size) */
-    h->mlp_group = strstr(h->driver_opts, "-DMLP_FULL_GROUPS=1") ? 8 : 0;
     CL(clGetDeviceInfo(h->device, CL_DEVICE_TYPE, sizeof t, &t, NULL));
     h->is_cpu = (t & CL_DEVICE_TYPE_CPU) != 0;
     /* The lane width, as clvol/runtime.py device_lanes decides it: $CLVOL_LANES, else the

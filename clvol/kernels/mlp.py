@@ -171,25 +171,9 @@ def launch_items(rt, kernel, n: int, args, wait_for=None):
     work-items into one group and overflows its stack (segfault at 256 items); groups of one
     work-item also need no padding of the global size."""
     items = -(-int(n) // rt.lanes)
-    group = mlp_group_size(rt)
-    if group:
-        return rt.launch(kernel, items, args, local_size=(group,), pad=group,
-                         wait_for=wait_for)
     local = (1,) if rt.entry.kind == "cpu" else None
     return rt.launch(kernel, items, args, local_size=local, pad=1 if local else 64,
                      wait_for=wait_for)
-
-
-def mlp_group_size(rt) -> int:
-    """The work-group size of the network's kernels where a driver workaround fixes it
-    (-D MLP_FULL_GROUPS, clvol/runtime.py DRIVER_RULES: rusticl), else 0 (launch_items'
-    device rule). libclvol repeats it (capi/src/renderer.c)."""
-    return MLP_FULL_GROUP_SIZE if rt.driver_defines.get("MLP_FULL_GROUPS") else 0
-
-
-# llvmpipe runs a work-group as SIMD lanes, 8 work-items a 256-bit vector: groups of 8 leave
-# no lane idle (cl/include/mlp_core.h, MLP_FULL_GROUPS).
-MLP_FULL_GROUP_SIZE = 8
 
 
 def _channel_albedo(a) -> np.ndarray:
