@@ -9,7 +9,7 @@ untimed run at the smallest setting):
   pathtrace     spp 1, 4, 16, 64, 256 (unbiased; error falls as 1/sqrt(time))
   raymarch/none        single scattering only, step 2, 1, 0.5 voxels
   raymarch/wrenninge   + Wrenninge octaves (N=3, a=b=c=0.5), step 2, 1, 0.5 voxels
-  raymarch/grid        + F_ms from a lattice of path-traced point queries (8^3 and 16^3 points,
+  raymarch/lattice        + F_ms from a lattice of path-traced point queries (8^3 and 16^3 points,
                        64 paths each); the time includes filling the lattice
   raymarch/network     + F_ms from the trained network (--weights, default
                        clvol/data/weights/full_albedo.npz) on a 16^3, 32^3 and 64^3 lattice: frame = the
@@ -30,7 +30,7 @@ untimed run at the smallest setting):
                        time since the change (the first frame and the rounds)
 Times: "frame" is what one more image costs (the march for the ray marcher; the whole render
 for the path tracer), "light update" what a light change costs once (the light field, and the
-lattice fill for the grid source). Errors: the MRPNN metric (RMSE x 100 of tonemapped 8-bit luminance), relMSE and RMSE against the
+lattice fill for the lattice source). Errors: the MRPNN metric (RMSE x 100 of tonemapped 8-bit luminance), relMSE and RMSE against the
 reference (a different seed from the test renders). Writes a CSV and an SVG plot (log-log,
 error against seconds) to --out, and prints the table.
 """
@@ -50,7 +50,7 @@ from clvol.metrics import compare_images  # noqa: E402
 from clvol.render.ms.network import NetworkSource  # noqa: E402
 from clvol.render.pathtrace import point_query, render_pathtrace  # noqa: E402
 from clvol.render.raymarch import RayMarcher  # noqa: E402
-from clvol.render.ms.grid import fill_ms_grid  # noqa: E402
+from clvol.render.ms.lattice import fill_fms_lattice  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
 
@@ -101,7 +101,7 @@ def main(argv=None) -> int:
                     help="checkpoints (wall seconds after a light change) of the "
                          "raymarch/progressive rows (none: skip them)")
     ap.add_argument("--only", nargs="*", default=None, metavar="METHOD",
-                    help="run only these method groups (pathtrace, simple, grid, network, "
+                    help="run only these method groups (pathtrace, simple, lattice, network, "
                          "view, stochastic, progressive; default all)")
     args = ap.parse_args(argv)
     if args.quick:
@@ -161,14 +161,14 @@ def main(argv=None) -> int:
             rm.march_with(cam, scene.light, ms, step=step)  # compile this variant, untimed
             (layers, _), s = median_of(3, lambda: rm.march_with(cam, scene.light, ms, step=step))
             record(f"raymarch/{ms}", f"step {step:g} voxel", layers, s, light_s)
-    for lattice in ((8,) if args.quick else (8, 16)) if want("grid") else ():
+    for lattice in ((8,) if args.quick else (8, 16)) if want("lattice") else ():
         def query(points, omegas):
             return point_query(scene, points, omegas, n_paths=64, seed=2, grid=grid)["Fms"]
-        msg, fill_s = timed(lambda: fill_ms_grid(scene, lattice, query, grid.bbox_min,
+        msg, fill_s = timed(lambda: fill_fms_lattice(scene, lattice, query, grid.bbox_min,
                                                  grid.bbox_max))
-        rm.march_with(cam, scene.light, "grid", ms_grid=msg)
-        (layers, _), s = median_of(3, lambda: rm.march_with(cam, scene.light, "grid", ms_grid=msg))
-        record("raymarch/grid", f"{lattice}^3 lattice, 64 paths", layers, s, light_s + fill_s)
+        rm.march_with(cam, scene.light, "lattice", ms_lattice=msg)
+        (layers, _), s = median_of(3, lambda: rm.march_with(cam, scene.light, "lattice", ms_lattice=msg))
+        record("raymarch/lattice", f"{lattice}^3 lattice, 64 paths", layers, s, light_s + fill_s)
 
     if args.weights and Path(args.weights).exists():
         src = NetworkSource(args.weights, grid, scene.medium, rt)
@@ -183,8 +183,8 @@ def main(argv=None) -> int:
                 return msg, {k: (a[k] + b[k]) / 2 for k in ("light", "gather", "network")}
             (msg, info), _ = median_of(3, network_change)
             fill_s = info["light"] + info["gather"] + info["network"]
-            rm.march_with(cam, scene.light, "grid", ms_grid=msg)
-            (layers, _), s = median_of(3, lambda: rm.march_with(cam, scene.light, "grid", ms_grid=msg))
+            rm.march_with(cam, scene.light, "lattice", ms_lattice=msg)
+            (layers, _), s = median_of(3, lambda: rm.march_with(cam, scene.light, "lattice", ms_lattice=msg))
             record("raymarch/network", f"{lattice}^3 lattice", layers, s, light_s + fill_s)
             print(f"{'':21}(light update: light field {light_s:.3f} s, graded T {info['light']:.3f} s, "
                   f"gather {info['gather']:.3f} s, network {info['network']:.3f} s)")
@@ -276,7 +276,7 @@ def svg_plot(rows, title: str, w: int = 640, h: int = 420) -> str:
         return h - mb - (np.log10(y) - ly0) / max(ly1 - ly0, 1) * (h - mt - mb)
 
     colours = {"pathtrace": "#1f77b4", "raymarch/none": "#7f7f7f",
-               "raymarch/wrenninge": "#ff7f0e", "raymarch/grid": "#2ca02c",
+               "raymarch/wrenninge": "#ff7f0e", "raymarch/lattice": "#2ca02c",
                "raymarch/network": "#d62728", "raymarch/view": "#9467bd",
                "raymarch/stochastic": "#8c564b", "raymarch/progressive": "#e377c2"}
     out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" '

@@ -19,7 +19,7 @@ from clvol.metrics import LUMA, mrpnn_exposure, tonemap_srgb  # noqa: E402
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
-from clvol.volume.grid import Grid  # noqa: E402
+from clvol.volume.grid import DensityGrid  # noqa: E402
 
 
 def rmse100(a, b) -> float:
@@ -28,9 +28,9 @@ def rmse100(a, b) -> float:
     return 100.0 * float(np.sqrt(np.mean((ya - yb) ** 2)))
 
 
-def with_border(g: Grid) -> Grid:
+def with_border(g: DensityGrid) -> DensityGrid:
     cell = (np.asarray(g.bbox_max) - np.asarray(g.bbox_min)) / np.array(g.density.shape[::-1])
-    return Grid(np.ascontiguousarray(np.pad(g.density, 1)), np.asarray(g.bbox_min) - cell,
+    return DensityGrid(np.ascontiguousarray(np.pad(g.density, 1)), np.asarray(g.bbox_min) - cell,
                 np.asarray(g.bbox_max) + cell)
 
 

@@ -40,7 +40,7 @@ from clvol.bundle import write_bundle  # noqa: E402
 from clvol.render.renderer import Renderer  # noqa: E402
 from clvol.runtime import get_runtime  # noqa: E402
 from clvol.scene import load_scene  # noqa: E402
-from clvol.volume.grid import Grid  # noqa: E402
+from clvol.volume.grid import DensityGrid  # noqa: E402
 
 FP = ctypes.POINTER(ctypes.c_float)
 
@@ -137,7 +137,7 @@ def python_figures(scene, grid, opts, frames, rt):
         float(v) for v in np.asarray(scene.light.direction) + [0.1, 0.05, 0]))]
     out["light"] = timed(lambda i: r.render(camera=cams[frames % 2], light=lights[(i + 1) % 2]),
                          frames)
-    grids = [grid, Grid(grid.density * np.float32(0.9), grid.bbox_min, grid.bbox_max)]
+    grids = [grid, DensityGrid(grid.density * np.float32(0.9), grid.bbox_min, grid.bbox_max)]
     out["density"] = timed(lambda i: Renderer(scene, "raymarch", grid=grids[(i + 1) % 2],
                                               runtime=rt, **opts).render(), frames)
     assert r.counts["ms_lattice"] >= 2 * frames

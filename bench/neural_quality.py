@@ -377,11 +377,11 @@ def render_methods(scene, grid, weights, repeats: int = 3, ms_resolution=None,
     if pt_lattice:
         from clvol.render.ms.network import DEFAULT_NETWORK_RESOLUTION
         from clvol.render.pathtrace import point_query
-        from clvol.render.ms.grid import fill_ms_grid
+        from clvol.render.ms.lattice import fill_fms_lattice
         res = ms_resolution or DEFAULT_NETWORK_RESOLUTION
-        ms = fill_ms_grid(scene, res, lambda p, w: point_query(scene, p, w, pt_lattice, seed=11,
+        ms = fill_fms_lattice(scene, res, lambda p, w: point_query(scene, p, w, pt_lattice, seed=11,
                                                                 grid=grid)["Fms"])
-        out["pt_lattice"] = (render_raymarch(scene, ms="grid", ms_grid=ms, grid=grid)
+        out["pt_lattice"] = (render_raymarch(scene, ms="lattice", ms_lattice=ms, grid=grid)
                              .layers["total"], float("nan"), pt_lattice, None)
     for method, ms in (("network", "network"), ("view", "view"), ("wrenninge", "wrenninge"),
                        ("single", "none")):

@@ -22,10 +22,10 @@
  *   PHASE_ISOTROPIC / PHASE_LOBES   phase.h: constant 1/(4 pi) or 1..3 HG lobes
  *   LIT 0|1          0 when albedo * E = 0: no light lookups, no F_1 and no F_ms
  *   MS_SOURCE 0|1|2|3  0 none; 1 Wrenninge octaves sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i);
- *                    2 trilinear lookup in a precomputed grid of F_ms; 3 the view-space table
+ *                    2 trilinear lookup in a precomputed lattice of F_ms; 3 the view-space table
  *                    (F_ms at VIEW_K depths per block of VIEW_BLOCK^2 pixels, see below)
  *   MS_OCTAVES N     octaves of source 1 (N = 1: none beyond F_1); at most MS_MAX_OCTAVES (constants.h)
- *   MS_CHANNELS 1|3  planes of F_ms in the source-2 grid or source-3 table (1 when albedo is
+ *   MS_CHANNELS 1|3  planes of F_ms in the source-2 lattice or source-3 table (1 when albedo is
  *                    grey: F_ms is then grey)
  *   VIEW_K, VIEW_BLOCK  source 3: knots per block, block side in pixels
  *   SKIP_EMPTY 0|1   jump over majorant blocks whose majorant is 0 (exact: such a block and
@@ -54,7 +54,7 @@
  *   light      float [ln][ln][ln]     the exact light transmittance field (lambda = 1) over the
  *                                     cube cube_min .. + cube_size: T_light, or with LIGHT_TAU
  *                                     its optical depth (T_light = exp(-tau))
- *   ms_grid    float [C][gz][gy][gx]  F_ms (radiance per unit irradiance) over gmin..gmax;
+ *   ms_lattice    float [C][gz][gy][gx]  F_ms (radiance per unit irradiance) over gmin..gmax;
  *              source 3: float [1 + C][by = gz][bx = gy][VIEW_K = gx], plane 0 the blocks'
  *              query distances along the camera rays (increasing; -1: empty block), planes
  *              1..C F_ms there (clvol/render/ms/view.py). A pixel's knots are the bilinear blend,
@@ -83,7 +83,9 @@
  *   total, single, multiple   float [height][width][3] out
  *   alpha, depth              float [height][width] out: 1 - T_cam(exit) and the mean
  *              distance of the first extinction event (0 where alpha = 0)
- *   stats      uint [tiles][4] out with RAYMARCH_STATS (else untouched, may be 4 bytes):
+ *   stats      uint [1 + tiles * 4] (1 without RAYMARCH_STATS), word 0 zeroed by the host:
+ *              stats[0] += the rays the progress bound stopped (atomic; the header's
+ *              raymarch.rays_stopped_at_bound); with RAYMARCH_STATS, per tile from word 1:
  *              march iterations, light lookups, majorant reads (each on LANES lanes),
  *              and active lane-segments
  * Global size: ceil(width / 4) * ceil(height / (LANES / 4)) work-items (padded; guarded here).
@@ -284,7 +286,7 @@ void store_lanes(__global float *out, int channels, int ch, vL v, iL idx, iL val
         if (ok[j]) out[(size_t)id[j] * channels + ch] = val[j];
 }
 
-/* Planes of the F_ms sums: one for the octaves (grey), MS_CHANNELS for a grid or table.
+/* Planes of the F_ms sums: one for the octaves (grey), MS_CHANNELS for a lattice or table.
  * Sums of 1 or 3 planes give RGB as planes [0], [N / 2], [N - 1]: a grey plane serves all three. */
 #if MS_SOURCE >= 2
 #define MS_PLANES MS_CHANNELS
@@ -418,7 +420,7 @@ typedef struct {
 /* Each pixel's knots: the bilinear blend, knot by knot, of its four nearest non-empty
  * blocks' knots (weights renormalised; the kernel header gives the table's layout). */
 __attribute__((always_inline))
-void view_knotsL(__global const float *ms_grid, int gx, int gy, int gz, iL px, iL py,
+void view_knotsL(__global const float *ms_lattice, int gx, int gy, int gz, iL px, iL py,
                  ViewKnots *kn) {
     const int plane = gx * gy * gz;
     float kd[VIEW_K][LANES], kv[MS_CHANNELS][VIEW_K][LANES];
@@ -436,19 +438,19 @@ void view_knotsL(__global const float *ms_grid, int gx, int gy, int gz, iL px, i
         float bw[4] = {(1.0f - fu) * (1.0f - fv), fu * (1.0f - fv), (1.0f - fu) * fv, fu * fv};
         float sum = 0.0f;
         for (int q = 0; q < 4; ++q) {
-            if (ms_grid[blk[q] * gx] < 0.0f) bw[q] = 0.0f;   /* empty block */
+            if (ms_lattice[blk[q] * gx] < 0.0f) bw[q] = 0.0f;   /* empty block */
             sum += bw[q];
         }
         /* sum = 0 only where no neighbour saw medium: no knots, F_ms = 0 */
         const float inv = sum > 0.0f ? 1.0f / sum : 0.0f;
         for (int k = 0; k < VIEW_K; ++k) {
             float a = 0.0f;
-            for (int q = 0; q < 4; ++q) a += bw[q] * inv * ms_grid[blk[q] * gx + k];
+            for (int q = 0; q < 4; ++q) a += bw[q] * inv * ms_lattice[blk[q] * gx + k];
             kd[k][j] = a;
             for (int c = 0; c < MS_CHANNELS; ++c) {
                 float b = 0.0f;
                 for (int q = 0; q < 4; ++q)
-                    b += bw[q] * inv * ms_grid[(1 + c) * plane + blk[q] * gx + k];
+                    b += bw[q] * inv * ms_lattice[(1 + c) * plane + blk[q] * gx + k];
                 kv[c][k][j] = b;
             }
         }
@@ -568,9 +570,9 @@ void add_sunL(MarchSums *s, vL w, vL rx, vL ry, vL rz, __global const float *lig
 #endif
 
 #if LIT && MS_SOURCE == 2
-/* Source 2: F_ms trilinear in the precomputed grid over gmin..gmax at the source point. */
+/* Source 2: F_ms trilinear in the precomputed lattice over gmin..gmax at the source point. */
 __attribute__((always_inline))
-void add_ms_gridL(MarchSums *s, vL w, vL rx, vL ry, vL rz, __global const float *ms_grid,
+void add_ms_latticeL(MarchSums *s, vL w, vL rx, vL ry, vL rz, __global const float *ms_lattice,
                   int gx, int gy, int gz, float4 gmin, float4 gmax) {
     const float3 gcell = (gmax.xyz - gmin.xyz) / (float3)((float)gx, (float)gy, (float)gz);
     const int plane = gx * gy * gz;
@@ -578,7 +580,7 @@ void add_ms_gridL(MarchSums *s, vL w, vL rx, vL ry, vL rz, __global const float 
     const vL uy = (ry - gmin.y) / gcell.y - 0.5f;
     const vL uz = (rz - gmin.z) / gcell.z - 0.5f;
     for (int c = 0; c < MS_CHANNELS; ++c)
-        s->M[c] += w * lookupL(ms_grid + c * plane, gx, gy, gz, ux, uy, uz);
+        s->M[c] += w * lookupL(ms_lattice + c * plane, gx, gy, gz, ux, uy, uz);
 }
 #endif
 
@@ -729,7 +731,7 @@ __kernel void raymarch(
     const float4 bmin, const float4 bmax, const float density_scale,
     __global const float *majorant, const int mx, const int my, const int mz, const int block,
     __global const float *light, const int ln, const float4 cube_min, const float cube_size,
-    __global const float *ms_grid, const int gx, const int gy, const int gz,
+    __global const float *ms_lattice, const int gx, const int gy, const int gz,
     const float4 gmin, const float4 gmax,
     const float4 origin, const float4 forward, const float4 right, const float4 up,
     const float tan_half, const int width, const int height,
@@ -777,7 +779,7 @@ __kernel void raymarch(
 #endif
 #if MS_SOURCE == 3
     ViewKnots knots;
-    view_knotsL(ms_grid, gx, gy, gz, px, py, &knots);
+    view_knotsL(ms_lattice, gx, gy, gz, px, py, &knots);
 #endif
     const float3 cell = (bmax.xyz - bmin.xyz) / (float3)((float)nx, (float)ny, (float)nz);
 
@@ -786,14 +788,22 @@ __kernel void raymarch(
 #if RAYMARCH_STATS
     uint n_iter = 0, n_lit = 0, n_maj = 0, n_active = 0;
 #endif
+    iL stopped = (iL)(0);   /* lanes the progress bound stopped */
     for (;;) {
         vL ta = t0 + k * step;
         /* Bounded: a lane stops where its next segment would not start past this one (k past
          * 2^24, or step below t's float32 rounding: a camera far from a small box); nowhere
-         * else does this hold, so it changes no image that can be marched (the host reports
-         * when it may bind: clvol/render/raymarch.py march_bound). */
-        iL active = hit & (ta < t1) & (s.T >= threshold) & (t0 + (k + 1.0f) * step > ta);
-        if (!any(active)) break;
+         * else does this hold, so it changes no image that can be marched. A lane it stops
+         * keeps its k and T, so at the last pass it is still one that would go on but for
+         * the bound: those lanes are counted into stats[0] (the header's
+         * raymarch.rays_stopped_at_bound). */
+        const iL go = hit & (ta < t1) & (s.T >= threshold);
+        const iL progress = t0 + (k + 1.0f) * step > ta;
+        iL active = go & progress;
+        if (!any(active)) {
+            stopped = go & ~progress;
+            break;
+        }
 #if SKIP_EMPTY
         const uint reads = skip_empty_blocksL(majorant, mx, my, mz, cell * (float)block, bmin,
                                               &rays, t0, t1, step, &k, &ta, &active);
@@ -820,7 +830,7 @@ __kernel void raymarch(
 #endif
             add_sunL(&s, w, rx, ry, rz, light, ln, cube_min, cube_size, oct_a);
 #if MS_SOURCE == 2
-            add_ms_gridL(&s, w, rx, ry, rz, ms_grid, gx, gy, gz, gmin, gmax);
+            add_ms_latticeL(&s, w, rx, ry, rz, ms_lattice, gx, gy, gz, gmin, gmax);
 #elif MS_SOURCE == 3
             add_ms_viewL(&s, w, ts, &knots);
 #endif
@@ -857,9 +867,13 @@ __kernel void raymarch(
                 , em_colour, emission_out
 #endif
                 );
+    {
+        const uint n_stopped = (uint)LANE_SUM(stopped & (iL)(1));
+        if (n_stopped) atomic_add(stats, n_stopped);
+    }
 #if RAYMARCH_STATS
     /* Per tile: march iterations (each one density lookup on LANES lanes), iterations
      * with a light lookup, majorant reads (LANES lanes each) and active lane-segments. */
-    vstore4((uint4)(n_iter, n_lit, n_maj, n_active), tile, stats);
+    vstore4((uint4)(n_iter, n_lit, n_maj, n_active), tile, stats + 1);
 #endif
 }

@@ -79,7 +79,8 @@ def program_options(stem: str, defines: dict) -> str:
 def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
                  threshold=None, block=None, light_resolution=None,
                  light_interp: str = "transmittance", skip_empty: bool = True,
-                 runtime=None, octaves=None) -> Path:
+                 runtime=None, octaves=None, ms: str = "network", view_block=None,
+                 view_samples=None, seed=None) -> Path:
     """Write the bundle of ``scene`` (a clvol Scene) as ``clvol render`` renders it by default
     (--method raymarch --ms network, with its domain fallback and shortcuts) with these
     options (None: the renderer's defaults). Returns DIR.
@@ -89,20 +90,24 @@ def write_bundle(scene, out_dir, *, weights=None, ms_resolution=None, step=None,
     evaluates are all taken from the plan of a ``clvol.Renderer`` built for the scene; nothing
     is rendered. ``runtime``: the OpenCL runtime it is built on (default: clvol's).
     ``octaves``: an ``Octaves`` for the Wrenninge fallback (default the renderer's: 3 octaves,
-    a = b = c = 0.5); used only where the renderer falls back to it."""
+    a = b = c = 0.5); used only where the renderer falls back to it. ``ms``: the network
+    source the C host runs, ``network`` (the world lattice) or ``stochastic`` (the
+    view-space table: ``view_block``, ``view_samples`` and ``seed`` are its options)."""
     out = check_out_dir(out_dir)
     b = _plan(scene, dict(weights=weights, ms_resolution=ms_resolution, step=step,
                           threshold=threshold, majorant_block=block,
                           light_resolution=light_resolution, light_interp=light_interp,
-                          skip_empty=skip_empty), runtime, octaves)
+                          skip_empty=skip_empty, view_block=view_block,
+                          view_samples=view_samples, seed=seed), runtime, octaves, ms)
     m = _Manifest()
     _write_sources(m, scene, out)
     _write_programs(m, b)
-    _write_host_constants(m)
+    _write_host_constants(m, b)
     _write_volume(m, b, out)
     _write_medium_light_camera(m, b)
     _write_raymarch(m, b)
     _write_domain(m, b)
+    _write_view(m, b)
     _write_network(m, b, out)
     _write_gather_tables(m, b, out)
     (out / "manifest.txt").write_text(m.text())
@@ -124,6 +129,7 @@ class _Planned:
     network: bool              # the network runs (lit, and the plan's source)
     light_res: int
     block: int                 # majorant block (voxels)
+    view: dict | None = None   # a view-space source's bundle_view (view.* keys, viewdepth)
 
     @property
     def base(self) -> int:
@@ -135,7 +141,7 @@ class _Planned:
         return kg._lobes(self.scene.medium)
 
 
-def _plan(scene, given: dict, runtime, octaves) -> _Planned:
+def _plan(scene, given: dict, runtime, octaves, ms: str = "network") -> _Planned:
     """The renderer validates and completes the options exactly as `clvol render` does, and
     its plan (clvol/render/plan.py) is what the bundle serialises: the source it chose, the
     kernel defines, the active lattice points, the light field's resolution. What the C host
@@ -144,7 +150,7 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
     from .render.ms import source_class
     from .render.renderer import Renderer
     grid = scene.volume.load()
-    r = Renderer(scene, "raymarch", grid=grid, runtime=runtime, ms="network",
+    r = Renderer(scene, "raymarch", grid=grid, runtime=runtime, ms=ms,
                  **{k: v for k, v in given.items() if v is not None})
     o = r.options
     if octaves is not None:        # the Wrenninge fallback's octaves, used where it runs
@@ -152,7 +158,9 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
             o.set(k, v)
     plan = r.plan()
     configured = r.source        # the network source the C host runs (its declarations)
-    res = ((o["ms_resolution"],) * 3 if np.isscalar(o["ms_resolution"])
+    view = configured.bundle_view(plan.camera)    # None: the world lattice
+    res = ((1, 1, 1) if view is not None else
+           (o["ms_resolution"],) * 3 if np.isscalar(o["ms_resolution"])
            else tuple(int(v) for v in o["ms_resolution"]))
     chunk = configured.lattice_points_per_launch
     if int(np.prod(res)) > chunk:
@@ -173,12 +181,18 @@ def _plan(scene, given: dict, runtime, octaves) -> _Planned:
                          f"does not implement; a bundle renders the sun and a constant "
                          f"background only (docs/embedding.md)")
     network = plan.lit and ran.uses_network
+    if network and view is not None and \
+            plan.programs["raymarch"].get("VIEW_BLOCK") != view["keys"]["block"]:
+        raise ClvolError(f"bundle: the march's VIEW_BLOCK "
+                         f"{plan.programs['raymarch'].get('VIEW_BLOCK')} is not the view "
+                         f"source's block {view['keys']['block']}")
     # Lattice points the network evaluates (the others hold F_ms = 0): the plan's rule.
     active = (np.flatnonzero(configured.active_points(grid, res, plan.lattice_reach))
-              if network else np.zeros(0, np.int64))
+              if network and view is None else np.zeros(0, np.int64))
     return _Planned(scene, grid, o, plan, r.domain, configured, configured.network_weights(),
                     res, active, network, plan.light_resolution,
-                    majorant_block(o["majorant_block"], grid.density.shape))
+                    majorant_block(o["majorant_block"], grid.density.shape),
+                    view if network else None)
 
 
 def check_out_dir(out_dir) -> Path:
@@ -220,7 +234,7 @@ def _write_sources(m: "_Manifest", scene, out: Path) -> None:
 
 # The manifest's order of the programs (those of the plan that the C host builds).
 PROGRAM_ORDER = ("pyramid", "majorant", "transmittance", "transmittance_w1", "transmittance_wL",
-                 "gather", "gather_bake", "mlp", "raymarch")
+                 "gather", "gather_bake", "mlp", "viewdepth", "raymarch")
 
 
 def _write_programs(m: "_Manifest", b: _Planned) -> None:
@@ -238,6 +252,8 @@ def _write_programs(m: "_Manifest", b: _Planned) -> None:
         programs.pop("gather_mlp", None)
         programs.update(apart)
         pocl.update(apart_pocl)
+    if b.view is not None:       # the view source's free-flight draws (cl/viewdepth.cl)
+        programs["viewdepth"] = b.view["viewdepth"]
     unknown = set(programs) - set(PROGRAM_ORDER)
     if unknown:
         raise ClvolError(f"bundle: programs {sorted(unknown)} have no place in the manifest")
@@ -251,7 +267,7 @@ def _write_programs(m: "_Manifest", b: _Planned) -> None:
             m[f"program.{name}.options_pocl"] = _define_flags(pocl[name])
 
 
-def _write_host_constants(m: "_Manifest") -> None:
+def _write_host_constants(m: "_Manifest", b: _Planned) -> None:
     from .kernels import gather as kg
     from .kernels import mlp as km
     from .kernels import raymarch as kr
@@ -269,6 +285,8 @@ def _write_host_constants(m: "_Manifest") -> None:
             "config_dim": layout.CONFIG_DIM,
             "config_albedo": layout.CONFIG_FIELDS.index("albedo"),
             "config_alpha": layout.CONFIG_FIELDS.index("alpha")}
+    if b.source.lattice_points_per_launch:   # the most queries of one gather + MLP launch
+        host["network_chunk"] = int(b.source.lattice_points_per_launch)
     for key, value in host.items():
         m[f"host.{key}"] = value
 
@@ -358,6 +376,18 @@ def _write_domain(m: "_Manifest", b: _Planned) -> None:
     m["domain.backward_albedo"] = rules["backward_albedo"]
 
 
+def _write_view(m: "_Manifest", b: _Planned) -> None:
+    """The stochastic view source's options and constants (clvol/render/ms/view.py), which
+    libclvol's view stage repeats; only a bundle whose source is the view table has them."""
+    if b.view is None:
+        return
+    m.comment("view: the stochastic view-space table (clvol/render/ms/view.py): block side "
+              "(auto: about blocks_across blocks across the longer side), draws per frame, "
+              "seed, the still view's samples, the history a move keeps, the draw's step factor")
+    for key, value in b.view["keys"].items():
+        m[f"view.{key}"] = value
+
+
 def _write_network(m: "_Manifest", b: _Planned, out: Path) -> None:
     from .kernels import mlp as km
     from .kernels import pyramid as kp
@@ -369,14 +399,15 @@ def _write_network(m: "_Manifest", b: _Planned, out: Path) -> None:
     m["network.base_resolution"] = b.base
     m["network.n_levels"] = kp.n_levels(b.base)
     m["network.lambda"] = float(c["lambda"])
-    m["network.ms_resolution"] = list(b.res)
-    m["network.ms_bbox_min"] = [float(v) for v in grid.bbox_min]
-    m["network.ms_bbox_max"] = [float(v) for v in grid.bbox_max]
-    # the lattice points the network evaluates ([z][y][x] indices, ascending); the others
-    # hold F_ms = 0 (no density within reach: their F_ms never reaches the image)
-    m["network.active_points"] = int(len(b.active))
-    m["network.active_file"] = "active.i32"
-    _write_raw(out / "active.i32", b.active, np.int32)
+    if b.view is None:           # the world lattice (a view source's points are drawn)
+        m["network.ms_resolution"] = list(b.res)
+        m["network.ms_bbox_min"] = [float(v) for v in grid.bbox_min]
+        m["network.ms_bbox_max"] = [float(v) for v in grid.bbox_max]
+        # the lattice points the network evaluates ([z][y][x] indices, ascending); the others
+        # hold F_ms = 0 (no density within reach: their F_ms never reaches the image)
+        m["network.active_points"] = int(len(b.active))
+        m["network.active_file"] = "active.i32"
+        _write_raw(out / "active.i32", b.active, np.int32)
     m["network.file"] = "network.bin"
     packed = km.pack_params(w)
     lw = np.asarray(w.level_weights, np.float32)
@@ -437,11 +468,18 @@ def add_arguments(p) -> None:
     p.add_argument("--weights", metavar="FILE.npz", help="network weights (default: shipped)")
     p.add_argument("--ms", default=DEFAULT_SOURCE,
                    help="multiple-scattering source: the C host implements network (the world "
-                        "lattice, default); view and stochastic are Python-only and refused "
-                        "(docs/embedding.md)")
-    p.add_argument("--ms-resolution", type=int, default=default_res,
-                   help=f"F_ms lattice points per side (default {default_res}, "
+                        "lattice) and stochastic (the view-space table); view and progressive "
+                        "are Python-only and refused (docs/embedding.md)")
+    p.add_argument("--ms-resolution", type=int, default=None,
+                   help=f"--ms network: F_ms lattice points per side (default {default_res}, "
                         f"at most 32)")
+    p.add_argument("--view-block", type=int, default=None, metavar="B",
+                   help="--ms stochastic: pixels per block side (default: as clvol render)")
+    p.add_argument("--view-samples", type=int, default=None, metavar="N",
+                   help="--ms stochastic: free-flight samples per block per frame (default: "
+                        "as clvol render)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="--ms stochastic: the draws' seed (default: as clvol render)")
     p.add_argument("--light-resolution", type=int, default=None,
                    help="light field resolution (power of two; default as clvol render)")
     p.add_argument("--light-interp", choices=["transmittance", "optical_depth"],
@@ -460,13 +498,13 @@ def run(args) -> int:
     from .scene import load_scene
     check_out_dir(args.dir)
     ms = source_classes().get(args.ms)
-    # The C host is configured with the network on the world lattice; the other sources it
-    # implements run only where the plan chooses them for a medium.
+    # The C host is configured with a network source (the world lattice or the stochastic
+    # view table); the other sources it implements run only where the plan chooses them.
     if ms is None or not (ms.bundle_supported and ms.uses_network):
         raise ClvolError(f"clvol bundle: --ms {args.ms} is not implemented by the C host, which "
-                         f"renders the network on the world lattice (--ms network); the "
-                         f"view-space sources (view, stochastic) run only in Python "
-                         f"(docs/embedding.md)")
+                         f"renders the network on the world lattice (--ms network) or the "
+                         f"stochastic view table (--ms stochastic); view and progressive run "
+                         f"only in Python (docs/embedding.md)")
     scene = load_scene(args.scene)
     over = {k: v for k, v in (("camera.width", args.width), ("camera.height", args.height))
             if v is not None}
@@ -474,6 +512,8 @@ def run(args) -> int:
         scene = scene.with_overrides(over, source=str(args.scene))
     out = write_bundle(scene, args.dir, weights=args.weights, ms_resolution=args.ms_resolution,
                        step=args.step, threshold=args.threshold,
-                       light_resolution=args.light_resolution, light_interp=args.light_interp)
+                       light_resolution=args.light_resolution, light_interp=args.light_interp,
+                       ms=args.ms, view_block=args.view_block, view_samples=args.view_samples,
+                       seed=args.seed)
     print(f"wrote {out}/manifest.txt")
     return 0

@@ -111,7 +111,7 @@ class VolumeSpec:
         return dataclasses.replace(self, frame=int(frame)) if self.is_sequence else self
 
     def load(self, max_bytes: int | None = None):
-        """Read the file or run the generator; apply the bbox override. Returns a ``Grid``.
+        """Read the file or run the generator; apply the bbox override. Returns a ``DensityGrid``.
 
         A .vdb grid whose dense array would exceed ``max_bytes`` (default: the OpenCL device's
         largest buffer, when a device is available) is refused with the ``max_resolution`` that

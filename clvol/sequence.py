@@ -93,7 +93,7 @@ class LoadedFrame:
 
 
 def load_frame(scene, frame: int) -> LoadedFrame:
-    """Read and prepare one frame of ``scene``'s sequence: its density Grid and, with
+    """Read and prepare one frame of ``scene``'s sequence: its density DensityGrid and, with
     ``[emission]``, its EmissionGrid (mapped on the host)."""
     t0 = time.perf_counter()
     volume = scene.volume.for_frame(frame)

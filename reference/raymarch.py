@@ -28,7 +28,7 @@ Sources (``source``):
     "none"       F_ms = 0                                       (single scattering only)
     "wrenninge"  F_ms = sum_{i=1}^{N-1} b^i f(mu; g c^i) T_light^(a^i)   (Wrenninge octaves;
                  every lobe's g is scaled by c^i)
-    "grid"       F_ms = trilinear lookup in a precomputed RGB (or grey) grid of F_ms values
+    "lattice"       F_ms = trilinear lookup in a precomputed RGB (or grey) grid of F_ms values
     "view"       F_ms from the view-space table (1 + C, by, bx, K): per block of view_block^2
                  pixels, K distances along the camera rays (plane 0; -1 marks an empty block)
                  and F_ms there (planes 1..C). A pixel's knots blend the four nearest blocks'
@@ -131,7 +131,7 @@ def octave_weights(mu, lobes, octaves, b, c):
 def raymarch(density, bbox_min, bbox_max, density_scale,
              majorant, block,
              light, cube_min, cube_size,
-             ms_grid, ms_bbox_min, ms_bbox_max,
+             ms_lattice, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
              light_dir, irradiance, albedo, lobes, background,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
@@ -140,14 +140,15 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              env_size=1.0, env_colour=(1, 1, 1), bg_image=None, emission=None,
              em_min=(0, 0, 0), em_max=(1, 1, 1), em_colour=(1, 1, 1), em_box=False):
     """Render one image. Returns a dict of float64 arrays: total, single, multiple (H, W, 3),
-    alpha, depth (H, W); with ``emission``, also emission (H, W, 3).
+    alpha, depth (H, W); with ``emission``, also emission (H, W, 3); and "stopped_at_bound",
+    the number of rays the progress bound stopped (an int).
 
     density      [nz][ny][nx] raw density over bbox_min..bbox_max (sigma_t = density * scale)
     majorant     [mz][my][mx] per-block majorant (majorant.h), block = fine voxels per block
     light        [n][n][n] the exact light transmittance field (lambda = 1) over the cube
                  cube_min .. cube_min + cube_size: T_light, or its optical depth with
                  light_quantity="optical_depth"
-    ms_grid      (C, gz, gy, gx), C = 1 or 3, F_ms over ms_bbox_min..ms_bbox_max ("grid" source)
+    ms_lattice      (C, gz, gy, gx), C = 1 or 3, F_ms over ms_bbox_min..ms_bbox_max ("lattice" source)
     camera       origin, basis (forward, right, up), tan(fov_y / 2), width x height
     light_dir    unit, toward the light; irradiance E, albedo, background: RGB
     lobes        (g, weight) pairs, empty for isotropic
@@ -172,19 +173,19 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         ow = octave_weights(mu, lobes, octaves, b, c)
         oa = np.array([a ** i for i in range(1, octaves)])
     light_cell = float(cube_size) / light.shape[0]
-    if source == "grid":
-        ms_grid = np.asarray(ms_grid)
+    if source == "lattice":
+        ms_lattice = np.asarray(ms_lattice)
         gmin, gmax = np.asarray(ms_bbox_min, f64), np.asarray(ms_bbox_max, f64)
-        gcell = (gmax - gmin) / np.array(ms_grid.shape[1:][::-1], f64)
+        gcell = (gmax - gmin) / np.array(ms_lattice.shape[1:][::-1], f64)
 
     if source == "view":
-        vd, vv = view_knots(np.asarray(ms_grid, f64), view_block, width, height)
+        vd, vv = view_knots(np.asarray(ms_lattice, f64), view_block, width, height)
     t0, t1 = box_intersect(np.broadcast_to(o, d.shape), d, bmin, bmax, tmin=0.0)
     k = np.zeros(n_rays)
     T = np.ones(n_rays)
     S = np.zeros(n_rays)
-    M = np.zeros((n_rays, ms_grid.shape[0] if source == "grid" else
-                  ms_grid.shape[0] - 1 if source == "view" else 1))
+    M = np.zeros((n_rays, ms_lattice.shape[0] if source == "lattice" else
+                  ms_lattice.shape[0] - 1 if source == "view" else 1))
     A = np.zeros(n_rays)
     D = np.zeros(n_rays)
     if env is not None:
@@ -202,11 +203,22 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         EE = np.zeros((n_rays, em_c))
     hit = t0 <= t1
     dt = float(step)
+    # The kernel's progress bound, in float32 as the kernel computes it: a ray stops where its
+    # next segment would not start past the current one (float32 t0 + (k + 1) dt == t0 + k
+    # dt: k past 2^24, or dt below t's rounding, a camera far from a small box); elsewhere it
+    # never holds. Those rays are counted ("stopped_at_bound").
+    f32 = np.float32
+    t0_32, dt_32 = t0.astype(f32), f32(dt)
+    stopped = np.zeros(n_rays, bool)
 
     while True:
         ta = np.where(hit, t0 + k * dt, np.inf)
-        active = hit & (ta < t1) & (T >= threshold)
+        go = hit & (ta < t1) & (T >= threshold)
+        with np.errstate(invalid="ignore", over="ignore"):
+            progress = (t0_32 + (k + 1).astype(f32) * dt_32) > (t0_32 + k.astype(f32) * dt_32)
+        active = go & progress
         if not active.any():
+            stopped = go & ~progress
             break
         for _ in range(SKIP_PASSES if skip_empty else 0):
             # Untruncated midpoint of the current segment (0 for idle rays: stays finite).
@@ -240,9 +252,9 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
             S += w * (np.exp(-lf) if light_quantity == "optical_depth" else lf)
             if source == "wrenninge" and octaves > 1:
                 M[:, 0] += w * (ow * np.exp(-oa[:, None] * tau_l[None, :])).sum(axis=0)
-            elif source == "grid":
-                for ch in range(ms_grid.shape[0]):
-                    M[:, ch] += w * _lookup(ms_grid[ch], gmin, gcell, ps)
+            elif source == "lattice":
+                for ch in range(ms_lattice.shape[0]):
+                    M[:, ch] += w * _lookup(ms_lattice[ch], gmin, gcell, ps)
             elif source == "view":
                 M += w[:, None] * view_interp(vd, vv, ts)
         if env is not None:
@@ -281,6 +293,7 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
            "depth": depth.reshape(shape)}
     if emission is not None:
         out["emission"] = emitted.reshape(shape + (3,))
+    out["stopped_at_bound"] = int(np.count_nonzero(stopped))
     return out
 
 

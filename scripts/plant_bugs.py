@@ -234,7 +234,7 @@ FALLBACK_TESTS = ("tests/test_fallback_rule.py",
 BUGS = [
     Bug("mirrored-frame", "clvol/features/phasetable.py",
         "phase feature's view term with the camera reflected across the light axis"),
-    Bug("lattice-corners", "clvol/render/ms/grid.py",
+    Bug("lattice-corners", "clvol/render/ms/lattice.py",
         "F_ms lattice points at cell corners instead of cell centres (ms_lattice)"),
     Bug("shadow-bias", "cl/pathtrace.cl",
         "1% extinction bias on shadow rays (tentative collisions at 1.01 x the majorant rate)"),

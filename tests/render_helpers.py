@@ -11,7 +11,7 @@ from clvol.render.ms import source_classes
 
 
 def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float = 0.5,
-                    b: float = 0.5, c: float = 0.5, ms_grid=None,
+                    b: float = 0.5, c: float = 0.5, ms_lattice=None,
                     step: float = DEFAULT_STEP, threshold: float = DEFAULT_THRESHOLD,
                     skip_empty: bool = True, block: int = DEFAULT_BLOCK,
                     light_resolution: int | None = None, light_interp: str = "transmittance",
@@ -37,7 +37,7 @@ def render_raymarch(scene, *, ms: str = "wrenninge", octaves: int = 3, a: float 
     opts = dict(ms=ms, step=step, threshold=threshold, skip_empty=skip_empty,
                 majorant_block=block, light_resolution=light_resolution,
                 light_interp=light_interp, supersample=supersample, shortcuts=shortcuts)
-    per_source = dict(octaves=octaves, ms_a=a, ms_b=b, ms_c=c, ms_grid=ms_grid, weights=weights,
+    per_source = dict(octaves=octaves, ms_a=a, ms_b=b, ms_c=c, ms_lattice=ms_lattice, weights=weights,
                       ms_resolution=ms_resolution, domain_fallback=domain_fallback,
                       view_block=view_block, view_knots=view_knots,
                       view_samples=view_samples, seed=seed)

@@ -340,7 +340,7 @@ def source_checks(path: Path, classes, names) -> list[str]:
 
 
 def test_source_names_are_read_from_the_registry():
-    assert registered_source_names() == {"none", "wrenninge", "grid", "network", "view",
+    assert registered_source_names() == {"none", "wrenninge", "lattice", "network", "view",
                                          "stochastic", "progressive"}
 
 

@@ -8,8 +8,10 @@ The bounds (docs/pathtrace.md, "Bounds"; cl/pathtrace.cl, cl/raymarch.cl, cl/vie
   move t by less than 2^-20 of a majorant block (1/sigma_maj below t's float32 rounding, or
   a block that takes millions of draws to cross: density_scale 1e12 on a unit cloud ran past
   60 s before, at 32 x 32 and 1 spp);
-- ray marcher: a ray stops where its next segment would not start past the current one
-  (header ``raymarch.bound`` when the camera and box allow it: t / step >= 2^22);
+- ray marcher: a ray stops where its next segment would not start past the current one;
+  the kernel counts those rays (header ``raymarch.rays_stopped_at_bound``, 0 normally);
+- path tracer images: a medium whose majorant optical depth per majorant cell exceeds 2^13
+  (clvol/kernels/transmittance.py check_tracking_depth) is refused before rendering;
 - view depths: at most 2^22 segments a ray, and no undefined (int) cast of a NaN or huge span.
 
 Each case runs in a child process with a hard timeout (a hang must fail the test, not stall
@@ -39,7 +41,7 @@ CHILD = textwrap.dedent('''
     import clvol
     from clvol.errors import ClvolError
     from clvol.scene import scene_from_dict
-    from clvol.volume.grid import Grid
+    from clvol.volume.grid import DensityGrid
     case = json.loads(sys.argv[1])
     d = {"volume": {"generator": "cloud", "seed": 3, "resolution": 16},
          "medium": {"preset": "cloud", "density_scale": 30.0},
@@ -58,7 +60,7 @@ CHILD = textwrap.dedent('''
             dens = np.full((8, 9, 10), g.get("value", 1.0), np.float32)
             if "corner" in g:
                 dens[:2, :2, :2] = g["corner"]
-            grid = Grid.from_array(dens, g.get("bmin", (-0.5,) * 3), g.get("bmax", (0.5,) * 3))
+            grid = DensityGrid.from_array(dens, g.get("bmin", (-0.5,) * 3), g.get("bmax", (0.5,) * 3))
         scene = scene_from_dict(d, "<bounded>")
         opts = dict(case.get("options", {}))
         extra = opts.pop("extra_defines", None)
@@ -71,7 +73,8 @@ CHILD = textwrap.dedent('''
         out.update(ok=True, finite=bool(np.isfinite(rgb).all()), shape=list(rgb.shape),
                    header={k: v for k, v in res.header.items()
                            if k in ("paths_stopped_at_bound", "paths_truncated",
-                                    "mean_tracking_steps", "raymarch.bound")})
+                                    "mean_tracking_steps",
+                                    "raymarch.rays_stopped_at_bound")})
     except ClvolError as e:
         out.update(ok=False, error=str(e))
     out["seconds"] = time.perf_counter() - t
@@ -95,21 +98,91 @@ PT = {"method": "pathtrace", "options": {"spp": 1}}
 
 
 @pytest.mark.parametrize("name,case", [
+    ("density_scale 1e6", {"scene": {"medium.density_scale": 1e6}}),
+    ("density_scale 1e7, albedo 1", {"scene": {"medium.density_scale": 1e7,
+                                               "medium.albedo": [1.0, 1.0, 1.0]}}),
+    ("density_scale 1e7, albedo 0.9", {"scene": {"medium.density_scale": 1e7,
+                                                 "medium.albedo": [0.9, 0.9, 0.9]}}),
     ("density_scale 1e12", {"scene": {"medium.density_scale": 1e12}}),
     ("density_scale 1e30", {"scene": {"medium.density_scale": 1e30}}),
     ("density 1e30 corner", {"grid": {"value": 0.0, "corner": 1e30}}),
     ("density 1e30 everywhere", {"grid": {"value": 1e30}}),
 ])
-def test_extreme_extinction_stops_at_the_bound_and_says_so(name, case):
-    """An extinction so large that 1/sigma_maj is below the float32 rounding of t: before the
-    bound a path whose tentative collisions all fell in a low-density part of a majorant
-    block never advanced. Now those paths stop after 256 stalls, the image is finite, and
-    the header counts them (> 0 where the camera sees the medium)."""
+def test_extreme_extinction_is_refused_before_rendering(name, case):
+    """A medium whose majorant optical depth per majorant cell is above MAX_CELL_DEPTH
+    (clvol/kernels/transmittance.py check_tracking_depth): its paths would take about that many
+    tentative collisions each (density_scale 1e6-1e7 on a unit cloud took 4-23 s at 32 x 32,
+    1 spp, with 0.3-65% of the paths stopped at PT_MAX_STEPS; 1e12 and up stopped at the
+    stall bound, a black, biased image). Refused in one line, naming the value and the limit,
+    in under 5 s (measured 0.01-0.1 s: nothing is uploaded or built)."""
     r = _run({**PT, **case})
-    assert r["ok"] and r["finite"] and r["shape"] == [32, 32, 3], r
-    assert r["seconds"] < RENDER_S, r
-    if name != "density 1e30 everywhere":     # a homogeneous box accepts every collision
-        assert r["header"]["paths_stopped_at_bound"] > 0, r
+    assert not r["ok"], r
+    assert "\n" not in r["error"] and "above its limit 8192" in r["error"], r
+    assert r["seconds"] < 5.0, r
+
+
+def test_the_tracking_rule_is_the_documented_product_just_either_side():
+    """density_scale x the largest density x the majorant cell's longest side (inside the box)
+    against 2^13, written here from docs/pathtrace.md: the unit cloud (16^3, largest density
+    d) at block 8 has cells 0.5 across, so density_scale = 2^14 / d passes and 1.001 x that
+    does not, and the refusal names the coarsest block that passes (7: 7/8 of the depth); at
+    block 2 (cells 0.125) that scale passes; one global majorant (block 0) spans the box (1
+    across, 16 voxels)."""
+    from clvol.errors import ClvolError
+    from clvol.render.pathtrace import check_walks
+    from clvol.scene import scene_from_dict
+    grid = scene_from_dict({
+        "volume": {"generator": "cloud", "seed": 3, "resolution": 16},
+        "medium": {"preset": "cloud", "density_scale": 30.0},
+        "light": {"direction": [0.0, 0.0, 1.0], "irradiance": [1.0, 1.0, 1.0]},
+        "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.0, 0.0], "fov_y": 30.0,
+                   "width": 8, "height": 8}}, "<rule>").volume.load()
+    assert grid.density.shape == (16, 16, 16)
+    d = float(grid.density.max())
+    edge = 2.0 ** 13 / (0.5 * d)
+    assert check_walks(edge, grid, 8) == pytest.approx(2.0 ** 13)
+    with pytest.raises(ClvolError, match=r"cell 0.5 across \(8 voxels\).*above its limit 8192.*block of 7 voxels or fewer"):
+        check_walks(edge * 1.001, grid, 8)
+    assert check_walks(edge * 1.001, grid, 2) == pytest.approx(2.0 ** 13 * 1.001 / 4)
+    with pytest.raises(ClvolError, match=r"cell 1 across \(16 voxels\).*block of 13 voxels or fewer"):
+        check_walks(edge * 0.6, grid, 0)
+    assert check_walks(edge * 0.49, grid, 0) == pytest.approx(2.0 ** 13 * 0.49 * 2)
+
+
+def test_the_cli_exits_2_on_a_medium_too_thick_to_path_trace(tmp_path):
+    """The issue's command: examples/cloud.toml at density_scale 1e7, 32 x 32 (4-23 s before,
+    bench/bench_thick_media.py): exit 2, one line naming the value and the limit."""
+    import time
+    text = (ROOT / "examples" / "cloud.toml").read_text()
+    text = text.replace("density_scale = 64.0", "density_scale = 1e7")
+    assert "density_scale = 1e7" in text
+    scene = tmp_path / "thick.toml"
+    scene.write_text(text)
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    t = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "clvol", "render", str(scene), "--method",
+                        "pathtrace", "--width", "32", "--height", "32", "--spp", "1", "-o",
+                        str(tmp_path / "out.exr")], cwd=ROOT, env=env, capture_output=True,
+                       text=True, timeout=WALL_S)
+    wall = time.perf_counter() - t
+    assert p.returncode == 2, (p.returncode, p.stderr[-2000:])
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and "density_scale = 10000000.0" in lines[0], lines
+    assert "above its limit 8192" in lines[0] and not (tmp_path / "out.exr").exists()
+    assert wall < RENDER_S, wall       # Python's start and clvol's import included
+
+
+def test_the_stall_bound_stops_paths_and_is_counted():
+    """The stall bound can no longer be met by an image the rule accepts (a stall needs a
+    majorant optical depth of ~2^20 per cell, the rule stops at 2^13), so it is provoked from
+    the host: PT_STALL_FRACTION = 0.5 (of a 0.5-wide cell) with PT_MAX_STALLS = 4 makes almost
+    every tentative collision a stall (mean step 1/sigma_maj ~ 0.01 here), so paths that
+    enter the cloud stop after 4 draws and are counted."""
+    r = _run({**PT, "options": {"extra_defines": {"PT_STALL_FRACTION": 0.5,
+                                                  "PT_MAX_STALLS": 4}}})
+    assert r["ok"] and r["finite"], r
+    assert r["header"]["paths_stopped_at_bound"] > 100, r
+    assert r["header"]["mean_tracking_steps"] <= 4.0, r
 
 
 def test_an_ordinary_scene_hits_no_bound():
@@ -117,7 +190,7 @@ def test_an_ordinary_scene_hits_no_bound():
     assert r["ok"] and r["finite"], r
     assert r["header"]["paths_stopped_at_bound"] == 0 and r["header"]["paths_truncated"] == 0
     r = _run({"method": "raymarch"})
-    assert r["ok"] and r["finite"] and "raymarch.bound" not in r["header"], r
+    assert r["ok"] and r["finite"] and r["header"]["raymarch.rays_stopped_at_bound"] == 0, r
 
 
 def test_the_step_bound_stops_paths_and_is_counted():
@@ -143,7 +216,10 @@ def test_degenerate_cameras_and_boxes_render_finite(name, case, method):
     assert r["ok"] and r["finite"] and r["shape"] == [32, 32, 3], r
     assert r["seconds"] < RENDER_S, r
     if method == "raymarch" and name == "camera 1e30 away":
-        assert "rays may stop early" in r["header"]["raymarch.bound"], r
+        # the box is thinner than t's float32 rounding step there (t0 == t1): every ray ends
+        # at once at the box's far side, not at the bound (the prediction this count replaced
+        # said "rays may stop early")
+        assert r["header"]["raymarch.rays_stopped_at_bound"] == 0, r
 
 
 @pytest.mark.parametrize("name,case,words", [
@@ -161,16 +237,21 @@ def test_degenerate_inputs_are_refused_in_one_line(name, case, words):
     assert r["seconds"] < 5.0, r
 
 
-def test_the_march_bound_is_predicted_from_the_camera_and_box():
-    from clvol.render.raymarch import MARCH_BOUND_RATIO, march_bound
-    assert march_bound((0, 0, 2.4), (-1, -1, -1), (1, 1, 1), 0.01) is None
-    t = march_bound((0, 0, 1e30), (-1, -1, -1), (1, 1, 1), 0.01)
-    assert t is not None and t >= 1e30
-    # just either side of t_far / step = 2^22
-    far = np.sqrt(3.0 * 0.5 ** 2)                       # origin at a unit box's centre
-    step = far / MARCH_BOUND_RATIO
-    assert march_bound((0, 0, 0), (-0.5,) * 3, (0.5,) * 3, step * 1.001) is None
-    assert march_bound((0, 0, 0), (-0.5,) * 3, (0.5,) * 3, step * 0.999) is not None
+def test_the_march_counts_the_rays_its_bound_stopped():
+    """The kernel counts (atomically) the rays its progress bound stopped, and the header
+    reports that count. The camera 2e6 from the unit cloud with a view 1e-5 degrees high
+    (every ray crosses the box's middle): t's float32 rounding step there is 0.25, the step
+    (half a voxel of 16) 0.031, so t0 + step == t0 and each of the 32 x 32 rays stops at its
+    first segment; the image is the background alone. 2e4 away (rounding step 0.002) every
+    ray is marched and the count is 0."""
+    far = {"camera.origin": [0.0, 0.0, 2e6], "camera.fov_y": 1e-5}
+    r = _run({"method": "raymarch", "scene": far})
+    assert r["ok"] and r["finite"], r
+    assert r["header"]["raymarch.rays_stopped_at_bound"] == 32 * 32, r
+    assert r["seconds"] < RENDER_S, r
+    near = {"camera.origin": [0.0, 0.0, 2e4], "camera.fov_y": 1e-3}
+    r = _run({"method": "raymarch", "scene": near})
+    assert r["ok"] and r["finite"] and r["header"]["raymarch.rays_stopped_at_bound"] == 0, r
 
 
 @pytest.mark.parametrize("method", ["raymarch", "pathtrace"])
@@ -178,7 +259,8 @@ def test_fuzz_found_float32_overflowing_extinction_is_refused(method):
     """Found by the API fuzz's 500-example run (after the bounds): density_scale = 3.4e38
     (float32's largest) with albedo 0 rendered a NaN alpha through the path tracer and the
     unlit march (inf * 0). Both methods now refuse, in one line, what the light field
-    already refused: density_scale x the largest density x the box's diagonal >= 1e37."""
+    already refused: density_scale x the largest density x the box's diagonal >= 1e37. Just
+    below it (1e30) the march renders; the path tracer refuses it by its tracking rule."""
     import clvol
     from clvol.errors import ClvolError
     from clvol.scene import Camera, Light, Medium, Phase, scene_from_dict
@@ -197,8 +279,12 @@ def test_fuzz_found_float32_overflowing_extinction_is_refused(method):
         with pytest.raises(ClvolError, match="beyond float32 range") as e:
             r.render(camera=cam, light=light, medium=medium)
         assert "\n" not in str(e.value)
-    ok = r.render(camera=cam, light=light, medium=Medium(density_scale=1e30, albedo=(0.0, 0.0, 0.0),
-                                                         phase=Phase.isotropic()))
+    below = Medium(density_scale=1e30, albedo=(0.0, 0.0, 0.0), phase=Phase.isotropic())
+    if method == "pathtrace":   # within float32, but far beyond the path tracer's walks
+        with pytest.raises(ClvolError, match="above its limit 8192"):
+            r.render(camera=cam, light=light, medium=below)
+        return
+    ok = r.render(camera=cam, light=light, medium=below)
     assert all(np.isfinite(v).all() for v in ok.layers.values())
 
 

@@ -395,7 +395,7 @@ def test_bundle_refuses_a_sky_lit_scene(tmp_path, capsys):
     assert not (tmp_path / "b").exists()
 
 
-@pytest.mark.parametrize("ms", ["view", "stochastic"])
+@pytest.mark.parametrize("ms", ["view", "progressive"])
 def test_bundle_refuses_the_view_space_sources(tmp_path, capsys, ms):
     scene = ROOT / "examples" / "cloud.toml"
     assert main(["bundle", str(scene), str(tmp_path / "b"), "--ms", ms]) == 2

@@ -45,7 +45,7 @@ import pytest
 from clvol.bundle import write_bundle
 from clvol.render.renderer import Renderer
 from clvol.scene import load_scene
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 
 from test_c_host import _have_toolchain   # the same probe: a C compiler, make, CL headers
 from test_c_host import pocl_only         # sanitizer runs load PoCL's driver alone
@@ -107,11 +107,11 @@ def _scene():
         {"volume.resolution": 32, "camera.width": 32, "camera.height": 32})
 
 
-def _new_grid(grid) -> Grid:
+def _new_grid(grid) -> DensityGrid:
     """A non-cubic grid ((nz, ny, nx) = (20, 14, 24)) in the bundle's box."""
     from clvol.volume.generators import generate
     g = generate("cloud", seed=5, resolution=24)
-    return Grid(np.ascontiguousarray(g.density[2:22, 5:19, :]), grid.bbox_min, grid.bbox_max)
+    return DensityGrid(np.ascontiguousarray(g.density[2:22, 5:19, :]), grid.bbox_min, grid.bbox_max)
 
 
 @pytest.fixture(scope="module")
@@ -604,7 +604,7 @@ def test_optical_range_refused_by_the_setters_as_by_renderer_render(lib, unlit_b
         dens[1, 2, 3] = 4.0 * maxd
         with pytest.raises(ClvolError, match="times the largest density"):
             rp.render(medium=dataclasses.replace(scene.medium, density_scale=float(half)),
-                      grid=Grid(dens, grid.bbox_min, grid.bbox_max))
+                      grid=DensityGrid(dens, grid.bbox_min, grid.bbox_max))
         assert lib.clvol_set_density(r, _f32(dens)[0], 6, 5, 4) == ARGUMENT
         msg = lib.clvol_last_error(r).decode()
         assert msg.startswith("clvol_set_density: medium.density_scale = ") and \

@@ -286,9 +286,9 @@ def test_escape_depth_and_point_placement():
     """escape_depth on a uniform slab equals the distance to the nearer face times the
     extinction; in an optically thick sphere most density-weighted points lie within a few
     mean free paths of the surface, but a few are deeper."""
-    from clvol.volume.grid import Grid
+    from clvol.volume.grid import DensityGrid
     d = np.ones((4, 6, 8), np.float32)
-    g = Grid(d, np.array([0.0, 0.0, 0.0]), np.array([8.0, 6.0, 4.0]))    # 1-unit voxels
+    g = DensityGrid(d, np.array([0.0, 0.0, 0.0]), np.array([8.0, 6.0, 4.0]))    # 1-unit voxels
     e = ds.escape_depth(g, 2.0)
     z, y, x = np.meshgrid(np.arange(4), np.arange(6), np.arange(8), indexing="ij")
     dist = np.minimum.reduce([x + 0.5, 7.5 - x, y + 0.5, 5.5 - y, z + 0.5, 3.5 - z])

@@ -17,7 +17,7 @@ DOCS = [ROOT / "README.md"] + sorted((ROOT / "docs").glob("*.md"))
 
 # Commands that cannot run as shown, by a substring of their text, with the reason.
 SKIPPED = {
-    "--ms-grid fms.npz": "needs an F_ms grid file (fms.npz) that the page makes in Python first",
+    "--ms-lattice fms.npz": "needs an F_ms lattice file (fms.npz) that the page makes in Python first",
     "examples/fire/fire.toml": "needs the frames that python examples/fire/make_fire.py makes "
                                "(tests/test_fire_example.py renders them)",
 }

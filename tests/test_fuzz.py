@@ -97,16 +97,16 @@ def test_scene_text_parses_or_fails_in_one_line(tmp_path_factory, text):
 # ----------------------------------------------------------------- volume readers
 
 def _real_files(folder):
-    from clvol.volume.grid import Grid
+    from clvol.volume.grid import DensityGrid
     from clvol.volume.io import write_volume
     rng = np.random.default_rng(0)
     d = (rng.random((5, 4, 6)) * (rng.random((5, 4, 6)) > 0.3)).astype(np.float32)
-    g = Grid(d, np.array([-0.6, -0.4, -0.5]), np.array([0.6, 0.4, 0.5]))    # cubic voxels (.vdb)
+    g = DensityGrid(d, np.array([-0.6, -0.4, -0.5]), np.array([0.6, 0.4, 0.5]))    # cubic voxels (.vdb)
     out = {}
     for ext in (".vol", ".npz", ".npy"):
         p = folder / f"v{ext}"
         # .npy stores no box: write it with the default one
-        write_volume(p, g if ext != ".npy" else Grid(d, np.full(3, -0.5), np.full(3, 0.5)))
+        write_volume(p, g if ext != ".npy" else DensityGrid(d, np.full(3, -0.5), np.full(3, 0.5)))
         out[ext] = p.read_bytes()
     from clvol.volume.vdb import write_vdb
     write_vdb(folder / "v.vdb", g)

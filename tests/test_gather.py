@@ -24,7 +24,7 @@ from clvol.kernels.transmittance import graded_transmittance
 from clvol.features import layout
 from clvol.scene import Medium, Phase
 from clvol.volume.generators import generate
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 from reference import gather as rgather
 
 LOBES = ((0.857, 1.0),)
@@ -42,7 +42,7 @@ def setup(density, base, light, scale=MEDIUM.density_scale, bmin=(-0.5, -0.5, -0
     if bmax is None:
         nz, ny, nx = density.shape
         bmax = np.asarray(bmin) + np.array([nx, ny, nz]) / max(density.shape)
-    grid = Grid(density=density, bbox_min=np.asarray(bmin, float), bbox_max=np.asarray(bmax, float))
+    grid = DensityGrid(density=density, bbox_min=np.asarray(bmin, float), bbox_max=np.asarray(bmax, float))
     pyr = build_pyramid(grid, base)
     return pyr, graded_transmittance(pyr, scale, unit(light))
 

@@ -369,7 +369,7 @@ def _weights_file(tmp_path, seed=11, bias_shift=0.0):
 @pytest.mark.parametrize("albedo", [0.9, (0.7, 0.95, 0.8)])
 def test_fill_device_equals_the_host_lattice(tmp_path, albedo):
     """NetworkSource.fill_device (the default render path: the lattice written on the device
-    in the marcher's (C, gz, gy, gx) layout) holds fill's MsGrid planes bit for bit, with and
+    in the marcher's (C, gz, gy, gx) layout) holds fill's FmsLattice planes bit for bit, with and
     without an active mask (0 elsewhere), on a non-cubic lattice; into the caller's array
     when its shape fits; the unfused path through the host gives the same."""
     from clvol.render.ms import network as rnet

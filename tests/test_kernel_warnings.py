@@ -69,12 +69,12 @@ def variants() -> list[tuple[str, str, dict]]:
            {"SWEEP_WIDTH": sweep_width_define(16), "SWEEP_NO_SYNC": 1})]
     for source in kr.MS_SOURCE_DEFINES:
         for k, lb in (("iso", LOBES["iso"]), ("mhg3", LOBES["mhg3"])):
-            for ch in ((1, 3) if source in ("grid", "view") else (1,)):
+            for ch in ((1, 3) if source in ("lattice", "view") else (1,)):
                 d = kr.raymarch_defines(lb, lit=True, source=source,
                                         octaves=4 if source == "wrenninge" else 1,
                                         channels=ch, skip_empty=True, view_k=4, view_block=4)
                 v.append((f"raymarch-{source}-{k}-c{ch}", "raymarch", dict(d, LIGHT_TAU=0)))
-    base = kr.raymarch_defines(LOBES["hg"], lit=True, source="grid", octaves=1, channels=3,
+    base = kr.raymarch_defines(LOBES["hg"], lit=True, source="lattice", octaves=1, channels=3,
                                skip_empty=True)
     v += [("raymarch-unlit-tau", "raymarch",
            dict(base, LIT=0, SKIP_EMPTY=0, LIGHT_TAU=1, RAYMARCH_STATS=1)),

@@ -1,10 +1,10 @@
-"""The F_ms lattice round trip, deterministic: fill_ms_grid -> ray marcher ms="grid" -> NumPy.
+"""The F_ms lattice round trip, deterministic: fill_fms_lattice -> ray marcher ms="lattice" -> NumPy.
 
 The only other check of the lattice against the marcher's lookup is statistical (path-traced
 lattice vs path tracer, tests/test_raymarch_pathtrace.py), with tolerances wide enough to let
 a half-cell shift through. Here nothing is random:
 
-- the lattice is filled through ``fill_ms_grid`` from an analytic affine field
+- the lattice is filled through ``fill_fms_lattice`` from an analytic affine field
   F_c(x) = a_c + b_c . x per channel (the query function evaluates it at the points it is
   given), over a box one lattice cell wider than the volume on every side, so every point of
   the volume lies between the outermost lattice centres ("away from faces": trilinear
@@ -31,9 +31,9 @@ import math
 import numpy as np
 
 from render_helpers import render_raymarch
-from clvol.render.ms.grid import fill_ms_grid
+from clvol.render.ms.lattice import fill_fms_lattice
 from clvol.scene import Camera, Light, Medium, Phase, Scene, VolumeSpec
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 
 BOX_MIN, BOX_MAX = np.array([-0.5, -0.4, -0.3]), np.array([0.5, 0.4, 0.3])
 N_VOX = (12, 10, 8)                 # density grid x, y, z (homogeneous)
@@ -111,7 +111,7 @@ def fill(sc, seen=None):
             seen["p"], seen["w"] = np.array(points, np.float64), np.array(omegas, np.float64)
         return field(points)
     lo, hi = padded_box()
-    return fill_ms_grid(sc, LATTICE, query, bbox_min=lo, bbox_max=hi)
+    return fill_fms_lattice(sc, LATTICE, query, bbox_min=lo, bbox_max=hi)
 
 
 def test_lattice_points_are_documented_cell_centres():
@@ -137,8 +137,8 @@ def test_marcher_reads_the_lattice_exactly():
     sc = scene()
     lo, hi = padded_box()
     g = fill(sc)
-    grid = Grid(density=np.ones(N_VOX[::-1], np.float32), bbox_min=BOX_MIN, bbox_max=BOX_MAX)
-    res = render_raymarch(sc, ms="grid", ms_grid=g, grid=grid, threshold=0.0,
+    grid = DensityGrid(density=np.ones(N_VOX[::-1], np.float32), bbox_min=BOX_MIN, bbox_max=BOX_MAX)
+    res = render_raymarch(sc, ms="lattice", ms_lattice=g, grid=grid, threshold=0.0,
                           light_resolution=16)
     got = res.layers["multiple"].astype(np.float64)
     want_img, hit = expected_multiple(sc)

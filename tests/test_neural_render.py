@@ -108,7 +108,7 @@ def test_lattice_matches_numpy_reference(weights_file):
     from clvol.kernels.gather import gather
     from clvol.features.weights import load_weights
     from clvol.render.ms.network import NetworkSource
-    from clvol.render.ms.grid import ms_lattice
+    from clvol.render.ms.lattice import ms_lattice
     sc = _scene([0.9, 0.95, 0.0], [(0.7, 0.6), (-0.3, 0.4)])
     grid = sc.volume.load()
     src = NetworkSource(weights_file, grid, sc.medium)

@@ -344,8 +344,8 @@ def test_same_seed_is_bit_identical_and_seeds_differ():
 def _scene(**medium_kw):
     from clvol.scene import Light, Phase, Scene, VolumeSpec
     from clvol.scene import Medium as SceneMedium
-    from clvol.volume.grid import Grid
-    grid = Grid(_smooth(), BMIN, BMAX)
+    from clvol.volume.grid import DensityGrid
+    grid = DensityGrid(_smooth(), BMIN, BMAX)
     phase = medium_kw.pop("phase", Phase.hg(0.6))
     med = SceneMedium(density_scale=medium_kw.pop("density_scale", 3.0),
                       albedo=medium_kw.pop("albedo", (0.9, 0.8, 0.7)), phase=phase)

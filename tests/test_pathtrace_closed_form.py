@@ -28,7 +28,7 @@ import pytest
 
 from clvol.render.pathtrace import point_query
 from clvol.scene import Camera, Light, Medium, Phase, Scene, VolumeSpec
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 
 N_PATHS = 1 << 20
 G = 0.6
@@ -78,7 +78,7 @@ def test_single_scattering_homogeneous_box(light):
     sigma = 2.0
     sc = scene(light, sigma)
     l = np.asarray(sc.light.direction)
-    grid = Grid(density=np.ones((8, 8, 8), np.float32), bbox_min=BOX_MIN, bbox_max=BOX_MAX)
+    grid = DensityGrid(density=np.ones((8, 8, 8), np.float32), bbox_min=BOX_MIN, bbox_max=BOX_MAX)
     out = point_query(sc, POINTS, OMEGAS, N_PATHS, seed=7, max_order=1, grid=grid)
     assert out["truncated"] == 0
     d = exit_distance(POINTS, l)
@@ -125,7 +125,7 @@ def test_ratio_tracking_linear_ramp():
     scale = 1.5
     sc = scene((0.25, 0.2, 0.95), scale)
     l = np.asarray(sc.light.direction)
-    grid = Grid(density=np.ascontiguousarray(dens), bbox_min=BOX_MIN, bbox_max=BOX_MAX)
+    grid = DensityGrid(density=np.ascontiguousarray(dens), bbox_min=BOX_MIN, bbox_max=BOX_MAX)
     out = point_query(sc, POINTS, OMEGAS, N_PATHS, seed=8, max_order=1, grid=grid)
     tau = ramp_optical_depth(POINTS, l, zc, rho.astype(np.float32).astype(np.float64), scale)
     assert tau.min() > 0.3 and tau.max() < 3.0

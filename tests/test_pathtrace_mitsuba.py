@@ -14,7 +14,7 @@ import pytest
 
 from clvol.scene import Camera, Light, Phase, Scene, VolumeSpec
 from clvol.scene import Medium as SceneMedium
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 
 mi = pytest.importorskip("mitsuba")
 
@@ -33,7 +33,7 @@ def mitsuba_ready():
 def _scene():
     rs = np.random.default_rng(5)
     density = (0.3 + rs.random((4, 5, 6))).astype(np.float32)       # [z][y][x], non-cubic
-    grid = Grid(density, np.array([-0.5, -0.35, -0.3]), np.array([0.55, 0.4, 0.3]))
+    grid = DensityGrid(density, np.array([-0.5, -0.35, -0.3]), np.array([0.55, 0.4, 0.3]))
     l = np.array([0.3, 0.5, -0.8])
     light = Light(direction=tuple(l / np.linalg.norm(l)), irradiance=(1.0, 0.9, 0.8),
                   environment=(0.1, 0.2, 0.3))

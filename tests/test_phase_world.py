@@ -35,7 +35,7 @@ from clvol.kernels.transmittance import graded_transmittance
 from clvol.features.phasetable import N_ALPHA, volume_phase
 from clvol.features.templates import load_templates
 from clvol.scene import Medium, Phase
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 
 G = 0.857
 MEDIUM = Medium(8.0, (0.9, 0.9, 0.9), Phase.hg(G))
@@ -92,7 +92,7 @@ def setup():
     c = (np.arange(n) + 0.5) / n - 0.5
     zz, yy, xx = np.meshgrid(c, c, c, indexing="ij")
     dens = (xx ** 2 + yy ** 2 + zz ** 2 < 0.4 ** 2).astype(np.float32)
-    grid = Grid(density=dens, bbox_min=np.full(3, -0.5), bbox_max=np.full(3, 0.5))
+    grid = DensityGrid(density=dens, bbox_min=np.full(3, -0.5), bbox_max=np.full(3, 0.5))
     pyr = build_pyramid(grid, n)
     return pyr, load_templates(), volume_phase([(G, 1.0)])
 
@@ -167,7 +167,7 @@ def test_hand_checkable_side_view():
     4.32e-5), where the mirrored frame gives log1p(f(0.177) f(0.984)) = 0.025."""
     n = 16
     dens = np.ones((n, n, n), np.float32)
-    grid = Grid(density=dens, bbox_min=np.full(3, -0.5), bbox_max=np.full(3, 0.5))
+    grid = DensityGrid(density=dens, bbox_min=np.full(3, -0.5), bbox_max=np.full(3, 0.5))
     pyr = build_pyramid(grid, n)
     tpl = load_templates()
     light = np.array([0.0, 0.0, 1.0])

@@ -14,13 +14,13 @@ import pytest
 
 from clvol.errors import ClvolError
 from clvol.kernels import pyramid as kp
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 from reference import pyramid as rp
 
 
 def _grid(shape, bmin=(0, 0, 0), bmax=(1, 1, 1), seed=0):
     d = np.random.default_rng(seed).random(shape).astype(np.float32)
-    return Grid.from_array(d, bmin, bmax)
+    return DensityGrid.from_array(d, bmin, bmax)
 
 
 CASES = {  # (nz, ny, nx), bbox_min, bbox_max, base
@@ -63,7 +63,7 @@ def test_mass_is_conserved_on_every_level(name):
 def test_non_cubic_box_is_padded_centred_not_stretched():
     """A 2 x 1 x 1 box of constant density: the cube is 2 on a side, the medium fills x and the
     middle half of y and z; stretching would fill the cube, off-centre padding would shift it."""
-    g = Grid.from_array(np.ones((4, 4, 8), np.float32), (-1, 3, 10), (1, 4, 11))
+    g = DensityGrid.from_array(np.ones((4, 4, 8), np.float32), (-1, 3, 10), (1, 4, 11))
     p = kp.build_pyramid(g, 8)
     np.testing.assert_allclose(p.cube_min, [-1, 2.5, 9.5])
     assert p.cube_size == 2.0
@@ -79,7 +79,7 @@ def test_upsampling_averages_the_linear_interpolant():
     linearly to 1 on [1/4, 3/4] and stays 1 on [3/4, 1]; its means over the quarter cells are,
     by hand, 0, 0.25, 0.75 and 1."""
     d = np.broadcast_to(np.array([0, 1], np.float32), (2, 2, 2)).copy()
-    p = kp.build_pyramid(Grid.from_array(d), 4)
+    p = kp.build_pyramid(DensityGrid.from_array(d), 4)
     np.testing.assert_allclose(p.level(0)[1, 2], [0, 0.25, 0.75, 1.0], atol=1e-7)
 
 
@@ -109,7 +109,7 @@ def test_base_too_large_for_the_device_says_what_fits():
 
 
 def test_build_pyramid_needs_a_grid():
-    with pytest.raises(ClvolError, match="needs a clvol Grid, got ndarray"):
+    with pytest.raises(ClvolError, match="needs a clvol DensityGrid, got ndarray"):
         kp.build_pyramid(np.zeros((2, 2, 2), np.float32), 4)
 
 

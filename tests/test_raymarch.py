@@ -22,10 +22,10 @@ from clvol.errors import ClvolError
 from clvol.kernels import raymarch as kraymarch
 from clvol.kernels.majorant import build_majorant
 from render_helpers import render_raymarch
-from clvol.render.ms.grid import MsGrid
+from clvol.render.ms.lattice import FmsLattice
 from clvol.render.ms.base import Octaves
 from clvol.scene import scene_from_dict
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 from reference import raymarch as rraymarch
 from reference.phase import phase_eval
 from scene_toml import CAMERA, look_at, write_scene
@@ -73,11 +73,11 @@ def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), se
     light_tau = 0.3 * xx + 0.5 * (n - 1 - yy) + 0.1 * zz * xx / n
     if case == "opaque":
         light_tau *= 100                                   # T_light underflows to 0
-    ms_grid = None
-    if source == "grid1":
-        ms_grid = (0.05 + 0.1 * rs.random((1, 4, 3, 5))).astype(np.float32)
-    elif source == "grid3":
-        ms_grid = (0.05 + 0.1 * rs.random((3, 4, 3, 5))).astype(np.float32)
+    ms_lattice = None
+    if source == "lattice1":
+        ms_lattice = (0.05 + 0.1 * rs.random((1, 4, 3, 5))).astype(np.float32)
+    elif source == "lattice3":
+        ms_lattice = (0.05 + 0.1 * rs.random((3, 4, 3, 5))).astype(np.float32)
     elif source.startswith("view"):
         # (1 + C, by, bx, K) over blocks of 3 pixels (13 x 11 image: 5 x 4 blocks, the last
         # partial). Depths in the box's range from the camera (~1.6..2.6), unsorted spans
@@ -90,20 +90,20 @@ def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), se
         depth[3, 4, :] = -1.0
         vals = 0.05 + 0.2 * rs.random((ch, 4, 5, k))
         vals[:, 1, 1] = 7.0                                # must never be read
-        ms_grid = np.concatenate([depth[None], vals]).astype(np.float32)
+        ms_lattice = np.concatenate([depth[None], vals]).astype(np.float32)
     n_oct, a, b, c = octaves
     return dict(
         density=density, bbox_min=bmin, bbox_max=bmax, density_scale=scale,
         majorant=build_majorant(density, block), block=block,
         light=np.exp(-light_tau).astype(np.float32), cube_min=np.array([-0.5, -0.5, -0.5]),
         cube_size=1.0,
-        ms_grid=ms_grid, ms_bbox_min=np.array([-0.45, -0.4, -0.3]),
+        ms_lattice=ms_lattice, ms_bbox_min=np.array([-0.45, -0.4, -0.3]),
         ms_bbox_max=np.array([0.4, 0.25, 0.5]),
         origin=origin, forward=f, right=r, up=u,
         tan_half=math.tan(math.radians(40.0) / 2), width=width, height=height,
         light_dir=np.array([0.6, 0.8, 0.0]), irradiance=(1.0, 0.9, 0.8),
         albedo=(0.9, 0.8, 0.7), lobes=[(0.8, 0.7), (-0.3, 0.3)], background=(0.1, 0.2, 0.3),
-        source="grid" if source.startswith("grid") else "view" if source.startswith("view")
+        source="lattice" if source.startswith("lattice") else "view" if source.startswith("view")
         else source, octaves=n_oct, a=a, b=b, c=c, step=0.05, threshold=0.0,
         **({"view_block": 3} if source.startswith("view") else {}))
 
@@ -132,6 +132,7 @@ def test_kernel_matches_twin(case):
     got = kraymarch.raymarch(**kw)
     want = rraymarch.raymarch(**kw)
     _assert_layers_close(got, want)
+    assert got["stopped_at_bound"] == want["stopped_at_bound"] == 0
     if case == "empty":
         # Nothing in the box: the background alone, no alpha, depth 0 by definition.
         np.testing.assert_array_equal(got["alpha"], 0.0)
@@ -145,11 +146,34 @@ def test_kernel_matches_twin(case):
         assert np.all(got["total"][hit] < 1e-6)        # T_light ~ 0 and no background through
 
 
+def test_kernel_and_twin_count_the_rays_the_progress_bound_stops():
+    """The camera 2e6 from the box, the view narrow enough that every ray crosses it (0.25
+    of half-height at 2e6): float32's rounding step of t there is 0.25, above twice the
+    step (0.05), so t0 + step == t0 and every ray stops at its first segment, counted by the
+    kernel (atomic, stats[0]) and by the twin (its float32 rule), 143 = 13 x 11 each; the
+    layers agree (nothing marched: alpha 0, the background). 2e5 away (rounding step
+    0.016, below the step) every ray marches and both count 0."""
+    for distance, stopped in ((2e6, 13 * 11), (2e5, 0)):
+        kw = _inputs("odd", "none")
+        origin = np.array([0.0, 0.0, distance])
+        f, r, u = look_at(origin, np.zeros(3), (0.0, 1.0, 0.0))
+        kw.update(origin=origin, forward=f, right=r, up=u, tan_half=0.25 / distance)
+        kw = _f32(kw)
+        got = kraymarch.raymarch(**kw)
+        want = rraymarch.raymarch(**kw)
+        assert got["stopped_at_bound"] == want["stopped_at_bound"] == stopped, distance
+        if stopped:
+            _assert_layers_close(got, want)
+            np.testing.assert_array_equal(got["alpha"], 0.0)
+        else:   # (the layers: float32 positions 2e5 away are 0.016 apart, the twin's not)
+            assert got["alpha"].max() > 0.5 and want["alpha"].max() > 0.5     # rays marched
+
+
 @pytest.mark.parametrize("source,octaves", [("none", (3, 0.5, 0.5, 0.5)),
                                             ("wrenninge", (5, 0.7, 0.4, 0.9)),
                                             ("wrenninge", (1, 0.5, 0.5, 0.5)),
-                                            ("grid1", (3, 0.5, 0.5, 0.5)),
-                                            ("grid3", (3, 0.5, 0.5, 0.5)),
+                                            ("lattice1", (3, 0.5, 0.5, 0.5)),
+                                            ("lattice3", (3, 0.5, 0.5, 0.5)),
                                             ("view1", (3, 0.5, 0.5, 0.5)),
                                             ("view3", (3, 0.5, 0.5, 0.5))])
 def test_kernel_matches_twin_sources(source, octaves):
@@ -280,7 +304,7 @@ def test_homogeneous_box_matches_closed_form():
     error for a source varying by sigma d_y per unit length is ~1e-9 here).
     """
     n, sigma = 16, 3.0
-    grid = Grid(np.ones((n, n, n), np.float32), np.array([-0.5] * 3), np.array([0.5] * 3))
+    grid = DensityGrid(np.ones((n, n, n), np.float32), np.array([-0.5] * 3), np.array([0.5] * 3))
     scene = _scene(**{"medium.density_scale": sigma, "medium.preset": None,
                       "medium.albedo": 0.8, "medium.phase": {"type": "hg", "g": 0.5},
                       "light.direction": [0.0, 1.0, 0.0], "light.irradiance": [2.0, 2.0, 2.0],
@@ -308,11 +332,11 @@ def test_homogeneous_box_matches_closed_form():
     assert inner.sum() >= 40
 
 
-def test_constant_ms_grid_gives_alpha_times_source():
+def test_constant_ms_lattice_gives_alpha_times_source():
     """F_ms = c everywhere: multiple = albedo E c alpha exactly (sum of T (1 - e^-tau) = alpha)."""
     scene = _scene(**{"medium.albedo": [0.9, 0.6, 0.3], "light.irradiance": [1.0, 2.0, 0.5]})
-    g = MsGrid(np.full((3, 4, 5, 3), 0.25, np.float32), (-0.5,) * 3, (0.5,) * 3)
-    res = render_raymarch(scene, ms="grid", ms_grid=g)
+    g = FmsLattice(np.full((3, 4, 5, 3), 0.25, np.float32), (-0.5,) * 3, (0.5,) * 3)
+    res = render_raymarch(scene, ms="lattice", ms_lattice=g)
     want = res.layers["alpha"][..., None] * 0.25 * np.array([0.9, 1.2, 0.15])
     np.testing.assert_allclose(res.layers["multiple"], want, rtol=1e-5, atol=1e-7)
     assert res.layers["alpha"].max() > 0.5
@@ -354,9 +378,9 @@ def test_shortcut_gives_the_general_image(over):
 def test_grey_grid_shortcut_gives_the_general_image():
     scene = _scene(**{"medium.albedo": 0.9})
     rs = np.random.default_rng(5)
-    g = MsGrid((0.1 * rs.random((5, 4, 6))).astype(np.float32), (-0.5,) * 3, (0.5,) * 3)
-    fast = render_raymarch(scene, ms="grid", ms_grid=g)
-    general = render_raymarch(scene, ms="grid", ms_grid=g, shortcuts=False)
+    g = FmsLattice((0.1 * rs.random((5, 4, 6))).astype(np.float32), (-0.5,) * 3, (0.5,) * 3)
+    fast = render_raymarch(scene, ms="lattice", ms_lattice=g)
+    general = render_raymarch(scene, ms="lattice", ms_lattice=g, shortcuts=False)
     assert "colour channels 2 and 3" in fast.header["skipped"]
     assert "1 channel" in fast.header["simulated"] and "3 channel" in general.header["simulated"]
     for name in LAYER_NAMES:
@@ -418,7 +442,7 @@ def test_supersampling_is_a_box_filter():
     ({"a": 0.0}, "ms_a = 0.0"),
     ({"b": 1.5}, "ms_b = 1.5"),
     ({"ms": "network", "ms_resolution": 1}, "ms_resolution = 1"),
-    ({"ms": "grid"}, "needs an ms grid"),
+    ({"ms": "lattice"}, "needs an F_ms lattice"),
     ({"light_resolution": 100}, "light_resolution = 100"),
     ({"supersample": 0}, "supersample = 0"),
 ])

@@ -13,7 +13,7 @@ import pytest
 
 from clvol.render.pathtrace import point_query, render_pathtrace
 from render_helpers import render_raymarch
-from clvol.render.ms.grid import fill_ms_grid
+from clvol.render.ms.lattice import fill_fms_lattice
 from clvol.scene import scene_from_dict
 
 
@@ -66,7 +66,7 @@ def test_agreement_check_can_fail(pt_single):
     assert dev > allowance or outliers > 0.05
 
 
-def test_ms_grid_from_point_queries_reproduces_path_traced_multiple_scattering():
+def test_ms_lattice_from_point_queries_reproduces_path_traced_multiple_scattering():
     """The F_ms slot fed with the path tracer's own point estimates (a 16^3 lattice, 128
     paths each) must give the path tracer's multiple-scattering image: image mean within 10%
     (measured 4.5%: trilinear lattice interpolation; lattice 24^3: 2%, 32^3: 0.1%) and mean
@@ -76,8 +76,8 @@ def test_ms_grid_from_point_queries_reproduces_path_traced_multiple_scattering()
     scene = _scene()
     ref = render_pathtrace(scene, spp=512, seed=5, progress=False).layers["multiple"]
     ref = ref.astype(np.float64)
-    g = fill_ms_grid(scene, 16, lambda p, w: point_query(scene, p, w, 128, seed=1)["Fms"])
-    img = render_raymarch(scene, ms="grid", ms_grid=g, **RM).layers["multiple"]
+    g = fill_fms_lattice(scene, 16, lambda p, w: point_query(scene, p, w, 128, seed=1)["Fms"])
+    img = render_raymarch(scene, ms="lattice", ms_lattice=g, **RM).layers["multiple"]
     ratio = img.mean() / ref.mean()
     rel = np.abs(img - ref).mean() / ref.mean()
     assert abs(ratio - 1) < 0.10, f"multiple-scattering image mean ratio {ratio:.3f}"

@@ -126,7 +126,7 @@ def test_cli_default_names_method_and_weights(scene_file, tmp_path, capsys):
     (["--weights", "x.npz", "--ms", "wrenninge"], ["--weights", "--ms network"]),
     (["--ms-resolution", "8", "--ms", "none"], ["--ms-resolution", "--ms network"]),
     (["--octaves", "4"], ["--octaves", "--ms wrenninge"]),          # default source: network
-    (["--ms-grid", "g.npz", "--ms", "network"], ["--ms-grid", "--ms grid"]),
+    (["--ms-lattice", "g.npz", "--ms", "network"], ["--ms-lattice", "--ms lattice"]),
     (["--max-order", "2"], ["--max-order 2", "raymarch"]),
     (["--max-order", "1", "--ms", "network"], ["--max-order 1", "--ms network"]),
     (["--method", "pathtrace", "--ms", "none"], ["--ms", "pathtrace"]),
@@ -279,7 +279,7 @@ def test_view_independent_cache_fills_once_per_light():
     moved = dataclasses.replace(sc.camera, origin=(-1.0, 0.8, 1.5))
     img = r.render(camera=moved)
     assert r.counts["ms_directional_fill"] == 1 and r.counts["ms_lattice"] == 2
-    v = r.source.ms_grid.values
+    v = r.source.ms_lattice.values
     assert np.all(v >= table.min(axis=0) * (1 - 1e-6)) and np.all(v <= table.max(axis=0) * (1 + 1e-6))
     assert np.all(np.isfinite(img.total)) and img.multiple.max() > 0
     r.render(light=dataclasses.replace(sc.light, direction=(0.0, 1.0, 0.0)))
@@ -358,3 +358,17 @@ def test_public_names_are_listed_and_misspelled_options_get_a_suggestion():
     assert {"Renderer", "RenderResult", "load_scene"} <= set(dir(clvol))
     with pytest.raises(ClvolError, match=r"unknown render option 'stpe': did you mean 'step'\?"):
         clvol.Renderer(clvol.load_scene(DATA.parents[1] / "examples" / "cloud.toml"), stpe=2)
+
+
+def test_renderer_dispatches_every_method_through_its_table():
+    """The Renderer's method table and the CLI's METHODS name the same methods, and a name
+    outside the table is refused in one line before any device work."""
+    from clvol.render import METHODS
+    from clvol.render.renderer import Renderer
+    assert set(Renderer._METHODS) == set(METHODS)
+    for setup, frame, supersample in Renderer._METHODS.values():
+        for attr in (frame, supersample) + ((setup,) if setup else ()):
+            assert callable(getattr(Renderer, attr))
+    from clvol.errors import ClvolError
+    with pytest.raises(ClvolError, match="splat"):
+        Renderer(clvol.load_scene(Path(__file__).parents[1] / "examples" / "cloud.toml"), "splat")

@@ -69,10 +69,10 @@ def _fake_generators():
     }
 
     def generate(name, seed=0, resolution=64, **params):
-        from clvol.volume.grid import Grid
+        from clvol.volume.grid import DensityGrid
         calls.append((name, seed, resolution, params))
         n = (resolution,) * 3 if isinstance(resolution, int) else tuple(resolution)
-        return Grid.from_array(np.ones(n[::-1], dtype=np.float32))
+        return DensityGrid.from_array(np.ones(n[::-1], dtype=np.float32))
 
     mod.generate = generate
     mod.calls = calls

@@ -13,7 +13,7 @@ from clvol.image import read_exr
 from clvol.scene import load_scene
 from clvol.sequence import check_output_pattern, parse_frames
 from clvol.volume.generators import generate
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 from scene_toml import scene_toml
 
 
@@ -91,7 +91,7 @@ def test_set_density_recomputes_only_what_the_density_invalidates(tmp_path):
     r2.set_density(g2)
     r2.render()
     assert r2.counts == {"volume": 1, "device_medium": 2, "light_field": 2, "march": 2}
-    with pytest.raises(ClvolError, match="expected a clvol.volume.grid.Grid"):
+    with pytest.raises(ClvolError, match="expected a clvol.volume.grid.DensityGrid"):
         r2.set_density(g2.density)
 
 

@@ -155,12 +155,12 @@ def _as_affine(data: bytes, h: float, t, kind: str) -> bytes:
 
 @pytest.mark.parametrize("kind,h", [("AffineMap", 0.1), ("UnitaryMap", 1.0)])
 def test_affine_and_unitary_maps_keep_their_translation(tmp_path, kind, h):
-    from clvol.volume.grid import Grid
+    from clvol.volume.grid import DensityGrid
     from clvol.volume.vdb import read_vdb, write_vdb
     rng = np.random.default_rng(3)
     d = (0.1 + rng.random((5, 4, 6))).astype(np.float32)        # (nz, ny, nx)
     lo = np.array([0.35, -1.25, 2.05])
-    g = Grid(d, lo, lo + h * np.array([6, 4, 5]))
+    g = DensityGrid(d, lo, lo + h * np.array([6, 4, 5]))
     write_vdb(tmp_path / "st.vdb", g)
     plain = read_vdb(tmp_path / "st.vdb")
     raw = (tmp_path / "st.vdb").read_bytes()
@@ -213,7 +213,8 @@ def test_the_network_sky_refreshes_the_oldest_cell_under_continuous_motion(monke
 def test_stochastic_points_lie_on_the_rays_the_depth_kernel_marched():
     """--ms stochastic: each block's free-flight point is origin + t d, where d is the block's
     jittered ray as cl/viewdepth.cl places it (reference/viewdepth.py: x = i block + jx block,
-    y = j block + jy block, jitter drawn from default_rng([seed, draw]) as (by, bx, 3)) and t
+    y = j block + jy block, jitter the first three uniforms of Philox stream j bx + i, sample
+    draw (reference/rng.py uniform4, docs/conventions.md "Randomness") as (by, bx, 3)) and t
     the free flight along that same ray (the twin's free_flight_depths). Directions within
     1e-5 (float64 host vs float64 twin from one float32 jitter); points within 2e-5 of the
     depth span + 1e-5 (test_viewdepth.py's kernel-vs-twin bound for the depth). Blocks of 4
@@ -236,13 +237,14 @@ def test_stochastic_points_lie_on_the_rays_the_depth_kernel_marched():
     r = Renderer(scene, "raymarch", ms="stochastic", view_block=4, view_samples=1, seed=11)
     r.source.query = query
     real = r.source._draw
-    r.source._draw = lambda frame, rng: (frames.append(frame), real(frame, rng))[1]
+    r.source._draw = lambda frame, draw: (frames.append(frame), real(frame, draw))[1]
     r.render()
     assert len(seen) == 1 and len(frames) == 1
     pts, dirs = seen[0]
     frame, cam = frames[0], scene.camera
     bx, by = -(-cam.width // 4), -(-cam.height // 4)
-    jitter = np.random.default_rng([11, 0]).random((by, bx, 3), dtype=np.float32)
+    from reference.rng import uniform4
+    jitter = uniform4(11, np.arange(bx * by), 0, 0)[:, :3].reshape(by, bx, 3)
     assert np.abs(jitter[..., 0] - jitter[..., 1]).max() > 0.5       # a swap shows
     f, rt, u = look_at(cam.origin, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0))
     tan_half = np.tan(np.radians(cam.fov_y) / 2)
@@ -272,10 +274,10 @@ def test_a_base_sized_grid_on_the_device_is_copied_only_when_its_box_is_a_cube(b
     x and z: errors of the order of the density itself. The cubic box is the copy itself."""
     from clvol.kernels.pyramid import build_pyramid
     from clvol.runtime import get_runtime
-    from clvol.volume.grid import Grid
+    from clvol.volume.grid import DensityGrid
     from reference.pyramid import resample_to_cube
     d = (0.2 + np.random.default_rng(4).random((8, 8, 8))).astype(np.float32)
-    g = Grid.from_array(d, (0.0, 0.0, 0.0), bmax)
+    g = DensityGrid.from_array(d, (0.0, 0.0, 0.0), bmax)
     rt = get_runtime()
     want, cube_min, size = resample_to_cube(d, (0.0, 0.0, 0.0), bmax, 8)
     for density in (None, rt.upload(d)):

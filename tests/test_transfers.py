@@ -7,7 +7,9 @@ The budget of the default method (raymarch + network, docs/architecture.md "Devi
   pyramids of the light field, the network and the environment derive from it
   (``DeviceMedium.pyramid``: level 0 resampled on the host, or copied on the device when the
   grid already is that cube), so no other upload has the density's size;
-- nothing comes back but the image layers and the network's 4-byte non-finite flag: the F_ms
+- nothing comes back but the image layers, the network's 4-byte non-finite flag and the
+  march's 4-byte count of rays its progress bound stopped (the header's
+  ``raymarch.rays_stopped_at_bound``): the F_ms
   lattice is written by the fused kernel straight into the marcher's device lattice, and the
   pyramids' host copies are made only on request;
 - a moved camera uploads nothing of the volume; ``set_density`` uploads the new density once.
@@ -30,6 +32,7 @@ from clvol.volume.generators import generate
 
 ROOT = Path(__file__).resolve().parents[1]
 FLAG_BYTES = 4       # the network's non-finite flag (clvol/render/ms/network.py fill_device)
+BOUND_BYTES = 4      # the march's count of rays its progress bound stopped (cl/raymarch.cl)
 
 
 def cloud(resolution=None):
@@ -57,10 +60,12 @@ def check_frame(t, res, density_bytes, density_uploads):
     ups = t.labels(UPLOAD)
     assert t.calls(UPLOAD, "density") == density_uploads, ups
     assert t.sizes[UPLOAD, density_bytes] == density_uploads, ups     # under any label
-    # nothing read back but the image layers and the non-finite flag (no lattice, no pyramid)
-    assert t.nbytes(READBACK) == image_bytes(res) + FLAG_BYTES, t.report()
-    assert t.calls(READBACK) == len(res.layers) + 1, t.report()
+    # nothing read back but the image layers, the non-finite flag and the march's bound
+    # count (no lattice, no pyramid)
+    assert t.nbytes(READBACK) == image_bytes(res) + FLAG_BYTES + BOUND_BYTES, t.report()
+    assert t.calls(READBACK) == len(res.layers) + 2, t.report()
     assert t.calls(READBACK, "network non-finite flag") == 1
+    assert t.calls(READBACK, "march bound count") == 1
 
 
 def test_default_render_uploads_the_density_once_and_reads_back_only_the_image():

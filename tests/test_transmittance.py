@@ -26,7 +26,7 @@ from clvol.errors import ClvolError
 from clvol.kernels import pyramid as kp
 from clvol.kernels import transmittance as kt
 from clvol.volume.generators import generate
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 from reference import transmittance as rt
 
 KERNEL_TWIN_RTOL = 2e-5
@@ -39,7 +39,7 @@ def _unit(v):
 
 def _random_pyramid(shape, base, seed=0, bmax=(1.4, 1.0, 1.8)):
     d = np.random.default_rng(seed).random(shape).astype(np.float32)
-    return kp.build_pyramid(Grid.from_array(d, (0, 0, 0), bmax), base)
+    return kp.build_pyramid(DensityGrid.from_array(d, (0, 0, 0), bmax), base)
 
 
 def _level_scale(p, level, density_scale, lam):
@@ -109,7 +109,7 @@ def test_homogeneous_cube_is_exact_on_every_level(name):
     where the exit face changes: there its slope jumps by sigma dx / |l_u| per voxel along u
     (likewise v), and linear interpolation across such a kink errs by at most a quarter of the
     jump, so |error| <= sigma dx (1/|l_u| + 1/|l_v|) / 4 (axes with l = 0 have no kink)."""
-    p = kp.build_pyramid(Grid.from_array(np.ones((3, 3, 3), np.float32)), 16)
+    p = kp.build_pyramid(DensityGrid.from_array(np.ones((3, 3, 3), np.float32)), 16)
     l = _unit(DIRECTIONS[name])
     brute = kt.graded_transmittance(p, 5.0, l, lam=0.6, method="brute", quantity="optical_depth")
     sweep = kt.graded_transmittance(p, 5.0, l, lam=0.6, quantity="optical_depth")
@@ -128,7 +128,7 @@ def test_sweep_is_exact_for_axis_and_diagonal_lights(name):
     faces, so no face crossing is approximated. Random density, odd grid, padded to a cube."""
     d = np.zeros((16, 16, 16), np.float32)
     d[3:13, 4:12, 2:14] = np.random.default_rng(2).random((10, 8, 12))
-    p = kp.build_pyramid(Grid.from_array(d), 16)
+    p = kp.build_pyramid(DensityGrid.from_array(d), 16)
     l = _unit(DIRECTIONS[name])
     if name == "tie x/y":  # z component 0.6/1.56: not a diagonal, keep only the exact ones
         l = _unit((-1, -1, 0))
@@ -140,7 +140,7 @@ def test_sweep_is_exact_for_axis_and_diagonal_lights(name):
 def _sparse_grid():
     rs = np.random.default_rng(5)
     d = np.where(rs.random((32, 32, 32)) < 0.02, rs.random((32, 32, 32)) * 5, 0)
-    return Grid.from_array(d.astype(np.float32))
+    return DensityGrid.from_array(d.astype(np.float32))
 
 
 # medium: (grid factory, density scale, max |dT| bound, mean |dT| bound) for base 32, lambda 1.
@@ -202,7 +202,7 @@ def test_opaque_medium_underflows_through_optical_depth(method):
 
 @pytest.mark.parametrize("method", kt.METHODS)
 def test_empty_grid_is_fully_transparent(method):
-    p = kp.build_pyramid(Grid.from_array(np.zeros((3, 4, 5), np.float32)), 16)
+    p = kp.build_pyramid(DensityGrid.from_array(np.zeros((3, 4, 5), np.float32)), 16)
     g = kt.graded_transmittance(p, 10.0, (0.3, -0.5, 0.2), method=method)
     assert (g.data == 1.0).all()
 
@@ -211,7 +211,7 @@ def test_one_voxel_grid_is_a_homogeneous_cube():
     """A 1x1x1 grid over its box is constant density: after padding and resampling it fills the
     cube, so the brute force gives the analytic exit distance (the sweep: within the kink bound
     of the homogeneous cube test)."""
-    p = kp.build_pyramid(Grid.from_array(np.full((1, 1, 1), 2.0, np.float32)), 8)
+    p = kp.build_pyramid(DensityGrid.from_array(np.full((1, 1, 1), 2.0, np.float32)), 8)
     l = _unit((0.2, 0.9, -0.4))
     tau = kt.light_transmittance(p, 3.0, l, method="brute", quantity="optical_depth")
     np.testing.assert_allclose(tau, 6.0 * _exit_distance(8, l), rtol=1e-5)
@@ -286,7 +286,7 @@ def test_sweep_never_negative_for_a_light_grazing_a_face():
     with a negative fraction, and the sweep returned optical depths of -9e-19."""
     rs = np.random.default_rng(5)
     d = np.where(rs.random((9, 11, 7)) < 0.03, 10 ** rs.uniform(-2, 2, (9, 11, 7)), 0)
-    grid = Grid(d.astype(np.float32), np.array([-0.5] * 3), np.array([0.5] * 3))
+    grid = DensityGrid(d.astype(np.float32), np.array([-0.5] * 3), np.array([0.5] * 3))
     pyr = kp.build_pyramid(grid, base_resolution=16)
     l = np.array([1.0, 1e-7, 0.0]) / np.linalg.norm([1.0, 1e-7, 0.0])
     tau = kt.light_transmittance(pyr, 1e-4, l, quantity="optical_depth")

@@ -424,8 +424,8 @@ def test_convert_keeps_every_grid_and_openvdb_reads_them(vdbdir, tmp_path, capsy
 
 
 def test_write_vdb_refuses_non_cubic_voxels(tmp_path):
-    from clvol.volume.grid import Grid
-    g = Grid(np.ones((2, 3, 4), np.float32), np.zeros(3), np.array([1.0, 1.0, 1.0]))
+    from clvol.volume.grid import DensityGrid
+    g = DensityGrid(np.ones((2, 3, 4), np.float32), np.zeros(3), np.array([1.0, 1.0, 1.0]))
     with pytest.raises(VolumeError, match="cubic voxels"):
         write_vdb(tmp_path / "x.vdb", g)
 

@@ -11,7 +11,7 @@ import pytest
 
 from clvol.cli import main
 from clvol.errors import VolumeError
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 from clvol.volume.io import read_volume
 from clvol.volume.vdb import VdbFile, read_vdb, write_vdb
 
@@ -81,7 +81,7 @@ def test_a_one_grid_format_is_refused_in_one_line(tmp_path, ext):
 
 
 def test_a_density_alone_still_converts_to_vol(tmp_path, capsys):
-    g = Grid(np.arange(24, dtype=np.float32).reshape(2, 3, 4), np.zeros(3), np.array([4., 3, 2]))
+    g = DensityGrid(np.arange(24, dtype=np.float32).reshape(2, 3, 4), np.zeros(3), np.array([4., 3, 2]))
     np.savez(tmp_path / "a.npz", density=g.density, bbox_min=g.bbox_min, bbox_max=g.bbox_max)
     assert main(["volume", "convert", str(tmp_path / "a.npz"), str(tmp_path / "a.vol")]) == 0
     assert capsys.readouterr().out.strip() == f"wrote {tmp_path / 'a.vol'}"
@@ -112,8 +112,8 @@ def test_a_stored_box_is_ignored_when_filtering_and_empty_grids_read_back(tmp_pa
     a further grid of zeros (no active voxel) comes back as zeros of its shape."""
     d = np.zeros((8, 16, 24), np.float32)
     d[2:6, 3:13, 4:20] = 1.0
-    g = Grid(d, np.zeros(3), np.array([3.0, 2.0, 1.0]))
-    zero = Grid(np.zeros((8, 16, 24), np.float32), g.bbox_min, g.bbox_max)
+    g = DensityGrid(d, np.zeros(3), np.array([3.0, 2.0, 1.0]))
+    zero = DensityGrid(np.zeros((8, 16, 24), np.float32), g.bbox_min, g.bbox_max)
     write_vdb(tmp_path / "z.vdb", g, extra={"cold": zero})
     assert read_vdb(tmp_path / "z.vdb").density.tobytes() == d.tobytes()
     assert read_vdb(tmp_path / "z.vdb", grid="cold").density.tobytes() == zero.density.tobytes()
@@ -122,5 +122,5 @@ def test_a_stored_box_is_ignored_when_filtering_and_empty_grids_read_back(tmp_pa
     assert np.sum(small.density) * np.prod(small.cell_size) == pytest.approx(
         np.sum(d) * np.prod(g.cell_size), rel=1e-6)       # the mass is kept
     with pytest.raises(VolumeError, match="cubic voxels"):
-        write_vdb(tmp_path / "x.vdb", g, extra={"t": Grid(np.ones((2, 3, 4), np.float32),
+        write_vdb(tmp_path / "x.vdb", g, extra={"t": DensityGrid(np.ones((2, 3, 4), np.float32),
                                                          np.zeros(3), np.ones(3))})

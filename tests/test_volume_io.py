@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from clvol.errors import VolumeError
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 from clvol.volume.io import read_volume, write_volume
 
 NX, NY, NZ = 3, 5, 7
@@ -73,13 +73,13 @@ def test_handmade_vol_reads_with_the_right_axes(tmp_path):
 
 def test_vol_writer_matches_handmade_bytes(tmp_path):
     p = tmp_path / "w.vol"
-    write_volume(p, Grid(labelled_density(), np.array(BMIN), np.array(BMAX)))
+    write_volume(p, DensityGrid(labelled_density(), np.array(BMIN), np.array(BMAX)))
     assert p.read_bytes() == vol_bytes()
 
 
 @pytest.mark.parametrize("ext", [".vol", ".npz"])
 def test_round_trip_with_bbox(tmp_path, ext):
-    g = Grid(labelled_density(), np.array(BMIN), np.array(BMAX))
+    g = DensityGrid(labelled_density(), np.array(BMIN), np.array(BMAX))
     p = tmp_path / f"grid{ext}"
     write_volume(p, g)
     back = read_volume(p)
@@ -91,7 +91,7 @@ def test_round_trip_with_bbox(tmp_path, ext):
 
 
 def test_round_trip_npy_default_bbox(tmp_path):
-    g = Grid.from_array(labelled_density())
+    g = DensityGrid.from_array(labelled_density())
     p = tmp_path / "grid.npy"
     write_volume(p, g)
     back = read_volume(p)
@@ -231,21 +231,21 @@ def test_unknown_extension_and_missing_file(tmp_path):
     with pytest.raises(VolumeError, match="no such volume file"):
         read_volume(tmp_path / "absent.vol")
     with pytest.raises(VolumeError, match="unknown volume file extension"):
-        write_volume(tmp_path / "out.raw", Grid.from_array(labelled_density()))
+        write_volume(tmp_path / "out.raw", DensityGrid.from_array(labelled_density()))
 
 
 def test_npy_refuses_to_drop_a_bbox(tmp_path):
-    g = Grid(labelled_density(), np.array(BMIN), np.array(BMAX))
+    g = DensityGrid(labelled_density(), np.array(BMIN), np.array(BMAX))
     p = tmp_path / "lossy.npy"
     with pytest.raises(VolumeError, match="stores no bounding box"):
         write_volume(p, g)
     assert not p.exists()
 
 
-# --------------------------------------------------------------------------- Grid invariants
+# --------------------------------------------------------------------------- DensityGrid invariants
 
 def test_grid_properties_non_cubic():
-    g = Grid(labelled_density(), np.array(BMIN), np.array(BMAX))
+    g = DensityGrid(labelled_density(), np.array(BMIN), np.array(BMAX))
     assert g.resolution == (3, 5, 7)
     np.testing.assert_allclose(g.extent, [3.0, 5.5, 7.5])
     np.testing.assert_allclose(g.cell_size, [1.0, 1.1, 7.5 / 7])
@@ -263,4 +263,4 @@ def test_grid_properties_non_cubic():
 ])
 def test_grid_rejects_bad_contents(density, bmin, bmax, fragment):
     with pytest.raises(VolumeError, match=fragment):
-        Grid(density, bmin, bmax)
+        DensityGrid(density, bmin, bmax)

@@ -3,14 +3,14 @@ import numpy as np
 import pytest
 
 from clvol.errors import VolumeError
-from clvol.volume.grid import Grid
+from clvol.volume.grid import DensityGrid
 from clvol.volume.stats import format_stats, volume_stats
 
 
 def test_constant_grid():
     # 4 x 6 x 8 voxels (x, y, z) over a 2 x 3 x 1 box: cells 0.5 x 0.5 x 0.125.
     c, scale = 0.25, 8.0
-    g = Grid(np.full((8, 6, 4), c, np.float32), np.zeros(3), np.array([2.0, 3.0, 1.0]))
+    g = DensityGrid(np.full((8, 6, 4), c, np.float32), np.zeros(3), np.array([2.0, 3.0, 1.0]))
     s = volume_stats(g, density_scale=scale)
     assert s["resolution"] == (4, 6, 8)
     assert s["voxel_size"] == [0.5, 0.5, 0.125]
@@ -32,7 +32,7 @@ def test_single_row_picks_the_right_axis():
     # Box 2 x 0.75 x 10: cells 0.5 (x), 0.25 (y), 2.0 (z).
     d = np.zeros((5, 3, 4), np.float32)
     d[2, 1, :] = [1, 2, 3, 4]
-    g = Grid(d, np.zeros(3), np.array([2.0, 0.75, 10.0]))
+    g = DensityGrid(d, np.zeros(3), np.array([2.0, 0.75, 10.0]))
     s = volume_stats(g, density_scale=0.5)
     # along x: (1+2+3+4) * 0.5 = 5; along y: 4 * 0.25 = 1; along z: 4 * 2 = 8 (the max).
     assert s["max_optical_thickness"] == pytest.approx(8.0 * 0.5, rel=1e-12)
@@ -45,7 +45,7 @@ def test_single_row_picks_the_right_axis():
     assert s["mean_occupied_voxel_optical_thickness"] == pytest.approx(2.5 * 0.5 * edge)
 
     # Make the x row dominate: cells along z shrink to 0.2 (box z = 1): x gives 5, z gives 0.8.
-    g2 = Grid(d, np.zeros(3), np.array([2.0, 0.75, 1.0]))
+    g2 = DensityGrid(d, np.zeros(3), np.array([2.0, 0.75, 1.0]))
     s2 = volume_stats(g2, density_scale=1.0)
     assert s2["max_optical_thickness"] == pytest.approx(5.0, rel=1e-12)
     assert s2["max_optical_thickness_axis"] == "x"
@@ -59,7 +59,7 @@ def test_sum_times_cell_is_the_clamped_linear_integral():
     vals = np.array([0.0, 3.0, 1.0, 0.5, 2.0, 0.0, 4.0], np.float32)
     length = 1.75
     # y and z are one thin voxel (0.01), so the x row holds the maximum.
-    g = Grid(vals.reshape(1, 1, -1).copy(), np.zeros(3), np.array([length, 0.01, 0.01]))
+    g = DensityGrid(vals.reshape(1, 1, -1).copy(), np.zeros(3), np.array([length, 0.01, 0.01]))
     cell = length / vals.size
     centres = (np.arange(vals.size) + 0.5) * cell
     n = 200_000
@@ -71,7 +71,7 @@ def test_sum_times_cell_is_the_clamped_linear_integral():
 
 
 def test_empty_grid_has_zero_occupied_thickness():
-    g = Grid(np.zeros((2, 2, 2), np.float32), np.zeros(3), np.ones(3))
+    g = DensityGrid(np.zeros((2, 2, 2), np.float32), np.zeros(3), np.ones(3))
     s = volume_stats(g, 3.0)
     assert s["occupied_fraction"] == 0.0
     assert s["max_optical_thickness"] == 0.0
@@ -80,7 +80,7 @@ def test_empty_grid_has_zero_occupied_thickness():
 
 @pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
 def test_bad_density_scale(bad):
-    g = Grid(np.ones((2, 2, 2), np.float32), np.zeros(3), np.ones(3))
+    g = DensityGrid(np.ones((2, 2, 2), np.float32), np.zeros(3), np.ones(3))
     with pytest.raises(VolumeError, match="density_scale"):
         volume_stats(g, bad)
 
@@ -88,7 +88,7 @@ def test_bad_density_scale(bad):
 def test_format_stats_shows_the_numbers():
     d = np.zeros((5, 3, 4), np.float32)
     d[2, 1, :] = [1, 2, 3, 4]
-    g = Grid(d, np.zeros(3), np.array([2.0, 0.75, 10.0]))
+    g = DensityGrid(d, np.zeros(3), np.array([2.0, 0.75, 10.0]))
     text = format_stats(volume_stats(g, density_scale=0.5))
     assert "4 x 3 x 5 (x, y, z), 60 voxels" in text
     assert "max 4" in text

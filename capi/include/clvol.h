@@ -107,7 +107,8 @@ CLVOL_API clvol_status clvol_get_size(const clvol_renderer *r, int *width, int *
 typedef enum {
     CLVOL_STAGE_VOLUME = 0,   /* density upload, majorant, resampled cubes, pyramid */
     CLVOL_STAGE_LIGHT,        /* light field, graded transmittance, bake */
-    CLVOL_STAGE_LATTICE,      /* F_ms at the lattice points (gather + network) */
+    CLVOL_STAGE_LATTICE,      /* F_ms at the lattice points (gather + network); for a
+                                 stochastic-view bundle the view table's draws */
     CLVOL_STAGE_MARCH,        /* the ray march (every render) */
     CLVOL_STAGE_COUNT
 } clvol_stage;

@@ -62,6 +62,7 @@
 #define build_program_at clvol__build_program_at
 #define build_source clvol__build_source
 #define host_release clvol__host_release
+#define view_jitter clvol__view_jitter
 
 #include <setjmp.h>
 #include <stdarg.h>
@@ -134,14 +135,33 @@ void mf_float4(const manifest *m, const char *key, int n, cl_float4 *out);
 /* ---------------------------------------------------------------------------- host */
 
 enum { P_PYRAMID, P_MAJORANT, P_TRANS, P_TRANS_W1, P_TRANS_WL, P_GATHER, P_BAKE, P_MLP,
-       P_RAYMARCH, P_PACK, N_PROGRAMS };
+       P_VIEWDEPTH, P_RAYMARCH, P_PACK, N_PROGRAMS };
 extern const char *const PROGRAM_NAMES[N_PROGRAMS];
 
 #define MAX_MEMS 256
 #define MAX_LEVELS 12
 
-/* The multiple-scattering source the march runs (raymarch.cl's MS_SOURCE). */
+/* The multiple-scattering source the march runs (raymarch.cl's MS_SOURCE). SOURCE_NETWORK is
+ * the bundle's network source: the world lattice, or (view = 1) the stochastic view table. */
 enum { SOURCE_NONE, SOURCE_WRENNINGE, SOURCE_NETWORK };
+
+/* The stochastic view source's state (clvol/render/ms/view.py StochasticViewMs and its
+ * _History): the bundle's view.* keys, the draw counter, and per block of the current
+ * layout the sums of F_ms, sample counts and depth sums since the history started. */
+typedef struct {
+    int block, block_auto, blocks_across, samples, still_samples, move_history;
+    uint32_t seed;
+    double step_factor;
+    long draws;                 /* draws since clvol_create: the RNG stream's position */
+    int reset;                  /* the history starts again at the next render */
+    int bx, by, C;              /* the history's layout (0: none yet) */
+    double *sums, *count, *depth;   /* [C][by][bx], [by][bx], [by][bx], owned */
+    int have_camera;            /* the camera of the last draw (none after a reset) */
+    double cam_origin[3], cam_fwd[3], cam_right[3], cam_up[3], cam_tan_half;
+    long still;                 /* draws since the last move */
+    cl_mem d_jitter, d_depths, d_weight, d_table;
+    int cap;                    /* blocks the four buffers above hold */
+} view_state;
 
 struct clvol_renderer {
     /* OpenCL */
@@ -153,7 +173,7 @@ struct clvol_renderer {
     const char *driver_opts;    /* clvol_driver_defines of its platform (describe_device) */
     cl_program prog[N_PROGRAMS];
     cl_kernel k_mip, k_majorant, k_layout, k_sweep1, k_sweepL, k_xpass, k_rows, k_small,
-        k_gather, k_mlp, k_raymarch, k_pack;
+        k_gather, k_mlp, k_raymarch, k_pack, k_viewdepth;
     cl_mem mems[MAX_MEMS];
     int n_mems;
     /* errors */
@@ -166,6 +186,8 @@ struct clvol_renderer {
         bake_pad, sort_bits, tile, rm_local;
     int cfg_dim, cfg_albedo, cfg_alpha;   /* the network config layout (host.config_*) */
     int source;                 /* SOURCE_*: the bundle's, fixed (its programs) */
+    int view;                   /* the bundle's network source is the stochastic view table */
+    view_state vs;
     /* volume (V) */
     int nx, ny, nz;
     double bmin[3], bmax[3], cube_min[3], cube_size;
@@ -191,6 +213,8 @@ struct clvol_renderer {
     int n_active;     /* lattice points the network evaluates; the others hold F_ms = 0 */
     int *active;      /* their [z][y][x] indices, ascending, owned */
     cl_mem d_points, d_omegas, d_order, d_feats, d_config, d_tenter, d_fms, d_planes;
+    int net_cap;      /* queries the network's buffers above hold (d_points .. d_fms) */
+    int net_chunk;    /* the most queries one gather + MLP launch takes (host.network_chunk) */
     cl_mem d_out[6];
     int width, height, out_width, out_height;
     double light_dir[3], irradiance[3], background[3];
@@ -219,5 +243,10 @@ cl_program build_program_at(clvol_host *h, const char *dir, const manifest *m,
 cl_program build_source(clvol_host *h, const char *source, const char *options,
                         const char *what);
 void host_release(clvol_host *h);   /* everything h holds; never fails */
+
+/* The stochastic view source's jitter of draw `draw`: out[3 b + k] for block b < n, k < 3,
+ * the first three uniforms of Philox4x32-10 keyed by seed, counter (b, 0, draw, 0)
+ * (cl/include/rng.h; clvol/render/ms/view.py view_jitter draws the same floats). */
+void view_jitter(uint32_t seed, uint32_t draw, long n, float *out);
 
 #endif

@@ -308,6 +308,10 @@ static void read_host_constants(clvol_host *h) {
              "first (at most 16), then two distinct slots", m->where, h->cfg_albedo, h->cfg_alpha);
     h->tile = mf_int_in(m, "host.raymarch_tile", 1, 16);
     h->rm_local = mf_int_in(m, "host.raymarch_local_size", 1, 1024);
+    /* queries per gather + MLP launch (bundles before the key: all in one launch, at most
+     * the 32^3 lattice they hold) */
+    h->net_chunk = mf_find(m, "host.network_chunk")
+        ? mf_int_in(m, "host.network_chunk", 1, 1 << 24) : 1 << 24;
 }
 
 /* Largest optical thickness of the volume at density scale 1 along x, y or z rows (the
@@ -334,6 +338,26 @@ static double unit_optical_thickness(const float *d, int nx, int ny, int nz, con
     xfree(sy);
     xfree(sz);
     return fmax(fmax(mx * cell[0], my * cell[1]), mz * cell[2]);
+}
+
+/* The stochastic view source's keys (clvol bundle --ms stochastic: view.*). */
+static void read_view_keys(clvol_host *h) {
+    const manifest *m = &h->mf;
+    view_state *v = &h->vs;
+    v->block = mf_int_in(m, "view.block", 1, 64);
+    v->block_auto = mf_int_in(m, "view.block_auto", 0, 1);
+    v->blocks_across = mf_int_in(m, "view.blocks_across", 1, 1 << 16);
+    v->samples = mf_int_in(m, "view.samples", 1, 4096);
+    v->still_samples = mf_int_in(m, "view.still_samples", 1, 1 << 20);
+    v->move_history = mf_int_in(m, "view.move_history", 0, 1 << 20);
+    double seed = mf_double(m, "view.seed");
+    if (!(seed >= 0 && seed < 4294967296.0 && seed == floor(seed)))
+        fail(BUNDLE, "%s: view.seed = %g: an integer in [0, 2^32)", m->where, seed);
+    v->seed = (uint32_t)seed;
+    v->step_factor = mf_double(m, "view.step_factor");
+    if (!(v->step_factor > 0 && isfinite(v->step_factor)))
+        fail(BUNDLE, "%s: view.step_factor must be finite and > 0", m->where);
+    v->reset = 1;
 }
 
 /* Read the manifest and the host constants, build the programs the bundle lists and load
@@ -382,9 +406,10 @@ static void open_bundle(clvol_host *h) {
     h->lit = mf_int(m, "raymarch.lit");
     const char *src = mf_str(m, "raymarch.ms_source");
     if (strcmp(src, "network") == 0) h->source = SOURCE_NETWORK;
+    else if (strcmp(src, "stochastic") == 0) h->source = SOURCE_NETWORK, h->view = 1;
     else if (strcmp(src, "wrenninge") == 0) h->source = SOURCE_WRENNINGE;
     else if (strcmp(src, "none") == 0) h->source = SOURCE_NONE;
-    else fail(BUNDLE, "%s: raymarch.ms_source = %s: this host runs network, none or wrenninge", m->where, src);
+    else fail(BUNDLE, "%s: raymarch.ms_source = %s: this host runs network, stochastic, none or wrenninge", m->where, src);
     /* none and wrenninge are the kernel's own (raymarch.cl's -D MS_SOURCE): no network */
     h->network = h->lit && h->source == SOURCE_NETWORK;
     h->grey = mf_int(m, "medium.grey");
@@ -448,6 +473,12 @@ static void open_bundle(clvol_host *h) {
         h->k_small = kernel(h, P_BAKE, "bake_small");
         h->k_gather = kernel(h, P_GATHER, "gather");
         h->k_mlp = kernel(h, P_MLP, "mlp_forward");
+        if (h->view) {
+            if (!h->prog[P_VIEWDEPTH])
+                fail(BUNDLE, "%s: the stochastic view's programs must list viewdepth", m->where);
+            h->k_viewdepth = kernel(h, P_VIEWDEPTH, "view_depths");
+            read_view_keys(h);
+        }
     }
     h->k_raymarch = kernel(h, P_RAYMARCH, "raymarch");
     h->d_dummy = buffer(h, 4, NULL);
@@ -528,6 +559,7 @@ static void open_bundle(clvol_host *h) {
     const cl_float z = 0.0f;
     CL(clEnqueueFillBuffer(h->queue, h->d_baked, &z, sizeof z, 4 * (size_t)(2 * h->pyr_size),
                            4 * (size_t)h->bake_pad, 0, NULL, NULL));
+    if (h->view) return;   /* its points are drawn each frame: no lattice */
     /* the lattice points the network evaluates (recomputed by clvol_set_density) */
     mf_ints(m, "network.ms_resolution", h->res, 3);
     long N = (long)h->res[0] * h->res[1] * h->res[2];
@@ -605,6 +637,7 @@ static void find_active_points(clvol_host *h) {
     cl_mem *fb[] = {&h->d_points, &h->d_omegas, &h->d_order, &h->d_config, &h->d_feats,
                     &h->d_tenter, &h->d_fms};
     for (size_t i = 0; i < sizeof fb / sizeof fb[0]; ++i) release_tracked(h, fb[i]);
+    h->net_cap = 0;
 }
 
 /* ------------------------------------------------------------------------ the stages */
@@ -701,22 +734,21 @@ static uint32_t spread_bits(uint32_t v, int bits) {
     return out;
 }
 
-/* F: F_ms at the active lattice points toward the camera (gather + MLP), scattered into the
- * planes [C][gz][gy][gx] the march reads (0 at the other points). */
-static void lattice_stage(clvol_host *h) {
+/* F_ms at n points toward unit directions omega (gather + MLP, the Python host's
+ * NetworkSource.evaluate): fms[q * C + c], clamped at 0; a non-finite value fails, naming
+ * `what` and the point (its index + `first`). Queries run in Morton order of their coarse
+ * cell (only speed: every query is computed alone). The buffers grow to the largest n seen
+ * (h->net_cap); network_at cuts bigger sets into launches of host.network_chunk. */
+static void network_launch(clvol_host *h, int n, const double *pts_d, const double *oms_d,
+                           float *fms, const char *what, long first) {
     const manifest *m = &h->mf;
-    const double *origin = h->cam_origin, *l = h->light_dir, *alb = h->albedo;
-    int C = h->channels;
-    int N = h->res[0] * h->res[1] * h->res[2];
-    /* the network runs at the active points only (n queries, in ascending lattice order:
-     * the Python host's order); the others get F_ms = 0 */
-    int n = h->n_active, nq = n > 0 ? n : 1;   /* nq: buffers are never empty */
+    const double *l = h->light_dir, *alb = h->albedo;
+    int C = h->channels, nq = n > 0 ? n : 1;   /* nq: buffers are never empty */
     /* config layout from the bundle: the phase fields [0, cfg_albedo), then the albedo and
      * alpha slots (clvol/features/layout.py CONFIG_FIELDS) */
     const int D = h->cfg_dim, NPH = h->cfg_albedo;
     double cphase[16];
     mf_doubles(m, "medium.config_phase", cphase, NPH);
-    /* lattice: voxel centres over the box, [z][y][x], omega toward the camera */
     float *pts = xmalloc(sizeof(float) * 3 * (size_t)nq);
     float *oms = xmalloc(sizeof(float) * 3 * (size_t)nq);
     float *cfg = xcalloc((size_t)D * (size_t)nq, sizeof(float));
@@ -726,22 +758,13 @@ static void lattice_stage(clvol_host *h) {
     long nkeys = 1L << (3 * h->sort_bits);
     int *count = xcalloc((size_t)nkeys + 1, sizeof(int));
     for (int q = 0; q < n; ++q) {
-        int i = h->active[q];
-        int idx[3] = {i % h->res[0], (i / h->res[0]) % h->res[1], i / (h->res[0] * h->res[1])};
-        double p[3], w[3], norm = 0.0;
-        for (int a = 0; a < 3; ++a) {
-            p[a] = h->ms_min[a] + ((double)idx[a] + 0.5) * (h->ms_max[a] - h->ms_min[a]) / h->res[a];
-            w[a] = origin[a] - p[a];
-            norm += w[a] * w[a];
-        }
-        norm = fmax(sqrt(norm), 1e-30);
         double mu = 0.0;
         uint32_t kk = 0;
         for (int a = 0; a < 3; ++a) {
-            pts[3 * q + a] = (float)p[a];
-            oms[3 * q + a] = (float)(w[a] / norm);
+            pts[3 * q + a] = (float)pts_d[3 * q + a];
+            oms[3 * q + a] = (float)oms_d[3 * q + a];
             mu -= (double)oms[3 * q + a] * l[a];
-            double gcell = (p[a] - h->cube_min[a]) * (cells / h->cube_size);
+            double gcell = (pts_d[3 * q + a] - h->cube_min[a]) * (cells / h->cube_size);
             uint32_t c = (uint32_t)clampd(gcell, 0.0, cells - 1);
             kk |= spread_bits(c, h->sort_bits) << a;
         }
@@ -751,12 +774,15 @@ static void lattice_stage(clvol_host *h) {
         cfg[D * q + h->cfg_albedo] = (float)alb[0];
         cfg[D * q + h->cfg_alpha] = (float)acos(clampd(mu, -1.0, 1.0));
     }
-    /* queries in Morton order of their coarse cell (stable counting sort): only speed */
     for (long i = 0; i < nkeys; ++i) count[i + 1] += count[i];
     for (int i = 0; i < n; ++i) order[count[key[i]]++] = i;
     xfree(count);
     xfree(key);
-    if (!h->d_points) {   /* made once per set of active points, rewritten every frame */
+    if (nq > h->net_cap) {   /* made for the most queries so far, rewritten every frame */
+        cl_mem *fb[] = {&h->d_points, &h->d_omegas, &h->d_order, &h->d_config, &h->d_feats,
+                        &h->d_tenter, &h->d_fms};
+        for (size_t i = 0; i < sizeof fb / sizeof fb[0]; ++i) release_tracked(h, fb[i]);
+        h->net_cap = 0;
         h->d_points = buffer(h, sizeof(float) * 3 * (size_t)nq, NULL);
         h->d_omegas = buffer(h, sizeof(float) * 3 * (size_t)nq, NULL);
         h->d_order = buffer(h, sizeof(int) * (size_t)nq, NULL);
@@ -764,10 +790,8 @@ static void lattice_stage(clvol_host *h) {
         h->d_feats = buffer(h, sizeof(float) * 3 * (size_t)h->np_ * nq, NULL);
         h->d_tenter = buffer(h, sizeof(float) * (size_t)nq, NULL);
         h->d_fms = buffer(h, sizeof(float) * (size_t)C * nq, NULL);
+        h->net_cap = nq;
     }
-    if (!h->d_planes) h->d_planes = buffer(h, sizeof(float) * (size_t)C * N, NULL);
-    float *fms = xmalloc(sizeof(float) * (size_t)C * nq);
-    float *pl = xcalloc((size_t)C * N, sizeof(float));
     if (n > 0) {
         CL(clEnqueueWriteBuffer(h->queue, h->d_points, CL_FALSE, 0, 12 * (size_t)n, pts, 0, NULL, NULL));
         CL(clEnqueueWriteBuffer(h->queue, h->d_omegas, CL_FALSE, 0, 12 * (size_t)n, oms, 0, NULL, NULL));
@@ -795,26 +819,311 @@ static void lattice_stage(clvol_host *h) {
             launch(h, h->k_mlp, items, 1);
         else
             launch(h, h->k_mlp, padded(items, (size_t)h->pad), 0);
-        /* F_ms: clamp at 0, refuse non-finite, planes [C][gz][gy][gx] */
         CL(clEnqueueReadBuffer(h->queue, h->d_fms, CL_TRUE, 0, sizeof(float) * (size_t)C * n, fms,
                                0, NULL, NULL));
     }
-    for (int q = 0; q < n; ++q)
-        for (int c = 0; c < C; ++c) {
-            float v = fms[(size_t)q * C + c];
-            int i = h->active[q];
-            if (!isfinite(v))
-                fail(CLVOL_ERROR_OPENCL, "the network produced a non-finite F_ms at lattice point %d", i);
-            pl[(size_t)c * N + i] = v > 0.0f ? v : 0.0f;
+    /* F_ms: refuse non-finite, clamp at 0 (NetworkSource.evaluate) */
+    for (long i = 0; i < (long)n * C; ++i) {
+        if (!isfinite(fms[i]))
+            fail(CLVOL_ERROR_OPENCL, "the network produced a non-finite F_ms at %s %ld", what,
+                 first + i / C);
+        if (!(fms[i] > 0.0f)) fms[i] = 0.0f;
+    }
+    xfree(pts);
+    xfree(oms);
+    xfree(cfg);
+    xfree(order);
+}
+
+static void network_at(clvol_host *h, long n, const double *pts, const double *oms, float *fms,
+                       const char *what) {
+    long chunk = h->net_chunk;
+    if (n <= chunk) {
+        network_launch(h, (int)n, pts, oms, fms, what, 0);
+        return;
+    }
+    for (long q = 0; q < n; q += chunk) {
+        long k = n - q < chunk ? n - q : chunk;
+        network_launch(h, (int)k, pts + 3 * q, oms + 3 * q, fms + (size_t)q * h->channels, what, q);
+    }
+}
+
+/* F: F_ms at the active lattice points toward the camera, scattered into the planes
+ * [C][gz][gy][gx] the march reads (0 at the other points). */
+static void lattice_stage(clvol_host *h) {
+    const double *origin = h->cam_origin;
+    int C = h->channels;
+    int N = h->res[0] * h->res[1] * h->res[2];
+    /* the network runs at the active points only (n queries, in ascending lattice order:
+     * the Python host's order); the others get F_ms = 0 */
+    int n = h->n_active, nq = n > 0 ? n : 1;
+    /* lattice: voxel centres over the box, [z][y][x], omega toward the camera */
+    double *pts = xmalloc(sizeof(double) * 3 * (size_t)nq);
+    double *oms = xmalloc(sizeof(double) * 3 * (size_t)nq);
+    for (int q = 0; q < n; ++q) {
+        int i = h->active[q];
+        int idx[3] = {i % h->res[0], (i / h->res[0]) % h->res[1], i / (h->res[0] * h->res[1])};
+        double w[3], norm = 0.0;
+        for (int a = 0; a < 3; ++a) {
+            pts[3 * q + a] = h->ms_min[a] + ((double)idx[a] + 0.5) * (h->ms_max[a] - h->ms_min[a]) / h->res[a];
+            w[a] = origin[a] - pts[3 * q + a];
+            norm += w[a] * w[a];
         }
+        norm = fmax(sqrt(norm), 1e-30);
+        for (int a = 0; a < 3; ++a) oms[3 * q + a] = w[a] / norm;
+    }
+    float *fms = xmalloc(sizeof(float) * (size_t)C * nq);
+    network_at(h, n, pts, oms, fms, "lattice point (active index)");
+    if (!h->d_planes) h->d_planes = buffer(h, sizeof(float) * (size_t)C * N, NULL);
+    float *pl = xcalloc((size_t)C * N, sizeof(float));
+    for (int q = 0; q < n; ++q)
+        for (int c = 0; c < C; ++c) pl[(size_t)c * N + h->active[q]] = fms[(size_t)q * C + c];
     CL(clEnqueueWriteBuffer(h->queue, h->d_planes, CL_TRUE, 0, sizeof(float) * (size_t)C * N, pl,
                             0, NULL, NULL));
     xfree(fms);
     xfree(pl);
     xfree(pts);
     xfree(oms);
-    xfree(cfg);
-    xfree(order);
+    h->counts[CLVOL_STAGE_LATTICE]++;
+}
+
+/* ------------------------------------------------------- the stochastic view table (F)
+ * clvol/render/ms/view.py StochasticViewMs.prepare, step by step: per render, unless the view
+ * is still and has its still_samples draws, `samples` draws of one free-flight point per
+ * pixel block (cl/viewdepth.cl on a jittered ray), the history carried to the new camera when
+ * it moved (_reproject), the network at the new points, their F_ms and depths added to the
+ * blocks' sums, and the blocks' means uploaded as the march's one-knot view table. */
+
+/* Philox4x32-10 (cl/include/rng.h; NumPy: clvol/kernels/rng.py host_uniform4). */
+static void philox4x32_10(uint32_t c[4], uint32_t k0, uint32_t k1) {
+    for (int r = 0; r < 10; ++r) {
+        uint64_t p0 = (uint64_t)0xD2511F53u * c[0], p1 = (uint64_t)0xCD9E8D57u * c[2];
+        uint32_t n0 = (uint32_t)(p1 >> 32) ^ c[1] ^ k0, n2 = (uint32_t)(p0 >> 32) ^ c[3] ^ k1;
+        c[0] = n0;
+        c[1] = (uint32_t)p1;
+        c[2] = n2;
+        c[3] = (uint32_t)p0;
+        k0 += 0x9E3779B9u;
+        k1 += 0xBB67AE85u;
+    }
+}
+
+void view_jitter(uint32_t seed, uint32_t draw, long n, float *out) {
+    for (long b = 0; b < n; ++b) {
+        uint32_t c[4] = {(uint32_t)b, (uint32_t)((uint64_t)b >> 32), draw, 0u};
+        philox4x32_10(c, seed, 0u);
+        /* the top 24 bits times 2^-24: exact, in [0, 1) */
+        for (int k = 0; k < 3; ++k) out[3 * b + k] = (float)(c[k] >> 8) * (1.0f / 16777216.0f);
+    }
+}
+
+/* A pinhole camera as clvol.scene.Camera (directions_at, image_positions). */
+typedef struct {
+    double o[3], f[3], r[3], u[3], tan_half;
+    int w, h;
+} view_camera;
+
+static view_camera current_camera(const clvol_host *h) {
+    view_camera c;
+    memcpy(c.o, h->cam_origin, sizeof c.o);
+    memcpy(c.f, h->cam_fwd, sizeof c.f);
+    memcpy(c.r, h->cam_right, sizeof c.r);
+    memcpy(c.u, h->cam_up, sizeof c.u);
+    c.tan_half = h->tan_half;
+    c.w = h->width;
+    c.h = h->height;
+    return c;
+}
+
+/* Unit direction through the image position (col, row) in pixels (Camera.directions_at);
+ * |d| >= 1 (forward is orthogonal to right and up): no division by zero. */
+static void camera_direction(const view_camera *c, double col, double row, double d[3]) {
+    double sx = (2.0 * col / c->w - 1.0) * c->tan_half * ((double)c->w / c->h);
+    double sy = (1.0 - 2.0 * row / c->h) * c->tan_half;
+    for (int a = 0; a < 3; ++a) d[a] = c->f[a] + sx * c->r[a] + sy * c->u[a];
+    double n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    for (int a = 0; a < 3; ++a) d[a] /= n;
+}
+
+/* The block (j bx + i) of a world point's image position (Camera.image_positions), or -1
+ * behind the camera or outside the image (_reproject's blocks_of). */
+static long camera_block(const view_camera *c, const double p[3], int block, int bx, int by) {
+    double v[3] = {p[0] - c->o[0], p[1] - c->o[1], p[2] - c->o[2]};
+    double z = v[0] * c->f[0] + v[1] * c->f[1] + v[2] * c->f[2];
+    if (!(z > 0)) return -1;   /* no division by a zero or negative depth */
+    double vr = v[0] * c->r[0] + v[1] * c->r[1] + v[2] * c->r[2];
+    double vu = v[0] * c->u[0] + v[1] * c->u[1] + v[2] * c->u[2];
+    double col = (vr / z / (c->tan_half * ((double)c->w / c->h)) + 1.0) * (0.5 * c->w);
+    double row = (1.0 - vu / z / c->tan_half) * (0.5 * c->h);
+    double i = floor(col / block), j = floor(row / block);
+    if (!(isfinite(i) && isfinite(j) && i >= 0 && i < bx && j >= 0 && j < by)) return -1;
+    return (long)j * bx + (long)i;
+}
+
+/* _reproject: carry the history from the last draw's camera to `cam` (at most move_history
+ * samples' worth per block). A block with a new sample (the first draw's n0 points `pts` in
+ * blocks `blk`) takes the old block its point projects into; another takes an old block
+ * whose mean point (old centre ray at the mean depth) projects into it; the rest start
+ * empty. */
+static void view_reproject(clvol_host *h, const view_camera *cam, const double *pts,
+                           const long *blk, long n0) {
+    view_state *v = &h->vs;
+    int bx = v->bx, by = v->by, block = v->block;
+    long nb = (long)bx * by;
+    view_camera old = *cam;   /* the image layout is the same (else the history restarted) */
+    memcpy(old.o, v->cam_origin, sizeof old.o);
+    memcpy(old.f, v->cam_fwd, sizeof old.f);
+    memcpy(old.r, v->cam_right, sizeof old.r);
+    memcpy(old.u, v->cam_up, sizeof old.u);
+    old.tan_half = v->cam_tan_half;
+    long *src = xmalloc(sizeof(long) * (size_t)nb);
+    for (long b = 0; b < nb; ++b) src[b] = -1;
+    for (long b = 0; b < nb; ++b) {   /* forward, in ascending order: the last one wins */
+        if (!(v->count[b] > 0)) continue;
+        double d[3], p[3], mean_t = v->depth[b] / v->count[b];
+        camera_direction(&old, ((double)(b % bx) + 0.5) * block, ((double)(b / bx) + 0.5) * block, d);
+        for (int a = 0; a < 3; ++a) p[a] = old.o[a] + mean_t * d[a];
+        long dst = camera_block(cam, p, block, bx, by);
+        if (dst >= 0) src[dst] = b;
+    }
+    for (long q = 0; q < n0; ++q) src[blk[q]] = camera_block(&old, pts + 3 * q, block, bx, by);
+    int C = v->C;
+    double *sums = keep(xcalloc((size_t)C * nb, sizeof(double)));
+    double *count = keep(xcalloc((size_t)nb, sizeof(double)));
+    double *depth = keep(xcalloc((size_t)nb, sizeof(double)));
+    for (long b = 0; b < nb; ++b) {
+        long s = src[b];
+        if (s < 0) continue;
+        double keep_n = fmin(v->count[s], (double)v->move_history);
+        double scale = keep_n / fmax(v->count[s], 1.0);   /* 0 where the old block was empty */
+        for (int c = 0; c < C; ++c) sums[(size_t)c * nb + b] = v->sums[(size_t)c * nb + s] * scale;
+        count[b] = keep_n;
+        /* the old mean depth is along the old rays: the march reads only its sign */
+        depth[b] = v->depth[s] * scale;
+    }
+    free(v->sums);
+    free(v->count);
+    free(v->depth);
+    v->sums = sums, v->count = count, v->depth = depth;
+    v->still = 0;
+    xfree(src);
+}
+
+/* The view's block side for an image: the bundle's, or with view.block_auto about
+ * blocks_across blocks across the longer side (view.py auto_block; Python's round: half to
+ * even, as rint). */
+static int view_block_for(const clvol_host *h, int width, int height) {
+    const view_state *v = &h->vs;
+    if (!v->block_auto) return v->block;
+    int side = width > height ? width : height;
+    int b = (int)rint((double)side / v->blocks_across);
+    return b > 1 ? b : 1;
+}
+
+static void view_stage(clvol_host *h) {
+    view_state *v = &h->vs;
+    int block = v->block, C = h->channels;
+    int bx = (h->width + block - 1) / block, by = (h->height + block - 1) / block;
+    long nb = (long)bx * by;
+    if (v->reset || v->bx != bx || v->by != by || v->C != C) {   /* the history starts again */
+        free(v->sums);
+        free(v->count);
+        free(v->depth);
+        v->sums = v->count = v->depth = NULL;
+        v->sums = keep(xcalloc((size_t)C * nb, sizeof(double)));
+        v->count = keep(xcalloc((size_t)nb, sizeof(double)));
+        v->depth = keep(xcalloc((size_t)nb, sizeof(double)));
+        v->bx = bx, v->by = by, v->C = C;
+        v->have_camera = 0;
+        v->still = 0;
+        v->reset = 0;
+    }
+    view_camera cam = current_camera(h);
+    int moved = v->have_camera
+        && (memcmp(v->cam_origin, cam.o, sizeof cam.o) != 0 || memcmp(v->cam_fwd, cam.f, sizeof cam.f) != 0
+            || memcmp(v->cam_right, cam.r, sizeof cam.r) != 0 || memcmp(v->cam_up, cam.u, sizeof cam.u) != 0);
+    if (!moved && v->still >= v->still_samples) return;   /* converged: nothing to draw */
+    if (nb > v->cap) {
+        cl_mem *vb[] = {&v->d_jitter, &v->d_depths, &v->d_weight, &v->d_table};
+        for (size_t i = 0; i < sizeof vb / sizeof vb[0]; ++i) release_tracked(h, vb[i]);
+        v->cap = 0;
+        v->d_jitter = buffer(h, sizeof(cl_float4) * (size_t)nb, NULL);
+        v->d_depths = buffer(h, sizeof(float) * (size_t)nb, NULL);
+        v->d_weight = buffer(h, sizeof(float) * (size_t)nb, NULL);
+        v->d_table = buffer(h, sizeof(float) * (size_t)(1 + C) * nb, NULL);
+        v->cap = (int)nb;
+    }
+    int S = v->samples;
+    size_t most = (size_t)nb * S;
+    double *pts = xmalloc(sizeof(double) * 3 * most), *oms = xmalloc(sizeof(double) * 3 * most);
+    double *t = xmalloc(sizeof(double) * most);
+    long *blk = xmalloc(sizeof(long) * most), np = 0, n0 = 0;
+    float *jit = xmalloc(sizeof(float) * 3 * (size_t)nb), *dep = xmalloc(sizeof(float) * (size_t)nb);
+    cl_float4 *j4 = xcalloc((size_t)nb, sizeof(cl_float4));
+    cl_float4 bmin = f4(h->bmin), bmax = f4(h->bmax), o4 = f4(cam.o), fw4 = f4(cam.f),
+              r4 = f4(cam.r), u4 = f4(cam.u);
+    double stop = mf_double(&h->mf, "raymarch.threshold");
+    for (int s = 0; s < S; ++s) {
+        uint32_t draw = (uint32_t)v->draws++;
+        view_jitter(v->seed, draw, nb, jit);
+        for (long b = 0; b < nb; ++b)
+            for (int k = 0; k < 3; ++k) j4[b].s[k] = jit[3 * b + k];
+        CL(clEnqueueWriteBuffer(h->queue, v->d_jitter, CL_FALSE, 0, sizeof(cl_float4) * (size_t)nb,
+                                j4, 0, NULL, NULL));
+        set_args(h->k_viewdepth, "miii44f4444fiiffmmm", h->d_density, h->nx, h->ny, h->nz, &bmin,
+                 &bmax, h->density_scale, &o4, &fw4, &r4, &u4, h->tan_half, h->width, h->height,
+                 v->step_factor * h->step, stop, v->d_depths, v->d_weight, v->d_jitter);
+        launch(h, h->k_viewdepth, padded((size_t)nb, (size_t)h->pad), 0);
+        CL(clEnqueueReadBuffer(h->queue, v->d_depths, CL_TRUE, 0, sizeof(float) * (size_t)nb, dep,
+                               0, NULL, NULL));
+        for (long b = 0; b < nb; ++b) {
+            if (!(dep[b] >= 0.0f)) continue;   /* the ray escaped: no sample this draw */
+            double d[3];
+            camera_direction(&cam, ((double)(b % bx) + (double)jit[3 * b]) * block,
+                             ((double)(b / bx) + (double)jit[3 * b + 1]) * block, d);
+            t[np] = dep[b];
+            for (int a = 0; a < 3; ++a) {
+                pts[3 * np + a] = cam.o[a] + t[np] * d[a];
+                oms[3 * np + a] = -d[a];   /* toward the camera */
+            }
+            blk[np++] = b;
+        }
+        if (s == 0) n0 = np;
+    }
+    if (moved) view_reproject(h, &cam, pts, blk, n0);
+    float *fms = xmalloc(sizeof(float) * (size_t)C * (size_t)(np > 0 ? np : 1));
+    network_at(h, np, pts, oms, fms, "view sample");
+    for (long q = 0; q < np; ++q) {
+        long b = blk[q];
+        for (int c = 0; c < C; ++c) v->sums[(size_t)c * nb + b] += fms[(size_t)q * C + c];
+        v->count[b] += 1.0;
+        v->depth[b] += t[q];
+    }
+    memcpy(v->cam_origin, cam.o, sizeof cam.o);
+    memcpy(v->cam_fwd, cam.f, sizeof cam.f);
+    memcpy(v->cam_right, cam.r, sizeof cam.r);
+    memcpy(v->cam_up, cam.u, sizeof cam.u);
+    v->cam_tan_half = cam.tan_half;
+    v->have_camera = 1;
+    v->still += S;
+    /* the table (1 + C, by, bx, 1): mean depth (-1 where no sample yet), mean F_ms */
+    float *table = xmalloc(sizeof(float) * (size_t)(1 + C) * nb);
+    for (long b = 0; b < nb; ++b) {
+        double c = v->count[b], inv = c > 0 ? 1.0 / fmax(c, 1.0) : 0.0;
+        table[b] = c > 0 ? (float)(v->depth[b] * inv) : -1.0f;
+        for (int k = 0; k < C; ++k) table[(size_t)(1 + k) * nb + b] = (float)(v->sums[(size_t)k * nb + b] * inv);
+    }
+    CL(clEnqueueWriteBuffer(h->queue, v->d_table, CL_TRUE, 0, sizeof(float) * (size_t)(1 + C) * nb,
+                            table, 0, NULL, NULL));
+    xfree(table);
+    xfree(fms);
+    xfree(pts);
+    xfree(oms);
+    xfree(t);
+    xfree(blk);
+    xfree(jit);
+    xfree(dep);
+    xfree(j4);
     h->counts[CLVOL_STAGE_LATTICE]++;
 }
 
@@ -826,7 +1135,12 @@ static void march_stage(clvol_host *h) {
     int gres[3] = {1, 1, 1};
     double gmin[3] = {0, 0, 0}, gmax[3] = {1, 1, 1};
     cl_mem planes = h->d_dummy;
-    if (h->network) {
+    if (h->network && h->view) {   /* the view table (1 + C, by, bx, K = 1) */
+        gres[0] = 1;
+        gres[1] = h->vs.bx;
+        gres[2] = h->vs.by;
+        planes = h->vs.d_table;
+    } else if (h->network) {
         for (int a = 0; a < 3; ++a) {
             gres[a] = h->res[a];
             gmin[a] = h->ms_min[a];
@@ -839,7 +1153,10 @@ static void march_stage(clvol_host *h) {
         for (int i = 0; i < 6; ++i) release_tracked(h, &h->d_out[i]);
         int ch[6] = {3, 3, 3, 1, 1, 0};
         for (int i = 0; i < 5; ++i) h->d_out[i] = buffer(h, 4 * (size_t)W * H * ch[i], NULL);
-        h->d_out[5] = buffer(h, 4, NULL);   /* stats: unused without RAYMARCH_STATS */
+        /* stats: word 0 counts the rays the march's progress bound stopped (cl/raymarch.cl,
+         * an atomic add; libclvol does not read it), zeroed so the kernel adds to a defined
+         * value; the per-tile counts need RAYMARCH_STATS, which libclvol never sets */
+        h->d_out[5] = zeros(h, 4);
         h->out_width = W;
         h->out_height = H;
     }
@@ -878,7 +1195,10 @@ static void render_frame(clvol_host *h) {
         if (h->lit) light_stage(h);
         h->light_dirty = 0;
     }
-    if (h->lattice_dirty) {
+    if (h->network && h->view) {
+        view_stage(h);   /* every render: draws until the view is still long enough */
+        h->lattice_dirty = 0;
+    } else if (h->lattice_dirty) {
         if (h->network) lattice_stage(h);
         h->lattice_dirty = 0;
     }
@@ -960,8 +1280,9 @@ static void need_domain_keys(const clvol_host *h, const char *fn) {
              fn, h->mf.where);
 }
 
-static const char *source_name(int s) {
-    return s == SOURCE_NETWORK ? "network" : s == SOURCE_WRENNINGE ? "wrenninge" : "none";
+/* The --ms name of a source (the bundle's network source: network or stochastic). */
+static const char *source_name(const clvol_host *h, int s) {
+    return s == SOURCE_NETWORK ? (h->view ? "stochastic" : "network") : s == SOURCE_WRENNINGE ? "wrenninge" : "none";
 }
 
 /* The multiple-scattering source clvol.Renderer picks for this medium and volume
@@ -1010,8 +1331,8 @@ static void check_same_programs(const clvol_host *h, const char *fn, const doubl
     if (s != h->source)
         fail(CLVOL_ERROR_UNSUPPORTED, "%s: clvol.Renderer would use --ms %s for this medium "
              "(largest optical thickness %.3g), the bundle's programs run --ms %s; write a "
-             "bundle of the new scene", fn, source_name(s), unit_thickness * scale,
-             source_name(h->source));
+             "bundle of the new scene", fn, source_name(h, s), unit_thickness * scale,
+             source_name(h, h->source));
     int grey = albedo[0] == albedo[1] && albedo[1] == albedo[2];
     if (h->network && grey != h->grey)
         fail(CLVOL_ERROR_UNSUPPORTED, "%s: the bundle's network runs %s (MLP_CHANNELS); a %s "
@@ -1070,9 +1391,17 @@ clvol_status clvol_set_camera(clvol_renderer *r, const float origin[3], const fl
     if (width < 1 || height < 1 || width > CLVOL_MAX_IMAGE_SIZE || height > CLVOL_MAX_IMAGE_SIZE)
         fail(CLVOL_ERROR_ARGUMENT, "%s: %d x %d pixels: width and height must be in [1, %d]",
              fn, width, height, CLVOL_MAX_IMAGE_SIZE);
+    if (r->view && r->network && view_block_for(r, width, height) != r->vs.block)
+        fail(CLVOL_ERROR_UNSUPPORTED, "%s: a %d x %d image takes view blocks of %d pixels (about "
+             "%d across), the bundle's programs are built for %d; write a bundle with "
+             "--view-block %d to render any size", fn, width, height,
+             view_block_for(r, width, height), r->vs.blocks_across, r->vs.block, r->vs.block);
     double o[3] = {origin[0], origin[1], origin[2]}, t[3] = {target[0], target[1], target[2]},
            u[3] = {up[0], up[1], up[2]};
+    double tan_half = r->tan_half;
     set_camera_basis(r, o, t, u, fov_y_degrees, fn);
+    /* the view history holds for one image layout (StochasticViewMs.key_for) */
+    if (width != r->width || height != r->height || tan_half != r->tan_half) r->vs.reset = 1;
     r->width = width;
     r->height = height;
     return end_call(r, &g);
@@ -1097,6 +1426,7 @@ clvol_status clvol_set_light(clvol_renderer *r, const float to_light[3], const f
     if (memcmp(d, r->light_dir, sizeof d) != 0) {
         memcpy(r->light_dir, d, sizeof d);
         r->light_dirty = r->lattice_dirty = 1;
+        r->vs.reset = 1;   /* the view history holds for one light */
     }
     memcpy(r->irradiance, irr, sizeof irr);   /* the march's argument only */
     return end_call(r, &g);
@@ -1115,8 +1445,8 @@ clvol_status clvol_set_medium(clvol_renderer *r, const float albedo[3], float de
         fail(CLVOL_ERROR_ARGUMENT, "%s: density_scale = %g: must be finite and >= 0", fn, scale);
     check_optical_range(r, CLVOL_ERROR_ARGUMENT, fn, scale, r->max_density);
     check_same_programs(r, fn, alb, r->irradiance, scale, r->unit_thickness, 1);
-    if (scale != r->density_scale) r->light_dirty = r->lattice_dirty = 1;
-    if (memcmp(alb, r->albedo, sizeof alb) != 0) r->lattice_dirty = 1;
+    if (scale != r->density_scale) r->light_dirty = r->lattice_dirty = r->vs.reset = 1;
+    if (memcmp(alb, r->albedo, sizeof alb) != 0) r->lattice_dirty = r->vs.reset = 1;
     r->density_scale = scale;
     memcpy(r->albedo, alb, sizeof alb);
     return end_call(r, &g);
@@ -1152,8 +1482,8 @@ clvol_status clvol_set_density(clvol_renderer *r, const float *density, int nx, 
     int n[3] = {nx, ny, nz};
     for (int a = 0; a < 3; ++a) min_cell = fmin(min_cell, (r->bmax[a] - r->bmin[a]) / n[a]);
     r->step = r->step_voxels * min_cell;
-    if (r->network) find_active_points(r);
-    r->volume_dirty = r->light_dirty = r->lattice_dirty = 1;
+    if (r->network && !r->view) find_active_points(r);
+    r->volume_dirty = r->light_dirty = r->lattice_dirty = r->vs.reset = 1;
     return end_call(r, &g);
 }
 

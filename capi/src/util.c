@@ -326,7 +326,7 @@ int mf_int_in(const manifest *m, const char *key, int lo, int hi) {
 
 const char *const PROGRAM_NAMES[N_PROGRAMS] = {
     "pyramid", "majorant", "transmittance", "transmittance_w1", "transmittance_wL", "gather",
-    "gather_bake", "mlp", "raymarch", "pack_rgba"};
+    "gather_bake", "mlp", "viewdepth", "raymarch", "pack_rgba"};
 
 cl_mem track(clvol_host *h, cl_mem m) {
     if (h->n_mems == MAX_MEMS) {
@@ -672,7 +672,8 @@ void host_release(clvol_host *h) {
     for (int i = 0; i < h->n_mems; ++i) clReleaseMemObject(h->mems[i]);
     h->n_mems = 0;
     cl_kernel ks[] = {h->k_mip, h->k_majorant, h->k_layout, h->k_sweep1, h->k_sweepL, h->k_xpass,
-                      h->k_rows, h->k_small, h->k_gather, h->k_mlp, h->k_raymarch, h->k_pack};
+                      h->k_rows, h->k_small, h->k_gather, h->k_mlp, h->k_raymarch, h->k_pack,
+                      h->k_viewdepth};
     for (size_t i = 0; i < sizeof ks / sizeof ks[0]; ++i)
         if (ks[i]) clReleaseKernel(ks[i]);
     for (int p = 0; p < N_PROGRAMS; ++p)
@@ -684,6 +685,9 @@ void host_release(clvol_host *h) {
     manifest_free(&h->mf);
     free(h->density);
     free(h->active);
+    free(h->vs.sums);
+    free(h->vs.count);
+    free(h->vs.depth);
     free(h->dir);
     free(h);
 }

@@ -41,7 +41,7 @@ from .majorant import DEFAULT_BLOCK, build_majorant_buffer, majorant_block
 
 @dataclass(eq=False)
 class DeviceMedium:
-    """``grid``: the volume (a clvol Grid, or for the path tracer anything with a [z][y][x]
+    """``grid``: the volume (a clvol DensityGrid, or for the path tracer anything with a [z][y][x]
     ``density`` and ``bbox_min``/``bbox_max``); ``block``: voxels per majorant cell (already
     resolved: never 0); ``density``, ``majorant``: DeviceArrays."""
     grid: object

@@ -32,7 +32,7 @@ from scipy import sparse
 from ..errors import ClvolError
 from ..features.layout import is_power_of_two, n_levels
 from ..runtime import DeviceArray, Runtime, get_runtime
-from ..volume.grid import Grid
+from ..volume.grid import DensityGrid
 
 MAX_BASE_RESOLUTION = 1024
 
@@ -126,7 +126,7 @@ def check_base_resolution(base_resolution, runtime: Runtime | None = None) -> in
     return base
 
 
-def cube_of(grid: Grid) -> tuple[np.ndarray, float]:
+def cube_of(grid: DensityGrid) -> tuple[np.ndarray, float]:
     """(cube_min, cube_size): the smallest cube centred on the grid's box that contains it."""
     size = float(np.max(grid.extent))
     centre = 0.5 * (grid.bbox_min + grid.bbox_max)
@@ -187,7 +187,7 @@ def _apply_axis(d: np.ndarray, mat: sparse.csr_matrix, axis: int) -> np.ndarray:
     return np.moveaxis(np.asarray(out).reshape((mat.shape[0],) + rest), 0, axis)
 
 
-def resample_to_cube(grid: Grid, base_resolution: int) -> tuple[np.ndarray, np.ndarray, float]:
+def resample_to_cube(grid: DensityGrid, base_resolution: int) -> tuple[np.ndarray, np.ndarray, float]:
     """(base [z][y][x] float32, cube_min, cube_size): the grid padded to its centred cube and
     resampled to base^3 (cell means; see the module docstring)."""
     base = int(base_resolution)
@@ -217,7 +217,7 @@ def build_mips(runtime: Runtime, levels: DeviceArray, base_resolution: int) -> N
                                    np.int32(n)))
 
 
-def is_identity(grid: Grid, base_resolution: int) -> bool:
+def is_identity(grid: DensityGrid, base_resolution: int) -> bool:
     """The grid is already a base^3 cube: its density is level 0 as it is."""
     base = int(base_resolution)
     _, size = cube_of(grid)
@@ -225,7 +225,7 @@ def is_identity(grid: Grid, base_resolution: int) -> bool:
         np.allclose(grid.extent, size, rtol=1e-12, atol=0))
 
 
-def build_pyramid(grid: Grid, base_resolution: int = 256, runtime: Runtime | None = None,
+def build_pyramid(grid: DensityGrid, base_resolution: int = 256, runtime: Runtime | None = None,
                   density: DeviceArray | None = None) -> Pyramid:
     """Pad ``grid`` to a centred cube, resample to base^3 and build every mip level down to 1^3.
 
@@ -233,8 +233,8 @@ def build_pyramid(grid: Grid, base_resolution: int = 256, runtime: Runtime | Non
     mips are made on the device. ``density``: the grid's density already on the device (a
     DeviceMedium's): when the grid is already a base^3 cube, level 0 is copied from it on the
     device and nothing is uploaded."""
-    if not isinstance(grid, Grid):
-        raise ClvolError(f"build_pyramid needs a clvol Grid, got {type(grid).__name__}")
+    if not isinstance(grid, DensityGrid):
+        raise ClvolError(f"build_pyramid needs a clvol DensityGrid, got {type(grid).__name__}")
     rt = runtime or get_runtime()
     base = check_base_resolution(base_resolution, rt)
     levels = rt.alloc(pyramid_size(base))

@@ -1,6 +1,6 @@
 """Host wrapper for cl/raymarch.cl (twin: reference/raymarch.py; same argument names).
 
-Big inputs (``density``, ``majorant``, ``light``, ``ms_grid``) may be NumPy arrays (copied
+Big inputs (``density``, ``majorant``, ``light``, ``ms_lattice``) may be NumPy arrays (copied
 to the device on each call: tests) or ``DeviceArray`` handles of buffers already on the device
 (the renderer keeps the volume and the light field resident between frames).
 """
@@ -19,9 +19,9 @@ from .phase import lobe_vectors, phase_defines
 # The kernel's MS_SOURCE define per kind of F_ms lookup (the registry of source classes, a
 # different table, is clvol/render/ms/__init__.py SOURCES: each source says which kind it
 # marches as, in its ``plan_for``). The kinds are the kernel's words, named once here.
-MS_KIND_NONE, MS_KIND_OCTAVES, MS_KIND_GRID, MS_KIND_VIEW = "none", "wrenninge", "grid", "view"
-MS_SOURCE_DEFINES = {MS_KIND_NONE: 0, MS_KIND_OCTAVES: 1, MS_KIND_GRID: 2, MS_KIND_VIEW: 3}
-MS_TABLE_KINDS = (MS_KIND_GRID, MS_KIND_VIEW)   # the kinds that read a lattice or table
+MS_KIND_NONE, MS_KIND_OCTAVES, MS_KIND_LATTICE, MS_KIND_VIEW = "none", "wrenninge", "lattice", "view"
+MS_SOURCE_DEFINES = {MS_KIND_NONE: 0, MS_KIND_OCTAVES: 1, MS_KIND_LATTICE: 2, MS_KIND_VIEW: 3}
+MS_TABLE_KINDS = (MS_KIND_LATTICE, MS_KIND_VIEW)   # the kinds that read a lattice or table
 LIGHT_QUANTITIES = ("transmittance", "optical_depth")
 # Wrenninge octaves: N, and the a, b, c multipliers (one value for all three; b <= a holds).
 # clvol/render/ms/base.py Octaves and the CLI take them from here.
@@ -56,7 +56,7 @@ def ms_defines(source: str, octaves: int = 1, channels: int = 1, view_k: int = 1
     if not 1 <= octaves <= MAX_OCTAVES:
         raise ClvolError(f"octaves must be 1..{MAX_OCTAVES}, got {octaves}")
     if channels not in (1, 3):
-        raise ClvolError(f"ms grid channels must be 1 or 3, got {channels}")
+        raise ClvolError(f"F_ms lattice channels must be 1 or 3, got {channels}")
     d = {"MS_SOURCE": MS_SOURCE_DEFINES[source],
          "MS_OCTAVES": int(octaves) if source == MS_KIND_OCTAVES else 1,
          "MS_CHANNELS": int(channels) if source in MS_TABLE_KINDS else 1}
@@ -100,7 +100,7 @@ def raymarch_defines(lobes, lit: bool, source: str, octaves: int, channels: int,
 _SCALARS = ([None, np.int32, np.int32, np.int32, None, None, np.float32]       # density
             + [None, np.int32, np.int32, np.int32, np.int32]                     # majorant
             + [None, np.int32, None, np.float32]                                 # light field
-            + [None, np.int32, np.int32, np.int32, None, None]                   # ms grid
+            + [None, np.int32, np.int32, np.int32, None, None]                   # F_ms lattice
             + [None, None, None, None, np.float32, np.int32, np.int32]           # camera
             + [None] * 6                                                         # light, medium
             + [np.float32] * 5                                                   # a, b, c, step, thr
@@ -133,7 +133,7 @@ def env_device_layout(env) -> np.ndarray:
 def raymarch(density, bbox_min, bbox_max, density_scale,
              majorant, block,
              light, cube_min, cube_size,
-             ms_grid, ms_bbox_min, ms_bbox_max,
+             ms_lattice, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
              light_dir, irradiance, albedo, lobes, background,
              source="wrenninge", octaves=DEFAULT_OCTAVES, a=DEFAULT_OCTAVE_MULTIPLIER,
@@ -144,12 +144,14 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
              env_colour=(1, 1, 1), bg_image=None, emission=None, em_min=(0, 0, 0),
              em_max=(1, 1, 1), em_colour=(1, 1, 1), em_box=False):
     """Launch the ray marcher. Returns {layer: array} (float32; total/single/multiple
-    (H, W, 3), alpha/depth (H, W)), or with ``read_back=False`` (event, {layer: buffer}).
+    (H, W, 3), alpha/depth (H, W)) and "stopped_at_bound" (int: the rays cl/raymarch.cl's
+    progress bound stopped, 0 on any image that can be marched), or with ``read_back=False``
+    (event, {layer: buffer}; "stats" word 0 holds the count).
 
     With ``stats`` the kernel also counts its work (cl/raymarch.cl, RAYMARCH_STATS) and the
     result gets "stats": uint32 (tiles, 4) (iterations, light lookups, majorant reads,
     active lane-segments per 4 x 4 tile).
-    ``ms_grid`` is (C, gz, gy, gx) with C = 1 or 3 (source "grid"), or the view-space table
+    ``ms_lattice`` is (C, gz, gy, gx) with C = 1 or 3 (source "lattice"), or the view-space table
     (1 + C, by, bx, K) of blocks of ``view_block`` pixels (source "view"), else ignored (may
     be None). ``light`` may be None when ``lit`` is False. ``env`` (2 C, n, n, n), C = 1 or 3:
     the environment's source field over the cube env_min .. + env_size (builds with ENV);
@@ -159,14 +161,14 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     see the twin (this function's keywords are the twin's; ``launch`` takes them grouped).
     """
     rt = runtime or get_runtime()
-    if source == MS_KIND_GRID:
-        ms = _device(ms_grid, rt)
+    if source == MS_KIND_LATTICE:
+        ms = _device(ms_lattice, rt)
         if len(ms.shape) != 4 or ms.shape[0] not in (1, 3):
-            raise ClvolError(f"ms_grid must be (C, gz, gy, gx) with C = 1 or 3, got {ms.shape}")
+            raise ClvolError(f"ms_lattice must be (C, gz, gy, gx) with C = 1 or 3, got {ms.shape}")
         channels = ms.shape[0]
         view_k = 1
     elif source == MS_KIND_VIEW:
-        ms = _device(ms_grid, rt)
+        ms = _device(ms_lattice, rt)
         if len(ms.shape) != 4 or ms.shape[0] not in (2, 4):
             raise ClvolError(f"view table must be (1 + C, by, bx, K) with C = 1 or 3, got {ms.shape}")
         channels, view_k = ms.shape[0] - 1, ms.shape[3]
@@ -444,20 +446,26 @@ def _emission_args(e: MarchEmission, rt) -> tuple:
 
 
 def _outputs(camera: MarchCamera, layers, stats: bool, rt) -> tuple[dict, int]:
-    """The output buffers of every layer and the stats (4 counts per tile with ``stats``,
-    else one unused word), and the number of tiles (work-items)."""
+    """The output buffers of every layer and the stats: word 0 the count of rays the
+    progress bound stopped (zeroed on the device), then with ``stats`` 4 counts per tile;
+    and the number of tiles (work-items)."""
     w, h = camera.width, camera.height
     outs = {name: rt.empty((h * w * ch,)) for name, ch in layers}
     n_tiles = -(-w // TILE) * -(-h // tile_rows(rt.lanes))
-    outs["stats"] = rt.empty((n_tiles * 4 if stats else 1,), np.uint32)
+    outs["stats"] = rt.empty((1 + n_tiles * 4 if stats else 1,), np.uint32, zero=True)
     return outs, n_tiles
 
 
 def _read_layers(outs: dict, layers, camera: MarchCamera, stat_tiles: int, evt, rt) -> dict:
+    """The layers, ``stopped_at_bound`` (the rays cl/raymarch.cl's progress bound stopped:
+    an int, read with the stats) and with ``stat_tiles`` the per-tile ``stats``."""
     result = {}
     for name, ch in layers:
         shape = (camera.height, camera.width, 3) if ch == 3 else (camera.height, camera.width)
         result[name] = rt.from_device(outs[name], shape, wait_for=[evt])
+    words = rt.from_device(outs["stats"], (1 + stat_tiles * 4,), np.uint32, wait_for=[evt],
+                           label="march bound count")
+    result["stopped_at_bound"] = int(words[0])
     if stat_tiles:
-        result["stats"] = rt.from_device(outs["stats"], (stat_tiles, 4), np.uint32)
+        result["stats"] = words[1:].reshape(stat_tiles, 4)
     return result

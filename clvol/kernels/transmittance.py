@@ -128,6 +128,45 @@ def check_optical_range(density_scale: float, max_density: float, length: float,
                          f"density")
 
 
+# The path tracer's tracking rule (issue 41; docs/pathtrace.md, "Bounds"). Delta tracking
+# draws tentative collisions at the majorant's rate, so a flight that crosses a majorant cell
+# where the density is far below the cell's majorant (a cloud's edge, the empty corner of a
+# cell, a grazing shadow ray) takes about the majorant's optical depth across the cell in
+# draws. Measured on the 96^3 cloud at 32^2, 1 spp (bench/bench_thick_media.py): a path's mean
+# tentative collisions are 0.5-1.5 x density_scale x the largest density x the cell's side at
+# albedo 0.9 (blocks of 1 to 96 voxels; ~7 vertices a path whatever the scale), 2.6-2.9 x at
+# 0.999 and 3.7-5.3 x at 1 (hundreds to thousands of vertices: at albedo 1 a walk ends only by
+# leaving the medium); the render's time follows (~40 ns a draw on 2 cores). The rule refuses a
+# medium whose depth per cell exceeds MAX_CELL_DEPTH = 2^13 = PT_MAX_STEPS / 128: below it a
+# path's mean is at most ~4e4 draws, a 32^2 image at 1 spp takes ~1-3 s, and paths do not meet
+# the step bound; above it they take 1e5 draws and more (4 s at 2e5 x the cloud, albedo 1, 23
+# s at 1e7, albedo 0.9), the slow ones stop at PT_MAX_STEPS and the image is biased (0.3-65% of
+# the paths stopped at 1e6-1e7). A finer majorant lowers the depth, which is the cheaper walk
+# (1e7 at a 1-voxel block: 47,000 draws a path, 1.9 s, none stopped; 638,000 at 8 voxels): the
+# message names the coarsest block that passes, if there is one.
+MAX_CELL_DEPTH = 2.0 ** 13
+
+
+def check_tracking_depth(density_scale: float, max_density: float, cell_side: float,
+                         voxel_side: float, block: int,
+                         name: str = "medium.density_scale") -> float:
+    """The one rule on the path tracer's walks (MAX_CELL_DEPTH): density_scale x the largest
+    density x the longest side of a majorant cell (``block`` voxels of ``voxel_side``; the
+    box for one global majorant). Returns that depth; raises a one-line ClvolError above it."""
+    depth = float(density_scale) * float(max_density) * float(cell_side)
+    if not depth <= MAX_CELL_DEPTH:
+        per_voxel = float(density_scale) * float(max_density) * float(voxel_side)
+        finer = int(MAX_CELL_DEPTH // per_voxel) if per_voxel > 0 and np.isfinite(per_voxel) else 0
+        fix = (f"a majorant block of {finer} voxels or fewer (--majorant-block) or a smaller "
+               f"density_scale" if 1 <= finer < block else "a smaller density_scale")
+        raise ClvolError(f"{name} = {density_scale!r} times the largest density {max_density:g} "
+                         f"over a majorant cell {cell_side:.3g} across ({block} voxels) gives "
+                         f"the path tracer an optical depth of {depth:.3g} per cell, above its "
+                         f"limit {MAX_CELL_DEPTH:g}: each path would take about that many "
+                         f"tentative collisions; use {fix}")
+    return depth
+
+
 def _check_args(pyramid, density_scale, lam, method, quantity) -> tuple[float, float]:
     if not isinstance(pyramid, Pyramid):
         raise ClvolError(f"expected a Pyramid (clvol.kernels.pyramid.build_pyramid), "
@@ -215,8 +254,7 @@ def sweep_width_define(width: int):
 def sweep_programs(sizes) -> dict:
     """{program name: defines} of the sweeps over cubes of these ``sizes`` (voxels per side):
     "transmittance_wL" (LANES-wide columns) for levels of at least VECTOR_MIN_N voxels,
-    "transmittance_w1" for smaller ones (as ``_sweep_level`` builds them on a device of more
-    than one lane)."""
+    "transmittance_w1" for smaller ones (``_sweep_level`` builds each level by this rule)."""
     out = {}
     for n in sorted(set(int(n) for n in sizes), reverse=True):
         wide = n >= VECTOR_MIN_N
@@ -229,9 +267,10 @@ def _sweep_level(rt: Runtime, pyr: Pyramid, level: int, scale: float, light_dir,
                  out_depth: bool, out: DeviceArray, out_off: int) -> None:
     n = pyr.resolution(level)
     a, sa, su, sv, inv_la = sweep_geometry(light_dir)
-    width = rt.lanes if n >= VECTOR_MIN_N else 1   # LANES: the device's (runtime.py)
-    k = rt.program("transmittance", {"SWEEP_WIDTH": sweep_width_define(width)}).kernel(
-        "transmittance_sweep_block", _SWEEP_ARGS)
+    # the plan's rule for this level's program (LANES is never 1: cl/include/lanes.h)
+    (defines,) = sweep_programs([n]).values()
+    width = rt.lanes if defines["SWEEP_WIDTH"] == "LANES" else 1
+    k = rt.program("transmittance", defines).kernel("transmittance_sweep_block", _SWEEP_ARGS)
     layout, offs = sweep_layout(pyr, a)
     steps = sweep_steps(n, light_dir)
     stab = np.array([s[:3] for s in steps], np.int32)

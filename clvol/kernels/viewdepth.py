@@ -18,6 +18,18 @@ def block_grid(width: int, height: int, block: int) -> tuple[int, int]:
     return -(-int(width) // int(block)), -(-int(height) // int(block))
 
 
+def view_depth_defines(k: int, block: int, rays: int, jitter: bool = False,
+                       free_flight: bool = False) -> dict:
+    """The -D defines of the view_depths program (view_depths builds with them; clvol
+    bundle writes them for libclvol)."""
+    d = {"VIEW_K": int(k), "VIEW_BLOCK": int(block), "VIEW_RAYS": int(rays)}
+    if jitter:
+        d["VIEW_JITTER"] = 1
+    if free_flight:
+        d["VIEW_FREE_FLIGHT"] = 1
+    return d
+
+
 def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, right, up,
                 tan_half, width, height, block, rays, k, step, stop=1e-3, jitter=None,
                 free_flight=False, runtime=None):
@@ -36,7 +48,7 @@ def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, rig
         np.ascontiguousarray(density, np.float32))
     nz, ny, nx = dens.shape
     bx, by = block_grid(width, height, block)
-    defines = {"VIEW_K": int(k), "VIEW_BLOCK": int(block), "VIEW_RAYS": int(rays)}
+    defines = view_depth_defines(k, block, rays, jitter is not None, free_flight)
     extra = ()
     if jitter is not None:
         jit = np.asarray(jitter, np.float32)
@@ -45,13 +57,11 @@ def view_depths(density, bbox_min, bbox_max, density_scale, origin, forward, rig
                              f"in [0, 1), got shape {jit.shape}")
         j4 = np.zeros((by, bx, 4), np.float32)
         j4[..., :3] = jit
-        defines["VIEW_JITTER"] = 1
         extra = (rt.upload(j4.reshape(-1)).buffer,)
     if free_flight:
         if jitter is None or k != 1 or rays != 1:
             raise ClvolError(f"view depths: a free flight needs jitter, k = 1 and rays = 1 "
                              f"(got k = {k}, rays = {rays}, jitter {'given' if jitter is not None else 'None'})")
-        defines["VIEW_FREE_FLIGHT"] = 1
     prog = rt.program("viewdepth", defines)
     kern = prog.kernel("view_depths", [None, np.int32, np.int32, np.int32, None, None, np.float32,
                                        None, None, None, None, np.float32, np.int32, np.int32,

@@ -352,7 +352,7 @@ class SkyNetwork:
 def per_cell_f_ms(net, direction, medium, points, active, origin) -> np.ndarray:
     """(len(active), Cf) float64 F_ms at ``points[active]`` for a light toward
     ``direction``, toward ``origin`` (Cf = 1 for a grey medium, else 3)."""
-    from .ms.grid import toward
+    from .ms.lattice import toward
     pts = np.asarray(points, np.float64)[active]
     F, _ = net.evaluate(pts, toward(origin, pts), direction, medium)
     F = np.asarray(F, np.float64)

@@ -28,10 +28,12 @@ import time
 import numpy as np
 
 from ..errors import ClvolError
-from ..kernels.majorant import DEFAULT_BLOCK
+from ..kernels.majorant import DEFAULT_BLOCK, majorant_args
+from ..kernels.majorant import majorant_block as resolve_block
 from ..kernels.pathtrace import (ORDER_BINS, PT_OUT, ROW_BG, ROW_EM_DIRECT, ROW_EM_SCATTERED,
                                  ROW_L1, ROW_LMS, ROW_STEPS, ROW_VERTICES, PathMedium,
                                  PathTracer, truncation_counts)
+from ..kernels.transmittance import check_tracking_depth
 from ..progress import Progress
 from ..runtime import get_runtime
 from . import RenderResult
@@ -82,6 +84,21 @@ def _medium(scene, grid, max_order, sun, environment, env_map: bool = False,
                       env_rotation=float(light.environment_rotation), emission=emission)
 
 
+def check_walks(density_scale, grid, majorant_block) -> float:
+    """Refuse, before anything is uploaded or built, an image whose paths could not end within
+    the tracking bounds (clvol/kernels/transmittance.py check_tracking_depth, the one rule):
+    density_scale x the largest density x a majorant cell's longest side (inside the box).
+    Returns that depth."""
+    shape = np.shape(grid.density)
+    block = resolve_block(majorant_block, shape)
+    _, bsize = majorant_args(shape, grid.bbox_min, grid.bbox_max, block)
+    extent = np.asarray(grid.bbox_max, np.float64) - np.asarray(grid.bbox_min, np.float64)
+    voxel = float(np.max(np.asarray(bsize, np.float64)[:3] / block))
+    cell = float(np.max(np.minimum(np.asarray(bsize, np.float64)[:3], extent)))
+    return check_tracking_depth(density_scale, float(np.max(grid.density, initial=0.0)), cell,
+                                voxel, min(block, max(shape)))
+
+
 def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
                      max_order: int | None = None, time_budget: float | None = None,
                      runtime=None, majorant_block: int = DEFAULT_BLOCK, grid=None,
@@ -102,6 +119,8 @@ def render_pathtrace(scene, spp: int | None = DEFAULT_SPP, seed: int = 0,
     grid = grid if grid is not None else scene.volume.load()
     if emission is None and getattr(scene, "emission", None) is not None:
         emission = scene.emission.load(scene.volume, grid)
+    check_walks(scene.medium.density_scale, grid,
+                device_medium.block if device_medium is not None else majorant_block)
     light = scene.light
     med = _medium(scene, grid, max_order, light.irradiance, light.environment, env_map=True,
                   emission=emission)

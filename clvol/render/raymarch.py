@@ -39,22 +39,6 @@ DEFAULT_SUPERSAMPLE = 1
 MAX_SUPERSAMPLE = 8
 
 
-# cl/raymarch.cl stops a ray whose next segment would not start past the current one (float32:
-# t0 + (k + 1) step == t0 + k step). That holds only where step is below ~2 rounding steps of
-# t, i.e. t / step >= 2^22 somewhere on the ray: the host knows it from the camera and the box.
-MARCH_BOUND_RATIO = 2.0 ** 22
-
-
-def march_bound(origin, bbox_min, bbox_max, step: float) -> float | None:
-    """The farthest distance t_far from ``origin`` to the box's corners, when t_far / step
-    reaches MARCH_BOUND_RATIO (then the kernel's progress bound may stop rays early; the
-    header says so), else None."""
-    lo, hi = np.asarray(bbox_min, np.float64), np.asarray(bbox_max, np.float64)
-    corners = np.array([[(lo, hi)[(i >> a) & 1][a] for a in range(3)] for i in range(8)])
-    t_far = float(np.max(np.linalg.norm(corners - np.asarray(origin, np.float64), axis=1)))
-    return t_far if not t_far / float(step) < MARCH_BOUND_RATIO else None
-
-
 def check_march_options(step, threshold, light_resolution, supersample, light_interp,
                         env=None):
     """Refuse bad ray-marcher options when the Renderer is made, not at its first frame (the
@@ -105,7 +89,7 @@ def check_env_options(env_directions, env_resolution, env_ms_directions=None, en
 class RayMarcher:
     """A volume kept on the device for many frames: density, majorant grid, light field.
 
-    ``grid``: clvol Grid; ``medium``: clvol Medium (``set_medium`` changes it). The volume's
+    ``grid``: clvol DensityGrid; ``medium``: clvol Medium (``set_medium`` changes it). The volume's
     device data is its DeviceMedium's (clvol/kernels/medium.py): the light field (T_light, or
     its optical depth with light_interp="optical_depth", on the pyramid's cube) is asked of it
     by ``set_light`` (the light-change cost) and kept until the light direction or the density
@@ -145,6 +129,7 @@ class RayMarcher:
         self._env_net = None       # environment.SkyNetwork, made on the first network sky
         self._bg = Stage("env_background", counted)
         self.env_seconds = 0.0     # host time of the last frame's environment precomputation
+        self.rays_stopped_at_bound = 0   # the last read-back march's (cl/raymarch.cl bound)
 
     @property
     def pyramid(self):
@@ -248,13 +233,16 @@ class RayMarcher:
             step=plan.step, threshold=plan.threshold, runtime=self.rt,
             read_back=read_back, stats=stats)
         if read_back:
+            # the rays cl/raymarch.cl's progress bound stopped (the header's
+            # raymarch.rays_stopped_at_bound); the layers stay images only
+            self.rays_stopped_at_bound = res.pop("stopped_at_bound")
             return res, plan
         return res + (plan,)
 
     def march_with(self, camera, light, ms: str = "wrenninge", *, read_back: bool = True,
                    stats: bool = False, **options):
         """One frame with a source that needs no preparation (none, wrenninge, grid), planned
-        from raymarch ``options`` (``ms_grid=``, ``octaves=``, ``step=`` ...; the others
+        from raymarch ``options`` (``ms_lattice=``, ``octaves=``, ``step=`` ...; the others
         default): the benchmarks' and tests' short form of plan_frame + march."""
         from ..scene import Scene
         from .options import bind

@@ -85,20 +85,24 @@ class Renderer:
         self.domain = None
         self.weights = None
         self._facts = self._facts_grid = None
-        if self.method == "raymarch":
-            self._setup_raymarch()
+        if self.method not in self._METHODS:
+            raise ClvolError(f"render method {self.method!r} has no Renderer support; "
+                             f"choose one of {sorted(self._METHODS)}")
+        setup = self._METHODS[self.method][0]
+        if setup is not None:
+            getattr(self, setup)()
 
     def _count(self, stage: str) -> None:
         self.counts[stage] += 1
 
     def set_density(self, grid, emission=None) -> None:
         """Render a new density from the next frame on (module doc: what it recomputes).
-        ``grid``: a clvol Grid (any shape and box); ``emission``: its EmissionGrid
+        ``grid``: a clvol DensityGrid (any shape and box); ``emission``: its EmissionGrid
         (clvol/emission.py) when the scene has ``[emission]`` (required then: the renderer
         cannot know which file the new density came from; refused otherwise)."""
-        from ..volume.grid import Grid
-        if not isinstance(grid, Grid):
-            raise ClvolError(f"set_density: expected a clvol.volume.grid.Grid, got "
+        from ..volume.grid import DensityGrid
+        if not isinstance(grid, DensityGrid):
+            raise ClvolError(f"set_density: expected a clvol.volume.grid.DensityGrid, got "
                              f"{type(grid).__name__}")
         has_em = getattr(self.scene, "emission", None) is not None
         if has_em and emission is None:
@@ -175,8 +179,8 @@ class Renderer:
             o[always]
         self.source = make_source(o["ms"], o, self.rt)
         self.source.count = self._count
-        if "ms_grid" in o.read:      # a grid source read its file: the plans take the MsGrid
-            o.set("ms_grid", self.source.ms_grid)
+        if "ms_lattice" in o.read:      # a grid source read its file: the plans take the FmsLattice
+            o.set("ms_lattice", self.source.ms_lattice)
         self._sources = {self.source.name: self.source}
         self.domain = self.source.training_domain()     # None: a source without a network
         self.weights = self.source.network_weights()    # the same file's MlpWeights, or None
@@ -217,7 +221,17 @@ class Renderer:
             self._sources[name].count = self._count
         return self._sources[name]
 
-    def _render_raymarch(self, cam, light, medium) -> RenderResult:
+    def _raymarch_supersample(self) -> int:
+        return self.options["supersample"]
+
+    def _no_supersample(self) -> int:
+        return 1
+
+    def _render_raymarch(self, cam, light, medium, seed=None) -> RenderResult:
+        if seed is not None:
+            raise ClvolError(f"seed: render(seed=) chooses the path tracer's pass; the "
+                             f"raymarch method takes its seed as an option "
+                             f"(Renderer(..., seed=N), read by --ms stochastic)")
         from .ms.base import SourceFrame
         from .raymarch import RayMarcher, downsample
         o = self.options
@@ -263,12 +277,9 @@ class Renderer:
             "raymarch.block": int(rm.block),
             "device": self.rt.entry.label,
         })
-        from .raymarch import march_bound
-        t_far = march_bound(plan.camera.origin, grid.bbox_min, grid.bbox_max, plan.step)
-        if t_far is not None:       # cl/raymarch.cl's progress bound may stop rays early
-            header["raymarch.bound"] = (f"rays may stop early: the box reaches {t_far:.4g} "
-                                        f"from the camera, {t_far / plan.step:.3g} steps of "
-                                        f"{plan.step:.3g} (float32 cannot advance past 2^22)")
+        # rays cl/raymarch.cl's progress bound stopped, counted by the kernel (marched rays:
+        # with supersampling, sub-pixel rays); 0 on every image that can be marched
+        header["raymarch.rays_stopped_at_bound"] = int(rm.rays_stopped_at_bound)
         header.update(source.header())
         header.update(rm.env_header(plan))
         return RenderResult(layers, header)
@@ -317,32 +328,29 @@ class Renderer:
         medium = _checked("medium", medium, self.scene.medium)
         from .memory import check_frame_memory
         check_frame_memory(self.method, cam.width, cam.height,
-                           self.options["supersample"] if self.method == "raymarch" else 1,
-                           self.rt.device)
+                           getattr(self, self._METHODS[self.method][2])(), self.rt.device)
         if grid is not None:
             self.set_density(grid, emission)
         elif emission is not None:
             raise ClvolError("render(emission=...) goes with grid=...: a new frame's density "
                              "and its emission grid")
         self._check_optical_range(medium)
-        if seed is not None:
-            if self.method != "pathtrace":
-                raise ClvolError(f"seed: render(seed=) chooses the path tracer's pass; the "
-                                 f"{self.method} method takes its seed as an option "
-                                 f"(Renderer(..., seed=N), read by --ms stochastic)")
-            if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
-                raise ClvolError(f"seed: {seed!r} must be an integer in [0, 2^32)")
-        if self.method == "raymarch":
-            return self._render_raymarch(cam, light, medium)
-        if self.method == "pathtrace":
-            return self._render_pathtrace(cam, light, medium, seed)
-        raise ClvolError(f"render method {self.method!r} has no Renderer support")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)
+                                 or not 0 <= seed < 2**32):
+            raise ClvolError(f"seed: {seed!r} must be an integer in [0, 2^32)")
+        return getattr(self, self._METHODS[self.method][1])(cam, light, medium, seed)
+
+    # method -> (set-up run once by __init__, or None; the frame; the supersampling factor):
+    # the one table the Renderer dispatches through (METHODS in clvol/render/__init__.py
+    # names the methods for the CLI; test_renderer holds the two to the same names)
+    _METHODS = {"raymarch": ("_setup_raymarch", "_render_raymarch", "_raymarch_supersample"),
+                "pathtrace": (None, "_render_pathtrace", "_no_supersample")}
 
 
 def source_reads(ms: str) -> set:
     """The options the source ``ms`` reads, found by letting it build itself from the
     defaults and recording what it read (a grid source without a grid still reads
-    ``ms_grid`` before it refuses)."""
+    ``ms_lattice`` before it refuses)."""
     from .ms import source_class
     from .options import bind
     probe = bind("raymarch", {})

@@ -1,6 +1,6 @@
-"""Density grids: the ``Grid`` type, file I/O, procedural generators and statistics.
+"""Density grids: the ``DensityGrid`` type, file I/O, procedural generators and statistics.
 
-    from clvol.volume import Grid, read_volume, write_volume, generate, GENERATORS, volume_stats
+    from clvol.volume import DensityGrid, read_volume, write_volume, generate, GENERATORS, volume_stats
 
 Conventions (docs/volumes.md): density is float32 ``[z][y][x]`` (x fastest), finite and >= 0,
 filling the box ``bbox_min..bbox_max``; voxel ``i`` sits at the centre of cell ``i``.
@@ -11,7 +11,7 @@ generators (or anything else) as a side effect.
 import importlib
 
 _EXPORTS = {
-    "Grid": "grid",
+    "DensityGrid": "grid",
     "read_volume": "io", "write_volume": "io",
     "generate": "generators", "GENERATORS": "generators", "GeneratorInfo": "generators",
     "Param": "generators",

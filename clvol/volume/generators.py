@@ -1,6 +1,6 @@
 """Procedural density grids: clouds, smoke and smooth solids for translucent materials.
 
-``generate(name, seed=0, resolution=64, **params) -> Grid``; ``GENERATORS`` describes every
+``generate(name, seed=0, resolution=64, **params) -> DensityGrid``; ``GENERATORS`` describes every
 generator and its parameters (default, inclusive range, meaning). docs/volumes.md lists them.
 
 Conventions
@@ -33,7 +33,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import VolumeError
-from .grid import Grid
+from .grid import DensityGrid
 
 # Largest grid a generator will make (512 MiB of float32); generation needs several such arrays.
 MAX_VOXELS = 512 ** 3
@@ -793,7 +793,7 @@ def _check_params(info: GeneratorInfo, params: dict) -> dict:
     return values
 
 
-def generate(name: str, seed: int = 0, resolution: int | tuple[int, int, int] = 64, **params) -> Grid:
+def generate(name: str, seed: int = 0, resolution: int | tuple[int, int, int] = 64, **params) -> DensityGrid:
     """Make a density grid with generator ``name`` (see GENERATORS) at ``resolution`` (nx, ny, nz).
 
     Raises VolumeError for an unknown generator or parameter, a value out of range, or a bad
@@ -809,11 +809,11 @@ def generate(name: str, seed: int = 0, resolution: int | tuple[int, int, int] = 
     dom = _Domain(res)
     density = info.func(dom, int(seed), **values)
     density = np.ascontiguousarray(np.broadcast_to(density, dom.empty().shape), dtype=np.float32)
-    # The shaping keeps values finite and >= 0; Grid re-checks, so a bug cannot pass silently.
-    return Grid(density, dom.bbox_min.copy(), dom.bbox_max.copy())
+    # The shaping keeps values finite and >= 0; DensityGrid re-checks, so a bug cannot pass silently.
+    return DensityGrid(density, dom.bbox_min.copy(), dom.bbox_max.copy())
 
 
-def restructure(grid: Grid, seed: int, *, gamma: float, modulation: float, scale: float) -> Grid:
+def restructure(grid: DensityGrid, seed: int, *, gamma: float, modulation: float, scale: float) -> DensityGrid:
     """Domain randomisation of a generated grid's density structure (training data sets,
     clvol/training/dataset.py ``augment``): a remap d -> peak * (d / peak)^gamma (gamma > 1 grades
     saturated interiors and thins soft edges, gamma < 1 saturates them) times a low-frequency
@@ -829,4 +829,4 @@ def restructure(grid: Grid, seed: int, *, gamma: float, modulation: float, scale
     if modulation > 0:
         n = _fbm(dom, seed, 7, scale, 3) * np.float32(1 / 0.11)
         out *= np.clip(1.0 + np.float32(modulation) * n, 0.05, 3.0)
-    return Grid(np.ascontiguousarray(out, dtype=np.float32), grid.bbox_min.copy(), grid.bbox_max.copy())
+    return DensityGrid(np.ascontiguousarray(out, dtype=np.float32), grid.bbox_min.copy(), grid.bbox_max.copy())

@@ -6,8 +6,8 @@ Conventions (docs/volumes.md, docs/conventions.md):
 - The grid fills the axis-aligned box ``bbox_min..bbox_max`` (float64, x, y, z order). Voxel ``i``
   sits at the centre of cell ``i``: ``bbox_min + (i + 0.5) * cell_size``.
 
-``Grid(...)`` validates itself on construction, so a ``Grid`` in hand is always well formed.
-Readers and generators call ``Grid.validate`` style checks themselves first with their own
+``DensityGrid(...)`` validates itself on construction, so a ``DensityGrid`` in hand is always well formed.
+Readers and generators call ``DensityGrid.validate`` style checks themselves first with their own
 ``source`` (the file name), so the user sees which file was wrong.
 """
 from __future__ import annotations
@@ -135,14 +135,14 @@ def density_to_float32(arr: np.ndarray, source: str) -> np.ndarray:
 
 
 @dataclass(eq=False)
-class Grid:
+class DensityGrid:
     """A dense density grid over an axis-aligned box.
 
     density:  float32, C-contiguous, shape (nz, ny, nx), finite, >= 0.
     bbox_min, bbox_max: float64 (3,), x, y, z order, min < max on every axis.
 
     The constructor converts bbox sequences to float64 (exact) but never converts the
-    density: use ``Grid.from_array`` to build one from a float64 or non-contiguous array.
+    density: use ``DensityGrid.from_array`` to build one from a float64 or non-contiguous array.
     """
 
     density: np.ndarray
@@ -150,12 +150,12 @@ class Grid:
     bbox_max: np.ndarray
 
     def __post_init__(self) -> None:
-        self.bbox_min, self.bbox_max = check_bbox(self.bbox_min, self.bbox_max, "Grid")
-        self.validate("Grid")
+        self.bbox_min, self.bbox_max = check_bbox(self.bbox_min, self.bbox_max, "DensityGrid")
+        self.validate("DensityGrid")
 
     @classmethod
     def from_array(cls, density: np.ndarray, bbox_min=DEFAULT_BBOX_MIN, bbox_max=DEFAULT_BBOX_MAX,
-                   source: str = "array") -> "Grid":
+                   source: str = "array") -> "DensityGrid":
         """Build a grid from any real float array [z][y][x], converting it to float32 safely."""
         lo, hi = check_bbox(bbox_min, bbox_max, source)
         return cls(density_to_float32(density, source), lo, hi)
@@ -167,7 +167,7 @@ class Grid:
             raise VolumeError(f"{source}: density must be a NumPy array, got {type(d).__name__}")
         if d.dtype != np.float32:
             raise VolumeError(
-                f"{source}: density must be float32, got {d.dtype} (Grid.from_array converts safely)")
+                f"{source}: density must be float32, got {d.dtype} (DensityGrid.from_array converts safely)")
         if d.ndim != 3:
             raise VolumeError(
                 f"{source}: density must be 3-D [z][y][x], got {d.ndim}-D with shape {d.shape}")
@@ -201,5 +201,5 @@ class Grid:
 
     def __repr__(self) -> str:
         nx, ny, nz = self.resolution
-        return (f"Grid({nx}x{ny}x{nz} (x*y*z), bbox_min={self.bbox_min.tolist()}, "
+        return (f"DensityGrid({nx}x{ny}x{nz} (x*y*z), bbox_min={self.bbox_min.tolist()}, "
                 f"bbox_max={self.bbox_max.tolist()})")

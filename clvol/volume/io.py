@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import VolumeError
-from .grid import DEFAULT_BBOX_MAX, DEFAULT_BBOX_MIN, Grid, check_bbox, density_to_float32
+from .grid import DEFAULT_BBOX_MAX, DEFAULT_BBOX_MIN, DensityGrid, check_bbox, density_to_float32
 
 VOL_MAGIC = b"VOL"
 VOL_VERSION = 3
@@ -57,7 +57,7 @@ def _extension(path: Path) -> str:
 
 
 def read_volume(path: str | os.PathLike, grid: str | None = None,
-                max_resolution: int | None = None, max_bytes: int | None = None) -> Grid:
+                max_resolution: int | None = None, max_bytes: int | None = None) -> DensityGrid:
     """Read a density grid from a ``.vol``, ``.npy``, ``.npz`` or ``.vdb`` file (by extension).
 
     ``grid``, ``max_resolution`` and ``max_bytes`` apply to ``.vdb`` only (see ``read_vdb``);
@@ -80,7 +80,7 @@ def read_volume(path: str | os.PathLike, grid: str | None = None,
     return _read_npz(path)
 
 
-def write_volume(path: str | os.PathLike, grid: Grid) -> None:
+def write_volume(path: str | os.PathLike, grid: DensityGrid) -> None:
     """Write ``grid`` to a ``.vol``, ``.npy`` or ``.npz`` file (chosen by extension).
 
     ``.npy`` has no room for the box, so a grid whose box is not the default [-0.5, 0.5]^3
@@ -112,7 +112,7 @@ def write_volume(path: str | os.PathLike, grid: Grid) -> None:
 
 # --------------------------------------------------------------------------- .vol
 
-def _read_vol(path: Path) -> Grid:
+def _read_vol(path: Path) -> DensityGrid:
     with open(path, "rb") as f:
         file_size = os.fstat(f.fileno()).st_size
         header = f.read(VOL_HEADER_SIZE)
@@ -147,10 +147,10 @@ def _read_vol(path: Path) -> Grid:
         data = np.fromfile(f, dtype="<f4", count=n)
     bbox_min, bbox_max = check_bbox(bbox[:3], bbox[3:], f"{path}: .vol header")
     density = density_to_float32(data.reshape(nz, ny, nx), str(path))
-    return Grid(density, bbox_min, bbox_max)
+    return DensityGrid(density, bbox_min, bbox_max)
 
 
-def _write_vol(path: Path, grid: Grid) -> None:
+def _write_vol(path: Path, grid: DensityGrid) -> None:
     nx, ny, nz = grid.resolution
     bbox = np.concatenate([grid.bbox_min, grid.bbox_max])
     f32_max = float(np.finfo(np.float32).max)
@@ -176,7 +176,7 @@ def _unreadable(path, kind: str, e: Exception) -> VolumeError:
                        f"{str(e).splitlines()[0] if str(e) else ''}")
 
 
-def _read_npy(path: Path) -> Grid:
+def _read_npy(path: Path) -> DensityGrid:
     try:
         arr = np.load(path, allow_pickle=False)
     except MemoryError:
@@ -185,11 +185,11 @@ def _read_npy(path: Path) -> Grid:
         # numpy parses the header as a Python literal: a corrupt one raises SyntaxError or
         # tokenize errors besides ValueError (found by tests/test_fuzz.py)
         raise _unreadable(path, ".npy", e) from None
-    return Grid(density_to_float32(arr, str(path)), np.array(DEFAULT_BBOX_MIN),
+    return DensityGrid(density_to_float32(arr, str(path)), np.array(DEFAULT_BBOX_MIN),
                 np.array(DEFAULT_BBOX_MAX))
 
 
-def _read_npz(path: Path) -> Grid:
+def _read_npz(path: Path) -> DensityGrid:
     try:
         npz = np.load(path, allow_pickle=False)
     except MemoryError:
@@ -236,13 +236,13 @@ def _read_npz(path: Path) -> Grid:
         # each): all of them mean "not a readable .npz"
         raise _unreadable(path, ".npz", e) from None
     lo, hi = check_bbox(bbox_min, bbox_max, str(path))
-    return Grid(density_to_float32(density, str(path)), lo, hi)
+    return DensityGrid(density_to_float32(density, str(path)), lo, hi)
 
 
 # --------------------------------------------------------------------------- every grid
 
 def read_volume_grids(path: str | os.PathLike, grid: str | None = None,
-                      max_resolution: int | None = None) -> tuple[Grid, dict[str, Grid]]:
+                      max_resolution: int | None = None) -> tuple[DensityGrid, dict[str, DensityGrid]]:
     """The density (as ``read_volume``) and every further grid of the file, for
     ``clvol volume convert``, which keeps them all or refuses (docs/volumes.md).
 
@@ -254,7 +254,7 @@ def read_volume_grids(path: str | os.PathLike, grid: str | None = None,
     path = Path(path)
     density = read_volume(path, grid=grid, max_resolution=max_resolution)
     ext = _extension(path)
-    extras: dict[str, Grid] = {}
+    extras: dict[str, DensityGrid] = {}
     if ext == ".npz":
         with np.load(path, allow_pickle=False) as npz:
             keys = set(npz.files)
@@ -293,13 +293,13 @@ def read_volume_grids(path: str | os.PathLike, grid: str | None = None,
     return density, extras
 
 
-def _as_grid(a: np.ndarray, lo, hi, source: str) -> Grid:
+def _as_grid(a: np.ndarray, lo, hi, source: str) -> DensityGrid:
     """A further grid under the density's rules (float, finite, >= 0, float64 rounded to
     float32 only when it fits), so that every format clvol writes can hold it."""
-    return Grid(density_to_float32(a, source), *check_bbox(lo, hi, source))
+    return DensityGrid(density_to_float32(a, source), *check_bbox(lo, hi, source))
 
 
-def write_volume_grids(path: str | os.PathLike, density: Grid, extras: dict[str, Grid],
+def write_volume_grids(path: str | os.PathLike, density: DensityGrid, extras: dict[str, DensityGrid],
                        source: str = "the input") -> None:
     """Write the density and every further grid (``read_volume_grids``): ``.npz`` and
     ``.vdb`` hold them all (bit-equal on reading back); ``.vol`` and ``.npy`` hold one, so a

@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import VolumeError
-from .grid import Grid
+from .grid import DensityGrid
 
 
-def volume_stats(grid: Grid, density_scale: float = 1.0) -> dict:
+def volume_stats(grid: DensityGrid, density_scale: float = 1.0) -> dict:
     """Numbers describing ``grid``; optical quantities use sigma_t = density * density_scale.
 
     Keys: resolution (nx, ny, nz), bbox_min, bbox_max, voxel_size (x, y, z), density_scale,

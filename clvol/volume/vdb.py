@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import VolumeError
-from .grid import Grid
+from .grid import DensityGrid
 from .resample import BoxAccumulator, box_factor
 
 VDB_MAGIC = 0x56444220
@@ -641,7 +641,7 @@ class VdbFile:
         return f, g.index_min - f, shape
 
     def read(self, g: VdbGrid, max_resolution: int | None = None,
-             max_bytes: int | None = None) -> Grid:
+             max_bytes: int | None = None) -> DensityGrid:
         """The dense density grid of ``g`` (see docs/volumes.md for the box and the border)."""
         path = self.path
         stored = self.stored_layout(g, max_resolution)
@@ -674,9 +674,9 @@ class VdbFile:
         vs = g.voxel_size[0] * f
         lo = (base - 0.5) * g.voxel_size + g.translation
         hi = lo + np.asarray(shape) * vs
-        return Grid(density, lo, hi)
+        return DensityGrid(density, lo, hi)
 
-    def _stored_grid(self, g: VdbGrid, density: np.ndarray, shape) -> Grid:
+    def _stored_grid(self, g: VdbGrid, density: np.ndarray, shape) -> DensityGrid:
         """A grid clvol wrote, with the box it was written with: the float64 bounds are kept
         in the metadata because the transform's round trip (translation = min + h / 2, then
         back) can move them by an ulp. The transform still rules where the two disagree by
@@ -688,7 +688,7 @@ class VdbFile:
         tol = 1e-6 * float(g.voxel_size[0])
         if np.all(np.abs(slo - lo) <= tol) and np.all(np.abs(shi - hi) <= tol):
             lo, hi = slo, shi
-        return Grid(density, lo, hi)
+        return DensityGrid(density, lo, hi)
 
     def _check_density_grid(self, g: VdbGrid, allow_empty: bool = False) -> None:
         path, name = self.path, g.name
@@ -786,8 +786,8 @@ class VdbFile:
 
 
 def read_vdb(path, grid: str | None = None, max_resolution: int | None = None,
-             max_bytes: int | None = None) -> Grid:
-    """Read one scalar grid of a .vdb file as a dense ``Grid`` (docs/volumes.md, "OpenVDB").
+             max_bytes: int | None = None) -> DensityGrid:
+    """Read one scalar grid of a .vdb file as a dense ``DensityGrid`` (docs/volumes.md, "OpenVDB").
 
     grid: its name (default: ``density``, else the only scalar float grid).
     max_resolution: box-filter by an integer factor while reading so that no axis exceeds it.
@@ -822,8 +822,8 @@ def _string(s: str) -> bytes:
     return struct.pack("<I", len(b)) + b
 
 
-def write_vdb(path, grid: Grid, name: str = "density",
-              extra: dict[str, Grid] | None = None) -> None:
+def write_vdb(path, grid: DensityGrid, name: str = "density",
+              extra: dict[str, DensityGrid] | None = None) -> None:
     """Write ``grid`` as a .vdb file (float, zip + active-mask compression), as the grid
     ``name``, then each grid of ``extra`` under its key (``[emission]`` grids beside a density).
 
@@ -862,7 +862,7 @@ def write_vdb(path, grid: Grid, name: str = "density",
             f.write(part)
 
 
-def _grid_body(grid: Grid, name: str) -> tuple[bytes, bytes]:
+def _grid_body(grid: DensityGrid, name: str) -> tuple[bytes, bytes]:
     """(compression, metadata, transform and topology; leaf buffers) of one float grid."""
     import json
     h = float(grid.cell_size.mean())

@@ -23,7 +23,7 @@ GOLDEN_SIZE = 48
 PT_SPP = 4
 PT_SEED = 7
 # ms source -> extra options of the raymarch method
-RAYMARCH_SOURCES = {"none": {}, "wrenninge": {}, "grid": {}, "network": {}}
+RAYMARCH_SOURCES = {"none": {}, "wrenninge": {}, "lattice": {}, "network": {}}
 LAYERS = ("total", "multiple", "alpha", "depth")
 
 
@@ -34,16 +34,16 @@ def golden_scene(name: str):
     return dataclasses.replace(sc, camera=cam)
 
 
-def golden_ms_grid(scene):
-    """A deterministic, view-independent F_ms grid (an analytic field, no estimator): the
-    "grid" source's golden needs an input that does not depend on any other code path."""
-    from clvol.render.ms.grid import MsGrid
+def golden_fms_lattice(scene):
+    """A deterministic, view-independent F_ms lattice (an analytic field, no estimator): the
+    "lattice" source's golden needs an input that does not depend on any other code path."""
+    from clvol.render.ms.lattice import FmsLattice
     g = scene.volume.load()
     n = 8
     ax = (np.arange(n) + 0.5) / n
     z, y, x = np.meshgrid(ax, ax, ax, indexing="ij")
     vals = np.stack([0.05 + 0.1 * x * y, 0.04 + 0.1 * y * z, 0.03 + 0.1 * z * x], -1)
-    return MsGrid(vals.astype(np.float32), tuple(g.bbox_min), tuple(g.bbox_max))
+    return FmsLattice(vals.astype(np.float32), tuple(g.bbox_min), tuple(g.bbox_max))
 
 
 GOLDEN_WEIGHTS = str(Path(__file__).resolve().parents[2] / "clvol" / "data" / "weights" / "cloud_small.npz")
@@ -52,7 +52,7 @@ GOLDEN_WEIGHTS = str(Path(__file__).resolve().parents[2] / "clvol" / "data" / "w
 def render_raymarch_golden(name: str, ms: str) -> dict:
     from clvol.render.renderer import Renderer
     sc = golden_scene(name)
-    kw = {"none": {}, "wrenninge": {}, "grid": {"ms_grid": golden_ms_grid(sc)},
+    kw = {"none": {}, "wrenninge": {}, "lattice": {"ms_lattice": golden_fms_lattice(sc)},
           # a fixed weight file, not the shipped default: these goldens hold the pipeline,
           # and a better default model must not change them
           "network": {"domain_fallback": False, "weights": GOLDEN_WEIGHTS}}[ms]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from ...errors import ClvolError
 from .network import NetworkMs
-from .grid import GridMs
+from .lattice import LatticeMs
 from .analytic import NoMs, OctavesMs
 from .base import SourceOption, option
 from .view import StochasticViewMs, ViewMs
@@ -20,7 +20,7 @@ from .progressive import ProgressiveViewMs
 # In the order --ms's help lists them (their options follow in the same order).
 SOURCES: dict[str, type] = {cls.name: cls for cls in
                             (NetworkMs, ViewMs, StochasticViewMs, ProgressiveViewMs, OctavesMs,
-                             GridMs, NoMs)}
+                             LatticeMs, NoMs)}
 DEFAULT_SOURCE = NetworkMs.name
 
 

@@ -18,7 +18,7 @@ domain and thin-medium rules), ``lattice_reach_for`` and ``network_reach`` (the 
 rules), ``training_domain``.
 
 The sources, one module each in this package: analytic.py (``NoMs`` "none", ``OctavesMs``
-"wrenninge"), grid.py (``GridMs`` "grid", a precomputed ``MsGrid``), network.py (``NetworkMs``
+"wrenninge"), grid.py (``LatticeMs`` "grid", a precomputed ``FmsLattice``), network.py (``NetworkMs``
 "network", the paper's world lattice) and view.py (``ViewMs`` "view", ``StochasticViewMs``
 "stochastic": the network where the camera sees). The package's ``__init__`` maps ``--ms``
 names to classes.
@@ -32,7 +32,8 @@ import numpy as np
 
 from ...errors import ClvolError
 from ...kernels.raymarch import (DEFAULT_OCTAVE_MULTIPLIER, DEFAULT_OCTAVES, DEFAULT_THRESHOLD,
-                                 MAX_OCTAVES, MS_SOURCE_DEFINES, ms_defines)
+                                 MAX_OCTAVES, MS_KIND_LATTICE, MS_SOURCE_DEFINES,
+                                 ms_defines)
 
 
 # --------------------------------------------------------------------------- data
@@ -125,7 +126,7 @@ class MsPlan:
     @property
     def channels(self) -> int | None:
         """Colour planes marched for F_ms, or None when the source has no lattice or table."""
-        reads_table = self.defines["MS_SOURCE"] in (MS_SOURCE_DEFINES["grid"],
+        reads_table = self.defines["MS_SOURCE"] in (MS_SOURCE_DEFINES[MS_KIND_LATTICE],
                                                     MS_SOURCE_DEFINES["view"])
         return int(self.defines["MS_CHANNELS"]) if reads_table else None
 
@@ -219,6 +220,12 @@ class MsSource:
     # What the C host's bundle (clvol/bundle.py) and the sky's network share
     # (clvol/render/environment.py) ask of a network source; None or empty for the others.
     lattice_points_per_launch: int | None = None   # the most lattice points one launch takes
+
+    def bundle_view(self, camera) -> dict | None:
+        """What the C host's bundle needs of a view-space source for ``camera``: its
+        ``view.*`` manifest keys (``keys``) and the ``viewdepth`` program's defines
+        (``viewdepth``); None for a source without a view table in the C host."""
+        return None
 
     def network_weights(self):
         """The checked weights (clvol/features/weights.py MlpWeights) it evaluates, or None."""

@@ -7,7 +7,7 @@ transmittance toward the light, then the render-mode template gather at the latt
 and the OpenCL network, in one kernel by default (clvol/kernels/gather_mlp.py) or as two.
 ``fill_device`` writes the lattice straight into a device array in the marcher's layout
 (device in, caller-owned device out: nothing is read back); ``fill`` returns it as an
-``MsGrid`` on the host. ``NetworkMs`` is the marcher's source built on it: it refills the
+``FmsLattice`` on the host. ``NetworkMs`` is the marcher's source built on it: it refills the
 lattice only when the camera position, the light or the medium changed, on the device unless
 ``ms_refresh`` or ``ms_directions`` need the values on the host.
 
@@ -23,7 +23,7 @@ from ...errors import ClvolError, WeightsError
 from ...features.layout import MAX_NETWORK_BASE, MIN_NETWORK_BASE, is_power_of_two
 from ...runtime import DeviceArray, Stopwatch, get_runtime
 from ..sphere import fibonacci_directions, spherical_barycentric
-from .grid import GridMs, MsGrid, check_ms_grid, ms_lattice
+from .lattice import LatticeMs, FmsLattice, check_fms_lattice, ms_lattice
 from .base import MsPlan, MsSource, SourceChoice, option
 
 DEFAULT_NETWORK_RESOLUTION = 32   # F_ms lattice points per side filled by the network
@@ -223,7 +223,7 @@ class NetworkSource:
     def fill(self, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
              bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None, active=None,
              omegas=None):
-        """(MsGrid, info): F_ms at the lattice (``ms_lattice``) for the camera at ``origin``
+        """(FmsLattice, info): F_ms at the lattice (``ms_lattice``) for the camera at ``origin``
         and a light toward ``light_dir``; info has seconds
         "light" (graded fields), "gather", "network", "evaluations" (network evaluations
         per lattice point) and "points" (lattice points evaluated). ``active``: a boolean
@@ -247,7 +247,7 @@ class NetworkSource:
         full = np.zeros((len(pts_all),) + out.shape[1:], np.float32)
         full[active] = out
         vals = full.reshape((res[2], res[1], res[0]) + (() if grey else (3,)))
-        return check_ms_grid(MsGrid(vals, tuple(lo), tuple(hi))), info
+        return check_fms_lattice(FmsLattice(vals, tuple(lo), tuple(hi))), info
 
     def fill_device(self, light_dir, resolution=DEFAULT_NETWORK_RESOLUTION, bbox_min=None,
                     bbox_max=None, grey_shortcut: bool = True, medium=None, origin=None,
@@ -373,7 +373,7 @@ DOMAIN_FALLBACK_OPTION = option(
          "on (default: warn and use the measured fallback, docs/raymarch.md)")
 
 
-class NetworkMs(GridMs):
+class NetworkMs(LatticeMs):
     """The network's lattice marched like a precomputed grid. The lattice depends on the
     camera position (omega toward it), the light direction and the medium; ``prepare``
     refills it only when one of those changed."""
@@ -583,25 +583,25 @@ class NetworkMs(GridMs):
             old = self.lattice[0] if self.lattice is not None else None
             planes, box, self.info = self.net.fill_device(light, self.resolution, active=active,
                                                           out=old, **fill)
-            self.lattice, self.ms_grid, self._todo = (planes, box), None, 0
-        elif self._key is None or self.ms_grid is None or key[1:] != self._key[1:]:
-            self.ms_grid, self.info = self.net.fill(light, self.resolution, active=active, **fill)
+            self.lattice, self.ms_lattice, self._todo = (planes, box), None, 0
+        elif self._key is None or self.ms_lattice is None or key[1:] != self._key[1:]:
+            self.ms_lattice, self.info = self.net.fill(light, self.resolution, active=active, **fill)
             self._todo = 0
         else:
             if key[0] != self._key[0]:           # the camera moved: every subset is stale
                 self._todo = self.refresh
             part = self._phase % self.refresh
             self._phase += 1
-            n = self.ms_grid.values.shape[0] * self.ms_grid.values.shape[1] * \
-                self.ms_grid.values.shape[2]
+            n = self.ms_lattice.values.shape[0] * self.ms_lattice.values.shape[1] * \
+                self.ms_lattice.values.shape[2]
             idx = np.flatnonzero(active) if active is not None else np.arange(n)
             subset = np.zeros(n, bool)
             subset[idx[part::self.refresh]] = True
             g, self.info = self.net.fill(light, self.resolution, active=subset, **fill)
-            vals = np.array(self.ms_grid.values, np.float32, copy=True)
+            vals = np.array(self.ms_lattice.values, np.float32, copy=True)
             flat, new = vals.reshape(n, -1), np.asarray(g.values).reshape(n, -1)
             flat[subset] = new[subset]
-            self.ms_grid = MsGrid(vals, g.bbox_min, g.bbox_max)
+            self.ms_lattice = FmsLattice(vals, g.bbox_min, g.bbox_max)
             self._todo = max(self._todo - 1, 0)
         frame.count("ms_lattice")
 
@@ -636,7 +636,7 @@ class NetworkMs(GridMs):
             act = np.flatnonzero(active) if active is not None else np.arange(om.shape[0])
             idx, w = spherical_barycentric(dirs, om[act])
             vals[act] = (flat[idx, act[:, None]] * w[..., None]).sum(axis=1)   # (n, 3, C) -> (n, C)
-            self.ms_grid = MsGrid(vals.reshape(table.shape[1:]), lo, hi)
+            self.ms_lattice = FmsLattice(vals.reshape(table.shape[1:]), lo, hi)
         # This frame's costs: the K fills only when they ran, and the interpolation.
         self.info = dict(info) if filled else dict(info, light=0.0, gather=0.0, network=0.0)
         self.info["interpolate"] = sw.seconds
@@ -673,7 +673,7 @@ class NetworkMs(GridMs):
         return super().device_data(medium, shortcuts)
 
     def _lattice_for(self, planes: DeviceArray, medium, shortcuts: bool) -> DeviceArray:
-        """The device lattice in the planes ``GridMs.device_data`` would give this medium: as
+        """The device lattice in the planes ``LatticeMs.device_data`` would give this medium: as
         filled (one plane exactly for a grey medium with shortcuts, as ``prepare`` fills it
         for the same frame), or a grey lattice repeated into three planes on the device."""
         if planes.shape[0] == 1 and not (shortcuts and medium.is_grey):

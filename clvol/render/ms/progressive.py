@@ -288,6 +288,10 @@ class ProgressiveViewMs(StochasticViewMs):
     name = "progressive"
     summary = "the stochastic view refined toward path-traced F_ms while the view is still"
     what = "progressive view-space F_ms table (network + path-traced residual)"
+    bundle_supported = False           # Python only (docs/embedding.md)
+
+    def bundle_view(self, camera) -> None:
+        return None
     options = (WEIGHTS_OPTION, VIEW_BLOCK_OPTION, *PROGRESSIVE_OPTIONS, DOMAIN_FALLBACK_OPTION)
 
     def __init__(self, weights=None, block: int | None = None, seed: int = 0,
@@ -334,11 +338,10 @@ class ProgressiveViewMs(StochasticViewMs):
         """One round: a draw per block, the network there and (``with_paths``) paths at a
         scheduled share of the points. Returns its seconds by stage."""
         t = {}
-        rng = np.random.default_rng([self.seed, self.draws])
         index = self.draws
         self.draws += 1
         with Stopwatch() as sw:
-            pts, dirs, depth, full = self._draw(frame, rng)
+            pts, dirs, depth, full = self._draw(frame, index)
         t["depths"] = sw.seconds
         if moved:
             with Stopwatch() as sw:

@@ -237,6 +237,17 @@ def auto_block(width: int, height: int) -> int:
     return max(1, int(round(max(width, height) / STOCHASTIC_BLOCKS_ACROSS)))
 
 
+def view_jitter(seed: int, draw: int, bx: int, by: int) -> np.ndarray:
+    """(by, bx, 3) float32 in [0, 1): the jitter of draw ``draw`` (x, y of the block's ray,
+    z its free-flight level): Philox4x32-10 (cl/include/rng.h) keyed by ``seed``, stream the
+    block's index j bx + i, sample ``draw``, dimension block 0, its first three uniforms.
+    libclvol draws the same numbers (capi/src/renderer.c view_jitter; docs/conventions.md,
+    "Randomness")."""
+    from ...kernels.rng import host_uniform4
+    u = host_uniform4(seed, np.arange(bx * by), draw, 0)
+    return u[:, :3].reshape(by, bx, 3)
+
+
 def check_stochastic_options(samples, seed):
     if not (_is_int(samples) and 1 <= samples <= MAX_VIEW_SAMPLES):
         raise ClvolError(f"raymarch option view_samples = {samples!r}: an integer from 1 to "
@@ -277,6 +288,7 @@ class StochasticViewMs(ViewMs):
     summary = ("the network at one free-flight point per pixel block per frame, "
                "accumulated")
     what = "stochastic view-space F_ms table"
+    bundle_supported = True            # libclvol runs it too (docs/embedding.md)
     options = (
         WEIGHTS_OPTION,
         VIEW_BLOCK_OPTION,
@@ -315,9 +327,10 @@ class StochasticViewMs(ViewMs):
     def skip(self) -> None:
         self.refining = False
 
-    def _draw(self, frame, rng):
-        """One free-flight sample per block: (points (n, 3), dirs (n, 3), depths (n,),
-        block mask (by, bx)) for the blocks whose jittered ray collides. The flight is
+    def _draw(self, frame, draw: int):
+        """One free-flight sample per block, the ``draw``-th of the RNG stream (jitter
+        ``view_jitter(seed, draw, ...)``): (points (n, 3), dirs (n, 3), depths (n,), block
+        mask (by, bx)) for the blocks whose jittered ray collides. The flight is
         unconditioned (one pass, usually ending ~1 optical depth in); a ray that escapes
         draws nothing this frame, and the collisions are distributed as the in-scattering
         weight, so the block's mean over them is still the estimator's (only thin blocks
@@ -325,7 +338,7 @@ class StochasticViewMs(ViewMs):
         from ...kernels.viewdepth import block_grid, view_depths
         cam, m = frame.camera, frame.medium
         bx, by = block_grid(cam.width, cam.height, self.block)
-        jitter = rng.random((by, bx, 3), dtype=np.float32)
+        jitter = view_jitter(self.seed, draw, bx, by)
         fwd, right, up = cam.basis()
         dm = frame.device_medium
         density = dm.density if dm is not None else frame.grid.density
@@ -423,9 +436,8 @@ class StochasticViewMs(ViewMs):
         with Stopwatch() as sw:
             draws = []
             for _ in range(self.samples):
-                rng = np.random.default_rng([self.seed, self.draws])
                 self.draws += 1
-                draws.append(self._draw(frame, rng))
+                draws.append(self._draw(frame, self.draws - 1))
         t_depths = sw.seconds
         t_reproject = 0.0
         if moved:
@@ -453,6 +465,19 @@ class StochasticViewMs(ViewMs):
         if self.net.graded_builds != builds:
             frame.count("graded_transmittance")
         frame.count("ms_view_table")
+
+    def bundle_view(self, camera) -> dict:
+        """The bundle's view.* keys (libclvol repeats prepare with them) and the free-flight
+        draw's viewdepth defines, for ``camera``'s image size."""
+        from ...kernels.viewdepth import view_depth_defines
+        block = (auto_block(camera.width, camera.height) if self.fixed_block is None
+                 else self.fixed_block)
+        keys = {"block": block, "block_auto": self.fixed_block is None,
+                "blocks_across": STOCHASTIC_BLOCKS_ACROSS, "samples": self.samples,
+                "seed": self.seed, "still_samples": STILL_SAMPLES,
+                "move_history": MOVE_HISTORY, "step_factor": VIEW_STEP_FACTOR}
+        return {"keys": keys,
+                "viewdepth": view_depth_defines(1, block, 1, jitter=True, free_flight=True)}
 
     @classmethod
     def key_for(cls, camera, light, medium, shortcuts: bool):
