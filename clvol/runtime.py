@@ -295,14 +295,16 @@ DRIVER_RULES: tuple = (
     # accumulators, a pointer induction) on 8 inputs and 8 outputs, and had not finished the
     # network's after 300 s at ~4 GB; with the array form mlp_forward is created in 8.6 s and
     # gather_mlp in 6.6 s at 16 lanes.
-    # MLP_MULADD: the multiply-adds written a * b + c instead of fma(). rusticl gives fma() of
-    # float to libclc's software fma, inlined at every call (a loop of fma ran 30x slower than
-    # one of a * b + c), which llvmpipe compiles at the first launch. PoCL contracts a * b + c
-    # into the same fma (bit-identical; tests/test_mlp.py::test_dense_forms_agree); rusticl
-    # does not contract, so its sums round twice (within the twins' tolerance).
+    # MLP_MULADD: the multiply-adds written a * b + c instead of fma(). fma() of float is a
+    # software fma there (exact; presumably libclc's), inlined at every call: a loop of fma
+    # ran 17x slower than one of a * b + c (scripts/rusticl_probe.py fma), and llvmpipe
+    # compiles all of it at the first launch. PoCL contracts a * b + c into the same fma
+    # (bit-identical; tests/test_mlp.py::test_dense_forms_agree); rusticl does not contract,
+    # so its sums round twice (within the twins' tolerance).
     # 4 lanes: llvmpipe runs work-items as SIMD lanes already; explicit vector lanes only
-    # multiply the code it compiles at the first launch (the network's mlp_forward: 22 s at 4
-    # lanes, not done in 280 s at 16). Lanes are independent: bit-identical at 16, 8 and 4.
+    # multiply the code it compiles at the first launch (the network's mlp_forward: 13-18 s
+    # at 4 lanes, not done in 230 s at 16: scripts/rusticl_probe.py mlp). Lanes are
+    # independent: bit-identical at 16, 8 and 4.
     ("rusticl", {"MLP_DENSE_ARRAY": 1, "MLP_MULADD": 1}, 4),
 )
 

@@ -482,12 +482,14 @@ void open_device(clvol_host *h) {
 
 /* Driver workarounds, the rule of clvol/runtime.py DRIVER_RULES (tests/test_capi.py holds the
  * two to the same answers): on a platform whose name contains `match` (case-insensitive), the
- * -D options every program gets and the lane width (0: the device rule). The one place libclvol
- * decides them. Mesa's rusticl (22.3.6, llvmpipe; docs/opencl.md, "rusticl"): MLP_DENSE_ARRAY,
- * as the named-accumulator dense layers stall clCreateKernel in a recursive NIR pass; MLP_MULADD,
- * as fma() there is libclc's software fma, inlined at every call, which llvmpipe compiled for
- * minutes at the network's first launch (cl/include/mlp_core.h); and 4 lanes, as llvmpipe already runs work-items as SIMD lanes and wider vectors only multiply the
- * code it compiles (mlp_forward's first launch: 22 s at 4 lanes, over 280 s at 16). */
+ * -D options every program gets and the lane width (0: the device rule). The one place
+ * libclvol decides them. Mesa's rusticl (22.3.6, llvmpipe; docs/opencl.md, "rusticl"):
+ * MLP_DENSE_ARRAY, as the named-accumulator dense layers stall clCreateKernel in a recursive
+ * NIR pass; MLP_MULADD, as fma() there is a software fma (presumably libclc's), inlined at
+ * every call, which llvmpipe compiled for minutes at the network's first launch
+ * (cl/include/mlp_core.h); and 4 lanes, as llvmpipe already runs work-items as SIMD lanes and
+ * wider vectors only multiply the code it compiles (mlp_forward's first launch: 13-18 s at 4
+ * lanes, over 230 s at 16). */
 static const struct {
     const char *match, *defines;
     int lanes;

@@ -79,8 +79,8 @@ __constant int HEADW[HEAD_DEPTH] = {HEAD_WIDTHS};
 /* The multiply-add of the dense layers: fma(), or with -D MLP_MULADD (rusticl) a * b + c, which
  * PoCL contracts into the same fused multiply-add (FP_CONTRACT, on by default in OpenCL C;
  * bit-identical, tests/test_mlp.py::test_dense_forms_agree). On Mesa's rusticl (22.3, llvmpipe)
- * fma() of float is libclc's software fma (exact, branchy integer code) inlined at every call:
- * a loop of a * b + c ran 30x faster there, and llvmpipe's compile at the network's first launch
+ * fma() of float is a software fma (exact; presumably libclc's) inlined at every call: a loop
+ * of a * b + c ran 17x faster there, and llvmpipe's compile at the network's first launch
  * took minutes (docs/opencl.md, "rusticl"). rusticl does not contract, so its sums round twice
  * (within the twins' tolerance). */
 #ifdef MLP_MULADD
