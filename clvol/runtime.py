@@ -248,8 +248,9 @@ def forced_lanes() -> int | None:
 
 
 def device_lanes(e: DeviceEntry) -> int:
-    """The lane width the kernels are built with on this device: ``$CLVOL_LANES``, else
-    ``lanes_for`` its type and native float vector width. The one place it is decided."""
+    """The lane width the kernels are built with on this device: ``$CLVOL_LANES``, else its
+    driver's rule (DRIVER_RULES: 4 on rusticl), else ``lanes_for`` its type and native float
+    vector width. The one place it is decided."""
     return _lanes_and_why(e)[0]
 
 
@@ -257,6 +258,9 @@ def _lanes_and_why(e: DeviceEntry) -> tuple[int, str]:
     forced = forced_lanes()
     if forced is not None:
         return forced, "forced by $CLVOL_LANES"
+    drv = driver_lanes_for(e.platform.name)
+    if drv is not None:
+        return drv, f"the driver rule of platform {e.platform.name!r}, clvol/runtime.py DRIVER_RULES"
     try:
         width = int(e.device.native_vector_width_float)
     except (cl.Error, AttributeError):
@@ -279,19 +283,56 @@ def is_rusticl(e: DeviceEntry) -> bool:
     return "rusticl" in e.platform.name.lower()
 
 
+# (substring of the platform name, matched case-insensitively; -D defines every program gets
+# there; the lane width there, None for the device rule of lanes_for). libclvol repeats this
+# table (capi/src/util.c DRIVER_RULES: clvol_driver_defines, clvol_driver_lanes);
+# tests/test_capi.py holds the two to the same answers on a table of platform names.
+DRIVER_RULES: tuple = (
+    # Mesa's rusticl (22.3.6, llvmpipe; docs/opencl.md, "rusticl"), cl/include/mlp_core.h:
+    # MLP_DENSE_ARRAY: the dense layers with their accumulators in an array (the same fma
+    # chains in the same order: bit-identical sums). rusticl's NIR passes, run at
+    # clCreateKernel, took 2.3 s for one dense() of the default form (16 and 8 named
+    # accumulators, a pointer induction) on 8 inputs and 8 outputs, and had not finished the
+    # network's after 300 s at ~4 GB; with the array form mlp_forward is created in 8.6 s and
+    # gather_mlp in 6.6 s at 16 lanes.
+    # MLP_MULADD: the multiply-adds written a * b + c instead of fma(). fma() of float is a
+    # software fma there (exact; presumably libclc's), inlined at every call: a loop of fma
+    # ran 17x slower than one of a * b + c (scripts/rusticl_probe.py fma), and llvmpipe
+    # compiles all of it at the first launch. PoCL contracts a * b + c into the same fma
+    # (bit-identical; tests/test_mlp.py::test_dense_forms_agree); rusticl does not contract,
+    # so its sums round twice (within the twins' tolerance).
+    # 4 lanes: llvmpipe runs work-items as SIMD lanes already; explicit vector lanes only
+    # multiply the code it compiles at the first launch (the network's mlp_forward: 13-18 s
+    # at 4 lanes, not done in 230 s at 16: scripts/rusticl_probe.py mlp). Lanes are
+    # independent: bit-identical at 16, 8 and 4.
+    ("rusticl", {"MLP_DENSE_ARRAY": 1, "MLP_MULADD": 1}, 4),
+)
+
+
+def _driver_rules(platform_name: str):
+    name = (platform_name or "").lower()
+    return [r for r in DRIVER_RULES if r[0] in name]
+
+
+def driver_defines_for(platform_name: str) -> dict:
+    """The driver workarounds of a platform of this name (DRIVER_RULES; empty if none)."""
+    out: dict = {}
+    for _, defines, _ in _driver_rules(platform_name):
+        out.update(defines)
+    return out
+
+
+def driver_lanes_for(platform_name: str) -> int | None:
+    """The lane width DRIVER_RULES gives a platform of this name (None: the device rule)."""
+    lanes = [r[2] for r in _driver_rules(platform_name) if r[2]]
+    return lanes[-1] if lanes else None
+
+
 def driver_defines(e: DeviceEntry) -> dict:
-    """``-D`` defines every program gets on this device to work around its driver; empty on
-    PoCL and Oclgrind (their code is the default one). On Mesa's rusticl (22.3.6, llvmpipe;
-    docs/opencl.md, "rusticl"), where the default render stalled in the network's kernels,
-    ``MLP_DENSE_ARRAY`` (cl/include/mlp_core.h): the dense layers with their accumulators in an
-    array (the same fma chains in the same order: bit-identical sums). rusticl's NIR passes,
-    run at clCreateKernel, took 2.3 s for one dense() of the default form (16 and 8 named
-    accumulators, a pointer induction) on 8 inputs and 8 outputs, and had not finished the
-    network's after 300 s at ~4 GB; with the array form mlp_forward is created in 8.6 s and
-    gather_mlp in 6.6 s at 16 lanes."""
-    if is_rusticl(e):
-        return {"MLP_DENSE_ARRAY": 1}
-    return {}
+    """``-D`` defines every program gets on this device to work around its driver
+    (DRIVER_RULES by its platform's name); empty on PoCL and Oclgrind (their code is the
+    default one)."""
+    return driver_defines_for(e.platform.name)
 
 
 def describe_workarounds(e: DeviceEntry) -> list[str]:
@@ -300,7 +341,7 @@ def describe_workarounds(e: DeviceEntry) -> list[str]:
     if not d:
         return []
     return [f"driver workarounds: {' '.join('-D' + k for k in sorted(d))} on every program "
-            f"(rusticl: the network's kernels otherwise stall in clCreateKernel)"]
+            f"(rusticl: the network's kernels otherwise stall in clCreateKernel and at their first launch)"]
 
 
 # --------------------------------------------------------------------------- programs

@@ -292,6 +292,33 @@ def script(bundle, tmp_path_factory):
     return tmp, steps, want
 
 
+# Platform names (CL_PLATFORM_NAME) as drivers report them, and spellings around the match.
+PLATFORM_NAMES = ("rusticl", "Rusticl", "Mesa rusticl (llvmpipe)", "RUSTICL",
+                  "Portable Computing Language", "NVIDIA CUDA", "Oclgrind", "Intel(R) OpenCL",
+                  "AMD Accelerated Parallel Processing", "Clover", "", "rust icl")
+
+
+def test_driver_workarounds_agree_with_python(lib):
+    """libclvol's driver rule (clvol_driver_defines: capi/src/util.c DRIVER_RULES, what it adds
+    to every program it builds) gives the options clvol/runtime.py's driver_defines gives the
+    Python host, for every platform name of the table; rusticl gets the workarounds, the
+    others none."""
+    from clvol.runtime import DRIVER_RULES, _define_flags, driver_defines_for, driver_lanes_for
+    lib.clvol_driver_defines.argtypes = [ctypes.c_char_p]
+    lib.clvol_driver_defines.restype = ctypes.c_char_p
+    lib.clvol_driver_lanes.argtypes = [ctypes.c_char_p]
+    lib.clvol_driver_lanes.restype = ctypes.c_int
+    for name in PLATFORM_NAMES + tuple(r[0] for r in DRIVER_RULES):
+        c = lib.clvol_driver_defines(name.encode()).decode().split()
+        assert c == _define_flags(driver_defines_for(name)), name
+        assert lib.clvol_driver_lanes(name.encode()) == (driver_lanes_for(name) or 0), name
+    assert lib.clvol_driver_defines(None) == b"" and lib.clvol_driver_lanes(None) == 0
+    assert "-DMLP_DENSE_ARRAY=1" in lib.clvol_driver_defines(b"rusticl").decode().split()
+    assert lib.clvol_driver_lanes(b"rusticl") == 4
+    assert lib.clvol_driver_defines(b"Portable Computing Language") == b""
+    assert lib.clvol_driver_lanes(b"Portable Computing Language") == 0
+
+
 def test_ctypes_setters_match_the_python_renderer(lib, bundle, script):
     tmp, steps, want = script
     images, counts = _run_ctypes(lib, bundle, steps)

@@ -35,7 +35,7 @@ from clvol.kernels.transmittance import sweep_width_define
 from clvol.kernels.phase import phase_defines
 from clvol.features import layout
 from clvol.render.ms.network import load_network_weights, shipped_weights
-from clvol.runtime import _define_flags, cl_source_dir, get_runtime, include_dir, lanes_for
+from clvol.runtime import _define_flags, cl_source_dir, driver_defines_for, get_runtime, include_dir, lanes_for
 
 LOBES = {"iso": [], "hg": [(0.857, 1.0)], "mhg2": [(0.8, 0.7), (-0.3, 0.3)],
          "mhg3": [(0.8, 0.5), (0.3, 0.3), (-0.3, 0.2)]}
@@ -116,10 +116,13 @@ def variants() -> list[tuple[str, str, dict]]:
             for pocl in (False, True):
                 v.append((f"gather_mlp-{k}-c{ch}-p{int(pocl)}", "gather_mlp",
                           dict(_gather(LOBES[k], True, pocl), **_mlp(ch, True, pocl))))
-    # the dense layers' array form, a driver workaround (clvol/runtime.py driver_defines: rusticl)
+    # the dense layers' array form alone, and rusticl's whole rule (clvol/runtime.py
+    # DRIVER_RULES: the array form with a * b + c)
+    rusticl = driver_defines_for("rusticl")
     v.append(("mlp-dense-array", "mlp", dict(_mlp(3, True, False), MLP_DENSE_ARRAY=1)))
-    v.append(("gather_mlp-dense-array", "gather_mlp",
-              dict(_gather(LOBES["mhg3"], True, False), **_mlp(1, True, False), MLP_DENSE_ARRAY=1)))
+    v.append(("mlp-rusticl", "mlp", dict(_mlp(3, True, False), **rusticl)))
+    v.append(("gather_mlp-rusticl", "gather_mlp",
+              dict(_gather(LOBES["mhg3"], True, False), **_mlp(1, True, False), **rusticl)))
     for k, d in (("k4", {"VIEW_K": 4, "VIEW_BLOCK": 4, "VIEW_RAYS": 2}),
                  ("jitter", {"VIEW_K": 2, "VIEW_BLOCK": 8, "VIEW_RAYS": 1, "VIEW_JITTER": 1}),
                  ("flight", {"VIEW_K": 1, "VIEW_BLOCK": 4, "VIEW_RAYS": 1, "VIEW_JITTER": 1,

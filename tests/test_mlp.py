@@ -11,6 +11,7 @@ import pytest
 
 from clvol.errors import NetworkInputError
 from clvol.kernels.mlp import MlpKernel, pack_params
+from clvol.runtime import driver_defines_for
 from clvol.features.weights import Architecture, MlpWeights, default_params, feature_contract
 from reference import mlp as ref
 
@@ -120,15 +121,20 @@ def test_load_paths_agree(weights, net):
         assert np.array_equal(a, net.forward(f, c))
 
 
-def test_dense_forms_agree(weights, net):
-    """The dense layers' array form (-D MLP_DENSE_ARRAY, what rusticl gets: clvol/runtime.py
-    driver_defines) sums the same terms in the same order as the named-accumulator form:
-    bit-identical outputs (compared where the default form builds in reasonable time)."""
-    arr = MlpKernel(weights, defines={"MLP_DENSE_ARRAY": 1})
+@pytest.mark.parametrize("form", ["array", "rusticl"])
+def test_dense_forms_agree(weights, net, form):
+    """The dense layers' array form (-D MLP_DENSE_ARRAY) and rusticl's whole rule (clvol/runtime.py
+    DRIVER_RULES: the array form with the multiply-adds written a * b + c, -D MLP_MULADD) sum
+    the same terms in the same order as the named-accumulator form: bit-identical outputs
+    where the compiler fuses a * b + c (PoCL does; compared where the default form builds in
+    reasonable time, i.e. off rusticl)."""
+    defines = {"MLP_DENSE_ARRAY": 1} if form == "array" else driver_defines_for("rusticl")
+    assert defines.get("MLP_DENSE_ARRAY")
+    arr = MlpKernel(weights, defines=defines)
     f, c = ref.random_inputs(37, np.random.default_rng(5), lobes=LOBES[1])
     a = arr.forward(f, c)
     _assert_y(a, ref.forward(weights.params, ARCH, f, c))
-    if not net.rt.driver_defines.get("MLP_DENSE_ARRAY"):
+    if not net.rt.driver_defines:
         assert np.array_equal(a, net.forward(f, c))
         alb = (0.9, 0.95, 1.0)
         assert np.array_equal(arr.forward(f, c, channel_albedo=alb, decode=True),

@@ -124,6 +124,14 @@ CLVOL_API clvol_status clvol_pick_device(const char *spec, cl_device_id *out);
 CLVOL_API clvol_status clvol_check_goldens(const char *golden_dir, cl_device_id device,
                                            char *report, size_t report_size, int *failures);
 
+/* Driver workarounds: the -D options the library adds to every program it builds on an OpenCL
+ * platform of this CL_PLATFORM_NAME ("-DMLP_DENSE_ARRAY=1 ..." on Mesa's rusticl, "" on any
+ * other and for NULL), and the lane width it builds them with there (4 on rusticl; 0: the
+ * device's rule, docs/embedding.md). The rules of clvol/runtime.py DRIVER_RULES, which
+ * tests/test_capi.py holds these to; docs/opencl.md, "rusticl", says why. */
+CLVOL_API const char *clvol_driver_defines(const char *platform_name);
+CLVOL_API int clvol_driver_lanes(const char *platform_name);
+
 #ifdef __cplusplus
 }
 #endif

@@ -171,6 +171,7 @@ struct clvol_renderer {
     cl_device_id device;
     int owns_context, is_pocl, is_cpu;
     int lanes;                  /* -D LANES of every program: the device's (describe_device) */
+    const char *driver_opts;    /* clvol_driver_defines of its platform (describe_device) */
     cl_program prog[N_PROGRAMS];
     cl_kernel k_mip, k_majorant, k_layout, k_sweep1, k_sweepL, k_xpass, k_rows, k_small,
         k_gather, k_mlp, k_raymarch, k_pack, k_viewdepth;

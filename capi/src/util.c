@@ -480,6 +480,47 @@ void open_device(clvol_host *h) {
 
 
 
+/* Driver workarounds, the rule of clvol/runtime.py DRIVER_RULES (tests/test_capi.py holds the
+ * two to the same answers): on a platform whose name contains `match` (case-insensitive), the
+ * -D options every program gets and the lane width (0: the device rule). The one place
+ * libclvol decides them. Mesa's rusticl (22.3.6, llvmpipe; docs/opencl.md, "rusticl"):
+ * MLP_DENSE_ARRAY, as the named-accumulator dense layers stall clCreateKernel in a recursive
+ * NIR pass; MLP_MULADD, as fma() there is a software fma (presumably libclc's), inlined at
+ * every call, which llvmpipe compiled for minutes at the network's first launch
+ * (cl/include/mlp_core.h); and 4 lanes, as llvmpipe already runs work-items as SIMD lanes and
+ * wider vectors only multiply the code it compiles (mlp_forward's first launch: 13-18 s at 4
+ * lanes, over 230 s at 16). */
+static const struct {
+    const char *match, *defines;
+    int lanes;
+} DRIVER_RULES[] = {
+    {"rusticl", "-DMLP_DENSE_ARRAY=1 -DMLP_MULADD=1", 4},
+};
+#define N_DRIVER_RULES (sizeof DRIVER_RULES / sizeof DRIVER_RULES[0])
+
+static int contains_nocase(const char *s, const char *sub) {
+    size_t n = strlen(sub);
+    for (; *s; ++s) {
+        size_t i = 0;
+        while (i < n && s[i] && tolower((unsigned char)s[i]) == tolower((unsigned char)sub[i])) ++i;
+        if (i == n) return 1;
+    }
+    return n == 0;
+}
+
+CLVOL_API const char *clvol_driver_defines(const char *platform_name) {
+    for (size_t i = 0; platform_name && i < N_DRIVER_RULES; ++i)
+        if (contains_nocase(platform_name, DRIVER_RULES[i].match)) return DRIVER_RULES[i].defines;
+    return "";
+}
+
+CLVOL_API int clvol_driver_lanes(const char *platform_name) {
+    for (size_t i = 0; platform_name && i < N_DRIVER_RULES; ++i)
+        if (contains_nocase(platform_name, DRIVER_RULES[i].match) && DRIVER_RULES[i].lanes)
+            return DRIVER_RULES[i].lanes;
+    return 0;
+}
+
 void describe_device(clvol_host *h) {
     cl_platform_id plat;
     char name[256];
@@ -489,16 +530,18 @@ void describe_device(clvol_host *h) {
     name[sizeof name - 1] = 0;
     /* PoCL gets the Clang-only fast paths the Python host also enables there */
     h->is_pocl = strstr(name, "Portable Computing Language") != NULL;
+    h->driver_opts = clvol_driver_defines(name);
     CL(clGetDeviceInfo(h->device, CL_DEVICE_TYPE, sizeof t, &t, NULL));
     h->is_cpu = (t & CL_DEVICE_TYPE_CPU) != 0;
-    /* The lane width, as clvol/runtime.py device_lanes decides it: $CLVOL_LANES, else a CPU's
-     * native float vector width (8: AVX, 4: SSE; a wider vector in a call changes its calling
+    /* The lane width, as clvol/runtime.py device_lanes decides it: $CLVOL_LANES, else the
+     * driver's rule (DRIVER_RULES), else a CPU's native float vector width (8: AVX, 4: SSE; a wider vector in a call changes its calling
      * convention), else 16 (docs/opencl.md, "Compiler warnings"). */
     cl_uint native = 0;
     if (clGetDeviceInfo(h->device, CL_DEVICE_NATIVE_VECTOR_WIDTH_FLOAT, sizeof native, &native,
                         NULL) != CL_SUCCESS)
         native = 0;
     h->lanes = (h->is_cpu && (native == 4 || native == 8)) ? (int)native : 16;
+    if (clvol_driver_lanes(name)) h->lanes = clvol_driver_lanes(name);
     const char *forced = getenv("CLVOL_LANES");
     if (forced && *forced) {
         if (strcmp(forced, "16") && strcmp(forced, "8") && strcmp(forced, "4"))
@@ -611,9 +654,10 @@ cl_program build_program_at(clvol_host *h, const char *dir, const manifest *m,
     const char *opts = mf_str(m, key);
     snprintf(key, sizeof key, "program.%s.options_pocl", name);
     const char *pocl = h->is_pocl ? mf_find(m, key) : NULL;
-    size_t n = strlen(opts) + (pocl ? strlen(pocl) : 0) + 32;
+    const char *drv = h->driver_opts ? h->driver_opts : "";
+    size_t n = strlen(opts) + (pocl ? strlen(pocl) : 0) + strlen(drv) + 32;
     char *options = xmalloc(n);
-    snprintf(options, n, "%s -DLANES=%d %s", opts, h->lanes, pocl ? pocl : "");
+    snprintf(options, n, "%s -DLANES=%d %s %s", opts, h->lanes, pocl ? pocl : "", drv);
     cl_program p = build_source(h, src.s, options, path);
     xfree(options);
     xfree(seen);

@@ -63,10 +63,10 @@ __constant int HEADW[HEAD_DEPTH] = {HEAD_WIDTHS};
  * Outputs go in blocks of 16 accumulators (one x load per 16 FMAs, 16 independent chains to
  * hide the FMA latency), the last 8 of a width that is not a multiple of 16 in a block of 8. */
 #define ACC8(A, B, C, D, E, F, G, H, OFF) \
-    A = fma(xi, (V)(w[OFF]), A); B = fma(xi, (V)(w[OFF + 1]), B); \
-    C = fma(xi, (V)(w[OFF + 2]), C); D = fma(xi, (V)(w[OFF + 3]), D); \
-    E = fma(xi, (V)(w[OFF + 4]), E); F = fma(xi, (V)(w[OFF + 5]), F); \
-    G = fma(xi, (V)(w[OFF + 6]), G); H = fma(xi, (V)(w[OFF + 7]), H)
+    A = MLP_FMA(xi, (V)(w[OFF]), A); B = MLP_FMA(xi, (V)(w[OFF + 1]), B); \
+    C = MLP_FMA(xi, (V)(w[OFF + 2]), C); D = MLP_FMA(xi, (V)(w[OFF + 3]), D); \
+    E = MLP_FMA(xi, (V)(w[OFF + 4]), E); F = MLP_FMA(xi, (V)(w[OFF + 5]), F); \
+    G = MLP_FMA(xi, (V)(w[OFF + 6]), G); H = MLP_FMA(xi, (V)(w[OFF + 7]), H)
 #define INIT8(A, B, C, D, E, F, G, H, OFF) \
     A = (V)(bias[OFF]); B = (V)(bias[OFF + 1]); C = (V)(bias[OFF + 2]); D = (V)(bias[OFF + 3]); \
     E = (V)(bias[OFF + 4]); F = (V)(bias[OFF + 5]); G = (V)(bias[OFF + 6]); H = (V)(bias[OFF + 7])
@@ -76,6 +76,23 @@ __constant int HEADW[HEAD_DEPTH] = {HEAD_WIDTHS};
     y[OFF] = A; y[OFF + 1] = B; y[OFF + 2] = C; y[OFF + 3] = D; \
     y[OFF + 4] = E; y[OFF + 5] = F; y[OFF + 6] = G; y[OFF + 7] = H
 
+/* The multiply-add of the dense layers: fma(), or with -D MLP_MULADD (rusticl) a * b + c, which
+ * PoCL contracts into the same fused multiply-add (FP_CONTRACT, on by default in OpenCL C;
+ * bit-identical, tests/test_mlp.py::test_dense_forms_agree). On Mesa's rusticl (22.3, llvmpipe)
+ * fma() of float is a software fma (exact; presumably libclc's) inlined at every call: a loop
+ * of a * b + c ran 17x faster there, and llvmpipe's compile at the network's first launch
+ * took minutes (docs/opencl.md, "rusticl"). rusticl does not contract, so its sums round twice
+ * (within the twins' tolerance). */
+#ifdef MLP_MULADD
+#pragma OPENCL FP_CONTRACT ON
+#define MLP_FMA(a, b, c) ((a) * (b) + (c))
+#else
+#define MLP_FMA(a, b, c) fma(a, b, c)
+#endif
+
+/* The activations are private arrays; a layer reads x[xo ..) and writes y[yo ..) (offsets, not
+ * pointers into the arrays: llvmpipe miscompiles a private pointer with a run-time offset,
+ * which then reads far off the stack; docs/opencl.md, "rusticl"). */
 #ifdef MLP_DENSE_ARRAY
 /* The same sums in the same order (each output: its bias, then fma over the inputs in order,
  * so the results are bit-identical), with the 8 accumulators of a block in an array and no
@@ -85,26 +102,30 @@ __constant int HEADW[HEAD_DEPTH] = {HEAD_WIDTHS};
  * clvol/runtime.py's driver_defines sets it on rusticl. */
 __attribute__((always_inline))
 static inline __global const float *dense(__global const float *p, const int n_in, const int n_out,
-                                          const V *x, V *y, const int relu) {
+                                          const V *x, const int xo, V *y, const int yo,
+                                          const int relu) {
     const int np = PAD8(n_out);
     __global const float *bias = p + n_in * np;
     for (int o = 0; o < np; o += 8) {
         V acc[8];
         for (int r = 0; r < 8; ++r) acc[r] = (V)(bias[o + r]);
         for (int i = 0; i < n_in; ++i) {
-            const V xi = x[i];
-            for (int r = 0; r < 8; ++r) acc[r] = fma(xi, (V)(p[i * np + o + r]), acc[r]);
+            const V xi = x[xo + i];
+            for (int r = 0; r < 8; ++r) acc[r] = MLP_FMA(xi, (V)(p[i * np + o + r]), acc[r]);
         }
-        for (int r = 0; r < 8; ++r) y[o + r] = relu ? fmax(acc[r], 0.0f) : acc[r];
+        for (int r = 0; r < 8; ++r) y[yo + o + r] = relu ? fmax(acc[r], 0.0f) : acc[r];
     }
     return bias + np;
 }
 #else
 __attribute__((always_inline))
 static inline __global const float *dense(__global const float *p, const int n_in, const int n_out,
-                                          const V *x, V *y, const int relu) {
+                                          const V *x, const int xo, V *y, const int yo,
+                                          const int relu) {
     const int np = PAD8(n_out);
     __global const float *bias = p + n_in * np;
+    x += xo;
+    y += yo;
     int o = 0;
     for (; o + 16 <= np; o += 16) {
         V a0, a1, a2, a3, a4, a5, a6, a7, b0, b1, b2, b3, b4, b5, b6, b7;
@@ -260,29 +281,29 @@ static inline int mlp_run(V *x, V *cfg, const V albedo_cfg, __global const float
     __global const float *cshift = params + 2 * N_TYPES, *cscale = cshift + CONFIG_DIM;
     __global const float *layers = cscale + CONFIG_DIM;
     /* Features, normalised in the same pass that pools them into the squeeze vectors of all
-     * layers (channel independent). */
-    V v[N_LAYERS][SQUEEZE];
+     * layers (channel independent). Layer k's squeeze vector: v[k * SQUEEZE ..). */
+    V v[N_LAYERS * SQUEEZE];
     {
         int start = 0;
         for (int k = 0; k < N_LAYERS; ++k) {
             const int cnt = COUNTS[k];
             for (int t = 0; t < N_TYPES; ++t) {
                 const float sh = fshift[t], sc = fscale[t];
-                V *xt = x + t * N_POINTS + start;
-                V y = (xt[0] - sh) * sc;
+                const int xt = t * N_POINTS + start;
+                V y = (x[xt] - sh) * sc;
                 V s = y, m = y;
-                xt[0] = y;
+                x[xt] = y;
                 for (int j = 1; j < cnt; ++j) {
-                    y = (xt[j] - sh) * sc;
-                    xt[j] = y;
+                    y = (x[xt + j] - sh) * sc;
+                    x[xt + j] = y;
                     s += y;
                     m = fmax(m, y);
                 }
-                v[k][t] = s / (float)cnt;
-                v[k][N_TYPES + t] = m;
+                v[k * SQUEEZE + t] = s / (float)cnt;
+                v[k * SQUEEZE + N_TYPES + t] = m;
             }
-            v[k][2 * N_TYPES] = cfg[CFG_GMEAN];
-            v[k][2 * N_TYPES + 1] = cfg[CFG_ALPHA];
+            v[k * SQUEEZE + 2 * N_TYPES] = cfg[CFG_GMEAN];
+            v[k * SQUEEZE + 2 * N_TYPES + 1] = cfg[CFG_ALPHA];
             start += cnt;
         }
     }
@@ -301,55 +322,57 @@ static inline int mlp_run(V *x, V *cfg, const V albedo_cfg, __global const float
         cfg[CFG_ALBEDO] = (V)((ALBEDO_INPUT(albedos[ch]) - cshift[CFG_ALBEDO]) * cscale[CFG_ALBEDO]);
 #endif
         __global const float *p = layers;
-        V mod[N_TYPES * 2][PAD8(MODULE_WIDTH)];   /* dense writes whole blocks of 8 */
-        V h[MAXW], a[MAXW], e[MAXW], z[MAXW], u[MAXW];
+        /* module 2t+s's output: mod[(2t+s) * PAD8(MODULE_WIDTH) ..) (dense writes whole blocks
+         * of 8); hu: h = hu[0 .. MAXW), u = hu[MAXW .. 2 MAXW) */
+        V mod[N_TYPES * 2 * PAD8(MODULE_WIDTH)];
+        V hu[2 * MAXW], a[MAXW], e[MAXW], z[MAXW];
         for (int t = 0; t < N_TYPES; ++t) {
             for (int s = 0; s < 2; ++s) {
                 const int k0 = s ? N_DIFFUSE : 0, k1 = s ? N_LAYERS : N_DIFFUSE;
                 int start = 0;
                 for (int k = 0; k < k0; ++k) start += COUNTS[k];
-                const V *xt = x + t * N_POINTS;
-                for (int i = 0; i < COUNTS[k0]; ++i) h[i] = xt[start + i];
+                const int xt = t * N_POINTS;
+                for (int i = 0; i < COUNTS[k0]; ++i) hu[i] = x[xt + start + i];
                 for (int k = k0; k < k1; ++k) {
                     const int cnt = COUNTS[k], width = cnt + CONFIG_DIM;
-                    for (int i = 0; i < cnt; ++i) a[i] = h[i];
+                    for (int i = 0; i < cnt; ++i) a[i] = hu[i];
                     for (int i = 0; i < CONFIG_DIM; ++i) a[cnt + i] = cfg[i];
-                    p = dense(p, SQUEEZE, SE_HIDDEN, v[k], e, 1);
-                    p = dense(p, SE_HIDDEN, width, e, z, 0);
+                    p = dense(p, SQUEEZE, SE_HIDDEN, v, k * SQUEEZE, e, 0, 1);
+                    p = dense(p, SE_HIDDEN, width, e, 0, z, 0, 0);
                     for (int i = 0; i < width; ++i) z[i] = a[i] / (1.0f + exp(-z[i]));
                     start += cnt;
                     if (k + 1 < k1) {
                         const int nxt = COUNTS[k + 1];
-                        const V *xn = xt + start;   /* the next layer's features */
-                        p = dense(p, width, nxt, z, u, 1);
-                        for (int i = 0; i < nxt; ++i) u[i] += xn[i];
-                        p = dense(p, nxt, nxt, u, h, 1);
-                        for (int i = 0; i < nxt; ++i) h[i] += xn[i];
+                        const int xn = xt + start;   /* the next layer's features */
+                        p = dense(p, width, nxt, z, 0, hu, MAXW, 1);
+                        for (int i = 0; i < nxt; ++i) hu[MAXW + i] += x[xn + i];
+                        p = dense(p, nxt, nxt, hu, MAXW, hu, 0, 1);
+                        for (int i = 0; i < nxt; ++i) hu[i] += x[xn + i];
                     } else {
-                        p = dense(p, width, MODULE_WIDTH, z, mod[2 * t + s], 1);
+                        p = dense(p, width, MODULE_WIDTH, z, 0, mod, (2 * t + s) * PAD8(MODULE_WIDTH), 1);
                     }
                 }
             }
         }
-        /* Merges per type, written straight into the head's input [m_d, m_T, m_p, c]. */
+        /* Merges per type, written straight into the head's input [m_d, m_T, m_p, c] (u). */
         for (int t = 0; t < N_TYPES; ++t) {
             for (int i = 0; i < MODULE_WIDTH; ++i) {
-                a[i] = mod[2 * t][i];
-                a[MODULE_WIDTH + i] = mod[2 * t + 1][i];
+                a[i] = mod[2 * t * PAD8(MODULE_WIDTH) + i];
+                a[MODULE_WIDTH + i] = mod[(2 * t + 1) * PAD8(MODULE_WIDTH) + i];
             }
-            p = dense(p, 2 * MODULE_WIDTH, MODULE_WIDTH, a, e, 1);
-            for (int i = 0; i < MODULE_WIDTH; ++i) u[t * MODULE_WIDTH + i] = e[i];
+            p = dense(p, 2 * MODULE_WIDTH, MODULE_WIDTH, a, 0, e, 0, 1);
+            for (int i = 0; i < MODULE_WIDTH; ++i) hu[MAXW + t * MODULE_WIDTH + i] = e[i];
         }
-        for (int i = 0; i < CONFIG_DIM; ++i) u[N_TYPES * MODULE_WIDTH + i] = cfg[i];
+        for (int i = 0; i < CONFIG_DIM; ++i) hu[MAXW + N_TYPES * MODULE_WIDTH + i] = cfg[i];
         int width = N_TYPES * MODULE_WIDTH + CONFIG_DIM;
-        V *src = u, *dst = h;
+        int src = MAXW, dst = 0;   /* u -> h, then back and forth */
         for (int j = 0; j < HEAD_DEPTH; ++j) {
-            p = dense(p, width, HEADW[j], src, dst, 1);
+            p = dense(p, width, HEADW[j], hu, src, hu, dst, 1);
             width = HEADW[j];
-            V *tmp = src; src = dst; dst = tmp;
+            const int tmp = src; src = dst; dst = tmp;
         }
-        p = dense(p, width, 1, src, dst, 0);
-        res[ch] = dst[0];
+        p = dense(p, width, 1, hu, src, hu, dst, 0);
+        res[ch] = hu[dst];
     }
 
     int bad = 0;
