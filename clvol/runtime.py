@@ -34,6 +34,7 @@ Device data follows one convention:
 """
 from __future__ import annotations
 
+import atexit
 import functools
 import hashlib
 import importlib.resources
@@ -502,6 +503,13 @@ class Transfers:
         return "\n".join(rows) if rows else "(no transfers)"
 
 
+def _finish_quietly(queue) -> None:
+    try:
+        queue.finish()
+    except Exception:  # noqa: BLE001 - at exit a released context is not an error to report
+        pass
+
+
 class Runtime:
     """A context and an in-order queue on one device, plus the program cache and the
     transfer counters (``transfers``)."""
@@ -517,6 +525,10 @@ class Runtime:
         self.context = cl.Context([self.device])
         props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
         self.queue = cl.CommandQueue(self.context, properties=props)
+        # Drain the queue before the interpreter exits: a process that ended on an error with
+        # an upload still queued crashed in PoCL's teardown (SIGSEGV after its last line, about
+        # 1 run in 5 of tests/test_bounded.py's "density 1e30 everywhere" child, cold cache).
+        atexit.register(_finish_quietly, self.queue)
         self._programs: dict[tuple, Program] = {}
         self._events: list[tuple[str, cl.Event]] = []
         self.kernel_seconds: dict[str, float] = {}
