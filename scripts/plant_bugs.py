@@ -130,9 +130,10 @@ def _shadow_sigma_bias(text: str) -> str:
 
 def _c_nx_ny(text: str) -> str:
     # libclvol's ray-march arguments: the density grid's nx and ny swapped (the majorant
-    # kernel's arguments, which start the same way, are left alone).
-    return _exactly_once(text, r"h->d_density, h->nx, h->ny, h->nz, &bmin",
-                         "h->d_density, h->ny, h->nx, h->nz, &bmin")
+    # kernel's and the view source's depth pass, which start the same way, are left alone).
+    span = function_span(text, r"^static void march_stage\(", r"^(static |clvol_status |int |void )")
+    return replace_once(text, span, r"h->d_density, h->nx, h->ny, h->nz, &bmin",
+                        "h->d_density, h->ny, h->nx, h->nz, &bmin")
 
 
 def _c_octave_ab(text: str) -> str:
