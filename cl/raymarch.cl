@@ -358,6 +358,16 @@ TileRays camera_raysL(iL px, iL py, int width, int height, float tan_half, float
 /* Box entry and exit from t = 0 (box_intersect of grid.h, lane by lane); returns the lanes
  * that hit. Missed and invalid lanes get the empty interval [0, 0]: finite, never active. */
 __attribute__((always_inline))
+/* The lanes set in a mask, counted through private memory: a horizontal sum of the mask
+ * (LANE_SUM) crashed Oclgrind's --uninitialized plugin (SIGSEGV; Oclgrind as Debian ships it). */
+uint lanes_set(iL m) {
+    int lane[LANES];
+    vstoreL(m, 0, lane);
+    uint n = 0;
+    for (int i = 0; i < LANES; ++i) n += lane[i] != 0;
+    return n;
+}
+
 iL box_spanL(const TileRays *r, float4 bmin, float4 bmax, iL valid, vL *t0, vL *t1) {
     vL lo = (vL)(0.0f), hi = (vL)(INFINITY);
     iL miss = ~valid;
@@ -788,7 +798,7 @@ __kernel void raymarch(
 #if RAYMARCH_STATS
     uint n_iter = 0, n_lit = 0, n_maj = 0, n_active = 0;
 #endif
-    iL stopped = (iL)(0);   /* lanes the progress bound stopped */
+    uint n_stopped = 0;     /* lanes the progress bound stopped */
     for (;;) {
         vL ta = t0 + k * step;
         /* Bounded: a lane stops where its next segment would not start past this one (k past
@@ -801,7 +811,7 @@ __kernel void raymarch(
         const iL progress = t0 + (k + 1.0f) * step > ta;
         iL active = go & progress;
         if (!any(active)) {
-            stopped = go & ~progress;
+            n_stopped = lanes_set(go & ~progress);
             break;
         }
 #if SKIP_EMPTY
@@ -868,7 +878,6 @@ __kernel void raymarch(
 #endif
                 );
     {
-        const uint n_stopped = (uint)LANE_SUM(stopped & (iL)(1));
         if (n_stopped) atomic_add(stats, n_stopped);
     }
 #if RAYMARCH_STATS

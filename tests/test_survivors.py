@@ -239,7 +239,10 @@ def test_stochastic_points_lie_on_the_rays_the_depth_kernel_marched():
     real = r.source._draw
     r.source._draw = lambda frame, draw: (frames.append(frame), real(frame, draw))[1]
     r.render()
-    assert len(seen) == 1 and len(frames) == 1
+    # a new history draws MIN_SAMPLES at once (one network call); the first draw's points
+    # come first (the test checks those: draw 0's jitter)
+    from clvol.render.ms.view import MIN_SAMPLES
+    assert len(seen) == 1 and len(frames) == MIN_SAMPLES
     pts, dirs = seen[0]
     frame, cam = frames[0], scene.camera
     bx, by = -(-cam.width // 4), -(-cam.height // 4)
@@ -254,7 +257,8 @@ def test_stochastic_points_lie_on_the_rays_the_depth_kernel_marched():
                                   cam.origin, f, rt, u, tan_half, cam.width, cam.height, 4,
                                   2.0 * frame.step, jitter, stop=frame.threshold)
     hit = depth[..., 0] >= 0
-    assert hit.sum() >= 6 and len(pts) == hit.sum(), (hit.sum(), len(pts))
+    assert hit.sum() >= 6 and len(pts) >= hit.sum(), (hit.sum(), len(pts))
+    pts, dirs = pts[:hit.sum()], dirs[:hit.sum()]
     np.testing.assert_allclose(dirs, want_d[hit], rtol=0, atol=1e-5)
     t = depth[hit, 0]
     want_p = np.asarray(cam.origin)[None] + t[:, None] * want_d[hit]
