@@ -291,11 +291,8 @@ class Renderer:
     # ------------------------------------------------------------------ pathtrace
     def _render_pathtrace(self, cam, light, medium, seed=None, still=False) -> RenderResult:
         # every path-traced image is a still one: ``still`` changes nothing here
-        from .pathtrace import check_walks, render_pathtrace
+        from .pathtrace import render_pathtrace
         o = self.options
-        # refused before the density goes to the device: a process that exits on the error
-        # while the upload is still queued crashed in PoCL's teardown (tests/test_bounded.py)
-        check_walks(medium.density_scale, self.grid, o["majorant_block"])
         scene = dataclasses.replace(self.scene, camera=cam, light=light, medium=medium)
         res = render_pathtrace(scene, spp=o["spp"], seed=o["seed"] if seed is None else seed,
                                max_order=o["max_order"], time_budget=o["time"], runtime=self.rt,
