@@ -3,7 +3,12 @@
 frame, the second (progressive's first refinement round, which builds the path tracer's
 point-query program) and the median of the rest, interleaved in one run.
 
-    python bench/still_frames.py [SCENE.toml] [--size 256] [--frames 8]
+    python bench/still_frames.py [SCENE.toml] [--size 256] [--frames 8] [--still-images 5]
+
+Then a still image as ``clvol render`` makes it (a new Renderer, ``render(still=True)``: the
+default stochastic source draws its 64 samples at once) against the 32^3 lattice
+(``ms="network"``), one warm-up each, then ``--still-images`` of each interleaved: medians and
+their ratio (docs/raymarch.md, "One default").
 
 Run it with POCL_CACHE_DIR and XDG_CACHE_HOME pointed at empty folders for a cold kernel
 cache (what the viewer's first still frame costs on a fresh machine); docs/viewer.md.
@@ -28,6 +33,8 @@ def main(argv=None) -> int:
     ap.add_argument("scene", nargs="?", default=str(ROOT / "examples" / "cloud.toml"))
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--frames", type=int, default=8)
+    ap.add_argument("--still-images", type=int, default=5,
+                    help="still images per source, interleaved (0: skip)")
     args = ap.parse_args(argv)
     print(machine(get_runtime()))
     print(f"scene {args.scene}, {args.size}^2, {args.frames} still frames per source; "
@@ -42,6 +49,19 @@ def main(argv=None) -> int:
             ts.append(time.perf_counter() - t)
         print(f"{ms:12s} first {1e3 * ts[0]:7.0f} ms, second {1e3 * ts[1]:7.0f} ms, "
               f"median of the rest {1e3 * float(np.median(ts[2:])):6.0f} ms", flush=True)
+    if args.still_images:
+        grid = sc.volume.load()
+        times = {"stochastic": [], "network": []}
+        for i in range(args.still_images + 1):           # the first round warms up
+            for ms in times:
+                t = time.perf_counter()
+                Renderer(sc, ms=ms, grid=grid).render(still=True)
+                if i:
+                    times[ms].append(time.perf_counter() - t)
+        st, net = (float(np.median(times[k])) for k in ("stochastic", "network"))
+        print(f"still image (new Renderer, render(still=True)), medians of {args.still_images}: "
+              f"stochastic (default, 64 samples) {st:.2f} s, lattice {net:.2f} s, "
+              f"ratio {st / net:.2f}", flush=True)
     print(machine(get_runtime()))
     return 0
 
