@@ -279,11 +279,6 @@ def describe_lanes(e: DeviceEntry) -> str:
 
 # --------------------------------------------------------------------------- driver workarounds
 
-def is_rusticl(e: DeviceEntry) -> bool:
-    """Mesa's rusticl (platform "rusticl"; llvmpipe on a CPU, or a Mesa GPU driver)."""
-    return "rusticl" in e.platform.name.lower()
-
-
 # (substring of the platform name, matched case-insensitively; -D defines every program gets
 # there; the lane width there, None for the device rule of lanes_for). libclvol repeats this
 # table (capi/src/util.c DRIVER_RULES: clvol_driver_defines, clvol_driver_lanes);
