@@ -414,6 +414,11 @@ class StochasticViewMs(ViewMs):
         h.sums, h.count, h.depth = sums, count, depth
         h.still = 0
 
+    def _block_for(self, camera) -> int:
+        """The block for ``camera``'s image: the fixed one, else ``auto_block``."""
+        return (auto_block(camera.width, camera.height) if self.fixed_block is None
+                else self.fixed_block)
+
     def _frame_history(self, frame):
         """(history, fresh, moved) for this frame: the network ready, the block size chosen,
         the history started again for a new density or key (light, medium, image layout),
@@ -425,8 +430,7 @@ class StochasticViewMs(ViewMs):
             self._history_grid = frame.grid
         cam = frame.camera
         grey = frame.shortcuts and frame.medium.is_grey
-        self.block = (auto_block(cam.width, cam.height) if self.fixed_block is None
-                      else self.fixed_block)
+        self.block = self._block_for(cam)
         bx, by = block_grid(cam.width, cam.height, self.block)
         h = self.history
         fresh = h is None or frame.key is None or h.key != frame.key
@@ -489,8 +493,7 @@ class StochasticViewMs(ViewMs):
     def bundle_view(self, camera) -> dict:
         """The bundle's view.* keys (libclvol repeats prepare with them) and the free-flight
         draw's viewdepth defines, for ``camera``'s image size."""
-        block = (auto_block(camera.width, camera.height) if self.fixed_block is None
-                 else self.fixed_block)
+        block = self._block_for(camera)
         keys = {"block": block, "block_auto": self.fixed_block is None,
                 "blocks_across": STOCHASTIC_BLOCKS_ACROSS, "samples": self.samples,
                 "seed": self.seed, "still_samples": STILL_SAMPLES, "min_samples": MIN_SAMPLES,
