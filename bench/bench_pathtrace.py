@@ -40,8 +40,8 @@ sys.path.insert(1, str(Path(__file__).resolve().parents[1]))  # measure this che
 
 from _common import machine  # noqa: E402  (bench/ is on sys.path)
 from clvol.kernels.grid import f4
-from clvol.kernels.pathtrace import (_QUERY_DTYPES, _RENDER_DTYPES, PT_OUT, ROW_L1, ROW_LMS,
-                                     ROW_STEPS, ROW_VERTICES, PathTracer)
+from clvol.kernels.pathtrace import (_MEDIUM_DTYPES, _QUERY_DTYPES, _RENDER_DTYPES, PT_OUT,
+                                     ROW_L1, ROW_LMS, ROW_STEPS, ROW_VERTICES, PathTracer)
 from clvol.metrics import compare_images
 from clvol.render.pathtrace import PATHS_PER_LAUNCH, _medium, point_query, render_pathtrace
 from clvol.runtime import _define_flags, get_runtime
@@ -76,17 +76,25 @@ class Before:
         src = Path(tmp, "cl", "pathtrace.cl").read_text()
         prg = cl.Program(pt.rt.context, src).build(
             options=["-I", str(Path(tmp, "cl", "include"))] + _define_flags(pt.defines))
+        # That kernel took the medium as four arguments (scale, albedo, lobe_g, lobe_w) where
+        # today's takes one block (cl/include/medium.h): the block is split back for it.
+        i = len(_MEDIUM_DTYPES) - 4                 # the block's place in pt._medium_args
+        block = pt._medium_args[i]
+        old = (np.float32(block[0]), np.append(block[1:4], np.float32(0)), block[4:8],
+               block[8:12])
+        self.medium_args = pt._medium_args[:i] + old + pt._medium_args[i + 1:]
+        old_dtypes = _MEDIUM_DTYPES[:i] + [np.float32, None, None, None] + _MEDIUM_DTYPES[i + 1:]
         self.render_k = cl.Kernel(prg, "pt_render")
-        self.render_k.set_scalar_arg_dtypes(_RENDER_DTYPES[:-1])
+        self.render_k.set_scalar_arg_dtypes(old_dtypes + _RENDER_DTYPES[len(_MEDIUM_DTYPES):-1])
         self.query_k = cl.Kernel(prg, "pt_query")
-        self.query_k.set_scalar_arg_dtypes(_QUERY_DTYPES[:-1])
+        self.query_k.set_scalar_arg_dtypes(old_dtypes + _QUERY_DTYPES[len(_MEDIUM_DTYPES):-1])
 
     def render_batch(self, camera, seed, sample0, spl):
         pt, rt = self.pt, self.pt.rt
         fwd, right, up = camera.basis()
         n = camera.width * camera.height * spl
         out = rt.empty((n, PT_OUT))
-        rt.launch(self.render_k, n, pt._medium_args + (
+        rt.launch(self.render_k, n, self.medium_args + (
             f4(camera.origin), f4(fwd), f4(right), f4(up),
             np.float32(camera.tan_half_fov), np.int32(camera.width),
             np.int32(camera.height), np.uint64(seed), np.uint32(sample0), np.int32(spl),
@@ -96,7 +104,7 @@ class Before:
     def query_batch(self, points_buf, omegas_buf, nq, seed, sample0, ppl):
         pt, rt = self.pt, self.pt.rt
         out = rt.empty((nq * ppl, PT_OUT))
-        rt.launch(self.query_k, nq * ppl, pt._medium_args + (
+        rt.launch(self.query_k, nq * ppl, self.medium_args + (
             points_buf, omegas_buf, np.int32(nq), np.uint64(seed), np.uint32(sample0),
             np.int32(ppl), np.int32(pt.max_order), out))
         return rt.from_device(out, (ppl, nq, PT_OUT))

@@ -53,11 +53,11 @@
  * queries: per-order bins after each row, below).
  *
  * Kernels (grid and majorant arguments first, then light, then the per-kernel ones):
- *   density   float [nz][ny][nx]    raw density; sigma_t = density * scale (1/length)
+ *   density   float [nz][ny][nx]    raw density; sigma_t = density * density scale (1/length)
  *   maj       float [mz][my][mx]    majorant grid (cl/majorant.cl), raw density
  *   bmin,bmax float4                the grid's box (world); bsize float4 = coarse cell size
- *   albedo    float4                RGB single-scattering albedo
- *   lobe_g, lobe_w float4           phase lobes (phase.h)
+ *   medium    MediumBlock           the medium block (medium.h, 16 floats): density scale, RGB
+ *                                   single-scattering albedo, phase lobes (phase.h)
  *   light_dir float4                unit vector toward the sun
  *   sun       float4                sun irradiance E (RGB, power / area perpendicular to l)
  *   env       float4                environment radiance (RGB), used with PT_ENV
@@ -83,6 +83,7 @@
 #include "rng.h"
 #include "grid.h"
 #include "phase.h"
+#include "medium.h"
 #include "majorant.h"
 #include "lanes.h"
 #include "constants.h"   /* PT_OUT_*, PT_ORDER_* */
@@ -1247,8 +1248,8 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
 #define PT_MEDIUM_ARGS                                                                    \
     __global const float *density, __global const float *maj, const int nx, const int ny, \
         const int nz, const int mx, const int my, const int mz, const float4 bmin,       \
-        const float4 bmax, const float4 bsize, const float scale, const float4 albedo,   \
-        const float4 lobe_g, const float4 lobe_w, const float4 light_dir,                \
+        const float4 bmax, const float4 bsize, const MediumBlock medium,                  \
+        const float4 light_dir,                                                           \
         const float4 sun, const float4 env PT_ENVMAP_ARGS PT_EMISSION_ARGS
 
 #ifdef PT_ENVMAP
@@ -1281,12 +1282,13 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
     pt_medium m;                                                                          \
     m.density = density; m.maj = maj;                                                     \
     m.nx = nx; m.ny = ny; m.nz = nz; m.mx = mx; m.my = my; m.mz = mz;                     \
-    m.bmin = bmin.xyz; m.bmax = bmax.xyz; m.bsize = bsize.xyz; m.scale = scale;           \
+    m.bmin = bmin.xyz; m.bmax = bmax.xyz; m.bsize = bsize.xyz;                            \
+    m.scale = MEDIUM_DENSITY_SCALE_OF(medium);                                            \
     m.inv_cell = (float3)((float)nx, (float)ny, (float)nz) / (bmax.xyz - bmin.xyz);       \
     pt_light L;                                                                           \
     L.dir = light_dir.xyz; L.sun = pt_rgb_of(sun); L.env = pt_rgb_of(env);                \
-    L.albedo = SPEC_OF(albedo);                                                           \
-    L.lobe_g = lobe_g; L.lobe_w = lobe_w;                                                 \
+    L.albedo = SPEC_OF(MEDIUM_ALBEDO_OF(medium));                                         \
+    L.lobe_g = MEDIUM_LOBE_G_OF(medium); L.lobe_w = MEDIUM_LOBE_W_OF(medium);             \
     PT_ENVMAP_SETUP                                                                       \
     PT_EMISSION_SETUP
 

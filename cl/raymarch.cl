@@ -50,6 +50,7 @@
  *
  * Arguments (float4 holds a 3-vector in xyz; world units throughout):
  *   density    float [nz][ny][nx]     raw density over bmin..bmax; sigma_t = density * density_scale
+ *   medium     MediumBlock (medium.h, 16 floats): density_scale, albedo (RGB), lobe_g, lobe_w
  *   majorant   float [mz][my][mx]     max density per block of `block`^3 voxels (majorant.h)
  *   light      float [ln][ln][ln]     the exact light transmittance field (lambda = 1) over the
  *                                     cube cube_min .. + cube_size: T_light, or with LIGHT_TAU
@@ -62,7 +63,7 @@
  *              renormalised); F_ms along its ray is piecewise linear in t between its knots,
  *              constant beyond the first and last (gmin, gmax unused)
  *   origin, forward, right, up, tan_half, width, height    pinhole camera (grid.h camera_ray)
- *   light_dir  unit, toward the light; irradiance E (RGB); albedo (RGB); lobe_g, lobe_w (phase.h)
+ *   light_dir  unit, toward the light; irradiance E (RGB)
  *   background RGB radiance seen where rays leave the box (environment radiance, or 0)
  *   env        (last arguments, only with ENV; then bg_image, only with BG_IMAGE)
  *              float [2 C][en][en][en]: the
@@ -92,6 +93,7 @@
  */
 #include "grid.h"
 #include "phase.h"
+#include "medium.h"   /* the medium block */
 
 #ifndef LIT
 #define LIT 1
@@ -738,15 +740,14 @@ void store_tileL(const MarchSums *s, const vL sgl[3], const vL mul[3], iL pix, i
 
 __kernel void raymarch(
     __global const float *density, const int nx, const int ny, const int nz,
-    const float4 bmin, const float4 bmax, const float density_scale,
+    const float4 bmin, const float4 bmax, const MediumBlock medium,
     __global const float *majorant, const int mx, const int my, const int mz, const int block,
     __global const float *light, const int ln, const float4 cube_min, const float cube_size,
     __global const float *ms_lattice, const int gx, const int gy, const int gz,
     const float4 gmin, const float4 gmax,
     const float4 origin, const float4 forward, const float4 right, const float4 up,
     const float tan_half, const int width, const int height,
-    const float4 light_dir, const float4 irradiance, const float4 albedo,
-    const float4 lobe_g, const float4 lobe_w, const float4 background,
+    const float4 light_dir, const float4 irradiance, const float4 background,
     const float oct_a, const float oct_b, const float oct_c,
     const float step, const float threshold,
     __global float *total, __global float *single, __global float *multiple,
@@ -767,6 +768,9 @@ __kernel void raymarch(
 #endif
     )
 {
+    const float density_scale = MEDIUM_DENSITY_SCALE_OF(medium);
+    const float4 albedo = MEDIUM_ALBEDO_OF(medium);
+    const float4 lobe_g = MEDIUM_LOBE_G_OF(medium), lobe_w = MEDIUM_LOBE_W_OF(medium);
     const int tiles_x = (width + TILE - 1) / TILE;
     const int tile = get_global_id(0);
     if (tile >= tiles_x * ((height + TILE_ROWS - 1) / TILE_ROWS)) return;

@@ -32,7 +32,7 @@ from .errors import ClvolError
 from .features import layout
 
 FORMAT = "clvol-bundle"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2        # 2: the ray marcher takes the medium block (raymarch.medium)
 
 
 def _fmt(v) -> str:
@@ -272,6 +272,7 @@ def _write_host_constants(m: "_Manifest", b: _Planned) -> None:
     from .kernels import mlp as km
     from .kernels import raymarch as kr
     from .kernels import transmittance as kt
+    from .kernels.constants import kernel_constant
     from .runtime import DEFAULT_PAD
     m.comment("host constants of the launches (clvol/runtime.py, clvol/kernels/*.py)")
     host = {"pad": DEFAULT_PAD, "sweep_pad": kt.SWEEP_PAD, "sweep_block": kt.SWEEP_BLOCK,
@@ -284,7 +285,11 @@ def _write_host_constants(m: "_Manifest", b: _Planned) -> None:
             # fields first (medium.config_phase), then the albedo and alpha the host adds
             "config_dim": layout.CONFIG_DIM,
             "config_albedo": layout.CONFIG_FIELDS.index("albedo"),
-            "config_alpha": layout.CONFIG_FIELDS.index("alpha")}
+            "config_alpha": layout.CONFIG_FIELDS.index("alpha"),
+            # the medium block's slots the C host writes (cl/include/constants.h MEDIUM_*)
+            "medium_floats": kernel_constant("MEDIUM_FLOATS"),
+            "medium_density_scale": kernel_constant("MEDIUM_DENSITY_SCALE"),
+            "medium_albedo": kernel_constant("MEDIUM_ALBEDO")}
     if b.source.lattice_points_per_launch:   # the most queries of one gather + MLP launch
         host["network_chunk"] = int(b.source.lattice_points_per_launch)
     for key, value in host.items():
@@ -338,7 +343,7 @@ def _write_medium_light_camera(m: "_Manifest", b: _Planned) -> None:
 
 
 def _write_raymarch(m: "_Manifest", b: _Planned) -> None:
-    from .kernels.phase import lobe_vectors
+    from .kernels.medium import medium_block
     plan = b.plan
     m.comment("ray march (step in world units = step_voxels x smallest cell side)")
     m["raymarch.lit"] = plan.lit
@@ -353,9 +358,11 @@ def _write_raymarch(m: "_Manifest", b: _Planned) -> None:
     m["raymarch.light_resolution"] = int(b.light_res)
     m["raymarch.light_tau"] = plan.programs["raymarch"]["LIGHT_TAU"]
     m["raymarch.channels"] = plan.channels if plan.lit else 1
-    rg, rw = lobe_vectors(plan.lobes)
-    m["raymarch.lobe_g"] = rg.tolist()
-    m["raymarch.lobe_w"] = rw.tolist()
+    # the kernel's medium argument as it is (cl/include/medium.h), with the lobes the marcher
+    # evaluates; libclvol writes its density scale and albedo slots (host.medium_*) on change
+    medium = b.scene.medium
+    m["raymarch.medium"] = medium_block(medium.density_scale, medium.albedo,
+                                        plan.lobes).tolist()
     oc = plan.ms.octaves
     m["raymarch.octave_abc"] = [oc.a, oc.b, oc.c]
 

@@ -205,7 +205,8 @@ def _probe(header: str, ints: list[str], floats: list[str], defines: dict) -> tu
 
 
 def test_a_program_sees_the_header_values_the_python_host_uses():
-    from clvol.kernels import gather, mlp, pathtrace, raymarch, transmittance, viewdepth
+    from clvol.kernels import (gather, medium, mlp, pathtrace, raymarch, transmittance,
+                               viewdepth)
     host = {  # kernel name -> the values the Python wrappers launch with
         "TILE": [raymarch.TILE], "MS_MAX_OCTAVES": [raymarch.MAX_OCTAVES],
         "SWEEP_PAD": [transmittance.SWEEP_PAD], "SWEEP_BLOCK": [transmittance.SWEEP_BLOCK],
@@ -216,6 +217,10 @@ def test_a_program_sees_the_header_values_the_python_host_uses():
         "PT_ORDER_SUB": [pathtrace.ORDER_SUB], "PT_ORDER_END_LOG2": [pathtrace.ORDER_END_LOG2],
         "VIEW_MAX_K": [viewdepth.MAX_VIEW_K, raymarch.MAX_VIEW_K],
         "VIEW_MAX_RAYS": [viewdepth.MAX_VIEW_RAYS],
+        "MEDIUM_FLOATS": [medium.MEDIUM_FLOATS],
+        "MEDIUM_DENSITY_SCALE": [medium.SLOT_DENSITY_SCALE],
+        "MEDIUM_ALBEDO": [medium.SLOT_ALBEDO], "MEDIUM_LOBE_G": [medium.SLOT_LOBE_G],
+        "MEDIUM_LOBE_W": [medium.SLOT_LOBE_W],
     }
     assert set(host) == set(kc.kernel_constants())       # every header value has a user here
     names = sorted(host)
@@ -270,3 +275,27 @@ def test_mlp_core_refuses_to_build_without_a_contract_define(name):
 def test_kernels_refuse_to_build_without_a_host_define(stem, defines, name):
     with pytest.raises(BuildError, match=f"needs -D {name}"):
         get_runtime().program(stem, defines)
+
+
+def test_the_kernels_read_each_property_of_the_medium_block_where_the_host_packs_it():
+    """cl/include/medium.h's accessors on a block from ``medium_block``: every property comes
+    back from its own slot (distinct values everywhere, so that two swapped slots show), the
+    albedo's w is 0 and the free slots stay zero."""
+    from clvol.kernels.medium import medium_block
+    rt = get_runtime()
+    lobes = [(0.61, 0.52), (-0.23, 0.31), (0.07, 0.17)]
+    block = medium_block(2.75, (0.91, 0.82, 0.73), lobes)
+    src = ('#include "medium.h"\n__kernel void probe(const MediumBlock m, __global float *o) {\n'
+           "    o[0] = MEDIUM_DENSITY_SCALE_OF(m);\n    vstore4(MEDIUM_ALBEDO_OF(m), 1, o);\n"
+           "    vstore4(MEDIUM_LOBE_G_OF(m), 2, o);\n    vstore4(MEDIUM_LOBE_W_OF(m), 3, o);\n"
+           "    vstore4(m.q3, 4, o);\n}\n")
+    prog = cl.Program(rt.context, src).build(options=["-I", str(include_dir())],
+                                             devices=[rt.device])
+    out = np.zeros(20, np.float32)
+    ob = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    prog.probe(rt.queue, (1,), None, block, ob)
+    cl.enqueue_copy(rt.queue, out, ob)
+    rt.queue.finish()
+    want = np.float32([2.75, 0, 0, 0, 0.91, 0.82, 0.73, 0, 0.61, -0.23, 0.07, 0,
+                       0.52, 0.31, 0.17, 0, 0, 0, 0, 0])
+    assert out[0] == want[0] and np.array_equal(out[4:], want[4:]), out

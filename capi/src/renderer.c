@@ -368,8 +368,9 @@ static void read_view_keys(clvol_host *h) {
 static void open_bundle(clvol_host *h) {
     const manifest *m = &h->mf;
     double t0 = now_seconds();
-    if (strcmp(mf_str(m, "format"), "clvol-bundle") != 0 || mf_int(m, "format_version") != 1)
-        fail(BUNDLE, "%s: not a clvol-bundle of format_version 1", m->where);
+    if (strcmp(mf_str(m, "format"), "clvol-bundle") != 0 || mf_int(m, "format_version") != 2)
+        fail(BUNDLE, "%s: not a clvol-bundle of format_version 2 (write it again with this "
+             "version's clvol bundle)", m->where);
     read_host_constants(h);
     int dims[3];
     mf_ints(m, "density.dims", dims, 3);
@@ -1135,6 +1136,24 @@ static void view_stage(clvol_host *h) {
 }
 
 /* Every frame: the march into h->d_out (total, single, multiple, alpha, depth). */
+/* The ray marcher's medium argument (cl/include/medium.h): the bundle's block as it is, with
+ * the density scale and albedo this host holds now (clvol_set_medium changes them) written
+ * into the slots the bundle names (host.medium_*). */
+static cl_float16 medium_block(const clvol_host *h) {
+    const manifest *m = &h->mf;
+    double v[16];
+    if (mf_int(m, "host.medium_floats") != 16)
+        fail(BUNDLE, "%s: host.medium_floats = %d: this libclvol passes 16 floats", m->where,
+             mf_int(m, "host.medium_floats"));
+    mf_doubles(m, "raymarch.medium", v, 16);
+    v[mf_int_in(m, "host.medium_density_scale", 0, 15)] = h->density_scale;
+    int a = mf_int_in(m, "host.medium_albedo", 0, 13);
+    for (int c = 0; c < 3; ++c) v[a + c] = h->albedo[c];
+    cl_float16 out;
+    for (int i = 0; i < 16; ++i) out.s[i] = (float)v[i];
+    return out;
+}
+
 static void march_stage(clvol_host *h) {
     const manifest *m = &h->mf;
     double abc[3];
@@ -1170,18 +1189,16 @@ static void march_stage(clvol_host *h) {
     const double *origin = h->cam_origin, *l = h->light_dir;
     cl_float4 bmin = f4(h->bmin), bmax = f4(h->bmax), cmin4 = f4(h->cube_min), gmin4 = f4(gmin),
               gmax4 = f4(gmax), o4 = f4(origin), fw4 = f4(h->cam_fwd), r4 = f4(h->cam_right),
-              u4 = f4(h->cam_up), l4 = f4(l), e4 = f4(h->irradiance), a4 = f4(h->albedo),
-              bg4 = f4(h->background), rg, rw;
-    mf_float4(m, "raymarch.lobe_g", 4, &rg);
-    mf_float4(m, "raymarch.lobe_w", 4, &rw);
+              u4 = f4(h->cam_up), l4 = f4(l), e4 = f4(h->irradiance), bg4 = f4(h->background);
+    cl_float16 medium = medium_block(h);
     int ln = h->lit ? h->light_res : 1;
-    set_args(h->k_raymarch, "miii44fmiiiimi4fmiii444444fii444444fffffmmmmmm",
-             h->d_density, h->nx, h->ny, h->nz, &bmin, &bmax, h->density_scale,
+    set_args(h->k_raymarch, "miii44Gmiiiimi4fmiii444444fii444fffffmmmmmm",
+             h->d_density, h->nx, h->ny, h->nz, &bmin, &bmax, &medium,
              h->d_majorant, h->mx, h->my, h->mz, h->block,
              h->lit ? h->d_light : h->d_dummy, ln, &cmin4, h->lit ? h->cube_size : 1.0,
              planes, gres[0], gres[1], gres[2], &gmin4, &gmax4,
              &o4, &fw4, &r4, &u4, h->tan_half, W, H,
-             &l4, &e4, &a4, &rg, &rw, &bg4, abc[0], abc[1], abc[2],
+             &l4, &e4, &bg4, abc[0], abc[1], abc[2],
              h->step, mf_double(m, "raymarch.threshold"),
              h->d_out[0], h->d_out[1], h->d_out[2], h->d_out[3], h->d_out[4], h->d_out[5]);
     /* a tile is tile x LANES / tile pixels, one a lane (cl/raymarch.cl TILE_ROWS) */

@@ -375,7 +375,8 @@ void launch(clvol_host *h, cl_kernel k, size_t global, size_t local) {
 }
 
 /* Set a kernel's arguments in order: 'm' cl_mem, 'i' int, 'f' float (passed as double),
- * '4' cl_float4 *. */
+ * '4' cl_float4 *, 'G' cl_float16 * (the medium block: cl/include/medium.h's MediumBlock has its
+ * size and layout). */
 void set_args(cl_kernel k, const char *types, ...) {
     va_list ap;
     va_start(ap, types);
@@ -391,6 +392,7 @@ void set_args(cl_kernel k, const char *types, ...) {
         case 'i': { cl_int v = va_arg(ap, int); err = clSetKernelArg(k, i, sizeof v, &v); break; }
         case 'f': { cl_float v = (cl_float)va_arg(ap, double); err = clSetKernelArg(k, i, sizeof v, &v); break; }
         case '4': { cl_float4 *v = va_arg(ap, cl_float4 *); err = clSetKernelArg(k, i, sizeof *v, v); break; }
+        case 'G': { cl_float16 *v = va_arg(ap, cl_float16 *); err = clSetKernelArg(k, i, sizeof *v, v); break; }
         default: va_end(ap); fail(CLVOL_ERROR_OPENCL, "internal: bad argument type %c", types[i]);
         }
         if (err != CL_SUCCESS) {

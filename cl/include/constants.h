@@ -50,4 +50,13 @@
 #define VIEW_MAX_K 16
 #define VIEW_MAX_RAYS 4
 
+/* cl/include/medium.h: the medium block, one 16-float kernel argument (MediumBlock) of cl/raymarch.cl and
+ * cl/pathtrace.cl: where each optical property sits (its first float) and the block's size.
+ * Slots 12..15 are zero (free for the next property). */
+#define MEDIUM_FLOATS 16
+#define MEDIUM_DENSITY_SCALE 0
+#define MEDIUM_ALBEDO 1
+#define MEDIUM_LOBE_G 4
+#define MEDIUM_LOBE_W 8
+
 #endif

@@ -27,6 +27,10 @@ it: the ray marcher (clvol/render/raymarch.py) and its network source, and the p
 
 This module wraps no kernel of its own: it composes the wrappers of majorant.cl, pyramid.cl
 and transmittance.cl.
+
+``medium_block`` packs the medium's optical properties into the one 16-float argument the ray
+marcher and the path tracer read (cl/include/medium.h); it is the only code that knows where
+each property sits, from the MEDIUM_* slots of cl/include/constants.h.
 """
 from __future__ import annotations
 
@@ -36,7 +40,29 @@ import numpy as np
 
 from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
+from .constants import kernel_constant
 from .majorant import DEFAULT_BLOCK, build_majorant_buffer, majorant_block
+from .phase import lobe_vectors
+
+
+# Where each property sits in the block (cl/include/constants.h MEDIUM_*).
+MEDIUM_FLOATS = kernel_constant("MEDIUM_FLOATS")
+SLOT_DENSITY_SCALE = kernel_constant("MEDIUM_DENSITY_SCALE")
+SLOT_ALBEDO = kernel_constant("MEDIUM_ALBEDO")
+SLOT_LOBE_G = kernel_constant("MEDIUM_LOBE_G")
+SLOT_LOBE_W = kernel_constant("MEDIUM_LOBE_W")
+
+
+def medium_block(density_scale: float, albedo, lobes) -> np.ndarray:
+    """The medium block (cl/include/medium.h): float32 [MEDIUM_FLOATS] holding
+    ``density_scale`` (sigma_t = density * density_scale), the RGB ``albedo`` and the phase
+    ``lobes`` ((g, weight) pairs or Lobes; none: one isotropic lobe) as ``lobe_vectors``
+    gives them; the free slots are zero. Passed as the kernels' ``medium`` argument."""
+    b = np.zeros(MEDIUM_FLOATS, np.float32)
+    b[SLOT_DENSITY_SCALE] = float(density_scale)
+    b[SLOT_ALBEDO:SLOT_ALBEDO + 3] = np.asarray(albedo, np.float64)
+    b[SLOT_LOBE_G:SLOT_LOBE_G + 4], b[SLOT_LOBE_W:SLOT_LOBE_W + 4] = lobe_vectors(lobes)
+    return b
 
 
 @dataclass(eq=False)

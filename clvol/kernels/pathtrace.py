@@ -20,7 +20,7 @@ from .constants import kernel_constant
 from .grid import f4
 from .majorant import DEFAULT_BLOCK, majorant_args
 from .majorant import majorant_block as resolve_block
-from .medium import DeviceMedium
+from .medium import DeviceMedium, medium_block
 
 # Per-path output row of the kernels (PT_OUT floats; the widths are cl/include/constants.h's).
 ROW_BG, ROW_L1, ROW_LMS = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -74,7 +74,7 @@ def order_bin_ranges() -> np.ndarray:
     return np.stack([lo, hi], axis=1).astype(np.int64)
 
 _MEDIUM_DTYPES = [None, None, np.int32, np.int32, np.int32, np.int32, np.int32, np.int32,
-                  None, None, None, np.float32, None, None, None, None, None, None]
+                  None, None, None, None, None, None, None]
 _RENDER_DTYPES = _MEDIUM_DTYPES + [None, None, None, None, np.float32, np.int32, np.int32,
                                    np.uint64, np.uint32, np.int32, np.int32, None, None]
 _QUERY_DTYPES = _MEDIUM_DTYPES + [None, None, np.int32, np.uint64, np.uint32, np.int32,
@@ -251,8 +251,6 @@ class PathTracer:
                                                   **self.defines})
         self._query_program = None
         self._order_program = None
-        lobes = med.lobes if med.lobes else [(0.0, 1.0)]
-        self.lobe_g, self.lobe_w = kphase.lobe_vectors(lobes)
         env = med.environment if med.environment is not None else (0.0, 0.0, 0.0)
         nz, ny, nx = self.shape
         mx, my, mz = self.mres
@@ -260,7 +258,7 @@ class PathTracer:
             device_medium.density.buffer, device_medium.majorant.buffer, np.int32(nx),
             np.int32(ny), np.int32(nz), np.int32(mx), np.int32(my), np.int32(mz),
             f4(med.bbox_min), f4(med.bbox_max), self.bsize,
-            np.float32(med.density_scale), f4(med.albedo), self.lobe_g, self.lobe_w,
+            medium_block(med.density_scale, med.albedo, med.lobes),
             f4(med.light_dir), f4(med.sun), f4(env))
         if "PT_ENVMAP" in self.defines:
             self._medium_args += self.env_args(rt, med.env_tables())

@@ -14,7 +14,8 @@ from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
 from .constants import kernel_constant
 from .grid import f4
-from .phase import lobe_vectors, phase_defines
+from .medium import medium_block
+from .phase import phase_defines
 
 # The kernel's MS_SOURCE define per kind of F_ms lookup (the registry of source classes, a
 # different table, is clvol/render/ms/__init__.py SOURCES: each source says which kind it
@@ -97,12 +98,12 @@ def raymarch_defines(lobes, lit: bool, source: str, octaves: int, channels: int,
     return d
 
 
-_SCALARS = ([None, np.int32, np.int32, np.int32, None, None, np.float32]       # density
+_SCALARS = ([None, np.int32, np.int32, np.int32, None, None, None]             # density, medium
             + [None, np.int32, np.int32, np.int32, np.int32]                     # majorant
             + [None, np.int32, None, np.float32]                                 # light field
             + [None, np.int32, np.int32, np.int32, None, None]                   # F_ms lattice
             + [None, None, None, None, np.float32, np.int32, np.int32]           # camera
-            + [None] * 6                                                         # light, medium
+            + [None] * 3                                                         # light, background
             + [np.float32] * 5                                                   # a, b, c, step, thr
             + [None] * 6)                                                        # outputs
 _ENV_SCALARS = [None, np.int32, None, np.float32, None]       # env, en, min, size, colour (ENV)
@@ -306,7 +307,7 @@ def launch(*, defines: dict, volume: MarchVolume, camera: MarchCamera, light: Ma
     if defines.get("LIT") and light.field is None:
         raise ClvolError("a lit march (LIT 1) needs the light field")
     dummy = _Dummy(rt)     # one 1-float buffer for whichever input is absent
-    args = (_volume_args(volume, rt) + _light_field_args(light, rt, dummy)
+    args = (_volume_args(volume, light, rt) + _light_field_args(light, rt, dummy)
             + _ms_args(ms, dummy) + _camera_args(camera) + _light_args(light, ms)
             + (np.float32(step), np.float32(threshold)))
     scalars = list(_SCALARS)
@@ -356,11 +357,13 @@ class _Dummy:
         return self._buffer
 
 
-def _volume_args(v: MarchVolume, rt) -> tuple:
+def _volume_args(v: MarchVolume, light: MarchLight, rt) -> tuple:
+    """The density, its box, the medium block (its scale, the light's albedo and lobes) and
+    the majorant grid."""
     dens, maj = _device(v.density, rt), _device(v.majorant, rt)
     (nz, ny, nx), (mz, my, mx) = dens.shape, maj.shape
     return (dens.buffer, np.int32(nx), np.int32(ny), np.int32(nz), f4(v.bbox_min),
-            f4(v.bbox_max), np.float32(v.density_scale),
+            f4(v.bbox_max), medium_block(v.density_scale, light.albedo, light.lobes),
             maj.buffer, np.int32(mx), np.int32(my), np.int32(mz), np.int32(v.block))
 
 
@@ -391,9 +394,8 @@ def _camera_args(c: MarchCamera) -> tuple:
 
 
 def _light_args(light: MarchLight, ms: MarchMs) -> tuple:
-    g, w = lobe_vectors(light.lobes)
-    return (f4(light.direction), f4(light.irradiance), f4(light.albedo), g, w,
-            f4(light.background), np.float32(ms.a), np.float32(ms.b), np.float32(ms.c))
+    return (f4(light.direction), f4(light.irradiance), f4(light.background),
+            np.float32(ms.a), np.float32(ms.b), np.float32(ms.c))
 
 
 def _check_input_defines(defines: dict, inputs: dict) -> None:
