@@ -652,9 +652,14 @@ class Runtime:
         self.transfers.record(UPLOAD, label, data.nbytes)
         return cl.enqueue_copy(self.queue, buf, data, dst_offset=int(byte_offset))
 
-    def zero(self, dst: "DeviceArray") -> "cl.Event":
-        """Fill ``dst`` with zero bytes on the device (no host transfer)."""
-        return cl.enqueue_fill_buffer(self.queue, dst.buffer, np.uint8(0), 0, max(dst.nbytes, 1))
+    def zero(self, dst) -> "cl.Event":
+        """Fill ``dst`` (a DeviceArray or a cl.Buffer) with zero bytes on the device (no host
+        transfer); under Oclgrind from the host, as ``empty`` does."""
+        buf = dst.buffer if isinstance(dst, DeviceArray) else dst
+        if self.is_oclgrind:
+            self.transfers.record(UPLOAD, "zeros (Oclgrind)", buf.size)
+            return cl.enqueue_copy(self.queue, buf, np.zeros(buf.size, np.uint8))
+        return cl.enqueue_fill_buffer(self.queue, buf, np.uint8(0), 0, buf.size)
 
     def copy(self, dst: "DeviceArray", src: "DeviceArray", nbytes: int | None = None,
              dst_offset: int = 0, src_offset: int = 0) -> "cl.Event":

@@ -478,3 +478,31 @@ def test_cli_renders_a_scene_with_the_ray_marcher(tmp_path):
     np.testing.assert_allclose(img.layers["total"][clear], 0.1, rtol=1e-6)
     assert main(["render", str(scene), "--method", "raymarch", "--step", "-1",
                  "-o", str(out)]) == 2
+
+
+def test_a_renderer_marches_into_the_same_outputs_frame_after_frame():
+    """The march writes into its RayMarcher's own buffers (kernels/raymarch.py MarchOutputs):
+    made once per image size, not per frame, with the count in stats word 0 set to zero before
+    each launch. The camera 2e6 from the unit cloud with a view 1e-5 degrees high (as in
+    tests/test_bounded.py) stops every one of the 16 x 12 rays at the march's bound, so a count
+    that carried over would read 2 x 192 on the second frame."""
+    import dataclasses
+
+    import clvol
+    from clvol.scene import scene_from_dict
+    scene = scene_from_dict({
+        "volume": {"generator": "cloud", "seed": 3, "resolution": 16},
+        "medium": {"preset": "cloud", "density_scale": 30.0},
+        "light": {"direction": [0.6, 0.9, 0.3]},
+        "camera": {"origin": [0.0, 0.0, 2e6], "target": [0.0, 0.0, 0.0], "fov_y": 1e-5,
+                   "width": 16, "height": 12}})
+    r = clvol.Renderer(scene, "raymarch", ms="none")
+    first, second = r.render(), r.render()
+    outs = r._marcher.outputs
+    assert outs.allocations == 1
+    assert first.header["raymarch.rays_stopped_at_bound"] == 16 * 12
+    assert second.header["raymarch.rays_stopped_at_bound"] == 16 * 12
+    assert np.array_equal(first.layers["total"], second.layers["total"])
+    bigger = dataclasses.replace(scene.camera, width=20)
+    assert r.render(camera=bigger).layers["total"].shape == (12, 20, 3)
+    assert outs.allocations == 2

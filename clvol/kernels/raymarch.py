@@ -291,15 +291,46 @@ class MarchEmission:
         return cls(**{f.name: keywords[f.name] for f in fields(cls) if f.name in keywords})
 
 
+class MarchOutputs:
+    """The march's device outputs, owned by the caller and reused frame after frame (as
+    tiny-cuda-nn's kernels write into caller-owned outputs): a buffer per layer and the stats
+    words, kept while the image size, the layers and the stats mode stay the same and made
+    again when one changes. The count in stats word 0 is set to zero before every launch.
+
+        outs = MarchOutputs()                      # e.g. one per RayMarcher
+        launch(..., outputs=outs)                  # frame after frame: no new buffers
+    """
+
+    def __init__(self):
+        self._key = None
+        self.buffers: dict | None = None
+        self.n_tiles = 0
+        self.allocations = 0                       # times the buffers were made
+
+    def take(self, camera: MarchCamera, layers, stats: bool, rt) -> tuple[dict, int]:
+        """(buffers, tiles) for a launch of ``camera``'s image with ``layers``."""
+        key = (camera.width, camera.height, tuple(layers), bool(stats), rt.lanes)
+        if key != self._key:
+            self.buffers = None                    # the old buffers go before the new come
+            self.buffers, self.n_tiles = _outputs(camera, layers, stats, rt)
+            self._key = key
+            self.allocations += 1
+            return self.buffers, self.n_tiles
+        rt.zero(self.buffers["stats"])
+        return self.buffers, self.n_tiles
+
+
 def launch(*, defines: dict, volume: MarchVolume, camera: MarchCamera, light: MarchLight,
            ms: MarchMs, environment: MarchEnvironment = MarchEnvironment(),
            emission: MarchEmission | None = None, step: float, threshold: float,
-           runtime=None, read_back: bool = True, stats: bool = False):
+           runtime=None, read_back: bool = True, stats: bool = False,
+           outputs: MarchOutputs | None = None):
     """Launch cl/raymarch.cl built with ``defines``, complete: the plan's
     (FramePlan.programs["raymarch"]), or ``raymarch_defines`` with ``input_defines``. The
     inputs are checked against them (an environment, a background image, emission planes
     exactly where the defines say so); only ``stats`` adds one (RAYMARCH_STATS: counters for
-    the benchmarks, no change to the image). ``step`` in world units. Returns what
+    the benchmarks, no change to the image). ``step`` in world units. ``outputs``: the
+    caller's MarchOutputs to write into (default: new buffers for this launch). Returns what
     ``raymarch`` returns."""
     rt = runtime or get_runtime()
     if step is None or not step > 0:
@@ -331,7 +362,7 @@ def launch(*, defines: dict, volume: MarchVolume, camera: MarchCamera, light: Ma
     if stats:
         defines = dict(defines, RAYMARCH_STATS=1)
     k = rt.program("raymarch", defines).kernel("raymarch", scalars)
-    outs, n_tiles = _outputs(camera, layers, stats, rt)
+    outs, n_tiles = (outputs or MarchOutputs()).take(camera, layers, stats, rt)
     args += tuple(outs[name] for name, _ in LAYERS) + (outs["stats"],) + extra
     if emission is not None:
         args += (outs["emission"],)

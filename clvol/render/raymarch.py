@@ -23,7 +23,7 @@ from ..errors import ClvolError
 from ..kernels.majorant import DEFAULT_BLOCK
 from ..kernels.medium import DeviceMedium
 from ..kernels.pyramid import MAX_BASE_RESOLUTION
-from ..kernels.raymarch import DEFAULT_THRESHOLD, LIGHT_QUANTITIES, launch
+from ..kernels.raymarch import DEFAULT_THRESHOLD, LIGHT_QUANTITIES, MarchOutputs, launch
 from ..features.layout import is_power_of_two
 from ..runtime import get_runtime
 from .ms.base import MsSource
@@ -112,6 +112,7 @@ class RayMarcher:
         self.block = self.dm.block
         self.density, self.majorant = self.dm.density, self.dm.majorant
         self.light_builds = 0
+        self.outputs = MarchOutputs()    # the march's output buffers, kept frame to frame
         from .environment import DEFAULT_ENV_DIRECTIONS, DEFAULT_ENV_RESOLUTION
         check_env_options(env_directions, env_resolution)
         self.env_directions = int(env_directions or DEFAULT_ENV_DIRECTIONS)
@@ -195,7 +196,8 @@ class RayMarcher:
         FramePlan, clvol/render/plan.py) says, reading the data of ``source`` (the plan's
         source, prepared for this frame). ``emission``: an EmissionGrid (clvol/emission.py;
         its ``device`` planes when set). Returns (layers, plan), or with ``read_back=False``
-        (event, buffers, plan)."""
+        (event, buffers, plan): the buffers are ``self.outputs``'s, which the next march
+        writes again, so read them before it."""
         if plan.lit:
             self.ensure_light_for(plan.keys["light_field"])
         from ..runtime import Stopwatch
@@ -231,7 +233,7 @@ class RayMarcher:
             ms=MarchMs(planes, *box, a=o.a, b=o.b, c=o.c),
             environment=MarchEnvironment.pick(env_kw), emission=MarchEmission.pick(env_kw),
             step=plan.step, threshold=plan.threshold, runtime=self.rt,
-            read_back=read_back, stats=stats)
+            read_back=read_back, stats=stats, outputs=self.outputs)
         if read_back:
             # the rays cl/raymarch.cl's progress bound stopped (the header's
             # raymarch.rays_stopped_at_bound); the layers stay images only
