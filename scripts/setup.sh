@@ -11,8 +11,9 @@
 #      docs/embedding.md);
 #   5. Debian's chromium and chromium-driver for the browser test of `clvol view` (browser
 #      downloads by test tools fail on these machines);
-#   6. Mesa's rusticl (mesa-opencl-icd, libclc-15, libllvmspirvlib15), a second OpenCL
-#      implementation the test suite runs the kernel-vs-twin tests on (tests/test_rusticl.py).
+#   6. Mesa's rusticl (mesa-opencl-icd, which brings libclc-15 and libllvmspirvlib15), a second
+#      OpenCL implementation the test suite runs the kernel-vs-twin tests on
+#      (tests/test_rusticl.py).
 #      It shows no device unless RUSTICL_ENABLE=llvmpipe is set, and the package's other ICD
 #      (mesa.icd, Clover) none without a GPU, so the default device stays what it was
 #      (docs/opencl.md, "rusticl");
@@ -38,9 +39,8 @@ have_icd() {
 }
 apt_pkgs=()
 if ! have_icd; then apt_pkgs+=(pocl-opencl-icd ocl-icd-libopencl1); fi
-if ! dpkg -s mesa-opencl-icd libclc-15 libllvmspirvlib15 >/dev/null 2>&1; then
-  apt_pkgs+=(mesa-opencl-icd libclc-15 libllvmspirvlib15)
-fi
+# mesa-opencl-icd's own dependencies bring the rest (Debian 12: libclc-15, libllvmspirvlib15)
+if ! dpkg -s mesa-opencl-icd >/dev/null 2>&1; then apt_pkgs+=(mesa-opencl-icd); fi
 if ! command -v oclgrind >/dev/null 2>&1; then apt_pkgs+=(oclgrind); fi
 if ! /usr/bin/python3 -c "import pyopenvdb" >/dev/null 2>&1; then apt_pkgs+=(python3-openvdb); fi
 if ! command -v vdb_tool >/dev/null 2>&1; then apt_pkgs+=(libopenvdb-tools); fi
