@@ -163,9 +163,12 @@ def choose_device(device: str | None = None) -> tuple[DeviceEntry, str]:
         if spec:
             return _match(spec, entries, origin), f"{origin}={spec}"
     for kind in ("gpu", "cpu"):
-        for e in entries:
-            if e.kind == kind:
-                return e, f"default: first {kind.upper()}"
+        found = [e for e in entries if e.kind == kind]
+        if found:
+            e = min(found, key=lambda e: default_last(e.platform.name))   # the first of the best
+            return e, f"default: first {kind.upper()}" + (
+                "" if e is found[0] else f" not of {found[0].platform.name.strip()!r} "
+                "(runtime.DEFAULT_LAST)")
     return entries[0], "default: first device"
 
 
@@ -303,6 +306,22 @@ DRIVER_RULES: tuple = (
     # independent: bit-identical at 16, 8 and 4.
     ("rusticl", {"MLP_DENSE_ARRAY": 1, "MLP_MULADD": 1}, 4),
 )
+
+
+# Platforms whose devices the default choice takes after any other device of the same type:
+# Mesa's Clover (mesa.icd, which mesa-opencl-icd installs beside rusticl's ICD; scripts/setup.sh
+# installs it) shows no device on a machine without a GPU, but exposes an AMD or Intel GPU
+# through Mesa's Gallium drivers: an OpenCL 1.1 implementation clvol is not tested on, which
+# would otherwise be the default render's device wherever the ICD loader lists it before the
+# GPU vendor's platform. --device / $CLVOL_DEVICE still pick it. libclvol: capi/src/util.c
+# clvol_default_last (tests/test_capi.py holds the two to the same answers).
+DEFAULT_LAST = ("clover",)
+
+
+def default_last(platform_name: str) -> bool:
+    """Whether the default device choice takes this platform's devices last (DEFAULT_LAST)."""
+    name = (platform_name or "").lower()
+    return any(m in name for m in DEFAULT_LAST)
 
 
 def _driver_rules(platform_name: str):

@@ -5,7 +5,7 @@ so a first launch includes llvmpipe's compile:
     OCL_ICD_VENDORS=DIR RUSTICL_ENABLE=llvmpipe python scripts/rusticl_probe.py fma
     OCL_ICD_VENDORS=DIR RUSTICL_ENABLE=llvmpipe python scripts/rusticl_probe.py dense
     OCL_ICD_VENDORS=DIR RUSTICL_ENABLE=llvmpipe python scripts/rusticl_probe.py mlp [--lanes 4 16]
-        [--drop MLP_MULADD]
+        [--drop MLP_MULADD] [--arch "layer_counts=(48, 48, 48, 48, 48), n_diffuse_layers=2"]
 
 fma:   a loop of 200,000 float16 multiply-adds per work-item (64 work-items), fma() against
        a * b + c: the second launch's time (compiled), and whether each is fused (against a
@@ -15,7 +15,8 @@ dense: one dense layer (32 inputs, 32 outputs, the MLP_DENSE_ARRAY form of
        a * b + c, at 16 and 4 lanes.
 mlp:   the shipped architecture's mlp_forward (clvol/kernels/mlp.py, 37 queries): first
        forward's time (build, create, llvmpipe's compile, run) at each lane width, with the
-       driver rule's defines, and its largest error against reference/mlp.py.
+       driver rule's defines, and its largest error against reference/mlp.py. --arch: the
+       keyword arguments of clvol.features.weights.Architecture instead of the shipped one.
 Without a rusticl platform it says so and exits 2. Each child has --timeout seconds.
 """
 import argparse
@@ -141,12 +142,12 @@ def child_dense(form, lanes):
           f"first launch {t3 - t2:.2f} s", flush=True)
 
 
-def child_mlp(lanes, drop):
+def child_mlp(lanes, drop, arch_kw=""):
     import numpy as np
     from clvol.features.weights import Architecture, MlpWeights, default_params, feature_contract
     from clvol.kernels.mlp import MlpKernel
     from reference import mlp as ref
-    arch = Architecture()
+    arch = eval(f"Architecture({arch_kw})", {"Architecture": Architecture})  # noqa: S307 (a probe)
     w = MlpWeights(arch, default_params(arch, np.random.default_rng(21)), feature_contract())
     net = MlpKernel(w)
     for name in drop:   # a workaround left out (the kernels are built at the first forward)
@@ -160,7 +161,8 @@ def child_mlp(lanes, drop):
     t = time.perf_counter()
     net.forward(f2, c2)
     dt2 = time.perf_counter() - t
-    print(f"mlp probe, shipped architecture, {net.rt.lanes:2d} lanes, defines "
+    print(f"mlp probe, {'Architecture(' + arch_kw + ')' if arch_kw else 'shipped architecture'}, "
+          f"{net.rt.lanes:2d} lanes, defines "
           f"{sorted(net.rt.driver_defines)}: first forward {dt:.2f} s; max |error| "
           f"{np.abs(got - want).max():.2g} (max |y| {np.abs(want).max():.3g}); then 4,096 "
           f"queries in {dt2:.2f} s", flush=True)
@@ -192,6 +194,7 @@ def main():
     ap.add_argument("--timeout", type=float, default=300)
     ap.add_argument("--drop", nargs="+", default=[],
                     help="mlp: leave these driver-rule defines out (e.g. MLP_MULADD)")
+    ap.add_argument("--arch", default="", help="mlp: Architecture(...) keyword arguments")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("rest", nargs="*", help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -201,7 +204,7 @@ def main():
         elif a.probe == "dense":
             child_dense(a.rest[0], int(a.rest[1]))
         else:
-            child_mlp(int(a.rest[0]), a.drop)
+            child_mlp(int(a.rest[0]), a.drop, a.arch)
         return 0
     if _rusticl()[1] is None:
         print("no rusticl device (OCL_ICD_VENDORS=DIR with rusticl.icd, RUSTICL_ENABLE=llvmpipe)")
@@ -215,7 +218,8 @@ def main():
                 run_child(["dense", form, str(lanes)], a.timeout)
     else:
         for lanes in a.lanes or (4, 16):
-            run_child(["mlp", str(lanes)] + (["--drop"] + a.drop if a.drop else []), a.timeout,
+            run_child(["mlp", str(lanes)] + (["--drop"] + a.drop if a.drop else [])
+                      + (["--arch", a.arch] if a.arch else []), a.timeout,
                       {"CLVOL_LANES": str(lanes)})
     return 0
 

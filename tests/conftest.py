@@ -6,12 +6,15 @@ what ``clvol info`` and ``--device`` take (``P:D``, ``gpu``, ``cpu`` or a name s
 reads ``$CLVOL_DEVICE`` (docs/opencl.md), so the option sets that variable for the session and
 every kernel-vs-twin test runs on that device. The header line names the device.
 
-Run the kernel-vs-twin tests on every device there is (one pytest process per device)::
+Run the kernel-vs-twin tests on every device there is (one pytest process per file and
+device, kernel caches empty, a table of results and times)::
 
     python scripts/twins_on_devices.py            # --tiny: only the tiny adversarial subset
+    RUSTICL_ENABLE=llvmpipe python scripts/twins_on_devices.py --device rusticl --tiny
 
 ``TWIN_FILES`` is the list of those test files: ``tests/test_<stem>.py`` for each kernel
-``cl/<stem>.cl`` that has one.
+``cl/<stem>.cl`` that has one. tests/test_rusticl.py runs their subset marked ``rusticl`` on
+Mesa's rusticl within the default run.
 """
 from __future__ import annotations
 

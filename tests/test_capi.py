@@ -317,6 +317,13 @@ def test_driver_workarounds_agree_with_python(lib):
     assert lib.clvol_driver_lanes(b"rusticl") == 4
     assert lib.clvol_driver_defines(b"Portable Computing Language") == b""
     assert lib.clvol_driver_lanes(b"Portable Computing Language") == 0
+    # the default device choice's order (clvol_default_last: Mesa's Clover after the others)
+    from clvol.runtime import default_last
+    lib.clvol_default_last.argtypes = [ctypes.c_char_p]
+    lib.clvol_default_last.restype = ctypes.c_int
+    for name in PLATFORM_NAMES:
+        assert lib.clvol_default_last(name.encode()) == int(default_last(name)), name
+    assert lib.clvol_default_last(b"Clover") == 1 and lib.clvol_default_last(None) == 0
 
 
 def test_ctypes_setters_match_the_python_renderer(lib, bundle, script):

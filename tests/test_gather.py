@@ -244,6 +244,7 @@ def test_rotation_of_analytic_field_within_tolerance():
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_tiny():
     pyr, gt = setup(generate("sphere", seed=0, resolution=4).density, 4, (0.2, 0.3, 0.9))
     compare(pyr, gt, *queries(3, seed=1, spread=0.4))
@@ -369,6 +370,7 @@ def test_as_buffers_and_reuse():
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_tiny_render():
     pyr, gt = setup(generate("sphere", seed=0, resolution=4).density, 4, (0.2, 0.3, 0.9))
     pts, om = queries(3, seed=1, spread=0.4)

@@ -53,6 +53,7 @@ def test_kernel_matches_reference_random_points(shape):
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_grid_tiny():
     d = _grid((2, 3, 2))
     p = np.array([[0.1, 0.2, 0.3], [0.9, 0.9, 0.1], [1.2, 0, 0]], np.float32)

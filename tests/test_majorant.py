@@ -164,6 +164,7 @@ def test_dda_tmax_clips_and_global_majorant_is_one_segment():
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_majorant_tiny():
     d = np.random.default_rng(0).random((3, 2, 3)).astype(np.float32)
     np.testing.assert_array_equal(kmaj.build_majorant(d, 2), rmaj.build_majorant(d, 2))

@@ -171,6 +171,7 @@ TINY = Architecture(layer_counts=(3, 2, 5, 2, 3), n_diffuse_layers=3, n_levels=3
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_tiny_architecture():
     """A tiny network (14 template points, 3 queries): runs under Oclgrind in seconds and
     exercises both load paths (two transposed 16-blocks, then per-lane loads for the last 10)."""

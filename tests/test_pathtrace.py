@@ -437,14 +437,27 @@ def test_cli_render_writes_layers_and_header(tmp_path):
     assert "simulated" in img.header and "skipped" in img.header
 
 
-@pytest.mark.oclgrind
-def test_pathtrace_tiny():
+def _tiny_tracer():
     d = _smooth((3, 2, 3))
     med = make_medium(density=d, lobes=[(0.5, 0.7), (-0.2, 0.3)], albedo=(0.9, 0.8, 0.7),
                       env=(0.1, 0.1, 0.1), max_order=3)
+    return med, PathTracer(med, majorant_block=0)
+
+
+@pytest.mark.oclgrind
+@pytest.mark.rusticl
+def test_pathtrace_tiny():
+    """pt_render on a 2 x 2 camera, 1 path a pixel, against the twin's paths. The point-query
+    kernel's half is the next test: on Mesa's rusticl (tests/test_rusticl.py) each kernel's
+    first launch compiles for 50-65 s, and this one is the subset's."""
+    med, pt = _tiny_tracer()
     cam = Camera((0.1, 0.0, 2.0), (0, 0, 0), (0, 1, 0), 30.0, 2, 2)
-    pt = PathTracer(med, majorant_block=0)
     assert agreement(pt.render_batch(cam, 1, 0, 1), rpt.render_paths(twin(med), cam, 1, [0])) == 1.0
+
+
+@pytest.mark.oclgrind
+def test_pathtrace_tiny_query():
+    med, pt = _tiny_tracer()
     p = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]], np.float32)
     w = np.array([[0, 0, 1], [0, 1, 0]], np.float32)
     k = pt.query_batch(pt.rt.to_device(p), pt.rt.to_device(w), 2, 1, 0, 1)

@@ -45,6 +45,7 @@ def test_eval_kernel_matches_reference(name):
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_eval_tiny():
     lobes = MIXTURES["skin"]
     mu = np.array([-1, -0.5, 0, 0.999, 1], np.float32)
@@ -92,6 +93,7 @@ def test_sample_kernel_matches_reference_on_same_uniforms(name):
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_sample_tiny():
     lobes = MIXTURES["milk"]
     u = _uniforms(5, 1)

@@ -114,6 +114,7 @@ def test_build_pyramid_needs_a_grid():
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_pyramid_tiny():
     g = _grid((2, 3, 1), (0, 0, 0), (1, 1.5, 0.5), seed=4)
     p = kp.build_pyramid(g, 4)

@@ -245,6 +245,7 @@ def test_kernel_matches_twin_environment(channels, lit, bg):
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_raymarch_tiny():
     """One full tile and one partial tile (5 x 3 pixels), a 3 x 2 x 3 grid."""
     kw = _inputs("odd")

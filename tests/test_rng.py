@@ -21,6 +21,7 @@ def test_reference_matches_random123_known_answers(ctr, key, expect):
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 @pytest.mark.parametrize("ctr,key,expect", KAT)
 def test_kernel_matches_random123_known_answers(ctr, key, expect):
     got = krng.philox_raw(np.array([ctr], np.uint32), key)[0]
@@ -35,6 +36,7 @@ def test_kernel_bit_identical_to_reference_on_many_counters():
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_uniform_streams_bit_identical_and_in_unit_interval():
     seed = (7 << 32) | 12345  # both key words in use
     stream0 = (3 << 32) + 17  # stream ids beyond 32 bits

@@ -21,6 +21,33 @@ def test_default_choice_prefers_gpu_then_cpu(monkeypatch):
     assert entry.kind == expect and why.startswith("default")
 
 
+def test_default_choice_takes_mesas_clover_last(monkeypatch):
+    """Mesa's Clover (installed beside rusticl by mesa-opencl-icd) exposes AMD/Intel GPUs: the
+    default takes another platform's GPU first, whichever order the loader lists them in, and
+    Clover's only where no other platform has a device of that type; --device still picks it."""
+    from types import SimpleNamespace as NS
+    import pyopencl as cl
+    monkeypatch.delenv("CLVOL_DEVICE", raising=False)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+
+    def entries(*plats):
+        return [runtime.DeviceEntry(i, 0, NS(name=name), NS(type=t, name=f"dev{i}"))
+                for i, (name, t) in enumerate(plats)]
+
+    gpu, cpu = cl.device_type.GPU, cl.device_type.CPU
+    for plats, want in [((("Clover", gpu), ("AMD Accelerated Parallel Processing", gpu)), 1),
+                        ((("AMD Accelerated Parallel Processing", gpu), ("Clover", gpu)), 0),
+                        ((("Clover", gpu), ("Portable Computing Language", cpu)), 0),
+                        ((("Clover", cpu), ("rusticl", cpu), ("Portable Computing Language", cpu)), 1)]:
+        es = entries(*plats)
+        monkeypatch.setattr(runtime, "list_devices", lambda es=es: es)
+        entry, why = runtime.choose_device()
+        assert entry.platform_index == want, (plats, why)
+        assert why.startswith("default") and ("DEFAULT_LAST" in why) == (want != 0), why
+    assert runtime.choose_device("clover")[0].platform_index == 0
+    assert runtime.default_last("Clover") and not runtime.default_last("rusticl")
+
+
 def test_explicit_spec_and_env_precedence(monkeypatch):
     first = runtime.list_devices()[0]
     monkeypatch.setenv("PYOPENCL_CTX", "no-such-device")

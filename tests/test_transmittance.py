@@ -264,6 +264,7 @@ def test_bad_arguments_are_refused_with_their_values():
 
 
 @pytest.mark.oclgrind
+@pytest.mark.rusticl
 def test_transmittance_tiny():
     """Every kernel on a 16^3 base (float16 sweep on level 0, scalar below, an x-dominant light
     for the transposed output) and a 4^3 brute force: small enough for Oclgrind."""

@@ -58,9 +58,12 @@ def _case(name):
                 rays=rays, k=k, step=float(np.float32(0.05)))
 
 
-@pytest.mark.parametrize("name", [pytest.param("odd", marks=pytest.mark.oclgrind), "inside",
+TINY_MARKS = [pytest.mark.oclgrind, pytest.mark.rusticl]
+
+
+@pytest.mark.parametrize("name", [pytest.param("odd", marks=TINY_MARKS), "inside",
                                   "opaque", "one_knot",
-                                  pytest.param("jitter", marks=pytest.mark.oclgrind),
+                                  pytest.param("jitter", marks=TINY_MARKS),
                                   "jitter_one_knot"])
 def test_kernel_matches_twin(name):
     kw = _case(name)

@@ -115,7 +115,7 @@ typedef enum {
 CLVOL_API long clvol_stage_count(const clvol_renderer *r, clvol_stage stage);
 
 /* The device that spec names: "gpu", "cpu" or "P:D" (platform P, device D); NULL: the
- * first GPU, else the first CPU (what clvol_create picks). */
+ * first GPU, else the first CPU, Mesa's Clover last (what clvol_create picks). */
 CLVOL_API clvol_status clvol_pick_device(const char *spec, cl_device_id *out);
 
 /* Check the MLP and gather kernels against ``clvol goldens DIR`` on `device` (NULL: the first
@@ -131,6 +131,9 @@ CLVOL_API clvol_status clvol_check_goldens(const char *golden_dir, cl_device_id 
  * tests/test_capi.py holds these to; docs/opencl.md, "rusticl", says why. */
 CLVOL_API const char *clvol_driver_defines(const char *platform_name);
 CLVOL_API int clvol_driver_lanes(const char *platform_name);
+/* 1 if the default device choice (no spec) takes this platform's devices after any other
+ * platform's of the same type (Mesa's Clover), else 0; clvol/runtime.py DEFAULT_LAST. */
+CLVOL_API int clvol_default_last(const char *platform_name);
 
 #ifdef __cplusplus
 }

@@ -419,7 +419,7 @@ cl_kernel kernel(clvol_host *h, int prog, const char *name) {
 /* ------------------------------------------------------------------- device and build */
 
 /* The device `spec` names ("gpu", "cpu", "P:D" = platform P's device D; NULL: the first GPU,
- * else the first CPU). */
+ * else the first CPU, a platform of DEFAULT_LAST's only where no other has one). */
 static cl_device_id find_device(const char *spec) {
     cl_uint np = 0;
     cl_int err = clGetPlatformIDs(0, NULL, &np);
@@ -436,15 +436,21 @@ static cl_device_id find_device(const char *spec) {
         cl_device_id devs[16];
         if (nd > 16) nd = 16;
         CL(clGetDeviceIDs(plats[p], CL_DEVICE_TYPE_ALL, nd, devs, NULL));
+        char pname[256] = "";
+        if (clGetPlatformInfo(plats[p], CL_PLATFORM_NAME, sizeof pname, pname, NULL) != CL_SUCCESS)
+            pname[0] = 0;
+        pname[sizeof pname - 1] = 0;
+        const int last = clvol_default_last(pname);
         for (cl_uint d = 0; d < nd; ++d) {
             cl_device_type t;
             CL(clGetDeviceInfo(devs[d], CL_DEVICE_TYPE, sizeof t, &t, NULL));
-            int rank = (t & CL_DEVICE_TYPE_GPU) ? 0 : (t & CL_DEVICE_TYPE_CPU) ? 1 : 2;
+            int rank = (t & CL_DEVICE_TYPE_GPU) ? 0 : (t & CL_DEVICE_TYPE_CPU) ? 2 : 4;
+            rank += last;   /* after any other platform's device of the same type */
             if (spec) {   /* "gpu", "cpu" or "P:D" */
                 char pd[32];
                 snprintf(pd, sizeof pd, "%u:%u", p, d);
-                int match = strcmp(spec, pd) == 0 || (strcmp(spec, "gpu") == 0 && rank == 0)
-                            || (strcmp(spec, "cpu") == 0 && rank == 1);
+                int match = strcmp(spec, pd) == 0 || (strcmp(spec, "gpu") == 0 && rank / 2 == 0)
+                            || (strcmp(spec, "cpu") == 0 && rank / 2 == 1);
                 rank = match ? 0 : 99;
             }
             if (rank < best_rank) {
@@ -514,6 +520,17 @@ CLVOL_API const char *clvol_driver_defines(const char *platform_name) {
     for (size_t i = 0; platform_name && i < N_DRIVER_RULES; ++i)
         if (contains_nocase(platform_name, DRIVER_RULES[i].match)) return DRIVER_RULES[i].defines;
     return "";
+}
+
+/* clvol/runtime.py DEFAULT_LAST: platforms whose devices the default choice (find_device with
+ * no spec) takes after any other device of the same type (Mesa's Clover; the comment there
+ * says why). */
+static const char *const DEFAULT_LAST[] = {"clover"};
+
+CLVOL_API int clvol_default_last(const char *platform_name) {
+    for (size_t i = 0; platform_name && i < sizeof DEFAULT_LAST / sizeof DEFAULT_LAST[0]; ++i)
+        if (contains_nocase(platform_name, DEFAULT_LAST[i])) return 1;
+    return 0;
 }
 
 CLVOL_API int clvol_driver_lanes(const char *platform_name) {
