@@ -93,6 +93,7 @@ QUICK = Settings(sizes=[32, 64], frames=2, queries=[4096, 16384], mlp_n=4096, ga
 # --------------------------------------------------------------------------- machine
 
 def device_info(entry) -> dict:
+    from clvol.runtime import describe_lanes
     d = entry.device
 
     def get(name, default=None):
@@ -113,7 +114,8 @@ def device_info(entry) -> dict:
             "local_mem_kib": round(get("local_mem_size", 0) / 2**10, 1),
             "max_work_group_size": get("max_work_group_size"),
             "preferred_vector_width_float": get("preferred_vector_width_float"),
-            "native_vector_width_float": get("native_vector_width_float")}
+            "native_vector_width_float": get("native_vector_width_float"),
+            "lanes": describe_lanes(entry)}
 
 
 def machine(entry) -> dict:
@@ -545,7 +547,7 @@ def markdown(report: dict) -> str:
              f"{d['global_mem_gib']} GiB, OpenCL C {d['opencl_c_version']}, driver "
              f"{d['driver_version']}, platform {d['platform_version']}",
              f"- preferred / native float vector width {d['preferred_vector_width_float']} / "
-             f"{d['native_vector_width_float']}",
+             f"{d['native_vector_width_float']}; {d.get('lanes')}",
              f"- host: {m['cpu']}, {m['logical_cores']} logical cores, Python {m['python']}, "
              f"pyopencl {m['pyopencl']}; load average {m['load_average_start']} at the start, "
              f"{report.get('load_average_end')} at the end; {m['date']}",
