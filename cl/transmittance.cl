@@ -223,83 +223,89 @@ int split_offset(float x, float *frac) {
  *                 the voxels take the next n^2 / SWEEP_WIDTH (a = x, SWEEP_WIDTH > 1) or
  *                 16 n^2 / SWEEP_WIDTH
  */
-__kernel void transmittance_sweep_block(
-        __global const float *S, const int s_off, const int n, const int a, const int sa,
-        const float su, const float sv, const float kscale,
-        __global float *col, const int cw, const int ou, const int ov,
-        __global float *bb, const int bw, const int brows,
-        __global const int *stab, __global const float *sftab, __global const int *btab,
-        const int b, const int nb, const int out_depth, __global float *out, const int out_off,
-        const int n_col) {
-    const int gid = get_global_id(0);
+/* transmittance_sweep_block's column items: item gid advances its SWEEP_WIDTH columns of the
+ * sweep through block b's SWEEP_BLOCK steps (the optical depth so far in col, each step's
+ * value into the block buffer bb for the voxel items of the next launch). */
+__attribute__((always_inline))
+void sweep_block_columns(const int gid, __global const float *S, const int s_off, const int n,
+                         const int sa, const float su, const float sv, const float kscale,
+                         __global float *col, const int cw, const int ou, const int ov,
+                         __global float *bb, const int bw, const size_t bplane,
+                         __global const int *stab, __global const float *sftab,
+                         __global const int *btab, const int b, const int nb) {
     const int rs = SWEEP_RS(n), ps = rs * SWEEP_RV(n);
-    const size_t bplane = (size_t)brows * (size_t)bw;
-    if (gid < n_col) {
-        /* n_col is a multiple of the work-group size, so a group holds only column items and
-         * all of them reach every barrier. The barrier after each step makes the group's
-         * columns advance together: each step's loads then sweep whole rows of two planes,
-         * which the caches stream, instead of each work-item marching its own pencil through
-         * 16 planes (latency-bound, several times slower on a CPU). */
-        const int live = b < nb;
-        const int umin = live ? btab[4 * b] : 0, vmin = live ? btab[4 * b + 1] : 0;
-        const int chunks = live ? btab[4 * b + 2] : 1;
-        const int r = gid / chunks, m = gid - r * chunks;
-        const int active = live && r < btab[4 * b + 3 * live];
-        const int cv = vmin + r, c0 = umin + m * SWEEP_WIDTH;
-        __global float *colp = col + (size_t)(cv + ov) * (size_t)cw + (size_t)(c0 + ou);
-        __global float *bbp = bb + (size_t)((b & 1) * SWEEP_BLOCK) * bplane
-                                 + (size_t)r * (size_t)bw + (size_t)(m * SWEEP_WIDTH);
-        __global const float *Sl = S + s_off;
-        vecf tau = active ? VLOAD(colp) : (vecf)(0.0f), r_beg = 0.0f;
-        for (int jj = 0; jj < SWEEP_BLOCK; ++jj) {
-            const int j = b * SWEEP_BLOCK + jj;
-            if (!live || j >= n) break;          /* uniform over the launch */
-            if (active) {
-                const int k = stab[3 * j], iu = stab[3 * j + 1], iv = stab[3 * j + 2];
-                const float fu = sftab[2 * j], fv = sftab[2 * j + 1];
-                const float seg = (j == 0) ? 0.5f : 1.0f;  /* step 0 starts at the face */
-                /* lane 0's column relative to the slice's window; its position there is that
-                 * minus (fu, fv); the segment runs from there + seg * (su, sv) to there */
-                const int wu = c0 - iu, wv = cv - iv;
-                float gu, gv;
-                int ou_, ov_;
-                ou_ = split_offset(-fu, &gu);
-                ov_ = split_offset(-fv, &gv);
-                const vecf r_end = field_at(Sl, rs, ps, wu + ou_ + SWEEP_PAD,
-                                            wv + ov_ + SWEEP_PAD, gu, gv, (float)k);
-                ou_ = split_offset(-fu + 0.5f * seg * su, &gu);
-                ov_ = split_offset(-fv + 0.5f * seg * sv, &gv);
-                const vecf r_mid = field_at(Sl, rs, ps, wu + ou_ + SWEEP_PAD,
-                                            wv + ov_ + SWEEP_PAD, gu, gv,
-                                            (float)k + 0.5f * seg * (float)sa);
-                if (jj == 0) {
-                    ou_ = split_offset(-fu + seg * su, &gu);
-                    ov_ = split_offset(-fv + seg * sv, &gv);
-                    r_beg = field_at(Sl, rs, ps, wu + ou_ + SWEEP_PAD, wv + ov_ + SWEEP_PAD,
-                                     gu, gv, (float)k + seg * (float)sa);
-                }
-                /* inside fraction of the lateral segment start -> end */
-                vecf t0u, t1u, t0v, t1v;
-                const vecf begu = (float)wu + LANE_POS + (-fu + seg * su);
-                const vecf begv = (vecf)((float)wv + (-fv + seg * sv));
-                INSIDE_T(begu, -seg * su, n, t0u, t1u);
-                INSIDE_T(begv, -seg * sv, n, t0v, t1v);
-                const vecf c = fmax(fmin(t1u, t1v) - fmax(t0u, t0v), 0.0f);
-                tau += (kscale * seg) * c * (r_beg + 4.0f * r_mid + r_end);
-                VSTORE(tau, bbp + (size_t)jj * bplane);
-                r_beg = r_end;
+    /* n_col is a multiple of the work-group size, so a group holds only column items and
+     * all of them reach every barrier. The barrier after each step makes the group's
+     * columns advance together: each step's loads then sweep whole rows of two planes,
+     * which the caches stream, instead of each work-item marching its own pencil through
+     * 16 planes (latency-bound, several times slower on a CPU). */
+    const int live = b < nb;
+    const int umin = live ? btab[4 * b] : 0, vmin = live ? btab[4 * b + 1] : 0;
+    const int chunks = live ? btab[4 * b + 2] : 1;
+    const int r = gid / chunks, m = gid - r * chunks;
+    const int active = live && r < btab[4 * b + 3 * live];
+    const int cv = vmin + r, c0 = umin + m * SWEEP_WIDTH;
+    __global float *colp = col + (size_t)(cv + ov) * (size_t)cw + (size_t)(c0 + ou);
+    __global float *bbp = bb + (size_t)((b & 1) * SWEEP_BLOCK) * bplane
+                             + (size_t)r * (size_t)bw + (size_t)(m * SWEEP_WIDTH);
+    __global const float *Sl = S + s_off;
+    vecf tau = active ? VLOAD(colp) : (vecf)(0.0f), r_beg = 0.0f;
+    for (int jj = 0; jj < SWEEP_BLOCK; ++jj) {
+        const int j = b * SWEEP_BLOCK + jj;
+        if (!live || j >= n) break;          /* uniform over the launch */
+        if (active) {
+            const int k = stab[3 * j], iu = stab[3 * j + 1], iv = stab[3 * j + 2];
+            const float fu = sftab[2 * j], fv = sftab[2 * j + 1];
+            const float seg = (j == 0) ? 0.5f : 1.0f;  /* step 0 starts at the face */
+            /* lane 0's column relative to the slice's window; its position there is that
+             * minus (fu, fv); the segment runs from there + seg * (su, sv) to there */
+            const int wu = c0 - iu, wv = cv - iv;
+            float gu, gv;
+            int ou_, ov_;
+            ou_ = split_offset(-fu, &gu);
+            ov_ = split_offset(-fv, &gv);
+            const vecf r_end = field_at(Sl, rs, ps, wu + ou_ + SWEEP_PAD,
+                                        wv + ov_ + SWEEP_PAD, gu, gv, (float)k);
+            ou_ = split_offset(-fu + 0.5f * seg * su, &gu);
+            ov_ = split_offset(-fv + 0.5f * seg * sv, &gv);
+            const vecf r_mid = field_at(Sl, rs, ps, wu + ou_ + SWEEP_PAD,
+                                        wv + ov_ + SWEEP_PAD, gu, gv,
+                                        (float)k + 0.5f * seg * (float)sa);
+            if (jj == 0) {
+                ou_ = split_offset(-fu + seg * su, &gu);
+                ov_ = split_offset(-fv + seg * sv, &gv);
+                r_beg = field_at(Sl, rs, ps, wu + ou_ + SWEEP_PAD, wv + ov_ + SWEEP_PAD,
+                                 gu, gv, (float)k + seg * (float)sa);
             }
-#ifndef SWEEP_NO_SYNC
-            barrier(CLK_GLOBAL_MEM_FENCE);
-#endif
+            /* inside fraction of the lateral segment start -> end */
+            vecf t0u, t1u, t0v, t1v;
+            const vecf begu = (float)wu + LANE_POS + (-fu + seg * su);
+            const vecf begv = (vecf)((float)wv + (-fv + seg * sv));
+            INSIDE_T(begu, -seg * su, n, t0u, t1u);
+            INSIDE_T(begv, -seg * sv, n, t0v, t1v);
+            const vecf c = fmax(fmin(t1u, t1v) - fmax(t0u, t0v), 0.0f);
+            tau += (kscale * seg) * c * (r_beg + 4.0f * r_mid + r_end);
+            VSTORE(tau, bbp + (size_t)jj * bplane);
+            r_beg = r_end;
         }
-        if (active) VSTORE(tau, colp);
-        return;
+#ifndef SWEEP_NO_SYNC
+        barrier(CLK_GLOBAL_MEM_FENCE);
+#endif
     }
+    if (active) VSTORE(tau, colp);
+}
+
+/* transmittance_sweep_block's voxel items: item i writes its share of block b - 1's voxels
+ * (the block buffer bb, resampled onto the grid's axes) into out, as T or optical depth. */
+__attribute__((always_inline))
+void write_block_voxels(const int i, const int n, const int a, const int sa,
+                        __global const float *bb, const int bw, const size_t bplane,
+                        __global const int *stab, __global const float *sftab,
+                        __global const int *btab, const int b, const int out_depth,
+                        __global float *out, const int out_off) {
     /* voxels of block bp = b - 1 */
     const int bp = b - 1;
     if (bp < 0) return;
-    const int i = gid - n_col;
     const int umin = btab[4 * bp], vmin = btab[4 * bp + 1];
     __global const float *bbq = bb + (size_t)((bp & 1) * SWEEP_BLOCK) * bplane;
 #if SWEEP_WIDTH == 16
@@ -383,6 +389,24 @@ __kernel void transmittance_sweep_block(
     const vecf t = mix(mix(VLOAD(c0), VLOAD(c0 + 1), fu),
                        mix(VLOAD(c0 + bw), VLOAD(c0 + bw + 1), fu), fv);
     VSTORE(out_depth ? t : exp(-t), out + (size_t)out_off + elem_uva(n, a, u0, v, stab[3 * j]));
+}
+
+__kernel void transmittance_sweep_block(
+        __global const float *S, const int s_off, const int n, const int a, const int sa,
+        const float su, const float sv, const float kscale,
+        __global float *col, const int cw, const int ou, const int ov,
+        __global float *bb, const int bw, const int brows,
+        __global const int *stab, __global const float *sftab, __global const int *btab,
+        const int b, const int nb, const int out_depth, __global float *out, const int out_off,
+        const int n_col) {
+    const int gid = get_global_id(0);
+    const size_t bplane = (size_t)brows * (size_t)bw;
+    if (gid < n_col)
+        sweep_block_columns(gid, S, s_off, n, sa, su, sv, kscale, col, cw, ou, ov, bb, bw,
+                            bplane, stab, sftab, btab, b, nb);
+    else
+        write_block_voxels(gid - n_col, n, a, sa, bb, bw, bplane, stab, sftab, btab, b,
+                           out_depth, out, out_off);
 }
 
 __kernel void combine_levels(__global const float *tgrid, __global const int *offsets,
