@@ -768,9 +768,7 @@ __kernel void raymarch(
 #endif
     )
 {
-    const float density_scale = MEDIUM_DENSITY_SCALE_OF(medium);
     const float4 albedo = MEDIUM_ALBEDO_OF(medium);
-    const float4 lobe_g = MEDIUM_LOBE_G_OF(medium), lobe_w = MEDIUM_LOBE_W_OF(medium);
     const int tiles_x = (width + TILE - 1) / TILE;
     const int tile = get_global_id(0);
     if (tile >= tiles_x * ((height + TILE_ROWS - 1) / TILE_ROWS)) return;
@@ -786,10 +784,10 @@ __kernel void raymarch(
 
     /* dot(-l, omega) */
     const vL mu = rays.dx * light_dir.x + rays.dy * light_dir.y + rays.dz * light_dir.z;
-    const vL f0 = ray_phaseL(mu, lobe_g, lobe_w);
+    const vL f0 = ray_phaseL(mu, MEDIUM_LOBE_G_OF(medium), MEDIUM_LOBE_W_OF(medium));
 #if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
     float ow[MS_OCTAVES - 1][LANES];
-    octave_weights(mu, lobe_g, lobe_w, oct_b, oct_c, ow);
+    octave_weights(mu, MEDIUM_LOBE_G_OF(medium), MEDIUM_LOBE_W_OF(medium), oct_b, oct_c, ow);
 #endif
 #if MS_SOURCE == 3
     ViewKnots knots;
@@ -832,8 +830,8 @@ __kernel void raymarch(
         const vL len = select((vL)(0.0f), fmin(ta + step, t1) - ta, active);
         ta = select((vL)(0.0f), ta, active);
         vL e, w, ts;
-        const vL tau = segmentL(density, nx, ny, nz, bmin, cell, density_scale, &rays, ta, len,
-                                s.T, &e, &w, &ts);
+        const vL tau = segmentL(density, nx, ny, nz, bmin, cell, MEDIUM_DENSITY_SCALE_OF(medium),
+                                &rays, ta, len, s.T, &e, &w, &ts);
         const vL rx = rays.ox + ts * rays.dx, ry = rays.oy + ts * rays.dy;
         const vL rz = rays.oz + ts * rays.dz;
         /* Segments where all lanes are empty add nothing: no source lookups. */
