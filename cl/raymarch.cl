@@ -357,9 +357,6 @@ TileRays camera_raysL(iL px, iL py, int width, int height, float tan_half, float
     return r;
 }
 
-/* Box entry and exit from t = 0 (box_intersect of grid.h, lane by lane); returns the lanes
- * that hit. Missed and invalid lanes get the empty interval [0, 0]: finite, never active. */
-__attribute__((always_inline))
 /* The lanes set in a mask, counted through private memory: a horizontal sum of the mask
  * (LANE_SUM) crashed Oclgrind's --uninitialized plugin (SIGSEGV; Oclgrind as Debian ships it). */
 uint lanes_set(iL m) {
@@ -370,6 +367,9 @@ uint lanes_set(iL m) {
     return n;
 }
 
+/* Box entry and exit from t = 0 (box_intersect of grid.h, lane by lane); returns the lanes
+ * that hit. Missed and invalid lanes get the empty interval [0, 0]: finite, never active. */
+__attribute__((always_inline))
 iL box_spanL(const TileRays *r, float4 bmin, float4 bmax, iL valid, vL *t0, vL *t1) {
     vL lo = (vL)(0.0f), hi = (vL)(INFINITY);
     iL miss = ~valid;

@@ -272,7 +272,7 @@ def _write_host_constants(m: "_Manifest", b: _Planned) -> None:
     from .kernels import mlp as km
     from .kernels import raymarch as kr
     from .kernels import transmittance as kt
-    from .kernels.constants import kernel_constant
+    from .kernels import medium as kmed
     from .runtime import DEFAULT_PAD
     m.comment("host constants of the launches (clvol/runtime.py, clvol/kernels/*.py)")
     host = {"pad": DEFAULT_PAD, "sweep_pad": kt.SWEEP_PAD, "sweep_block": kt.SWEEP_BLOCK,
@@ -287,9 +287,8 @@ def _write_host_constants(m: "_Manifest", b: _Planned) -> None:
             "config_albedo": layout.CONFIG_FIELDS.index("albedo"),
             "config_alpha": layout.CONFIG_FIELDS.index("alpha"),
             # the medium block's slots the C host writes (cl/include/constants.h MEDIUM_*)
-            "medium_floats": kernel_constant("MEDIUM_FLOATS"),
-            "medium_density_scale": kernel_constant("MEDIUM_DENSITY_SCALE"),
-            "medium_albedo": kernel_constant("MEDIUM_ALBEDO")}
+            "medium_floats": kmed.MEDIUM_FLOATS, "medium_density_scale": kmed.SLOT_DENSITY_SCALE,
+            "medium_albedo": kmed.SLOT_ALBEDO}
     if b.source.lattice_points_per_launch:   # the most queries of one gather + MLP launch
         host["network_chunk"] = int(b.source.lattice_points_per_launch)
     for key, value in host.items():

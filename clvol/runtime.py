@@ -613,11 +613,8 @@ class Runtime:
         by kernels would be reported when a later kernel reads it."""
         nbytes = max(int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize, 4)
         buf = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, size=nbytes)
-        if self.is_oclgrind:
-            self.transfers.record(UPLOAD, "zeros (Oclgrind)", nbytes)
-            cl.enqueue_copy(self.queue, buf, np.zeros(nbytes, np.uint8))
-        elif zero:
-            cl.enqueue_fill_buffer(self.queue, buf, np.uint8(0), 0, nbytes)
+        if zero or self.is_oclgrind:
+            self.zero(buf)
         return buf
 
     def upload(self, array, dtype=np.float32, label: str | None = None) -> "DeviceArray":

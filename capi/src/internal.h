@@ -202,6 +202,12 @@ struct clvol_renderer {
     int mx, my, mz;
     /* medium (M) */
     double albedo[3], density_scale;
+    /* the ray marcher's medium block as the bundle wrote it (raymarch.medium) and the slots of
+     * the density scale and albedo, which clvol_set_medium changes (host.medium_*) */
+    double medium[16];
+    int medium_ds_slot, medium_albedo_slot;
+    /* read once at create: the march's threshold and octaves, the queries' phase fields */
+    double threshold, octave_abc[3], config_phase[16];
     /* network */
     int base, L, np_, npad, n_alpha, res[3];
     double lam, level_bias, ms_min[3], ms_max[3];

@@ -406,6 +406,12 @@ static void open_bundle(clvol_host *h) {
     h->density = keep(read_raw4(h->dir, mf_str(m, "density.file"), count));
     h->density_scale = mf_double(m, "medium.density_scale");
     mf_doubles(m, "medium.albedo", h->albedo, 3);
+    if (mf_int(m, "host.medium_floats") != 16)
+        fail(BUNDLE, "%s: host.medium_floats = %d: this libclvol passes 16 floats", m->where,
+             mf_int(m, "host.medium_floats"));
+    mf_doubles(m, "raymarch.medium", h->medium, 16);
+    h->medium_ds_slot = mf_int_in(m, "host.medium_density_scale", 0, 15);
+    h->medium_albedo_slot = mf_int_in(m, "host.medium_albedo", 0, 13);
     h->lit = mf_int(m, "raymarch.lit");
     const char *src = mf_str(m, "raymarch.ms_source");
     if (strcmp(src, "network") == 0) h->source = SOURCE_NETWORK;
@@ -421,6 +427,9 @@ static void open_bundle(clvol_host *h) {
     h->light_tau = mf_int(m, "raymarch.light_tau");
     h->block = mf_int_in(m, "raymarch.block", 1, 1 << 20);
     h->step = mf_double(m, "raymarch.step");
+    h->threshold = mf_double(m, "raymarch.threshold");
+    mf_doubles(m, "raymarch.octave_abc", h->octave_abc, 3);
+    mf_doubles(m, "medium.config_phase", h->config_phase, h->cfg_albedo);
     /* older bundles lack step_voxels: the step in world units of the bundle's grid */
     const char *sv = mf_find(m, "raymarch.step_voxels");
     double min_cell = fmin(fmin((h->bmax[0] - h->bmin[0]) / h->nx, (h->bmax[1] - h->bmin[1]) / h->ny),
@@ -750,8 +759,7 @@ static void network_launch(clvol_host *h, int n, const double *pts_d, const doub
     /* config layout from the bundle: the phase fields [0, cfg_albedo), then the albedo and
      * alpha slots (clvol/features/layout.py CONFIG_FIELDS) */
     const int D = h->cfg_dim, NPH = h->cfg_albedo;
-    double cphase[16];
-    mf_doubles(m, "medium.config_phase", cphase, NPH);
+    const double *cphase = h->config_phase;
     float *pts = xmalloc(sizeof(float) * 3 * (size_t)nq);
     float *oms = xmalloc(sizeof(float) * 3 * (size_t)nq);
     float *cfg = xcalloc((size_t)D * (size_t)nq, sizeof(float));
@@ -1069,7 +1077,7 @@ static void view_stage(clvol_host *h) {
     cl_float4 *j4 = xcalloc((size_t)nb, sizeof(cl_float4));
     cl_float4 bmin = f4(h->bmin), bmax = f4(h->bmax), o4 = f4(cam.o), fw4 = f4(cam.f),
               r4 = f4(cam.r), u4 = f4(cam.u);
-    double stop = mf_double(&h->mf, "raymarch.threshold");
+    double stop = h->threshold;
     for (int s = 0; s < S; ++s) {
         uint32_t draw = (uint32_t)v->draws++;
         view_jitter(v->seed, draw, nb, jit);
@@ -1136,28 +1144,21 @@ static void view_stage(clvol_host *h) {
 }
 
 /* Every frame: the march into h->d_out (total, single, multiple, alpha, depth). */
-/* The ray marcher's medium argument (cl/include/medium.h): the bundle's block as it is, with
- * the density scale and albedo this host holds now (clvol_set_medium changes them) written
- * into the slots the bundle names (host.medium_*). */
+/* The ray marcher's medium argument (cl/include/medium.h): the bundle's block (read at create)
+ * with the density scale and albedo this host holds now (clvol_set_medium changes them) in
+ * the slots the bundle names. */
 static cl_float16 medium_block(const clvol_host *h) {
-    const manifest *m = &h->mf;
     double v[16];
-    if (mf_int(m, "host.medium_floats") != 16)
-        fail(BUNDLE, "%s: host.medium_floats = %d: this libclvol passes 16 floats", m->where,
-             mf_int(m, "host.medium_floats"));
-    mf_doubles(m, "raymarch.medium", v, 16);
-    v[mf_int_in(m, "host.medium_density_scale", 0, 15)] = h->density_scale;
-    int a = mf_int_in(m, "host.medium_albedo", 0, 13);
-    for (int c = 0; c < 3; ++c) v[a + c] = h->albedo[c];
+    memcpy(v, h->medium, sizeof v);
+    v[h->medium_ds_slot] = h->density_scale;
+    for (int c = 0; c < 3; ++c) v[h->medium_albedo_slot + c] = h->albedo[c];
     cl_float16 out;
     for (int i = 0; i < 16; ++i) out.s[i] = (float)v[i];
     return out;
 }
 
 static void march_stage(clvol_host *h) {
-    const manifest *m = &h->mf;
-    double abc[3];
-    mf_doubles(m, "raymarch.octave_abc", abc, 3);
+    const double *abc = h->octave_abc;
     int gres[3] = {1, 1, 1};
     double gmin[3] = {0, 0, 0}, gmax[3] = {1, 1, 1};
     cl_mem planes = h->d_dummy;
@@ -1199,7 +1200,7 @@ static void march_stage(clvol_host *h) {
              planes, gres[0], gres[1], gres[2], &gmin4, &gmax4,
              &o4, &fw4, &r4, &u4, h->tan_half, W, H,
              &l4, &e4, &bg4, abc[0], abc[1], abc[2],
-             h->step, mf_double(m, "raymarch.threshold"),
+             h->step, h->threshold,
              h->d_out[0], h->d_out[1], h->d_out[2], h->d_out[3], h->d_out[4], h->d_out[5]);
     /* a tile is tile x LANES / tile pixels, one a lane (cl/raymarch.cl TILE_ROWS) */
     int rows = h->lanes / h->tile;
