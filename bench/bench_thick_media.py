@@ -48,7 +48,8 @@ def main() -> None:
                     help="replace the generator's [volume] resolution")
     ap.add_argument("--majorant-block", type=int, default=None)
     a = ap.parse_args()
-    print(machine())
+    from clvol.runtime import get_runtime
+    print(machine(get_runtime()))          # the device the CLI children pick (the default)
     src = Path(a.scene).read_text()
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
@@ -78,6 +79,7 @@ def main() -> None:
                 err = [x for x in out.splitlines() if "error" in x.lower()][:1]
                 print(f"{albedo:>6g} {scale:>13g} {code!s:>4} {dt:>7.1f}  "
                       f"{'; '.join(found) or (err[0] if err else '')}", flush=True)
+    print(f"at the end: {machine()}")
 
 
 if __name__ == "__main__":

@@ -105,6 +105,7 @@ def main(argv=None) -> int:
     print("\nworst rmse100 / best baseline over the scenes (<= 1: the target holds everywhere):")
     for k, v in worst.items():
         print(f"  {k:<18}{v:>7.2f}")
+    print(f"at the end: {machine()}")
     return 0
 
 

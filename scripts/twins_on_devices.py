@@ -30,8 +30,17 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def twin_files() -> list[str]:
-    return sorted(f"tests/test_{p.stem}.py" for p in (ROOT / "cl").glob("*.cl")
-                  if (ROOT / "tests" / f"test_{p.stem}.py").is_file())
+    """tests/conftest.py's TWIN_FILES (one list for the suite, this script and test_rusticl)."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from conftest import TWIN_FILES
+    return list(TWIN_FILES)
+
+
+def machine_line() -> str:
+    """bench/_common.py's machine line (CPU, cores, Python, load average, date)."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from _common import machine
+    return machine()
 
 
 def device_specs() -> list[tuple[str, str]]:
@@ -79,6 +88,7 @@ def main(argv=None) -> int:
     files = args.files or twin_files()
     marker = args.marker or ("oclgrind" if args.tiny else None)
     bad = 0
+    print(machine_line(), flush=True)
     for spec, label in specs:
         print(f"device {spec} ({label}), {'-m ' + marker if marker else 'whole files'}, "
               f"cold caches, one process a file", flush=True)
@@ -91,6 +101,7 @@ def main(argv=None) -> int:
                 bad += 1
                 print("    " + tail.replace("\n", "\n    ")[-2000:], flush=True)
         print(f"  total {total:.1f} s", flush=True)
+    print(f"at the end: {machine_line()}", flush=True)
     return 1 if bad else 0
 
 
