@@ -357,11 +357,10 @@ def _write_raymarch(m: "_Manifest", b: _Planned) -> None:
     m["raymarch.light_resolution"] = int(b.light_res)
     m["raymarch.light_tau"] = plan.programs["raymarch"]["LIGHT_TAU"]
     m["raymarch.channels"] = plan.channels if plan.lit else 1
-    # the kernel's medium argument as it is (cl/include/medium.h), with the lobes the marcher
-    # evaluates; libclvol writes its density scale and albedo slots (host.medium_*) on change
-    medium = b.scene.medium
-    m["raymarch.medium"] = medium_block(medium.density_scale, medium.albedo,
-                                        plan.lobes).tolist()
+    # the kernel's medium argument as it is (cl/include/medium.h), every property the scene
+    # declares for the kernels included; libclvol writes its density scale and albedo slots
+    # (host.medium_*) on change
+    m["raymarch.medium"] = medium_block(b.scene.medium).tolist()
     oc = plan.ms.octaves
     m["raymarch.octave_abc"] = [oc.a, oc.b, oc.c]
 

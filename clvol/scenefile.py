@@ -34,7 +34,8 @@ import numpy as np
 from .errors import SceneError, VolumeError
 from .scenemodel import (_ALREADY_UNIT, HG_G_LIMIT, MAX_IMAGE_SIZE, MAX_VDB_RESOLUTION,
                          MHG_MAX_LOBES, MHG_WEIGHT_TOL, PRESETS, VOLUME_SUFFIXES, Camera,
-                         EmissionSpec, Light, Lobe, Medium, Phase, VolumeSpec, is_frame_pattern)
+                         EmissionSpec, Light, Lobe, Medium, Phase, VolumeSpec, declared_properties,
+                         is_frame_pattern)
 
 
 # --------------------------------------------------------------------------- the scene
@@ -133,7 +134,35 @@ def _medium_to_dict(m: Medium) -> dict:
     med["density_scale"] = m.density_scale
     med["albedo"] = _listed(m.albedo)
     med["phase"] = _phase_to_dict(m.phase)
+    med.update(_declared_to_dict(m))
     return med
+
+
+def _declared_to_dict(obj) -> dict:
+    """The declared properties of ``obj`` (clvol/scenemodel.py ``declared``) as the file
+    writes them."""
+    return {name: _listed(getattr(obj, name)) if prop.kind == "rgb" else getattr(obj, name)
+            for name, prop, _ in declared_properties(type(obj))}
+
+
+def _declared_keys(cls) -> tuple[str, ...]:
+    return tuple(name for name, _, _ in declared_properties(cls))
+
+
+def _parse_declared(ctx: "_Ctx", table: str, t: dict, cls) -> dict:
+    """The declared properties of ``cls`` read from the file's ``[table]`` ``t`` by their
+    declarations: kind, range, and the default where the file leaves one out."""
+    out = {}
+    for name, prop, default in declared_properties(cls):
+        if name not in t:
+            out[name] = default
+        elif prop.kind == "rgb":
+            out[name] = _vec3(ctx, f"{table}.{name}", t[name], lo=prop.lo, hi=prop.hi,
+                              grey_ok=True)
+        else:
+            out[name] = _number(ctx, f"{table}.{name}", t[name], prop.lo, prop.hi,
+                                prop.lo_open, prop.hi_open)
+    return out
 
 
 def _light_to_dict(li: Light) -> dict:
@@ -145,12 +174,13 @@ def _light_to_dict(li: Light) -> dict:
         light["environment_map"] = str(li.environment_map)
         light["environment_scale"] = _listed(li.environment_scale)
         light["environment_rotation"] = li.environment_rotation
+    light.update(_declared_to_dict(li))
     return light
 
 
 def _camera_to_dict(c: Camera) -> dict:
     return {"origin": _listed(c.origin), "target": _listed(c.target), "up": _listed(c.up),
-            "fov_y": c.fov_y, "width": c.width, "height": c.height}
+            "fov_y": c.fov_y, "width": c.width, "height": c.height, **_declared_to_dict(c)}
 
 
 def _listed(v):
@@ -468,7 +498,8 @@ def _check_param(ctx: "_Ctx", fld: str, value, p):
 
 
 def _parse_medium(ctx: "_Ctx", t: dict) -> Medium:
-    _check_keys(ctx, "medium", t, ("preset", "density_scale", "albedo", "phase"))
+    _check_keys(ctx, "medium", t, ("preset", "density_scale", "albedo", "phase")
+                + _declared_keys(Medium))
     preset = t.get("preset")
     if preset is not None and (not isinstance(preset, str) or preset not in PRESETS):
         raise ctx.error("medium.preset", preset, "unknown preset; allowed: " + ", ".join(PRESETS))
@@ -486,7 +517,8 @@ def _parse_medium(ctx: "_Ctx", t: dict) -> Medium:
         phase = _parse_phase(ctx, t["phase"])
     elif phase is None:
         raise ctx.error("medium.phase", None, "missing" + hint)
-    return Medium(density_scale=ds, albedo=albedo, phase=phase, preset=preset)
+    return Medium(density_scale=ds, albedo=albedo, phase=phase, preset=preset,
+                  **_parse_declared(ctx, "medium", t, Medium))
 
 
 _PHASE_KEYS = {"isotropic": ("type",), "hg": ("type", "g"), "mhg": ("type", "lobes")}
@@ -546,7 +578,7 @@ _LIGHT_KEYS = ("direction", "irradiance", "environment", "environment_map", "env
 
 
 def _parse_light(ctx: "_Ctx", t: dict, base_dir: Path) -> Light:
-    _check_keys(ctx, "light", t, _LIGHT_KEYS)
+    _check_keys(ctx, "light", t, _LIGHT_KEYS + _declared_keys(Light))
     if "direction" not in t:
         raise ctx.error("light.direction", None, "missing; a vector [x, y, z] toward the light")
     raw = t["direction"]
@@ -573,7 +605,8 @@ def _parse_light(ctx: "_Ctx", t: dict, base_dir: Path) -> Light:
         rot = _number(ctx, "light.environment_rotation", t["environment_rotation"],
                       lo=-360.0, hi=360.0)
     return Light(direction=direction, irradiance=irr, environment=env, environment_map=env_map,
-                 environment_scale=scale, environment_rotation=rot)
+                 environment_scale=scale, environment_rotation=rot,
+                 **_parse_declared(ctx, "light", t, Light))
 
 
 def _parse_environment_map(ctx: "_Ctx", f, base_dir: Path) -> Path:
@@ -600,7 +633,8 @@ def _parse_environment_map(ctx: "_Ctx", f, base_dir: Path) -> Path:
 
 
 def _parse_camera(ctx: "_Ctx", t: dict) -> Camera:
-    _check_keys(ctx, "camera", t, ("origin", "target", "up", "fov_y", "width", "height"))
+    _check_keys(ctx, "camera", t, ("origin", "target", "up", "fov_y", "width", "height")
+                + _declared_keys(Camera))
     for key, what in (("origin", "a point [x, y, z]"), ("target", "a point [x, y, z]"),
                       ("fov_y", "the vertical field of view in degrees, in (0, 180)"),
                       ("width", f"an integer in 1..{MAX_IMAGE_SIZE}"),
@@ -625,7 +659,8 @@ def _parse_camera(ctx: "_Ctx", t: dict) -> Camera:
         raise ctx.error("camera.up", t.get("up", list(up)), "is parallel to target - origin = "
                         f"{_fmt([b - a for a, b in zip(origin, target)])}; pick an up vector "
                         "that is not along the view direction")
-    return Camera(origin=origin, target=target, up=up, fov_y=fov, width=width, height=height)
+    return Camera(origin=origin, target=target, up=up, fov_y=fov, width=width, height=height,
+                  **_parse_declared(ctx, "camera", t, Camera))
 
 
 _PARTS = {"camera": (Camera, _camera_to_dict, _parse_camera),

@@ -177,8 +177,49 @@ def _device_buffer_limit() -> int | None:
 
 
 @dataclass(frozen=True)
+class Property:
+    """What a declared scene property is, read from its declaration alone by the scene file's
+    reader and writer (clvol/scenefile.py) and, with ``kernel``, by the medium block's packer
+    (clvol/kernels/medium.py), which gives it the next free slot of the block and the kernels
+    a ``-D MEDIUM_<NAME>=slot`` to read it by (cl/include/medium.h ``medium_float``).
+    ``kind``: "number" (one float) or "rgb" (a number for grey, or 3 numbers); the range
+    ``lo`` .. ``hi`` (None: unbounded; ``*_open``: the bound itself refused)."""
+    kind: str
+    help: str
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    kernel: bool = False
+
+    def __post_init__(self):
+        if self.kind not in ("number", "rgb"):
+            raise TypeError(f"a declared property's kind is 'number' or 'rgb', not {self.kind!r}")
+
+
+def declared(default, help: str, kind: str = "number", **limits):
+    """A dataclass field of ``Medium``, ``Light`` or ``Camera`` with its ``Property`` (the one
+    place a new property is written):
+
+        single_scale: float = declared(1.0, "factor on single scattering", lo=0.0, kernel=True)
+
+    The scene file reads it from its table (optional: ``default`` when absent), writes it
+    back, checks its kind and range with the file's one-line messages; the kernels read it
+    from the medium block when ``kernel`` (docs/architecture.md, "Add a scene field")."""
+    return field(default=default, metadata={"property": Property(kind, help, **limits)})
+
+
+def declared_properties(cls) -> tuple[tuple[str, "Property", object], ...]:
+    """``(name, Property, default)`` of each declared field of the dataclass ``cls``, in
+    declaration order."""
+    return tuple((f.name, f.metadata["property"], f.default) for f in dataclasses.fields(cls)
+                 if "property" in f.metadata)
+
+
+@dataclass(frozen=True)
 class Medium:
-    """``sigma_t = density * density_scale``; RGB ``albedo``; ``phase``; the preset it came from."""
+    """``sigma_t = density * density_scale``; RGB ``albedo``; ``phase``; the preset it came
+    from; then the declared properties (``declared``), each with its default."""
     density_scale: float
     albedo: tuple[float, float, float]
     phase: Phase
@@ -316,6 +357,13 @@ def _in_range(v: np.ndarray) -> np.ndarray:
 def _unit(v: np.ndarray) -> np.ndarray:
     v = _in_range(v)
     return v / np.linalg.norm(v)
+
+
+# Only the medium has a block the kernels read its declared properties from.
+for _cls in (Light, Camera):
+    if any(p.kernel for _, p, _ in declared_properties(_cls)):
+        raise TypeError(f"{_cls.__name__}: kernel=True is for Medium's properties only (the "
+                        "medium block); the light and camera reach the kernels as arguments")
 
 
 # --------------------------------------------------------------------------- presets

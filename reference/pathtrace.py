@@ -53,14 +53,14 @@ def order_bin(e: int) -> int:
 
 @dataclass
 class Params:
-    """The medium and lights as the kernel sees them (``lobes`` empty = isotropic,
-    ``environment`` None = none, ``max_order`` 0 = unlimited)."""
+    """The medium and lights as the kernel sees them: ``medium``, the optical properties read
+    by name (density_scale, RGB albedo, phase.lobes each with .g and .weight), unpacked here
+    into ``density_scale``, ``albedo`` and ``lobes`` ((g, weight) pairs); ``environment``
+    None = none, ``max_order`` 0 = unlimited."""
     density: np.ndarray
     bbox_min: np.ndarray
     bbox_max: np.ndarray
-    density_scale: float
-    albedo: tuple
-    lobes: list
+    medium: object
     light_dir: tuple
     sun: tuple = (1.0, 1.0, 1.0)
     environment: tuple | None = None
@@ -79,11 +79,12 @@ class Params:
         self.density = np.asarray(self.density, np.float64)
         self.bbox_min = np.asarray(self.bbox_min, np.float64)
         self.bbox_max = np.asarray(self.bbox_max, np.float64)
-        self.albedo = np.asarray(self.albedo, np.float64)
+        self.density_scale = float(self.medium.density_scale)
+        self.albedo = np.asarray(self.medium.albedo, np.float64)
         self.sun = np.asarray(self.sun, np.float64)
         self.light_dir = np.asarray(self.light_dir, np.float64)
         self.sigma_maj = float(self.density.max()) * self.density_scale
-        self.lobes = [tuple(l) for l in (self.lobes or [])]
+        self.lobes = [(lo.g, lo.weight) for lo in self.medium.phase.lobes]
         self.env = (None if self.environment is None or max(self.environment) <= 0
                     else np.asarray(self.environment, np.float64))
         if self.emission is not None:

@@ -128,12 +128,12 @@ def octave_weights(mu, lobes, octaves, b, c):
     return np.array(out).reshape((octaves - 1,) + np.shape(mu))
 
 
-def raymarch(density, bbox_min, bbox_max, density_scale,
+def raymarch(density, bbox_min, bbox_max, medium,
              majorant, block,
              light, cube_min, cube_size,
              ms_lattice, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
-             light_dir, irradiance, albedo, lobes, background,
+             light_dir, irradiance, background,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
              step=None, threshold=1e-3, skip_empty=True, lit=True,
              light_quantity="transmittance", view_block=4, env=None, env_min=(0, 0, 0),
@@ -143,19 +143,22 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
     alpha, depth (H, W); with ``emission``, also emission (H, W, 3); and "stopped_at_bound",
     the number of rays the progress bound stopped (an int).
 
-    density      [nz][ny][nx] raw density over bbox_min..bbox_max (sigma_t = density * scale)
+    density      [nz][ny][nx] raw density over bbox_min..bbox_max
+    medium       the optical properties, read by name: density_scale (sigma_t = density *
+                 density_scale), RGB albedo, phase.lobes (each with .g and .weight)
     majorant     [mz][my][mx] per-block majorant (majorant.h), block = fine voxels per block
     light        [n][n][n] the exact light transmittance field (lambda = 1) over the cube
                  cube_min .. cube_min + cube_size: T_light, or its optical depth with
                  light_quantity="optical_depth"
     ms_lattice      (C, gz, gy, gx), C = 1 or 3, F_ms over ms_bbox_min..ms_bbox_max ("lattice" source)
     camera       origin, basis (forward, right, up), tan(fov_y / 2), width x height
-    light_dir    unit, toward the light; irradiance E, albedo, background: RGB
-    lobes        (g, weight) pairs, empty for isotropic
+    light_dir    unit, toward the light; irradiance E, background: RGB
     step         segment length in world units; threshold: early-termination transmittance
     lit          False when albedo * E is 0: no light lookups (F_1 and F_ms are not needed)
     """
     f64 = np.float64
+    density_scale, albedo = medium.density_scale, medium.albedo
+    lobes = [(lo.g, lo.weight) for lo in medium.phase.lobes]
     density = np.asarray(density)
     nz, ny, nx = density.shape
     bmin, bmax = np.asarray(bbox_min, f64), np.asarray(bbox_max, f64)

@@ -15,6 +15,7 @@ without a define the host must pass (no silent default).
 from __future__ import annotations
 
 import ast
+import dataclasses
 import re
 from pathlib import Path
 
@@ -22,9 +23,11 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from clvol.errors import BuildError
+from clvol.errors import BuildError, ClvolError
+from clvol.scenemodel import Medium, declared
 from clvol.kernels import constants as kc
 from clvol.runtime import _define_flags, get_runtime, include_dir
+from media import medium_of
 
 ROOT = Path(__file__).resolve().parents[1]
 CL_SOURCES = sorted((ROOT / "cl").glob("*.cl")) + sorted((ROOT / "cl" / "include").glob("*.h"))
@@ -284,7 +287,7 @@ def test_the_kernels_read_each_property_of_the_medium_block_where_the_host_packs
     from clvol.kernels.medium import medium_block
     rt = get_runtime()
     lobes = [(0.61, 0.52), (-0.23, 0.31), (0.07, 0.17)]
-    block = medium_block(2.75, (0.91, 0.82, 0.73), lobes)
+    block = medium_block(medium_of(2.75, (0.91, 0.82, 0.73), lobes))
     src = ('#include "medium.h"\n__kernel void probe(const MediumBlock m, __global float *o) {\n'
            "    o[0] = MEDIUM_DENSITY_SCALE_OF(m);\n    vstore4(MEDIUM_ALBEDO_OF(m), 1, o);\n"
            "    vstore4(MEDIUM_LOBE_G_OF(m), 2, o);\n    vstore4(MEDIUM_LOBE_W_OF(m), 3, o);\n"
@@ -299,3 +302,48 @@ def test_the_kernels_read_each_property_of_the_medium_block_where_the_host_packs
     want = np.float32([2.75, 0, 0, 0, 0.91, 0.82, 0.73, 0, 0.61, -0.23, 0.07, 0,
                        0.52, 0.31, 0.17, 0, 0, 0, 0, 0])
     assert out[0] == want[0] and np.array_equal(out[4:], want[4:]), out
+
+
+@dataclasses.dataclass(frozen=True)
+class _Declaring(Medium):
+    """A medium with two declared kernel properties (a number, an RGB) around one the
+    kernels do not read: the packer skips that one and gives the others the next slots."""
+    extra_gain: float = declared(1.0, "a test's number", lo=0.0, kernel=True)
+    file_only: float = declared(2.0, "read by no kernel")
+    extra_tint: tuple = declared((1.0, 1.0, 1.0), "a test's RGB", kind="rgb", kernel=True)
+
+
+def test_a_declared_kernel_property_reaches_the_kernel_at_the_slot_the_host_gives_it():
+    """clvol/scenemodel.py ``declared(..., kernel=True)``: ``medium_block`` packs the value
+    after the lobes, ``medium_defines`` names its slot, and medium.h's ``medium_float`` reads
+    it there (distinct values: a slot off by one or a swapped pair shows)."""
+    from clvol.kernels.medium import SLOT_FIRST_FREE, medium_block, medium_defines
+    m = _Declaring(**vars(medium_of(2.75, (0.91, 0.82, 0.73), [(0.61, 1.0)])),
+                   extra_gain=0.37, file_only=9.0, extra_tint=(0.11, 0.22, 0.33))
+    defines = medium_defines(_Declaring)
+    assert defines == {"MEDIUM_EXTRA_GAIN": SLOT_FIRST_FREE,
+                       "MEDIUM_EXTRA_TINT": SLOT_FIRST_FREE + 1}
+    block = medium_block(m)
+    rt = get_runtime()
+    src = ('#include "medium.h"\n__kernel void probe(const MediumBlock m, __global float *o) {\n'
+           "    o[0] = medium_float(m, MEDIUM_EXTRA_GAIN);\n"
+           "    for (int c = 0; c < 3; ++c) o[1 + c] = medium_float(m, MEDIUM_EXTRA_TINT + c);\n"
+           "    o[4] = MEDIUM_DENSITY_SCALE_OF(m);\n}\n")
+    prog = cl.Program(rt.context, src).build(
+        options=["-I", str(include_dir())] + _define_flags(defines), devices=[rt.device])
+    out = np.zeros(5, np.float32)
+    ob = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    prog.probe(rt.queue, (1,), None, block, ob)
+    cl.enqueue_copy(rt.queue, out, ob)
+    rt.queue.finish()
+    np.testing.assert_array_equal(out, np.float32([0.37, 0.11, 0.22, 0.33, 2.75]))
+
+
+def test_the_block_refuses_more_declared_properties_than_its_free_slots():
+    from clvol.kernels.medium import declared_slots
+
+    @dataclasses.dataclass(frozen=True)
+    class Crowded(_Declaring):
+        more_tint: tuple = declared((1.0, 1.0, 1.0), "one RGB too many", kind="rgb", kernel=True)
+    with pytest.raises(ClvolError, match="need 19 floats"):
+        declared_slots(Crowded)

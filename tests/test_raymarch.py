@@ -13,6 +13,7 @@ differently: a few float32 ULP).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -24,10 +25,11 @@ from clvol.kernels.majorant import build_majorant
 from render_helpers import render_raymarch
 from clvol.render.ms.lattice import FmsLattice
 from clvol.render.ms.base import Octaves
-from clvol.scene import scene_from_dict
+from clvol.scene import Phase, scene_from_dict
 from clvol.volume.grid import DensityGrid
 from reference import raymarch as rraymarch
 from reference.phase import phase_eval
+from media import medium_of
 from scene_toml import CAMERA, look_at, write_scene
 
 LAYER_NAMES = ("total", "single", "multiple", "alpha", "depth")
@@ -93,7 +95,8 @@ def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), se
         ms_lattice = np.concatenate([depth[None], vals]).astype(np.float32)
     n_oct, a, b, c = octaves
     return dict(
-        density=density, bbox_min=bmin, bbox_max=bmax, density_scale=scale,
+        density=density, bbox_min=bmin, bbox_max=bmax,
+        medium=medium_of(scale, (0.9, 0.8, 0.7), [(0.8, 0.7), (-0.3, 0.3)]),
         majorant=build_majorant(density, block), block=block,
         light=np.exp(-light_tau).astype(np.float32), cube_min=np.array([-0.5, -0.5, -0.5]),
         cube_size=1.0,
@@ -102,7 +105,7 @@ def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), se
         origin=origin, forward=f, right=r, up=u,
         tan_half=math.tan(math.radians(40.0) / 2), width=width, height=height,
         light_dir=np.array([0.6, 0.8, 0.0]), irradiance=(1.0, 0.9, 0.8),
-        albedo=(0.9, 0.8, 0.7), lobes=[(0.8, 0.7), (-0.3, 0.3)], background=(0.1, 0.2, 0.3),
+        background=(0.1, 0.2, 0.3),
         source="lattice" if source.startswith("lattice") else "view" if source.startswith("view")
         else source, octaves=n_oct, a=a, b=b, c=c, step=0.05, threshold=0.0,
         **({"view_block": 3} if source.startswith("view") else {}))
@@ -114,8 +117,10 @@ def _f32(kw):
     for key in ("bbox_min", "bbox_max", "cube_min", "ms_bbox_min", "ms_bbox_max", "origin",
                 "forward", "right", "up", "light_dir"):
         out[key] = np.asarray(kw[key], np.float32).astype(np.float64)
-    for key in ("tan_half", "density_scale", "step", "cube_size"):
+    for key in ("tan_half", "step", "cube_size"):
         out[key] = float(np.float32(kw[key]))
+    out["medium"] = dataclasses.replace(
+        kw["medium"], density_scale=float(np.float32(kw["medium"].density_scale)))
     return out
 
 
@@ -196,7 +201,7 @@ def test_kernel_matches_twin_optical_depth_field():
 
 def test_kernel_matches_twin_isotropic_and_unlit():
     kw = _f32(_inputs("odd"))
-    kw["lobes"] = []
+    kw["medium"] = dataclasses.replace(kw["medium"], phase=Phase.isotropic())
     _assert_layers_close(kraymarch.raymarch(**kw), rraymarch.raymarch(**kw))
     kw["lit"] = False
     got = kraymarch.raymarch(**kw)

@@ -660,3 +660,42 @@ def test_the_tests_scene_writer_writes_what_it_is_given(tmp_path):
     path = write_scene(tmp_path / "s.toml", **tables)
     assert tomllib.loads(path.read_text()) == tables
     assert load_scene(write_scene(tmp_path / "c.toml", **SMALL_CLOUD)).camera.fov_y == CAMERA["fov_y"]
+
+
+def test_a_declared_medium_property_is_read_checked_and_written_from_its_declaration(
+        monkeypatch):
+    """clvol/scenemodel.py ``declared``: the reader takes the property from [medium] (its
+    default when left out), refuses a value outside its declared range with the file's
+    one-line message, and the writer gives it back, all with no code of its own (the
+    medium class is swapped for one that declares a number and an RGB)."""
+    import dataclasses as dc
+
+    import clvol.scenefile as sf
+    from clvol.scenemodel import Medium, declared
+
+    @dc.dataclass(frozen=True)
+    class Declaring(Medium):
+        gain: float = declared(1.0, "a number", lo=0.0, hi=2.0, hi_open=True)
+        tint: tuple = declared((1.0, 1.0, 1.0), "an RGB", kind="rgb", lo=0.0, hi=1.0)
+
+    monkeypatch.setattr(sf, "Medium", Declaring)
+    base = {"volume": {"generator": "sphere"},
+            "medium": {"density_scale": 3.0, "albedo": 0.9, "phase": {"type": "isotropic"}},
+            "light": {"direction": [0, 1, 0]},
+            "camera": {"origin": [0, 0, 3], "target": [0, 0, 0], "up": [0, 1, 0],
+                       "fov_y": 40.0, "width": 8, "height": 8}}
+    plain = scene_from_dict(copy.deepcopy(base))
+    assert (plain.medium.gain, plain.medium.tint) == (1.0, (1.0, 1.0, 1.0))
+    data = copy.deepcopy(base)
+    data["medium"].update(gain=1.5, tint=[0.2, 0.4, 0.6])
+    s = scene_from_dict(data)
+    assert (s.medium.gain, s.medium.tint) == (1.5, (0.2, 0.4, 0.6))
+    assert scene_from_dict(s.to_dict()).medium == s.medium          # written and read back
+    assert "gain = 1.5" in dumps_scene(s)
+    assert s.with_overrides({"medium.gain": 0.25}).medium.gain == 0.25
+    data["medium"]["gain"] = 2.0
+    with pytest.raises(SceneError, match=r"\[medium.gain\] = 2.0: must be in \[0, 2\)"):
+        scene_from_dict(data, source="x.toml")
+    data["medium"]["gian"] = 1.0
+    with pytest.raises(SceneError, match="did you mean gain"):
+        scene_from_dict(data)

@@ -2,7 +2,8 @@
  * (clvol/kernels/medium.py medium_block; the C host takes the bundle's block as it is and
  * writes only what it changes at run time) and passed as one 64-byte argument to the ray
  * marcher and the path tracer, so a new property reaches both kernels through no argument
- * list. Where each one sits: MEDIUM_* of constants.h (float index into the block).
+ * list. Where each one sits: MEDIUM_* of constants.h (float index into the block), then the
+ * declared properties at the slots the host passes (medium_float below).
  *
  *   density scale  sigma_t = density * density scale (1 / length)
  *   albedo         RGB single-scattering albedo
@@ -31,5 +32,15 @@ typedef struct {
 #define MEDIUM_ALBEDO_OF(m) ((float4)((m).q0.y, (m).q0.z, (m).q0.w, 0.0f))   /* RGB, w = 0 */
 #define MEDIUM_LOBE_G_OF(m) ((m).q1)
 #define MEDIUM_LOBE_W_OF(m) ((m).q2)
+
+/* Float ``slot`` of the block: how a kernel reads a property the scene model declares
+ * (clvol/scenemodel.py ``declared(..., kernel=True)``), by the slot the host passes as
+ * -D MEDIUM_<NAME> (clvol/kernels/medium.py medium_defines): medium_float(m, MEDIUM_<NAME>).
+ * The slot is a build-time constant, so the selects fold to one component. */
+inline float medium_float(const MediumBlock m, const int slot) {
+    const float4 q = slot < 4 ? m.q0 : slot < 8 ? m.q1 : slot < 12 ? m.q2 : m.q3;
+    const int c = slot & 3;
+    return c == 0 ? q.x : c == 1 ? q.y : c == 2 ? q.z : q.w;
+}
 
 #endif

@@ -20,7 +20,7 @@ from .constants import kernel_constant
 from .grid import f4
 from .majorant import DEFAULT_BLOCK, majorant_args
 from .majorant import majorant_block as resolve_block
-from .medium import DeviceMedium, medium_block
+from .medium import DeviceMedium, medium_block, medium_defines
 
 # Per-path output row of the kernels (PT_OUT floats; the widths are cl/include/constants.h's).
 ROW_BG, ROW_L1, ROW_LMS = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -104,17 +104,16 @@ UNIFORM_MAP.setflags(write=False)
 
 @dataclass
 class PathMedium:
-    """What the path-tracing kernels simulate (named apart from the scene's ``Medium``,
-    clvol/scenemodel.py, which holds only the optical properties). ``lobes``: (g, weight) pairs, empty for isotropic;
+    """What the path-tracing kernels simulate: the density over its box, the scene's
+    ``medium`` (a clvol.scene.Medium, its optical properties, passed whole and packed by
+    clvol/kernels/medium.py medium_block), the lights and the limits.
     ``environment`` None for none; ``max_order`` None for unlimited. ``env_map``: a lat-long
     map (H, W, 3) (clvol/envmap.py; exclusive with ``environment``) times ``env_scale``,
     turned by ``env_rotation`` degrees about +y; None for none."""
     density: np.ndarray
     bbox_min: np.ndarray
     bbox_max: np.ndarray
-    density_scale: float
-    albedo: tuple
-    lobes: list
+    medium: object
     light_dir: tuple
     sun: tuple = (1.0, 1.0, 1.0)
     environment: tuple | None = None
@@ -152,14 +151,14 @@ def specialisation(med: PathMedium, specialise: bool = True) -> tuple[dict, list
     """(-D defines, simulated effects, skipped effects). With ``specialise=False`` the
     general kernel is built (three lobes, RGB, environment and sun code all compiled)."""
     simulated, skipped = [], []
-    grey = med.albedo[0] == med.albedo[1] == med.albedo[2]
-    iso = not med.lobes or all(g == 0.0 for g, _ in med.lobes)
+    grey, iso = med.medium.is_grey, med.medium.phase.is_isotropic
+    lobes = [(lo.g, lo.weight) for lo in med.medium.phase.lobes]
     env = med.environment is not None and max(med.environment) > 0
     sun = max(med.sun) > 0
     single = med.max_order == 1
     tables = med.env_tables()
     if specialise:
-        defines = kphase.phase_defines([] if iso else med.lobes)
+        defines = kphase.phase_defines([] if iso else lobes)
         if grey:
             defines["PT_GREY"] = 1
         if env:
@@ -172,6 +171,7 @@ def specialisation(med: PathMedium, specialise: bool = True) -> tuple[dict, list
             defines["PT_SINGLE_ONLY"] = 1
     else:
         defines = {"PHASE_LOBES": 3, "PT_ENV" if tables is None else "PT_ENVMAP": 1}
+    defines.update(medium_defines())
     if med.emission is not None:
         defines.update(PT_EMISSION=1, PT_EMISSION_CHANNELS=med.emission.channels)
         simulated.append("emission (sigma_a Le, sigma_a = sigma_t (1 - albedo), added at every "
@@ -185,7 +185,7 @@ def specialisation(med: PathMedium, specialise: bool = True) -> tuple[dict, list
         skipped.append("environment map (black: no light)")
     else:
         (simulated if env else skipped).append("environment (escaping paths)")
-    simulated.append("isotropic phase" if iso else f"HG phase, {len(med.lobes)} lobe(s)")
+    simulated.append("isotropic phase" if iso else f"HG phase, {len(lobes)} lobe(s)")
     simulated.append("grey albedo" if grey else "RGB albedo")
     if single:
         simulated.append("single scattering")
@@ -258,7 +258,7 @@ class PathTracer:
             device_medium.density.buffer, device_medium.majorant.buffer, np.int32(nx),
             np.int32(ny), np.int32(nz), np.int32(mx), np.int32(my), np.int32(mz),
             f4(med.bbox_min), f4(med.bbox_max), self.bsize,
-            medium_block(med.density_scale, med.albedo, med.lobes),
+            medium_block(med.medium),
             f4(med.light_dir), f4(med.sun), f4(env))
         if "PT_ENVMAP" in self.defines:
             self._medium_args += self.env_args(rt, med.env_tables())

@@ -14,7 +14,7 @@ from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
 from .constants import kernel_constant
 from .grid import f4
-from .medium import medium_block
+from .medium import medium_block, medium_defines
 from .phase import phase_defines
 
 # The kernel's MS_SOURCE define per kind of F_ms lookup (the registry of source classes, a
@@ -91,8 +91,10 @@ def input_defines(light_quantity: str, env_channels: int | None = None, bg_image
 
 def raymarch_defines(lobes, lit: bool, source: str, octaves: int, channels: int,
                      skip_empty: bool, view_k: int = 1, view_block: int | None = None) -> dict:
-    """The -D defines that specialise cl/raymarch.cl (see its header)."""
+    """The -D defines that specialise cl/raymarch.cl (see its header), the slots of the
+    medium's declared properties included."""
     d = dict(phase_defines(lobes))
+    d.update(medium_defines())
     d.update(LIT=int(bool(lit)), SKIP_EMPTY=int(bool(skip_empty)))
     d.update(ms_defines(source, octaves, channels, view_k, view_block))
     return d
@@ -131,12 +133,12 @@ def env_device_layout(env) -> np.ndarray:
     return packed
 
 
-def raymarch(density, bbox_min, bbox_max, density_scale,
+def raymarch(density, bbox_min, bbox_max, medium,
              majorant, block,
              light, cube_min, cube_size,
              ms_lattice, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
-             light_dir, irradiance, albedo, lobes, background,
+             light_dir, irradiance, background,
              source="wrenninge", octaves=DEFAULT_OCTAVES, a=DEFAULT_OCTAVE_MULTIPLIER,
              b=DEFAULT_OCTAVE_MULTIPLIER, c=DEFAULT_OCTAVE_MULTIPLIER,
              step=None, threshold=DEFAULT_THRESHOLD, skip_empty=True, lit=True,
@@ -176,6 +178,8 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         ms_bbox_min, ms_bbox_max = (0, 0, 0), (1, 1, 1)
     else:
         ms, channels, view_k = None, 1, 1
+    lobes = () if medium.phase.is_isotropic else tuple((lo.g, lo.weight)
+                                                       for lo in medium.phase.lobes)
     defines = raymarch_defines(lobes, lit, source, octaves, channels, skip_empty, view_k,
                                view_block)
     defines.update(input_defines(
@@ -186,9 +190,9 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
         emission_box=em_box))
     return launch(
         defines=defines,
-        volume=MarchVolume(density, bbox_min, bbox_max, density_scale, majorant, block),
+        volume=MarchVolume(density, bbox_min, bbox_max, medium, majorant, block),
         camera=MarchCamera(origin, forward, right, up, tan_half, width, height),
-        light=MarchLight(light_dir, irradiance, albedo, lobes, background,
+        light=MarchLight(light_dir, irradiance, background,
                          field=light if lit else None, cube_min=cube_min, cube_size=cube_size,
                          quantity=light_quantity),
         ms=MarchMs(ms, ms_bbox_min, ms_bbox_max, a, b, c),
@@ -206,12 +210,14 @@ def raymarch(density, bbox_min, bbox_max, density_scale,
 
 @dataclass(frozen=True)
 class MarchVolume:
-    """The medium's density [nz][ny][nx] over bbox_min .. bbox_max (sigma_t = density *
-    density_scale) and its majorant grid of ``block``-voxel cells (clvol/kernels/majorant.py)."""
+    """The medium's density [nz][ny][nx] over bbox_min .. bbox_max, its optical properties
+    ``medium`` (a clvol.scene.Medium, passed whole: sigma_t = density * medium.density_scale;
+    packed by clvol/kernels/medium.py medium_block) and its majorant grid of ``block``-voxel
+    cells (clvol/kernels/majorant.py)."""
     density: object
     bbox_min: tuple
     bbox_max: tuple
-    density_scale: float
+    medium: object
     majorant: object
     block: int
 
@@ -230,13 +236,10 @@ class MarchCamera:
 
 @dataclass(frozen=True)
 class MarchLight:
-    """The sun (``direction`` toward it, RGB ``irradiance``), the medium's albedo and phase
-    lobes, the background radiance, and the light field: T_light (or its optical depth, by
+    """The sun (``direction`` toward it, RGB ``irradiance``), the background radiance, and the light field: T_light (or its optical depth, by
     ``quantity``) over the cube cube_min .. + cube_size; None for an unlit build (LIT 0)."""
     direction: tuple
     irradiance: tuple
-    albedo: tuple
-    lobes: tuple
     background: tuple
     field: object = None
     cube_min: tuple = (0, 0, 0)
@@ -338,7 +341,7 @@ def launch(*, defines: dict, volume: MarchVolume, camera: MarchCamera, light: Ma
     if defines.get("LIT") and light.field is None:
         raise ClvolError("a lit march (LIT 1) needs the light field")
     dummy = _Dummy(rt)     # one 1-float buffer for whichever input is absent
-    args = (_volume_args(volume, light, rt) + _light_field_args(light, rt, dummy)
+    args = (_volume_args(volume, rt) + _light_field_args(light, rt, dummy)
             + _ms_args(ms, dummy) + _camera_args(camera) + _light_args(light, ms)
             + (np.float32(step), np.float32(threshold)))
     scalars = list(_SCALARS)
@@ -388,13 +391,12 @@ class _Dummy:
         return self._buffer
 
 
-def _volume_args(v: MarchVolume, light: MarchLight, rt) -> tuple:
-    """The density, its box, the medium block (its scale, the light's albedo and lobes) and
-    the majorant grid."""
+def _volume_args(v: MarchVolume, rt) -> tuple:
+    """The density, its box, the medium block and the majorant grid."""
     dens, maj = _device(v.density, rt), _device(v.majorant, rt)
     (nz, ny, nx), (mz, my, mx) = dens.shape, maj.shape
     return (dens.buffer, np.int32(nx), np.int32(ny), np.int32(nz), f4(v.bbox_min),
-            f4(v.bbox_max), medium_block(v.density_scale, light.albedo, light.lobes),
+            f4(v.bbox_max), medium_block(v.medium),
             maj.buffer, np.int32(mx), np.int32(my), np.int32(mz), np.int32(v.block))
 
 

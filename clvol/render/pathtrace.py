@@ -23,6 +23,7 @@ of cl/pathtrace.cl and in docs/pathtrace.md.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -71,12 +72,10 @@ def _medium(scene, grid, max_order, sun, environment, env_map: bool = False,
             emission=None) -> PathMedium:
     """The path tracer's PathMedium (the kernel's inputs); ``env_map``: with the scene's environment map, ``emission``: an
     EmissionGrid (renders only)."""
-    m = scene.medium
     light = scene.light
-    lobes = [] if m.phase.is_isotropic else [(l.g, l.weight) for l in m.phase.lobes]
     texels = light.environment_texels() if env_map else None
     return PathMedium(density=grid.density, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max,
-                      density_scale=m.density_scale, albedo=tuple(m.albedo), lobes=lobes,
+                      medium=scene.medium,
                       light_dir=tuple(light.direction), sun=tuple(sun),
                       environment=None if environment is None else tuple(environment),
                       max_order=max_order, env_map=texels,
@@ -164,7 +163,6 @@ def coverage(scene, grid, pt) -> np.ndarray:
     the ray marcher's unlit march (cl/raymarch.cl's alpha, the same quantity as the ray
     marcher's layer) on the path tracer's own device medium, not a noisy count of escaping
     paths, so alpha carries no Monte Carlo noise while ``total`` does (docs/pathtrace.md)."""
-    import dataclasses
     from ..kernels.raymarch import (MarchCamera, MarchLight, MarchMs, MarchVolume,
                                     input_defines, launch, raymarch_defines)
     dm = pt.dm
@@ -183,11 +181,10 @@ def coverage(scene, grid, pt) -> np.ndarray:
                                                      channels=1, skip_empty=True),
                                     **input_defines("transmittance")),
                        volume=MarchVolume(dm.density, grid.bbox_min, grid.bbox_max,
-                                          scene.medium.density_scale, dm.majorant, dm.block),
+                                          scene.medium, dm.majorant, dm.block),
                        camera=MarchCamera(cam.origin, fwd, right, up, cam.tan_half_fov,
                                           cam.width, cam.height),
-                       light=MarchLight(scene.light.direction, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0),
-                                        (), (0.0, 0.0, 0.0)),
+                       light=MarchLight(scene.light.direction, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),
                        ms=MarchMs(), step=step, threshold=0.0, runtime=pt.rt, read_back=False)
     fine = pt.rt.from_device(outs["alpha"], (cam.height, cam.width), wait_for=[evt],
                              label="pathtrace coverage")           # the only layer read
@@ -393,8 +390,8 @@ def point_query_orders(scene, points, omegas, n_paths: int, seed: int = 0, grid=
         raise ClvolError(f"point_query_orders: points {p.shape} and omegas {w.shape} must both be (N, 3)")
     rt = runtime or get_runtime()
     grid = grid if grid is not None else scene.volume.load()
-    med = _medium(scene, grid, None, (1.0, 1.0, 1.0), None)
-    med.albedo = (1.0, 1.0, 1.0)
+    med = _medium(dataclasses.replace(scene, medium=dataclasses.replace(
+        scene.medium, albedo=(1.0, 1.0, 1.0))), grid, None, (1.0, 1.0, 1.0), None)
     pt = PathTracer(med, majorant_block, runtime=rt, device_medium=device_medium)
     nq = len(p)
     nodes = np.asarray(SE_ALBEDOS, np.float64)

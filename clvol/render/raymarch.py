@@ -221,12 +221,11 @@ class RayMarcher:
                                         MarchLight, MarchMs, MarchVolume)
         res = launch(
             defines=plan.programs["raymarch"],
-            volume=MarchVolume(self.density, g.bbox_min, g.bbox_max, self.medium.density_scale,
+            volume=MarchVolume(self.density, g.bbox_min, g.bbox_max, self.medium,
                                self.majorant, self.block),
             camera=MarchCamera(camera.origin, fwd, right, up, camera.tan_half_fov,
                                camera.width, camera.height),
-            light=MarchLight(light.direction, light.irradiance, self.medium.albedo,
-                             list(plan.lobes), plan.background,
+            light=MarchLight(light.direction, light.irradiance, plan.background,
                              field=self.light_field if plan.lit else None,
                              cube_min=cube_min, cube_size=cube_size,
                              quantity=self.light_interp),
