@@ -89,15 +89,23 @@ def input_defines(light_quantity: str, env_channels: int | None = None, bg_image
     return d
 
 
-def raymarch_defines(lobes, lit: bool, source: str, octaves: int, channels: int,
-                     skip_empty: bool, view_k: int = 1, view_block: int | None = None) -> dict:
-    """The -D defines that specialise cl/raymarch.cl (see its header), the slots of the
-    medium's declared properties included."""
+def march_defines(lobes, lit: bool, skip_empty: bool, ms: dict) -> dict:
+    """The -D defines that specialise cl/raymarch.cl (see its header) but its inputs'
+    (``input_defines``): the phase, the slots of the medium's declared properties, LIT,
+    SKIP_EMPTY and the source's ``ms`` (``ms_defines``). The plan's (clvol/render/plan.py)
+    and the tests' form below both come from here."""
     d = dict(phase_defines(lobes))
     d.update(medium_defines())
     d.update(LIT=int(bool(lit)), SKIP_EMPTY=int(bool(skip_empty)))
-    d.update(ms_defines(source, octaves, channels, view_k, view_block))
+    d.update(ms)
     return d
+
+
+def raymarch_defines(lobes, lit: bool, source: str, octaves: int, channels: int,
+                     skip_empty: bool, view_k: int = 1, view_block: int | None = None) -> dict:
+    """``march_defines`` of one source kind, its ``ms_defines`` made here."""
+    return march_defines(lobes, lit, skip_empty,
+                         ms_defines(source, octaves, channels, view_k, view_block))
 
 
 _SCALARS = ([None, np.int32, np.int32, np.int32, None, None, None]             # density, medium

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kernels.phase import phase_defines
+from ..kernels.raymarch import march_defines
 from .ms import source_class
 from .ms.analytic import NoMs
 from .ms.base import MsPlan, SourceChoice
@@ -202,9 +202,7 @@ def plan_frame(scene, options, volume: VolumeFacts | None = None,
                         else None)
     _emission_effects(getattr(scene, "emission", None), sim, skip)
 
-    defines = dict(phase_defines(list(lobes)))
-    defines.update(LIT=int(lit), SKIP_EMPTY=int(skip_empty))
-    defines.update(ms.defines)
+    defines = march_defines(list(lobes), lit, skip_empty, ms.defines)
     # resolved for an unlit frame too (the bundle's C host may light it later); the header
     # and the programs count it only where it is used
     light_res = (light_resolution_for(o["light_resolution"], volume.resolution)
