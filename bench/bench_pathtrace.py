@@ -76,14 +76,16 @@ class Before:
         src = Path(tmp, "cl", "pathtrace.cl").read_text()
         prg = cl.Program(pt.rt.context, src).build(
             options=["-I", str(Path(tmp, "cl", "include"))] + _define_flags(pt.defines))
-        # That kernel took the medium as four arguments (scale, albedo, lobe_g, lobe_w) where
-        # today's takes one block (cl/include/medium.h): the block is split back for it.
-        i = len(_MEDIUM_DTYPES) - 4                 # the block's place in pt._medium_args
-        block = pt._medium_args[i]
+        # That kernel took the medium as four arguments (scale, albedo, lobe_g, lobe_w) and
+        # the light as two (direction, sun) where today's takes one block each
+        # (cl/include/medium.h, light.h): the blocks are split back for it.
+        i = len(_MEDIUM_DTYPES) - 3                 # the medium block's place in pt._medium_args
+        block, light = pt._medium_args[i], pt._medium_args[i + 1]
         old = (np.float32(block[0]), np.append(block[1:4], np.float32(0)), block[4:8],
-               block[8:12])
-        self.medium_args = pt._medium_args[:i] + old + pt._medium_args[i + 1:]
-        old_dtypes = _MEDIUM_DTYPES[:i] + [np.float32, None, None, None] + _MEDIUM_DTYPES[i + 1:]
+               block[8:12], light[0:4], light[4:8])
+        self.medium_args = pt._medium_args[:i] + old + pt._medium_args[i + 2:]
+        old_dtypes = (_MEDIUM_DTYPES[:i] + [np.float32, None, None, None, None, None]
+                      + _MEDIUM_DTYPES[i + 2:])
         self.render_k = cl.Kernel(prg, "pt_render")
         self.render_k.set_scalar_arg_dtypes(old_dtypes + _RENDER_DTYPES[len(_MEDIUM_DTYPES):-1])
         self.query_k = cl.Kernel(prg, "pt_query")

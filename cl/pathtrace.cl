@@ -58,8 +58,9 @@
  *   bmin,bmax float4                the grid's box (world); bsize float4 = coarse cell size
  *   medium    MediumBlock           the medium block (medium.h, 16 floats): density scale, RGB
  *                                   single-scattering albedo, phase lobes (phase.h)
- *   light_dir float4                unit vector toward the sun
- *   sun       float4                sun irradiance E (RGB, power / area perpendicular to l)
+ *   light     LightBlock            the light block (light.h, 16 floats): unit direction l
+ *                                   toward the sun, its irradiance E (RGB, power / area
+ *                                   perpendicular to l)
  *   env       float4                environment radiance (RGB), used with PT_ENV
  *   PT_ENVMAP only (clvol/envmap.py Tables): env_rgbl float [h][w][4] (scaled RGB and
  *             luminance), env_marg float [h+1], env_cond float [h][w+1] (CDFs, last 1),
@@ -84,6 +85,7 @@
 #include "grid.h"
 #include "phase.h"
 #include "medium.h"
+#include "light.h"
 #include "majorant.h"
 #include "lanes.h"
 #include "constants.h"   /* PT_OUT_*, PT_ORDER_* */
@@ -1249,8 +1251,7 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
     __global const float *density, __global const float *maj, const int nx, const int ny, \
         const int nz, const int mx, const int my, const int mz, const float4 bmin,       \
         const float4 bmax, const float4 bsize, const MediumBlock medium,                  \
-        const float4 light_dir,                                                           \
-        const float4 sun, const float4 env PT_ENVMAP_ARGS PT_EMISSION_ARGS
+        const LightBlock light, const float4 env PT_ENVMAP_ARGS PT_EMISSION_ARGS
 
 #ifdef PT_ENVMAP
 #define PT_ENVMAP_ARGS                                                                    \
@@ -1286,7 +1287,8 @@ void pt_run(const pt_medium *m, const pt_light *L, const pt_job *J) {
     m.scale = MEDIUM_DENSITY_SCALE_OF(medium);                                            \
     m.inv_cell = (float3)((float)nx, (float)ny, (float)nz) / (bmax.xyz - bmin.xyz);       \
     pt_light L;                                                                           \
-    L.dir = light_dir.xyz; L.sun = pt_rgb_of(sun); L.env = pt_rgb_of(env);                \
+    L.dir = LIGHT_DIRECTION_OF(light).xyz; L.sun = pt_rgb_of(LIGHT_IRRADIANCE_OF(light)); \
+    L.env = pt_rgb_of(env);                                                               \
     L.albedo = SPEC_OF(MEDIUM_ALBEDO_OF(medium));                                         \
     L.lobe_g = MEDIUM_LOBE_G_OF(medium); L.lobe_w = MEDIUM_LOBE_W_OF(medium);             \
     PT_ENVMAP_SETUP                                                                       \

@@ -63,7 +63,7 @@
  *              renormalised); F_ms along its ray is piecewise linear in t between its knots,
  *              constant beyond the first and last (gmin, gmax unused)
  *   origin, forward, right, up, tan_half, width, height    pinhole camera (grid.h camera_ray)
- *   light_dir  unit, toward the light; irradiance E (RGB)
+ *   sun        LightBlock (light.h, 16 floats): unit direction toward the light, irradiance E (RGB)
  *   background RGB radiance seen where rays leave the box (environment radiance, or 0)
  *   env        (last arguments, only with ENV; then bg_image, only with BG_IMAGE)
  *              float [2 C][en][en][en]: the
@@ -94,6 +94,7 @@
 #include "grid.h"
 #include "phase.h"
 #include "medium.h"   /* the medium block */
+#include "light.h"    /* the light block */
 
 #ifndef LIT
 #define LIT 1
@@ -747,7 +748,7 @@ __kernel void raymarch(
     const float4 gmin, const float4 gmax,
     const float4 origin, const float4 forward, const float4 right, const float4 up,
     const float tan_half, const int width, const int height,
-    const float4 light_dir, const float4 irradiance, const float4 background,
+    const LightBlock sun, const float4 background,
     const float oct_a, const float oct_b, const float oct_c,
     const float step, const float threshold,
     __global float *total, __global float *single, __global float *multiple,
@@ -783,6 +784,7 @@ __kernel void raymarch(
     const iL hit = box_spanL(&rays, bmin, bmax, valid, &t0, &t1);
 
     /* dot(-l, omega) */
+    const float4 light_dir = LIGHT_DIRECTION_OF(sun);
     const vL mu = rays.dx * light_dir.x + rays.dy * light_dir.y + rays.dz * light_dir.z;
     const vL f0 = ray_phaseL(mu, MEDIUM_LOBE_G_OF(medium), MEDIUM_LOBE_W_OF(medium));
 #if LIT && MS_SOURCE == 1 && MS_OCTAVES > 1
@@ -866,7 +868,7 @@ __kernel void raymarch(
     fold_octavesL(&s, ow);
 #endif
     vL sgl[3], mul[3];   /* single and multiple, RGB */
-    sun_layersL(&s, f0, albedo, irradiance, sgl, mul);
+    sun_layersL(&s, f0, albedo, LIGHT_IRRADIANCE_OF(sun), sgl, mul);
 #if ENV
     add_environment_layersL(&s, env_colour, sgl, mul);
 #endif

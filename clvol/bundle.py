@@ -32,7 +32,7 @@ from .errors import ClvolError
 from .features import layout
 
 FORMAT = "clvol-bundle"
-FORMAT_VERSION = 2        # 2: the ray marcher takes the medium block (raymarch.medium)
+FORMAT_VERSION = 3        # 2: the ray marcher takes the medium block; 3: and the light block
 
 
 def _fmt(v) -> str:
@@ -272,7 +272,7 @@ def _write_host_constants(m: "_Manifest", b: _Planned) -> None:
     from .kernels import mlp as km
     from .kernels import raymarch as kr
     from .kernels import transmittance as kt
-    from .kernels import medium as kmed
+    from .kernels import blocks as kblk
     from .runtime import DEFAULT_PAD
     m.comment("host constants of the launches (clvol/runtime.py, clvol/kernels/*.py)")
     host = {"pad": DEFAULT_PAD, "sweep_pad": kt.SWEEP_PAD, "sweep_block": kt.SWEEP_BLOCK,
@@ -286,9 +286,10 @@ def _write_host_constants(m: "_Manifest", b: _Planned) -> None:
             "config_dim": layout.CONFIG_DIM,
             "config_albedo": layout.CONFIG_FIELDS.index("albedo"),
             "config_alpha": layout.CONFIG_FIELDS.index("alpha"),
-            # the medium block's slots the C host writes (cl/include/constants.h MEDIUM_*)
-            "medium_floats": kmed.MEDIUM_FLOATS, "medium_density_scale": kmed.SLOT_DENSITY_SCALE,
-            "medium_albedo": kmed.SLOT_ALBEDO}
+            # the blocks' slots the C host writes (cl/include/constants.h MEDIUM_*, LIGHT_*)
+            "medium_floats": kblk.MEDIUM_FLOATS, "medium_density_scale": kblk.SLOT_DENSITY_SCALE,
+            "medium_albedo": kblk.SLOT_ALBEDO, "light_floats": kblk.LIGHT_FLOATS,
+            "light_direction": kblk.SLOT_DIRECTION, "light_irradiance": kblk.SLOT_IRRADIANCE}
     if b.source.lattice_points_per_launch:   # the most queries of one gather + MLP launch
         host["network_chunk"] = int(b.source.lattice_points_per_launch)
     for key, value in host.items():
@@ -342,7 +343,7 @@ def _write_medium_light_camera(m: "_Manifest", b: _Planned) -> None:
 
 
 def _write_raymarch(m: "_Manifest", b: _Planned) -> None:
-    from .kernels.medium import medium_block
+    from .kernels.blocks import light_block, medium_block
     plan = b.plan
     m.comment("ray march (step in world units = step_voxels x smallest cell side)")
     m["raymarch.lit"] = plan.lit
@@ -357,10 +358,11 @@ def _write_raymarch(m: "_Manifest", b: _Planned) -> None:
     m["raymarch.light_resolution"] = int(b.light_res)
     m["raymarch.light_tau"] = plan.programs["raymarch"]["LIGHT_TAU"]
     m["raymarch.channels"] = plan.channels if plan.lit else 1
-    # the kernel's medium argument as it is (cl/include/medium.h), every property the scene
-    # declares for the kernels included; libclvol writes its density scale and albedo slots
-    # (host.medium_*) on change
+    # the kernel's medium and light arguments as they are (cl/include/medium.h, light.h),
+    # every property the scene declares for the kernels included; libclvol writes the slots
+    # it changes at run time (host.medium_*, host.light_*)
     m["raymarch.medium"] = medium_block(b.scene.medium).tolist()
+    m["raymarch.light"] = light_block(b.scene.light).tolist()
     oc = plan.ms.octaves
     m["raymarch.octave_abc"] = [oc.a, oc.b, oc.c]
 

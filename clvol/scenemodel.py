@@ -179,9 +179,10 @@ def _device_buffer_limit() -> int | None:
 @dataclass(frozen=True)
 class Property:
     """What a declared scene property is, read from its declaration alone by the scene file's
-    reader and writer (clvol/scenefile.py) and, with ``kernel``, by the medium block's packer
-    (clvol/kernels/medium.py), which gives it the next free slot of the block and the kernels
-    a ``-D MEDIUM_<NAME>=slot`` to read it by (cl/include/medium.h ``medium_float``).
+    reader and writer (clvol/scenefile.py) and, with ``kernel``, by the block packers
+    (clvol/kernels/blocks.py), which give it the next free slot of the medium's or the light's
+    block and the kernels a ``-D MEDIUM_SLOT_<NAME>`` (or ``LIGHT_SLOT_<NAME>``) to read it by
+    (cl/include/blocks.h).
     ``kind``: "number" (one float) or "rgb" (a number for grey, or 3 numbers); the range
     ``lo`` .. ``hi`` (None: unbounded; ``*_open``: the bound itself refused)."""
     kind: str
@@ -204,8 +205,9 @@ def declared(default, help: str, kind: str = "number", **limits):
         single_scale: float = declared(1.0, "factor on single scattering", lo=0.0, kernel=True)
 
     The scene file reads it from its table (optional: ``default`` when absent), writes it
-    back, checks its kind and range with the file's one-line messages; the kernels read it
-    from the medium block when ``kernel`` (docs/architecture.md, "Add a scene field")."""
+    back, checks its kind and range with the file's one-line messages; with ``kernel`` (a
+    Medium's or a Light's) the kernels read it from the medium or light block
+    (clvol/kernels/blocks.py; docs/architecture.md, "Add a scene field")."""
     return field(default=default, metadata={"property": Property(kind, help, **limits)})
 
 
@@ -359,11 +361,10 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-# Only the medium has a block the kernels read its declared properties from.
-for _cls in (Light, Camera):
-    if any(p.kernel for _, p, _ in declared_properties(_cls)):
-        raise TypeError(f"{_cls.__name__}: kernel=True is for Medium's properties only (the "
-                        "medium block); the light and camera reach the kernels as arguments")
+# Only the medium and the light have blocks the kernels read declared properties from.
+if any(p.kernel for _, p, _ in declared_properties(Camera)):
+    raise TypeError("Camera: kernel=True is for Medium's and Light's properties (their kernel "
+                    "blocks); the camera reaches the kernels as arguments")
 
 
 # --------------------------------------------------------------------------- presets

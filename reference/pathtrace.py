@@ -55,14 +55,14 @@ def order_bin(e: int) -> int:
 class Params:
     """The medium and lights as the kernel sees them: ``medium``, the optical properties read
     by name (density_scale, RGB albedo, phase.lobes each with .g and .weight), unpacked here
-    into ``density_scale``, ``albedo`` and ``lobes`` ((g, weight) pairs); ``environment``
-    None = none, ``max_order`` 0 = unlimited."""
+    into ``density_scale``, ``albedo`` and ``lobes`` ((g, weight) pairs); ``light``, the sun
+    read by name (direction toward it, RGB irradiance), unpacked into ``light_dir`` and
+    ``sun``; ``environment`` None = none, ``max_order`` 0 = unlimited."""
     density: np.ndarray
     bbox_min: np.ndarray
     bbox_max: np.ndarray
     medium: object
-    light_dir: tuple
-    sun: tuple = (1.0, 1.0, 1.0)
+    light: object
     environment: tuple | None = None
     max_order: int = 0
     rr_start: int = RR_START
@@ -81,8 +81,8 @@ class Params:
         self.bbox_max = np.asarray(self.bbox_max, np.float64)
         self.density_scale = float(self.medium.density_scale)
         self.albedo = np.asarray(self.medium.albedo, np.float64)
-        self.sun = np.asarray(self.sun, np.float64)
-        self.light_dir = np.asarray(self.light_dir, np.float64)
+        self.sun = np.asarray(self.light.irradiance, np.float64)
+        self.light_dir = np.asarray(self.light.direction, np.float64)
         self.sigma_maj = float(self.density.max()) * self.density_scale
         self.lobes = [(lo.g, lo.weight) for lo in self.medium.phase.lobes]
         self.env = (None if self.environment is None or max(self.environment) <= 0

@@ -133,7 +133,7 @@ def raymarch(density, bbox_min, bbox_max, medium,
              light, cube_min, cube_size,
              ms_lattice, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
-             light_dir, irradiance, background,
+             sun, background,
              source="wrenninge", octaves=3, a=0.5, b=0.5, c=0.5,
              step=None, threshold=1e-3, skip_empty=True, lit=True,
              light_quantity="transmittance", view_block=4, env=None, env_min=(0, 0, 0),
@@ -152,7 +152,8 @@ def raymarch(density, bbox_min, bbox_max, medium,
                  light_quantity="optical_depth"
     ms_lattice      (C, gz, gy, gx), C = 1 or 3, F_ms over ms_bbox_min..ms_bbox_max ("lattice" source)
     camera       origin, basis (forward, right, up), tan(fov_y / 2), width x height
-    light_dir    unit, toward the light; irradiance E, background: RGB
+    sun          the distant light, read by name: direction (unit, toward the light) and
+                 irradiance E (RGB); background: RGB
     step         segment length in world units; threshold: early-termination transmittance
     lit          False when albedo * E is 0: no light lookups (F_1 and F_ms are not needed)
     """
@@ -169,7 +170,7 @@ def raymarch(density, bbox_min, bbox_max, medium,
     d = camera_rays(np.asarray(forward, f64), np.asarray(right, f64), np.asarray(up, f64),
                     float(tan_half), width, height).reshape(-1, 3)
     n_rays = len(d)
-    l = np.asarray(light_dir, f64)
+    l = np.asarray(sun.direction, f64)
     mu = d @ l                                    # dot(-l, omega) with omega = -d
     f0 = phase_eval(mu, lobes)
     if source == "wrenninge" and octaves > 1:
@@ -275,7 +276,7 @@ def raymarch(density, bbox_min, bbox_max, medium,
         T = T * np.exp(-tau)
         k = k + active
 
-    ae = np.asarray(albedo, f64) * np.asarray(irradiance, f64)
+    ae = np.asarray(albedo, f64) * np.asarray(sun.irradiance, f64)
     single_rgb = (f0 * S)[:, None] * ae if lit else np.zeros((n_rays, 3))
     multiple = M * ae if (lit and source != "none") else np.zeros((n_rays, 3))
     if env is not None:

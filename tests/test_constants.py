@@ -24,10 +24,10 @@ import pyopencl as cl
 import pytest
 
 from clvol.errors import BuildError, ClvolError
-from clvol.scenemodel import Medium, declared
+from clvol.scenemodel import Light, Medium, declared
 from clvol.kernels import constants as kc
 from clvol.runtime import _define_flags, get_runtime, include_dir
-from media import medium_of
+from media import light_of, medium_of
 
 ROOT = Path(__file__).resolve().parents[1]
 CL_SOURCES = sorted((ROOT / "cl").glob("*.cl")) + sorted((ROOT / "cl" / "include").glob("*.h"))
@@ -208,7 +208,7 @@ def _probe(header: str, ints: list[str], floats: list[str], defines: dict) -> tu
 
 
 def test_a_program_sees_the_header_values_the_python_host_uses():
-    from clvol.kernels import (gather, medium, mlp, pathtrace, raymarch, transmittance,
+    from clvol.kernels import (blocks, gather, mlp, pathtrace, raymarch, transmittance,
                                viewdepth)
     host = {  # kernel name -> the values the Python wrappers launch with
         "TILE": [raymarch.TILE], "MS_MAX_OCTAVES": [raymarch.MAX_OCTAVES],
@@ -220,10 +220,11 @@ def test_a_program_sees_the_header_values_the_python_host_uses():
         "PT_ORDER_SUB": [pathtrace.ORDER_SUB], "PT_ORDER_END_LOG2": [pathtrace.ORDER_END_LOG2],
         "VIEW_MAX_K": [viewdepth.MAX_VIEW_K, raymarch.MAX_VIEW_K],
         "VIEW_MAX_RAYS": [viewdepth.MAX_VIEW_RAYS],
-        "MEDIUM_FLOATS": [medium.MEDIUM_FLOATS],
-        "MEDIUM_DENSITY_SCALE": [medium.SLOT_DENSITY_SCALE],
-        "MEDIUM_ALBEDO": [medium.SLOT_ALBEDO], "MEDIUM_LOBE_G": [medium.SLOT_LOBE_G],
-        "MEDIUM_LOBE_W": [medium.SLOT_LOBE_W],
+        "MEDIUM_FLOATS": [blocks.MEDIUM_FLOATS],
+        "MEDIUM_DENSITY_SCALE": [blocks.SLOT_DENSITY_SCALE],
+        "MEDIUM_ALBEDO": [blocks.SLOT_ALBEDO], "MEDIUM_LOBE_G": [blocks.SLOT_LOBE_G],
+        "MEDIUM_LOBE_W": [blocks.SLOT_LOBE_W], "LIGHT_FLOATS": [blocks.LIGHT_FLOATS],
+        "LIGHT_DIRECTION": [blocks.SLOT_DIRECTION], "LIGHT_IRRADIANCE": [blocks.SLOT_IRRADIANCE],
     }
     assert set(host) == set(kc.kernel_constants())       # every header value has a user here
     names = sorted(host)
@@ -284,7 +285,7 @@ def test_the_kernels_read_each_property_of_the_medium_block_where_the_host_packs
     """cl/include/medium.h's accessors on a block from ``medium_block``: every property comes
     back from its own slot (distinct values everywhere, so that two swapped slots show), the
     albedo's w is 0 and the free slots stay zero."""
-    from clvol.kernels.medium import medium_block
+    from clvol.kernels.blocks import medium_block
     rt = get_runtime()
     lobes = [(0.61, 0.52), (-0.23, 0.31), (0.07, 0.17)]
     block = medium_block(medium_of(2.75, (0.91, 0.82, 0.73), lobes))
@@ -304,8 +305,28 @@ def test_the_kernels_read_each_property_of_the_medium_block_where_the_host_packs
     assert out[0] == want[0] and np.array_equal(out[4:], want[4:]), out
 
 
+def test_the_kernels_read_the_light_block_where_the_host_packs_it():
+    """cl/include/light.h's accessors on a block from ``light_block``: direction and
+    irradiance from their own slots (different values), w 0, the free slots zero."""
+    from clvol.kernels.blocks import light_block
+    rt = get_runtime()
+    block = light_block(light_of((0.48, 0.6, 0.64), (1.5, 0.25, 3.0)))
+    src = ('#include "light.h"\n__kernel void probe(const LightBlock l, __global float *o) {\n'
+           "    vstore4(LIGHT_DIRECTION_OF(l), 0, o);\n    vstore4(LIGHT_IRRADIANCE_OF(l), 1, o);\n"
+           "    vstore4(l.q2, 2, o);\n    vstore4(l.q3, 3, o);\n}\n")
+    prog = cl.Program(rt.context, src).build(options=["-I", str(include_dir())],
+                                             devices=[rt.device])
+    out = np.zeros(16, np.float32)
+    ob = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    prog.probe(rt.queue, (1,), None, block, ob)
+    cl.enqueue_copy(rt.queue, out, ob)
+    rt.queue.finish()
+    np.testing.assert_array_equal(out, np.float32([0.48, 0.6, 0.64, 0, 1.5, 0.25, 3.0, 0]
+                                                  + [0] * 8))
+
+
 @dataclasses.dataclass(frozen=True)
-class _Declaring(Medium):
+class _DeclaringMedium(Medium):
     """A medium with two declared kernel properties (a number, an RGB) around one the
     kernels do not read: the packer skips that one and gives the others the next slots."""
     extra_gain: float = declared(1.0, "a test's number", lo=0.0, kernel=True)
@@ -313,38 +334,51 @@ class _Declaring(Medium):
     extra_tint: tuple = declared((1.0, 1.0, 1.0), "a test's RGB", kind="rgb", kernel=True)
 
 
-def test_a_declared_kernel_property_reaches_the_kernel_at_the_slot_the_host_gives_it():
-    """clvol/scenemodel.py ``declared(..., kernel=True)``: ``medium_block`` packs the value
-    after the lobes, ``medium_defines`` names its slot, and medium.h's ``medium_float`` reads
-    it there (distinct values: a slot off by one or a swapped pair shows)."""
-    from clvol.kernels.medium import SLOT_FIRST_FREE, declared_slots, medium_block, medium_defines
-    m = _Declaring(**vars(medium_of(2.75, (0.91, 0.82, 0.73), [(0.61, 1.0)])),
-                   extra_gain=0.37, file_only=9.0, extra_tint=(0.11, 0.22, 0.33))
-    defines = medium_defines(_Declaring)
-    first = SLOT_FIRST_FREE + sum(w for _, w in declared_slots(Medium).values())  # after Medium's
-    assert {k: defines[k] for k in ("MEDIUM_EXTRA_GAIN", "MEDIUM_EXTRA_TINT")} == {
-        "MEDIUM_EXTRA_GAIN": first, "MEDIUM_EXTRA_TINT": first + 1}
-    block = medium_block(m)
+@dataclasses.dataclass(frozen=True)
+class _DeclaringLight(Light):
+    extra_gain: float = declared(1.0, "the same name as the medium's", kernel=True)
+
+
+def test_declared_kernel_properties_reach_the_kernel_at_the_slots_the_host_gives_them():
+    """clvol/scenemodel.py ``declared(..., kernel=True)``: ``medium_block`` and
+    ``light_block`` pack the values after their fixed slots, ``block_defines`` names their
+    slots, and blocks.h's ``medium_float`` / ``light_float`` read them there (distinct
+    values: a slot off by one, a swapped pair or the medium's for the light's shows)."""
+    from clvol.kernels.blocks import (LIGHT_FIRST_FREE, MEDIUM_FIRST_FREE, block_defines,
+                                      declared_slots, light_block, medium_block)
+    m = _DeclaringMedium(**vars(medium_of(2.75, (0.91, 0.82, 0.73), [(0.61, 1.0)])),
+                         extra_gain=0.37, file_only=9.0, extra_tint=(0.11, 0.22, 0.33))
+    li = _DeclaringLight(**vars(light_of((0.0, 1.0, 0.0), (2.0, 2.0, 2.0))), extra_gain=0.59)
+    defines = block_defines(_DeclaringMedium, _DeclaringLight)
+    first = MEDIUM_FIRST_FREE + sum(w for _, w in declared_slots(Medium).values())
+    first_l = LIGHT_FIRST_FREE + sum(w for _, w in declared_slots(Light).values())
+    assert {k: defines[k] for k in ("MEDIUM_SLOT_EXTRA_GAIN", "MEDIUM_SLOT_EXTRA_TINT",
+                                    "LIGHT_SLOT_EXTRA_GAIN")} == {
+        "MEDIUM_SLOT_EXTRA_GAIN": first, "MEDIUM_SLOT_EXTRA_TINT": first + 1,
+        "LIGHT_SLOT_EXTRA_GAIN": first_l}
     rt = get_runtime()
-    src = ('#include "medium.h"\n__kernel void probe(const MediumBlock m, __global float *o) {\n'
-           "    o[0] = medium_float(m, MEDIUM_EXTRA_GAIN);\n"
-           "    for (int c = 0; c < 3; ++c) o[1 + c] = medium_float(m, MEDIUM_EXTRA_TINT + c);\n"
-           "    o[4] = MEDIUM_DENSITY_SCALE_OF(m);\n}\n")
+    src = ('#include "medium.h"\n#include "light.h"\n'
+           "__kernel void probe(const MediumBlock m, const LightBlock l, __global float *o) {\n"
+           "    o[0] = medium_float(m, MEDIUM_SLOT_EXTRA_GAIN);\n"
+           "    for (int c = 0; c < 3; ++c) o[1 + c] = medium_float(m, MEDIUM_SLOT_EXTRA_TINT + c);\n"
+           "    o[4] = MEDIUM_DENSITY_SCALE_OF(m);\n    o[5] = light_float(l, LIGHT_SLOT_EXTRA_GAIN);\n"
+           "    o[6] = LIGHT_IRRADIANCE_OF(l).x;\n}\n")
     prog = cl.Program(rt.context, src).build(
         options=["-I", str(include_dir())] + _define_flags(defines), devices=[rt.device])
-    out = np.zeros(5, np.float32)
+    out = np.zeros(7, np.float32)
     ob = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
-    prog.probe(rt.queue, (1,), None, block, ob)
+    prog.probe(rt.queue, (1,), None, medium_block(m), light_block(li), ob)
     cl.enqueue_copy(rt.queue, out, ob)
     rt.queue.finish()
-    np.testing.assert_array_equal(out, np.float32([0.37, 0.11, 0.22, 0.33, 2.75]))
+    np.testing.assert_array_equal(out, np.float32([0.37, 0.11, 0.22, 0.33, 2.75, 0.59, 2.0]))
 
 
-def test_the_block_refuses_more_declared_properties_than_its_free_slots():
-    from clvol.kernels.medium import declared_slots
+def test_a_block_refuses_more_declared_properties_than_its_free_slots():
+    from clvol.kernels.blocks import declared_slots
 
     @dataclasses.dataclass(frozen=True)
-    class Crowded(_Declaring):
+    class Crowded(_DeclaringMedium):
         more_tint: tuple = declared((1.0, 1.0, 1.0), "one RGB too many", kind="rgb", kernel=True)
-    with pytest.raises(ClvolError, match=r"need (19|2\d) floats; the block .* holds 16"):
+    with pytest.raises(ClvolError, match=r"Crowded's declared kernel properties need (19|2\d) "
+                                         r"floats; its block .* holds 16"):
         declared_slots(Crowded)

@@ -24,7 +24,7 @@ from clvol.kernels.pathtrace import (ROW_BG, ROW_L1, ROW_LMS, ROW_STEPS, ROW_TRU
 from clvol.scene import Camera
 from reference import pathtrace as rpt
 from reference.phase import phase_eval
-from media import medium_of
+from media import light_of, medium_of
 from scene_toml import CAMERA, write_scene
 
 BMIN = np.array([-0.5, -0.4, -0.5])
@@ -52,7 +52,7 @@ def make_medium(density=None, scale=3.0, albedo=(0.9, 0.9, 0.9), lobes=(), light
                 env_scale=(1.0, 1.0, 1.0), env_rotation=0.0, **extra):
     density = _smooth() if density is None else density
     return PathMedium(density=density, bbox_min=BMIN, bbox_max=BMAX,
-                  medium=medium_of(scale, albedo, lobes), light_dir=_unit(light), sun=tuple(sun),
+                  medium=medium_of(scale, albedo, lobes), light=light_of(_unit(light), sun),
                   environment=env, max_order=max_order, extra_defines=dict(extra),
                   env_map=env_map, env_scale=tuple(env_scale), env_rotation=env_rotation)
 
@@ -60,7 +60,7 @@ def make_medium(density=None, scale=3.0, albedo=(0.9, 0.9, 0.9), lobes=(), light
 def twin(med: PathMedium) -> rpt.Params:
     return rpt.Params(density=med.density, bbox_min=med.bbox_min, bbox_max=med.bbox_max,
                       medium=med.medium,
-                      light_dir=med.light_dir, sun=med.sun, environment=med.environment,
+                      light=med.light, environment=med.environment,
                       max_order=med.max_order or 0, env_map=med.env_map,
                       env_scale=med.env_scale, env_rotation=med.env_rotation)
 

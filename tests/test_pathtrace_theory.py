@@ -16,7 +16,7 @@ import pytest
 
 from clvol.kernels.pathtrace import ROW_L1, ROW_LMS, ROW_VERTICES, PathMedium, PathTracer
 from clvol.scene import Camera
-from media import medium_of
+from media import light_of, medium_of
 from reference.grid import box_intersect
 from reference.pathtrace import chandrasekhar_h
 from reference.phase import phase_eval
@@ -51,7 +51,7 @@ def test_semi_infinite_slab_matches_chandrasekhar(a, mu, mu0, phi):
     eye = 20.0 * np.array([math.sin(th) * math.cos(phi), math.sin(th) * math.sin(phi), mu])
     cam = Camera(tuple(eye), (0, 0, 0), (0, 0, 1) if mu < 0.99 else (0, 1, 0), 0.05, 4, 4)
     med = PathMedium(np.ones((2, 2, 2), np.float32), np.array([-size, -size, -size]),
-                 np.array([size, size, 0.0]), medium_of(1.0, (a, a, a)), light)
+                 np.array([size, size, 0.0]), medium_of(1.0, (a, a, a)), light_of(light))
     rows = PathTracer(med, majorant_block=0).render_batch(cam, 1, 0, 4096).astype(np.float64)
     total = (rows[..., ROW_L1] + rows[..., ROW_LMS])[..., 0].ravel()
     single = rows[..., ROW_L1][..., 0].ravel()
@@ -74,7 +74,7 @@ def test_slab_check_has_power():
     cam = Camera(tuple(eye), (0, 0, 0), (0, 0, 1), 0.05, 4, 4)
     med = PathMedium(np.ones((2, 2, 2), np.float32), np.array([-size, -size, -size]),
                  np.array([size, size, 0.0]), medium_of(1.0, (0.88,) * 3),
-                 (math.sin(th0), 0.0, mu0))
+                 light_of((math.sin(th0), 0.0, mu0)))
     rows = PathTracer(med, majorant_block=0).render_batch(cam, 1, 0, 4096).astype(np.float64)
     total = (rows[..., ROW_L1] + rows[..., ROW_LMS])[..., 0].ravel()
     h, h0 = chandrasekhar_h(a_true, [mu, mu0])
@@ -128,7 +128,7 @@ def test_thin_box_single_scattering_matches_quadrature(lobes):
     light = tuple(np.array([0.4, 0.8, -0.45]) / np.linalg.norm([0.4, 0.8, -0.45]))  # from behind
     cam = Camera((0.05, 0.05, 2.5), (0.0, 0.0, 0.05), (0, 1, 0), 10.0, 6, 6)
     med = PathMedium(np.ones((3, 4, 5), np.float32), BMIN, BMAX, medium_of(sigma, albedo, lobes),
-                 light, sun, max_order=1)
+                 light_of(light, sun), max_order=1)
     rows = PathTracer(med).render_batch(cam, 3, 0, 8192).astype(np.float64)
     assert np.all(rows[..., ROW_LMS] == 0) and rows[..., ROW_VERTICES].max() == 1
     est = rows[..., ROW_L1]                       # (spp, npix, 3)
@@ -150,7 +150,7 @@ def test_single_scattering_orientation():
     for name, l in (("behind-box", (0.2, 0.3, -1.0)), ("behind-camera", (0.2, 0.3, 1.0))):
         l = tuple(np.array(l) / np.linalg.norm(l))
         med = PathMedium(np.ones((2, 2, 2), np.float32), BMIN, BMAX,
-                         medium_of(0.3, (0.9,) * 3, [(0.8, 1.0)]), l, max_order=1)
+                         medium_of(0.3, (0.9,) * 3, [(0.8, 1.0)]), light_of(l), max_order=1)
         out[name] = PathTracer(med).render_batch(cam, 0, 0, 1024)[..., ROW_L1].mean()
         want = _single_scattering_quadrature(cam, 0.3, (0.9,) * 3, [(0.8, 1.0)], l, (1, 1, 1)).mean()
         assert out[name] == pytest.approx(want, rel=0.05)

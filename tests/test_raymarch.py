@@ -29,7 +29,7 @@ from clvol.scene import Phase, scene_from_dict
 from clvol.volume.grid import DensityGrid
 from reference import raymarch as rraymarch
 from reference.phase import phase_eval
-from media import medium_of
+from media import light_of, medium_of
 from scene_toml import CAMERA, look_at, write_scene
 
 LAYER_NAMES = ("total", "single", "multiple", "alpha", "depth")
@@ -104,7 +104,7 @@ def _inputs(case: str, source: str = "wrenninge", octaves=(3, 0.5, 0.5, 0.5), se
         ms_bbox_max=np.array([0.4, 0.25, 0.5]),
         origin=origin, forward=f, right=r, up=u,
         tan_half=math.tan(math.radians(40.0) / 2), width=width, height=height,
-        light_dir=np.array([0.6, 0.8, 0.0]), irradiance=(1.0, 0.9, 0.8),
+        sun=light_of((0.6, 0.8, 0.0), (1.0, 0.9, 0.8)),
         background=(0.1, 0.2, 0.3),
         source="lattice" if source.startswith("lattice") else "view" if source.startswith("view")
         else source, octaves=n_oct, a=a, b=b, c=c, step=0.05, threshold=0.0,
@@ -115,10 +115,12 @@ def _f32(kw):
     """What the kernel sees: geometry rounded to float32 (the twin then runs in float64)."""
     out = dict(kw)
     for key in ("bbox_min", "bbox_max", "cube_min", "ms_bbox_min", "ms_bbox_max", "origin",
-                "forward", "right", "up", "light_dir"):
+                "forward", "right", "up"):
         out[key] = np.asarray(kw[key], np.float32).astype(np.float64)
     for key in ("tan_half", "step", "cube_size"):
         out[key] = float(np.float32(kw[key]))
+    out["sun"] = dataclasses.replace(kw["sun"], direction=tuple(
+        np.asarray(kw["sun"].direction, np.float32).astype(np.float64)))
     out["medium"] = dataclasses.replace(
         kw["medium"], density_scale=float(np.float32(kw["medium"].density_scale)))
     return out

@@ -206,6 +206,10 @@ struct clvol_renderer {
      * the density scale and albedo, which clvol_set_medium changes (host.medium_*) */
     double medium[16];
     int medium_ds_slot, medium_albedo_slot;
+    /* the same for the light block (raymarch.light): direction and irradiance, which
+     * clvol_set_light changes (host.light_*) */
+    double light_block[16];
+    int light_dir_slot, light_irradiance_slot;
     /* read once at create: the march's threshold and octaves, the queries' phase fields */
     double threshold, octave_abc[3], config_phase[16];
     /* network */

@@ -368,8 +368,8 @@ static void read_view_keys(clvol_host *h) {
 static void open_bundle(clvol_host *h) {
     const manifest *m = &h->mf;
     double t0 = now_seconds();
-    if (strcmp(mf_str(m, "format"), "clvol-bundle") != 0 || mf_int(m, "format_version") != 2)
-        fail(BUNDLE, "%s: not a clvol-bundle of format_version 2 (write it again with this "
+    if (strcmp(mf_str(m, "format"), "clvol-bundle") != 0 || mf_int(m, "format_version") != 3)
+        fail(BUNDLE, "%s: not a clvol-bundle of format_version 3 (write it again with this "
              "version's clvol bundle)", m->where);
     read_host_constants(h);
     int dims[3];
@@ -412,6 +412,12 @@ static void open_bundle(clvol_host *h) {
     mf_doubles(m, "raymarch.medium", h->medium, 16);
     h->medium_ds_slot = mf_int_in(m, "host.medium_density_scale", 0, 15);
     h->medium_albedo_slot = mf_int_in(m, "host.medium_albedo", 0, 13);
+    if (mf_int(m, "host.light_floats") != 16)
+        fail(BUNDLE, "%s: host.light_floats = %d: this libclvol passes 16 floats", m->where,
+             mf_int(m, "host.light_floats"));
+    mf_doubles(m, "raymarch.light", h->light_block, 16);
+    h->light_dir_slot = mf_int_in(m, "host.light_direction", 0, 13);
+    h->light_irradiance_slot = mf_int_in(m, "host.light_irradiance", 0, 13);
     h->lit = mf_int(m, "raymarch.lit");
     const char *src = mf_str(m, "raymarch.ms_source");
     if (strcmp(src, "network") == 0) h->source = SOURCE_NETWORK;
@@ -1157,6 +1163,20 @@ static cl_float16 medium_block(const clvol_host *h) {
     return out;
 }
 
+/* The ray marcher's light argument (cl/include/light.h): the bundle's block with the
+ * direction and irradiance this host holds now (clvol_set_light changes them). */
+static cl_float16 light_block(const clvol_host *h) {
+    double v[16];
+    memcpy(v, h->light_block, sizeof v);
+    for (int c = 0; c < 3; ++c) {
+        v[h->light_dir_slot + c] = h->light_dir[c];
+        v[h->light_irradiance_slot + c] = h->irradiance[c];
+    }
+    cl_float16 out;
+    for (int i = 0; i < 16; ++i) out.s[i] = (float)v[i];
+    return out;
+}
+
 static void march_stage(clvol_host *h) {
     const double *abc = h->octave_abc;
     int gres[3] = {1, 1, 1};
@@ -1187,19 +1207,19 @@ static void march_stage(clvol_host *h) {
         h->out_width = W;
         h->out_height = H;
     }
-    const double *origin = h->cam_origin, *l = h->light_dir;
+    const double *origin = h->cam_origin;
     cl_float4 bmin = f4(h->bmin), bmax = f4(h->bmax), cmin4 = f4(h->cube_min), gmin4 = f4(gmin),
               gmax4 = f4(gmax), o4 = f4(origin), fw4 = f4(h->cam_fwd), r4 = f4(h->cam_right),
-              u4 = f4(h->cam_up), l4 = f4(l), e4 = f4(h->irradiance), bg4 = f4(h->background);
-    cl_float16 medium = medium_block(h);
+              u4 = f4(h->cam_up), bg4 = f4(h->background);
+    cl_float16 medium = medium_block(h), light = light_block(h);
     int ln = h->lit ? h->light_res : 1;
-    set_args(h->k_raymarch, "miii44Gmiiiimi4fmiii444444fii444fffffmmmmmm",
+    set_args(h->k_raymarch, "miii44Gmiiiimi4fmiii444444fiiG4fffffmmmmmm",
              h->d_density, h->nx, h->ny, h->nz, &bmin, &bmax, &medium,
              h->d_majorant, h->mx, h->my, h->mz, h->block,
              h->lit ? h->d_light : h->d_dummy, ln, &cmin4, h->lit ? h->cube_size : 1.0,
              planes, gres[0], gres[1], gres[2], &gmin4, &gmax4,
              &o4, &fw4, &r4, &u4, h->tan_half, W, H,
-             &l4, &e4, &bg4, abc[0], abc[1], abc[2],
+             &light, &bg4, abc[0], abc[1], abc[2],
              h->step, h->threshold,
              h->d_out[0], h->d_out[1], h->d_out[2], h->d_out[3], h->d_out[4], h->d_out[5]);
     /* a tile is tile x LANES / tile pixels, one a lane (cl/raymarch.cl TILE_ROWS) */

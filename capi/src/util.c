@@ -375,7 +375,7 @@ void launch(clvol_host *h, cl_kernel k, size_t global, size_t local) {
 }
 
 /* Set a kernel's arguments in order: 'm' cl_mem, 'i' int, 'f' float (passed as double),
- * '4' cl_float4 *, 'G' cl_float16 * (the medium block: cl/include/medium.h's MediumBlock has its
+ * '4' cl_float4 *, 'G' cl_float16 * (a block: cl/include/blocks.h's Block16 has its
  * size and layout). */
 void set_args(cl_kernel k, const char *types, ...) {
     va_list ap;

@@ -52,11 +52,18 @@
 
 /* cl/include/medium.h: the medium block, one 16-float kernel argument (MediumBlock) of cl/raymarch.cl and
  * cl/pathtrace.cl: where each optical property sits (its first float) and the block's size.
- * Slots 12..15 are zero (free for the next property). */
+ * Slots 12..15 are zero (free for the medium's declared properties). */
 #define MEDIUM_FLOATS 16
 #define MEDIUM_DENSITY_SCALE 0
 #define MEDIUM_ALBEDO 1
 #define MEDIUM_LOBE_G 4
 #define MEDIUM_LOBE_W 8
+
+/* cl/include/light.h: the light block, one 16-float kernel argument (LightBlock) of
+ * cl/raymarch.cl and cl/pathtrace.cl: the distant light's direction and irradiance (first
+ * floats, w = 0). Slots 8..15 are zero (free for the light's declared properties). */
+#define LIGHT_FLOATS 16
+#define LIGHT_DIRECTION 0
+#define LIGHT_IRRADIANCE 4
 
 #endif

@@ -28,12 +28,7 @@ it: the ray marcher (clvol/render/raymarch.py) and its network source, and the p
 This module wraps no kernel of its own: it composes the wrappers of majorant.cl, pyramid.cl
 and transmittance.cl.
 
-``medium_block`` packs the medium's optical properties into the one 16-float argument the ray
-marcher and the path tracer read (cl/include/medium.h); it is the only code that knows where
-each property sits: the density scale, albedo and lobes at the MEDIUM_* slots of
-cl/include/constants.h, then each property the scene model declares with ``kernel=True``
-(clvol/scenemodel.py ``declared``) in the free slots, in declaration order, whose slots the
-kernels get from ``medium_defines`` (-D MEDIUM_<NAME>=slot).
+The medium block the kernels take (its optical properties) is clvol/kernels/blocks.py's.
 """
 from __future__ import annotations
 
@@ -43,56 +38,7 @@ import numpy as np
 
 from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
-from ..scenemodel import Medium, declared_properties
-from .constants import kernel_constant
 from .majorant import DEFAULT_BLOCK, build_majorant_buffer, majorant_block
-from .phase import lobe_vectors
-
-
-# Where each property sits in the block (cl/include/constants.h MEDIUM_*).
-MEDIUM_FLOATS = kernel_constant("MEDIUM_FLOATS")
-SLOT_DENSITY_SCALE = kernel_constant("MEDIUM_DENSITY_SCALE")
-SLOT_ALBEDO = kernel_constant("MEDIUM_ALBEDO")
-SLOT_LOBE_G = kernel_constant("MEDIUM_LOBE_G")
-SLOT_LOBE_W = kernel_constant("MEDIUM_LOBE_W")
-SLOT_FIRST_FREE = SLOT_LOBE_W + 4
-
-
-def declared_slots(cls=Medium) -> dict[str, tuple[int, int]]:
-    """{property name: (first slot, floats)} of the properties ``cls`` declares for the
-    kernels, packed from SLOT_FIRST_FREE in declaration order."""
-    slots, at = {}, SLOT_FIRST_FREE
-    for name, prop, _ in declared_properties(cls):
-        if prop.kernel:
-            width = 3 if prop.kind == "rgb" else 1
-            slots[name] = (at, width)
-            at += width
-    if at > MEDIUM_FLOATS:
-        raise ClvolError(f"the medium's declared kernel properties need {at} floats; the block "
-                         f"(cl/include/medium.h) holds {MEDIUM_FLOATS}")
-    return slots
-
-
-def medium_defines(cls=Medium) -> dict:
-    """-D MEDIUM_<NAME>=slot for each declared kernel property (cl/include/medium.h reads it
-    with ``medium_float``): every program that takes the block builds with these."""
-    return {f"MEDIUM_{name.upper()}": at for name, (at, _) in declared_slots(cls).items()}
-
-
-def medium_block(medium) -> np.ndarray:
-    """The medium block (cl/include/medium.h) of ``medium`` (a clvol.scene.Medium): float32
-    [MEDIUM_FLOATS] holding ``density_scale`` (sigma_t = density * density_scale), the RGB
-    ``albedo``, the phase's lobes as ``lobe_vectors`` gives them, then its declared kernel
-    properties (``declared_slots``); the free slots are zero. Passed as the kernels'
-    ``medium`` argument."""
-    b = np.zeros(MEDIUM_FLOATS, np.float32)
-    b[SLOT_DENSITY_SCALE] = float(medium.density_scale)
-    b[SLOT_ALBEDO:SLOT_ALBEDO + 3] = np.asarray(medium.albedo, np.float64)
-    lobes = [(lo.g, lo.weight) for lo in medium.phase.lobes]
-    b[SLOT_LOBE_G:SLOT_LOBE_G + 4], b[SLOT_LOBE_W:SLOT_LOBE_W + 4] = lobe_vectors(lobes)
-    for name, (at, width) in declared_slots(type(medium)).items():
-        b[at:at + width] = getattr(medium, name)
-    return b
 
 
 @dataclass(eq=False)

@@ -20,7 +20,8 @@ from .constants import kernel_constant
 from .grid import f4
 from .majorant import DEFAULT_BLOCK, majorant_args
 from .majorant import majorant_block as resolve_block
-from .medium import DeviceMedium, medium_block, medium_defines
+from .blocks import block_defines, light_block, medium_block
+from .medium import DeviceMedium
 
 # Per-path output row of the kernels (PT_OUT floats; the widths are cl/include/constants.h's).
 ROW_BG, ROW_L1, ROW_LMS = slice(0, 3), slice(3, 6), slice(6, 9)
@@ -74,7 +75,7 @@ def order_bin_ranges() -> np.ndarray:
     return np.stack([lo, hi], axis=1).astype(np.int64)
 
 _MEDIUM_DTYPES = [None, None, np.int32, np.int32, np.int32, np.int32, np.int32, np.int32,
-                  None, None, None, None, None, None, None]
+                  None, None, None, None, None, None]
 _RENDER_DTYPES = _MEDIUM_DTYPES + [None, None, None, None, np.float32, np.int32, np.int32,
                                    np.uint64, np.uint32, np.int32, np.int32, None, None]
 _QUERY_DTYPES = _MEDIUM_DTYPES + [None, None, np.int32, np.uint64, np.uint32, np.int32,
@@ -106,7 +107,9 @@ UNIFORM_MAP.setflags(write=False)
 class PathMedium:
     """What the path-tracing kernels simulate: the density over its box, the scene's
     ``medium`` (a clvol.scene.Medium, its optical properties, passed whole and packed by
-    clvol/kernels/medium.py medium_block), the lights and the limits.
+    clvol/kernels/blocks.py medium_block), the ``light`` (a clvol.scene.Light, passed whole:
+    the sun's direction and irradiance, packed by light_block; a zero irradiance: no sun),
+    the sky and the limits.
     ``environment`` None for none; ``max_order`` None for unlimited. ``env_map``: a lat-long
     map (H, W, 3) (clvol/envmap.py; exclusive with ``environment``) times ``env_scale``,
     turned by ``env_rotation`` degrees about +y; None for none."""
@@ -114,8 +117,7 @@ class PathMedium:
     bbox_min: np.ndarray
     bbox_max: np.ndarray
     medium: object
-    light_dir: tuple
-    sun: tuple = (1.0, 1.0, 1.0)
+    light: object
     environment: tuple | None = None
     max_order: int | None = None
     extra_defines: dict = field(default_factory=dict)
@@ -154,7 +156,7 @@ def specialisation(med: PathMedium, specialise: bool = True) -> tuple[dict, list
     grey, iso = med.medium.is_grey, med.medium.phase.is_isotropic
     lobes = [(lo.g, lo.weight) for lo in med.medium.phase.lobes]
     env = med.environment is not None and max(med.environment) > 0
-    sun = max(med.sun) > 0
+    sun = max(med.light.irradiance) > 0
     single = med.max_order == 1
     tables = med.env_tables()
     if specialise:
@@ -171,7 +173,7 @@ def specialisation(med: PathMedium, specialise: bool = True) -> tuple[dict, list
             defines["PT_SINGLE_ONLY"] = 1
     else:
         defines = {"PHASE_LOBES": 3, "PT_ENV" if tables is None else "PT_ENVMAP": 1}
-    defines.update(medium_defines())
+    defines.update(block_defines())
     if med.emission is not None:
         defines.update(PT_EMISSION=1, PT_EMISSION_CHANNELS=med.emission.channels)
         simulated.append("emission (sigma_a Le, sigma_a = sigma_t (1 - albedo), added at every "
@@ -258,8 +260,7 @@ class PathTracer:
             device_medium.density.buffer, device_medium.majorant.buffer, np.int32(nx),
             np.int32(ny), np.int32(nz), np.int32(mx), np.int32(my), np.int32(mz),
             f4(med.bbox_min), f4(med.bbox_max), self.bsize,
-            medium_block(med.medium),
-            f4(med.light_dir), f4(med.sun), f4(env))
+            medium_block(med.medium), light_block(med.light), f4(env))
         if "PT_ENVMAP" in self.defines:
             self._medium_args += self.env_args(rt, med.env_tables())
         self.row = PT_OUT

@@ -14,7 +14,7 @@ from ..errors import ClvolError
 from ..runtime import DeviceArray, get_runtime
 from .constants import kernel_constant
 from .grid import f4
-from .medium import medium_block, medium_defines
+from .blocks import block_defines, light_block, medium_block
 from .phase import phase_defines
 
 # The kernel's MS_SOURCE define per kind of F_ms lookup (the registry of source classes, a
@@ -91,11 +91,11 @@ def input_defines(light_quantity: str, env_channels: int | None = None, bg_image
 
 def march_defines(lobes, lit: bool, skip_empty: bool, ms: dict) -> dict:
     """The -D defines that specialise cl/raymarch.cl (see its header) but its inputs'
-    (``input_defines``): the phase, the slots of the medium's declared properties, LIT,
+    (``input_defines``): the phase, the slots of the blocks' declared properties, LIT,
     SKIP_EMPTY and the source's ``ms`` (``ms_defines``). The plan's (clvol/render/plan.py)
     and the tests' form below both come from here."""
     d = dict(phase_defines(lobes))
-    d.update(medium_defines())
+    d.update(block_defines())
     d.update(LIT=int(bool(lit)), SKIP_EMPTY=int(bool(skip_empty)))
     d.update(ms)
     return d
@@ -113,7 +113,7 @@ _SCALARS = ([None, np.int32, np.int32, np.int32, None, None, None]             #
             + [None, np.int32, None, np.float32]                                 # light field
             + [None, np.int32, np.int32, np.int32, None, None]                   # F_ms lattice
             + [None, None, None, None, np.float32, np.int32, np.int32]           # camera
-            + [None] * 3                                                         # light, background
+            + [None] * 2                                                         # sun block, background
             + [np.float32] * 5                                                   # a, b, c, step, thr
             + [None] * 6)                                                        # outputs
 _ENV_SCALARS = [None, np.int32, None, np.float32, None]       # env, en, min, size, colour (ENV)
@@ -146,7 +146,7 @@ def raymarch(density, bbox_min, bbox_max, medium,
              light, cube_min, cube_size,
              ms_lattice, ms_bbox_min, ms_bbox_max,
              origin, forward, right, up, tan_half, width, height,
-             light_dir, irradiance, background,
+             sun, background,
              source="wrenninge", octaves=DEFAULT_OCTAVES, a=DEFAULT_OCTAVE_MULTIPLIER,
              b=DEFAULT_OCTAVE_MULTIPLIER, c=DEFAULT_OCTAVE_MULTIPLIER,
              step=None, threshold=DEFAULT_THRESHOLD, skip_empty=True, lit=True,
@@ -200,7 +200,7 @@ def raymarch(density, bbox_min, bbox_max, medium,
         defines=defines,
         volume=MarchVolume(density, bbox_min, bbox_max, medium, majorant, block),
         camera=MarchCamera(origin, forward, right, up, tan_half, width, height),
-        light=MarchLight(light_dir, irradiance, background,
+        light=MarchLight(sun, background,
                          field=light if lit else None, cube_min=cube_min, cube_size=cube_size,
                          quantity=light_quantity),
         ms=MarchMs(ms, ms_bbox_min, ms_bbox_max, a, b, c),
@@ -220,7 +220,7 @@ def raymarch(density, bbox_min, bbox_max, medium,
 class MarchVolume:
     """The medium's density [nz][ny][nx] over bbox_min .. bbox_max, its optical properties
     ``medium`` (a clvol.scene.Medium, passed whole: sigma_t = density * medium.density_scale;
-    packed by clvol/kernels/medium.py medium_block) and its majorant grid of ``block``-voxel
+    packed by clvol/kernels/blocks.py medium_block) and its majorant grid of ``block``-voxel
     cells (clvol/kernels/majorant.py)."""
     density: object
     bbox_min: tuple
@@ -244,10 +244,11 @@ class MarchCamera:
 
 @dataclass(frozen=True)
 class MarchLight:
-    """The sun (``direction`` toward it, RGB ``irradiance``), the background radiance, and the light field: T_light (or its optical depth, by
-    ``quantity``) over the cube cube_min .. + cube_size; None for an unlit build (LIT 0)."""
-    direction: tuple
-    irradiance: tuple
+    """The ``sun`` (a clvol.scene.Light, passed whole: its direction toward the light and RGB
+    irradiance; packed by clvol/kernels/blocks.py light_block), the background radiance, and
+    the light field: T_light (or its optical depth, by ``quantity``) over the cube cube_min ..
+    + cube_size; None for an unlit build (LIT 0)."""
+    sun: object
     background: tuple
     field: object = None
     cube_min: tuple = (0, 0, 0)
@@ -435,7 +436,7 @@ def _camera_args(c: MarchCamera) -> tuple:
 
 
 def _light_args(light: MarchLight, ms: MarchMs) -> tuple:
-    return (f4(light.direction), f4(light.irradiance), f4(light.background),
+    return (light_block(light.sun), f4(light.background),
             np.float32(ms.a), np.float32(ms.b), np.float32(ms.c))
 
 

@@ -70,13 +70,14 @@ def _check_int(name: str, value, lo: int, allow_none: bool = True):
 
 def _medium(scene, grid, max_order, sun, environment, env_map: bool = False,
             emission=None) -> PathMedium:
-    """The path tracer's PathMedium (the kernel's inputs); ``env_map``: with the scene's environment map, ``emission``: an
-    EmissionGrid (renders only)."""
+    """The path tracer's PathMedium (the kernel's inputs): the scene's medium and light, the
+    light's irradiance replaced by ``sun``; ``env_map``: with the scene's environment map,
+    ``emission``: an EmissionGrid (renders only)."""
     light = scene.light
     texels = light.environment_texels() if env_map else None
     return PathMedium(density=grid.density, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max,
                       medium=scene.medium,
-                      light_dir=tuple(light.direction), sun=tuple(sun),
+                      light=dataclasses.replace(light, irradiance=tuple(float(s) for s in sun)),
                       environment=None if environment is None else tuple(environment),
                       max_order=max_order, env_map=texels,
                       env_scale=tuple(light.environment_scale),
@@ -184,7 +185,7 @@ def coverage(scene, grid, pt) -> np.ndarray:
                                           scene.medium, dm.majorant, dm.block),
                        camera=MarchCamera(cam.origin, fwd, right, up, cam.tan_half_fov,
                                           cam.width, cam.height),
-                       light=MarchLight(scene.light.direction, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),
+                       light=MarchLight(scene.light, (0.0, 0.0, 0.0)),
                        ms=MarchMs(), step=step, threshold=0.0, runtime=pt.rt, read_back=False)
     fine = pt.rt.from_device(outs["alpha"], (cam.height, cam.width), wait_for=[evt],
                              label="pathtrace coverage")           # the only layer read

@@ -225,7 +225,7 @@ class RayMarcher:
                                self.majorant, self.block),
             camera=MarchCamera(camera.origin, fwd, right, up, camera.tan_half_fov,
                                camera.width, camera.height),
-            light=MarchLight(light.direction, light.irradiance, plan.background,
+            light=MarchLight(light, plan.background,
                              field=self.light_field if plan.lit else None,
                              cube_min=cube_min, cube_size=cube_size,
                              quantity=self.light_interp),
