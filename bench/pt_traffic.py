@@ -19,10 +19,11 @@ counts them on a sample of the same paths, replayed by the float64 twin
 an estimate, printed with the twin's steps beside the kernel's for the same paths.
 
 The bound is an UPPER bound on samples/s only if every byte came from DRAM: it ignores
-caches. The 128^3 float32 density is 8 MiB and its 16^3 majorant 16 KiB, both far smaller
-than an H100's or H200's 50 MB L2, so the DRAM traffic can be much lower and the bound is
-not a ceiling the kernel must stay under; read it as "memory bandwidth alone does not
-explain the measured rate" when the measured rate is a small fraction of it.
+caches. The 128^3 float32 density is 8 MiB and its 16^3 majorant 16 KiB, far smaller than
+an H100's 50 MB L2 (NVIDIA's Hopper figure, seen quoted, not read at the source; the H200
+is the same GH100 die, its L2 size not checked), so the DRAM traffic can be much lower and
+the kernel is not bound to stay under it; read a measured rate that is a small fraction of
+it as "memory bandwidth does not explain the rate".
 """
 from __future__ import annotations
 
