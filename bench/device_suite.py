@@ -18,7 +18,10 @@ SPEC as for ``clvol --device`` (default: the first GPU, else the first CPU). Ste
    gather + MLP (``NetworkSource.evaluate``) at 16K-1M queries; the MLP alone; the gather
    alone; the graded and exact light transmittance; the path tracer's samples/s and
    point-query labels/s. The path tracer's programs are built in a background thread from the
-   start (the build releases the GIL; NVIDIA's compiler took ~57 s for one of them).
+   start (the build releases the GIL; NVIDIA's compiler took ~57 s for one of them). Beside
+   the path tracer's rows: its global-memory bytes per sample and the bound memory bandwidth
+   sets on samples/s (bench/pt_traffic.py: steps from the kernel's rows, majorant reads from
+   a twin replay of a few paths, after the timings).
 3. **Output** under ``--out``: ``device_suite.json`` (everything), ``device_suite.md`` (tables),
    ``twins.log`` (the pytest output of every twin file). Printed too.
 
@@ -80,14 +83,17 @@ class Settings:
     pt_repeats: int
     label_points: int
     label_paths: int
+    pt_replay: int           # paths replayed by the twin to count majorant reads (pt_traffic)
+    pt_count_paths: int      # paths per label point of the count run beside the label row
 
 
 FULL = Settings(sizes=[256, 512, 1024], frames=5, queries=[16384, 65536, 262144, 1048576],
                 mlp_n=262144, gather_n=262144, trans_base=256, trans_repeats=5, pt_size=256,
-                pt_volume=128, pt_spl=4, pt_repeats=5, label_points=4096, label_paths=256)
+                pt_volume=128, pt_spl=4, pt_repeats=5, label_points=4096, label_paths=256,
+                pt_replay=128, pt_count_paths=16)
 QUICK = Settings(sizes=[32, 64], frames=2, queries=[4096, 16384], mlp_n=4096, gather_n=4096,
                  trans_base=32, trans_repeats=2, pt_size=16, pt_volume=32, pt_spl=1,
-                 pt_repeats=2, label_points=64, label_paths=16)
+                 pt_repeats=2, label_points=64, label_paths=16, pt_replay=16, pt_count_paths=4)
 
 
 # --------------------------------------------------------------------------- machine
@@ -487,8 +493,14 @@ def t_pathtrace(ctx) -> list[dict]:
     n = cam.width * cam.height * s.pt_spl
     pt.render_batch(cam, 0, 0, s.pt_spl)
     it = iter(range(1, 100))
-    secs = timed(lambda: pt.render_batch(cam, 0, next(it) * s.pt_spl, s.pt_spl), s.pt_repeats,
-                 rt.finish)
+    first = {}   # the first timed launch's rows (samples spl..2 spl - 1), for pt_traffic
+
+    def launch():
+        k = next(it)
+        r = pt.render_batch(cam, 0, k * s.pt_spl, s.pt_spl)
+        if k == 1:
+            first["rows"] = r
+    secs = timed(launch, s.pt_repeats, rt.finish)
     ms = med_ms(secs)
     rows = [{"path": f"render {cam.width}^2 x {s.pt_spl} spp, cloud {s.pt_volume}^3",
              "wall ms": ms, "M samples/s": round(n / ms * 1e-3, 4),
@@ -496,10 +508,8 @@ def t_pathtrace(ctx) -> list[dict]:
     log(f"  path tracer render: {ms} ms, {rows[-1]['M samples/s']} M samples/s")
     if ctx["over"]():
         return rows + [{"path": "labels", "skipped": "budget"}]
-    rs = np.random.default_rng(2)
-    pts = rs.uniform(-0.3, 0.3, (s.label_points, 3))
-    om = rs.normal(size=(s.label_points, 3))
-    om /= np.linalg.norm(om, axis=1, keepdims=True)
+    import pt_traffic
+    pts, om = pt_traffic.label_inputs(s)
     run = lambda: point_query(scene, pts, om, s.label_paths, seed=5, grid=p["grid"],  # noqa: E731
                               runtime=rt)
     run()
@@ -509,7 +519,47 @@ def t_pathtrace(ctx) -> list[dict]:
                  "M paths/s": round(s.label_points * s.label_paths / ms * 1e-3, 4),
                  "build s (query program)": p["build_query_s"], "overlap": ctx["overlap"]()})
     log(f"  path tracer labels: {ms} ms")
+    if ctx["over"]():
+        rows[0]["traffic"] = rows[1]["traffic"] = "skipped (budget)"
+        return rows
+    pt_traffic_columns(ctx, p, first["rows"], pts, om, rows)
     return rows
+
+
+def pt_traffic_columns(ctx, p, render_rows, pts, om, rows) -> None:
+    """Bytes per sample and the memory-bandwidth bound beside the path tracer's rows
+    (bench/pt_traffic.py: the model, and the full count for the docs): steps and vertices
+    from the kernel's own rows (the render row's first timed launch; for the labels, a count
+    run of the label points x pt_count_paths of their paths, a subset of the timed ones),
+    majorant reads per step from a twin replay of pt_replay paths of each kind (host only,
+    after the timings)."""
+    import pt_traffic
+    s, rt = ctx["settings"], ctx["rt"]
+    t0 = time.perf_counter()
+    pt, cam = p["pt"], p["scene"].camera
+    label = rt.entry.label
+    rep = pt_traffic.replay_render(pt, cam, 0, s.pt_spl, render_rows,
+                                   min(s.pt_replay, cam.width * cam.height))
+    summ = {"render": pt_traffic.summary(pt_traffic.row_counts(render_rows), rep, False)}
+    qt = pt_traffic.query_tracer(p, rt)
+    qrows = qt.query_batch(rt.to_device(pts.astype(np.float32)),
+                           rt.to_device(om.astype(np.float32)), len(pts), 5, 0,
+                           min(s.pt_count_paths, s.label_paths))
+    qrep = pt_traffic.replay_query(qt, rt, pts, om, 5, min(s.pt_replay, len(pts)))
+    summ["labels"] = pt_traffic.summary(pt_traffic.row_counts(qrows), qrep, True)
+    for row, (kind, key) in zip(rows, (("render", "M samples/s"), ("labels", "M paths/s"))):
+        cols, card = pt_traffic.suite_row(summ[kind], label)
+        row.update(cols)
+        if card and key in row:
+            row[f"% of {card} bound (words / sectors)"] = pt_traffic.fraction(
+                row[key], summ[kind], card)
+        log(f"  path tracer {kind}: {summ[kind]['steps']:.2f} steps, "
+            f"{summ[kind]['majorant_reads']:.1f} majorant reads per sample -> "
+            f"{cols['B/sample (words / 32-B sectors)']} B/sample (words / 32-B sectors); "
+            "bandwidth bound (no caches) "
+            + ", ".join(f"{k[len('BW bound '):].split(' M/s')[0]} {v} M/s" for k, v in cols.items()
+                        if k.startswith("BW bound")))
+    log(f"  path tracer traffic count: {time.perf_counter() - t0:.1f} s")
 
 
 def warm(name: str, ctx) -> None:
