@@ -108,7 +108,7 @@ def majorant_replay(med, block: int, render=None, query=None) -> dict:
     from reference.majorant import build_majorant, dda_segments
     from clvol.kernels.majorant import majorant_args
     P = rpt.Params(density=med.density, bbox_min=med.bbox_min, bbox_max=med.bbox_max,
-                   medium=med.medium, light_dir=med.light_dir, sun=med.sun,
+                   medium=med.medium, light=med.light,
                    environment=med.environment, max_order=med.max_order or 0)
     maj = build_majorant(med.density, block)
     bsize = np.asarray(majorant_args(med.density.shape, med.bbox_min, med.bbox_max, block)[1],
