@@ -360,17 +360,19 @@ def test_declared_kernel_properties_reach_the_kernel_at_the_slots_the_host_gives
     src = ('#include "medium.h"\n#include "light.h"\n'
            "__kernel void probe(const MediumBlock m, const LightBlock l, __global float *o) {\n"
            "    o[0] = medium_float(m, MEDIUM_SLOT_EXTRA_GAIN);\n"
+           "    vstore4(medium_float3(m, MEDIUM_SLOT_EXTRA_TINT), 0, o + 8);\n"
            "    for (int c = 0; c < 3; ++c) o[1 + c] = medium_float(m, MEDIUM_SLOT_EXTRA_TINT + c);\n"
            "    o[4] = MEDIUM_DENSITY_SCALE_OF(m);\n    o[5] = light_float(l, LIGHT_SLOT_EXTRA_GAIN);\n"
-           "    o[6] = LIGHT_IRRADIANCE_OF(l).x;\n}\n")
+           "    o[6] = LIGHT_IRRADIANCE_OF(l).x;\n    o[7] = -1.0f;\n}\n")
     prog = cl.Program(rt.context, src).build(
         options=["-I", str(include_dir())] + _define_flags(defines), devices=[rt.device])
-    out = np.zeros(7, np.float32)
+    out = np.zeros(12, np.float32)
     ob = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
     prog.probe(rt.queue, (1,), None, medium_block(m), light_block(li), ob)
     cl.enqueue_copy(rt.queue, out, ob)
     rt.queue.finish()
-    np.testing.assert_array_equal(out, np.float32([0.37, 0.11, 0.22, 0.33, 2.75, 0.59, 2.0]))
+    np.testing.assert_array_equal(out, np.float32([0.37, 0.11, 0.22, 0.33, 2.75, 0.59, 2.0, -1,
+                                                   0.11, 0.22, 0.33, 0]))
 
 
 def test_a_block_refuses_more_declared_properties_than_its_free_slots():

@@ -308,10 +308,6 @@ static void read_host_constants(clvol_host *h) {
              "first (at most 16), then two distinct slots", m->where, h->cfg_albedo, h->cfg_alpha);
     h->tile = mf_int_in(m, "host.raymarch_tile", 1, 16);
     h->rm_local = mf_int_in(m, "host.raymarch_local_size", 1, 1024);
-    /* queries per gather + MLP launch (bundles before the key: all in one launch, at most
-     * the 32^3 lattice they hold) */
-    h->net_chunk = mf_find(m, "host.network_chunk")
-        ? mf_int_in(m, "host.network_chunk", 1, 1 << 24) : 1 << 24;
 }
 
 /* Largest optical thickness of the volume at density scale 1 along x, y or z rows (the
@@ -350,8 +346,7 @@ static void read_view_keys(clvol_host *h) {
     v->samples = mf_int_in(m, "view.samples", 1, 4096);
     v->still_samples = mf_int_in(m, "view.still_samples", 1, 1 << 20);
     v->move_history = mf_int_in(m, "view.move_history", 0, 1 << 20);
-    /* bundles written before the key drew view.samples a frame whatever the history's age */
-    v->min_samples = mf_find(m, "view.min_samples") ? mf_int_in(m, "view.min_samples", 1, 4096) : 1;
+    v->min_samples = mf_int_in(m, "view.min_samples", 1, 4096);
     double seed = mf_double(m, "view.seed");
     if (!(seed >= 0 && seed < 4294967296.0 && seed == floor(seed)))
         fail(BUNDLE, "%s: view.seed = %g: an integer in [0, 2^32)", m->where, seed);
@@ -436,11 +431,7 @@ static void open_bundle(clvol_host *h) {
     h->threshold = mf_double(m, "raymarch.threshold");
     mf_doubles(m, "raymarch.octave_abc", h->octave_abc, 3);
     mf_doubles(m, "medium.config_phase", h->config_phase, h->cfg_albedo);
-    /* older bundles lack step_voxels: the step in world units of the bundle's grid */
-    const char *sv = mf_find(m, "raymarch.step_voxels");
-    double min_cell = fmin(fmin((h->bmax[0] - h->bmin[0]) / h->nx, (h->bmax[1] - h->bmin[1]) / h->ny),
-                           (h->bmax[2] - h->bmin[2]) / h->nz);
-    h->step_voxels = sv ? mf_double(m, "raymarch.step_voxels") : h->step / min_cell;
+    h->step_voxels = mf_double(m, "raymarch.step_voxels");
     if (!(h->step > 0 && isfinite(h->step) && h->step_voxels > 0 && isfinite(h->step_voxels)))
         fail(BUNDLE, "%s: raymarch.step must be finite and > 0", m->where);
     h->width = mf_int(m, "camera.width");
@@ -482,6 +473,7 @@ static void open_bundle(clvol_host *h) {
         if (h->prog[P_TRANS_WL]) h->k_sweepL = kernel(h, P_TRANS_WL, "transmittance_sweep_block");
     }
     if (h->network) {
+        h->net_chunk = mf_int_in(m, "host.network_chunk", 1, 1 << 24);  /* queries a launch */
         for (int p = P_PYRAMID; p <= P_MLP; ++p)
             if (p != P_MAJORANT && p != P_TRANS_W1 && p != P_TRANS_WL && !h->prog[p])
                 fail(BUNDLE, "%s: the network's programs must list %s", m->where, PROGRAM_NAMES[p]);
@@ -1317,14 +1309,6 @@ static void need_finite3(const float v[3], const char *fn, const char *what) {
                  (double)v[0], (double)v[1], (double)v[2]);
 }
 
-/* The domain keys (clvol bundle writes them; bundles before libclvol lack them). */
-static void need_domain_keys(const clvol_host *h, const char *fn) {
-    if (!mf_find(&h->mf, "domain.albedo"))
-        fail(CLVOL_ERROR_UNSUPPORTED, "%s: %s has no domain.* keys, which this change needs to "
-             "know the source clvol.Renderer would use; write the bundle again with clvol bundle",
-             fn, h->mf.where);
-}
-
 /* The --ms name of a source (the bundle's network source: network or stochastic). */
 static const char *source_name(const clvol_host *h, int s) {
     return s == SOURCE_NETWORK ? (h->view ? "stochastic" : "network") : s == SOURCE_WRENNINGE ? "wrenninge" : "none";
@@ -1359,8 +1343,8 @@ static int renderer_source(const clvol_host *h, const double albedo[3], double s
 
 /* Refuse a change for which clvol.Renderer would build other programs than the bundle's: lit
  * or unlit, and for a medium or volume (`medium_or_volume`) another source or a grey or
- * coloured network. (The source does not depend on the light, so a light change needs no
- * domain.* keys: bundles written before them take light changes.) */
+ * coloured network. (The source does not depend on the light: a light change reads no
+ * domain.* key.) */
 static void check_same_programs(const clvol_host *h, const char *fn, const double albedo[3],
                                 const double irr[3], double scale, double unit_thickness,
                                 int medium_or_volume) {
@@ -1371,7 +1355,6 @@ static void check_same_programs(const clvol_host *h, const char *fn, const doubl
              "and its programs are built for that; this change makes it %s", fn,
              h->lit ? "lit" : "unlit", h->lit ? ">" : "=", lit ? "lit" : "unlit");
     if (!lit || !medium_or_volume) return;
-    need_domain_keys(h, fn);
     int s = renderer_source(h, albedo, scale, unit_thickness);
     if (s != h->source)
         fail(CLVOL_ERROR_UNSUPPORTED, "%s: clvol.Renderer would use --ms %s for this medium "

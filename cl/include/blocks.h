@@ -4,8 +4,8 @@
  * they are and writes only what it changes at run time), so a new property reaches the ray
  * marcher and the path tracer through no argument list. A property the scene model declares
  * for the kernels (clvol/scenemodel.py ``declared(..., kernel=True)``) sits in a block's free
- * slots; the host passes its slot as -D MEDIUM_<NAME> or -D LIGHT_<NAME>, read with
- * block_float.
+ * slots; the host passes its slot as -D MEDIUM_SLOT_<NAME> or -D LIGHT_SLOT_<NAME>, read
+ * with block_float (block_float3 for an RGB one).
  *
  * Four float4s, not a float16: Oclgrind 21.10 with --uninitialized crashes on any float8 or
  * float16 kernel argument (tests/test_oclgrind.py runs every kernel there), and a struct of
@@ -24,6 +24,12 @@ inline float block_float(const Block16 b, const int slot) {
     const float4 q = slot < 4 ? b.q0 : slot < 8 ? b.q1 : slot < 12 ? b.q2 : b.q3;
     const int c = slot & 3;
     return c == 0 ? q.x : c == 1 ? q.y : c == 2 ? q.z : q.w;
+}
+
+/* An RGB property from ``slot``: (r, g, b, 0). */
+inline float4 block_float3(const Block16 b, const int slot) {
+    return (float4)(block_float(b, slot), block_float(b, slot + 1), block_float(b, slot + 2),
+                    0.0f);
 }
 
 #endif

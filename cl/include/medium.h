@@ -3,7 +3,8 @@
  *   density scale  sigma_t = density * density scale (1 / length)
  *   albedo         RGB single-scattering albedo
  *   lobe_g, lobe_w the phase lobes (phase.h): g and weight per lobe, unused lobes zero
- *   then the medium's declared properties: medium_float(m, MEDIUM_<NAME>)
+ *   then the medium's declared properties: medium_float(m, MEDIUM_SLOT_<NAME>), or
+ *                  medium_float3 for an RGB one
  *
  * Where each one sits: MEDIUM_* of constants.h (float index into the block). */
 #ifndef CLVOL_MEDIUM_H
@@ -25,5 +26,6 @@ typedef Block16 MediumBlock;
 #define MEDIUM_LOBE_G_OF(m) ((m).q1)
 #define MEDIUM_LOBE_W_OF(m) ((m).q2)
 #define medium_float(m, slot) block_float(m, slot)
+#define medium_float3(m, slot) block_float3(m, slot)
 
 #endif
