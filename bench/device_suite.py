@@ -144,9 +144,12 @@ def machine(entry) -> dict:
 # --------------------------------------------------------------------------- twins
 
 def twin_files() -> list[str]:
-    files = sorted(f"tests/test_{p.stem}.py" for p in (ROOT / "cl").glob("*.cl")
-                   if (ROOT / "tests" / f"test_{p.stem}.py").is_file())
-    # other files with tiny-input kernel tests (the environment map's march, ...)
+    """tests/conftest.py's TWIN_FILES (one list for the test suite, scripts/twins_on_devices.py
+    and this), then the other files with tiny-input kernel tests (the environment map's
+    march, ...)."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from conftest import TWIN_FILES
+    files = list(TWIN_FILES)
     for p in sorted((ROOT / "tests").glob("test_*.py")):
         rel = f"tests/{p.name}"
         if rel not in files and p.name != "test_oclgrind.py" and \
