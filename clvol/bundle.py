@@ -30,6 +30,7 @@ import numpy as np
 
 from .errors import ClvolError
 from .features import layout
+from .scenefile import SET_HELP
 
 FORMAT = "clvol-bundle"
 FORMAT_VERSION = 3        # 2: the ray marcher takes the medium block; 3: and the light block
@@ -494,6 +495,7 @@ def add_arguments(p) -> None:
     p.add_argument("--step", type=float, default=None, help=f"march step in voxels (default: the renderer's, {DEFAULT_STEP:g})")
     p.add_argument("--threshold", type=float, default=None,
                    help=f"early termination transmittance (default {DEFAULT_THRESHOLD:g})")
+    p.add_argument("--set", action="append", metavar="TABLE.FIELD=VALUE", help=SET_HELP)
     p.add_argument("--width", type=int, default=None, help="override the camera's width")
     p.add_argument("--height", type=int, default=None, help="override the camera's height")
 
@@ -501,7 +503,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from .errors import ClvolError
     from .render.ms import source_classes
-    from .scene import load_scene
+    from .scene import load_scene_overridden
     check_out_dir(args.dir)
     ms = source_classes().get(args.ms)
     # The C host is configured with a network source (the world lattice or the stochastic
@@ -511,11 +513,7 @@ def run(args) -> int:
                          f"renders the network on the world lattice (--ms network) or the "
                          f"stochastic view table (--ms stochastic); view and progressive run "
                          f"only in Python (docs/embedding.md)")
-    scene = load_scene(args.scene)
-    over = {k: v for k, v in (("camera.width", args.width), ("camera.height", args.height))
-            if v is not None}
-    if over:
-        scene = scene.with_overrides(over, source=str(args.scene))
+    scene = load_scene_overridden(args.scene, args.set, args.width, args.height)
     out = write_bundle(scene, args.dir, weights=args.weights, ms_resolution=args.ms_resolution,
                        step=args.step, threshold=args.threshold,
                        light_resolution=args.light_resolution, light_interp=args.light_interp,

@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from .errors import BuildError, ClvolError
+from .scenefile import SET_HELP
 
 
 def _code_paths(kind: str, cus: int, lanes: int, lanes_line: str = "") -> list[str]:
@@ -256,7 +257,7 @@ def _cmd_render(args) -> int:
     from .render.options import given_options
     from .render.renderer import Renderer
     from .runtime import configure, get_runtime
-    from .scene import load_scene
+    from .scene import load_scene_overridden
     if args.png is None:
         for name in ("exposure", "tone"):
             if getattr(args, name) is not None:
@@ -265,11 +266,7 @@ def _cmd_render(args) -> int:
     exposure = parse_exposure(args.exposure)
     tone = args.tone or "filmic"
     configure(device=args.device, profiling=args.profile)
-    scene = load_scene(args.scene)
-    over = {k: v for k, v in (("camera.width", args.width), ("camera.height", args.height))
-            if v is not None}
-    if over:             # checked like the scene file's own fields (range, type)
-        scene = scene.with_overrides(over, source=str(args.scene))
+    scene = load_scene_overridden(args.scene, args.set, args.width, args.height)
     renderer = Renderer(scene, args.method, **given_options(args, list(METHODS)))
     if args.frames is not None:
         return _render_frames(args, scene, renderer, png, exposure, tone)
@@ -300,8 +297,8 @@ def _cmd_bundle(args) -> int:
     """``clvol bundle``, after refusing what the C host does not render (emission, a volume
     sequence), in one line."""
     from . import bundle
-    from .scene import load_scene
-    scene = load_scene(args.scene)
+    from .scene import load_scene_overridden
+    scene = load_scene_overridden(args.scene, args.set, args.width, args.height)
     if scene.emission is not None:
         raise ClvolError(f"{args.scene}: clvol bundle: the C host has no emission; render "
                          f"[emission] scenes with clvol render (docs/embedding.md)")
@@ -349,7 +346,7 @@ def _render_frames(args, scene, renderer, png, exposure, tone) -> int:
 
 def _cmd_view(args) -> int:
     from .runtime import configure
-    from .scene import load_scene
+    from .scene import load_scene_overridden
     from .viewer.server import serve
     try:
         import aiohttp  # noqa: F401
@@ -358,7 +355,7 @@ def _cmd_view(args) -> int:
     if not 0 <= args.port <= 65535:
         raise ClvolError(f"--port {args.port}: allowed range 0-65535 (0 = any free port)")
     configure(device=args.device)
-    scene = load_scene(args.scene)
+    scene = load_scene_overridden(args.scene, args.set)
     return serve(scene, host=args.host, port=args.port, open_browser=not args.no_browser,
                  save_dir=Path(args.save_dir) if args.save_dir else None)
 
@@ -536,6 +533,7 @@ def _add_render(sub) -> None:
     p.add_argument("--device", help="OpenCL device: P:D, gpu, cpu or a name substring")
     p.add_argument("--profile", action="store_true",
                    help="print per-kernel device times and the host<->device transfers")
+    p.add_argument("--set", action="append", metavar="TABLE.FIELD=VALUE", help=SET_HELP)
     p.add_argument("--width", type=int, default=None, help="override the camera's width")
     p.add_argument("--height", type=int, default=None, help="override the camera's height")
     p.add_argument("--quiet", action="store_true",
@@ -573,6 +571,7 @@ def _add_view(sub) -> None:
     p.add_argument("--no-browser", action="store_true", help="do not open a browser")
     p.add_argument("--save-dir", help="folder for 'save EXR' (default: the current folder)")
     p.add_argument("--device", help="OpenCL device: P:D, gpu, cpu or a name substring")
+    p.add_argument("--set", action="append", metavar="TABLE.FIELD=VALUE", help=SET_HELP)
     p.set_defaults(func=_cmd_view)
 
 

@@ -13,11 +13,11 @@ scenefile.py imports scenemodel.py, and neither imports this module.
 """
 from __future__ import annotations
 
-from .scenefile import Scene, dumps_scene, load_scene, scene_from_dict
+from .scenefile import Scene, dumps_scene, load_scene, load_scene_overridden, scene_from_dict
 from .scenemodel import (HG_G_LIMIT, MAX_IMAGE_SIZE, MAX_VDB_RESOLUTION,
                          MHG_MAX_LOBES, MHG_WEIGHT_TOL, PRESETS, VOLUME_SUFFIXES, Camera, Light,
                          Lobe, Medium, Phase, VolumeSpec, EmissionSpec)
 
-__all__ = ["Scene", "load_scene", "scene_from_dict", "dumps_scene", "VolumeSpec", "EmissionSpec", "Medium",
+__all__ = ["Scene", "load_scene", "load_scene_overridden", "scene_from_dict", "dumps_scene", "VolumeSpec", "EmissionSpec", "Medium",
            "Phase", "Lobe", "Light", "Camera", "PRESETS", "HG_G_LIMIT", "MHG_MAX_LOBES",
            "MHG_WEIGHT_TOL", "MAX_IMAGE_SIZE", "MAX_VDB_RESOLUTION", "VOLUME_SUFFIXES"]

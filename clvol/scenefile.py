@@ -218,6 +218,43 @@ def load_scene(path) -> Scene:
     return dataclasses.replace(scene, path=path)
 
 
+# ``--set`` of clvol render, bundle and view (``load_scene_overridden``).
+SET_HELP = ("override a scene field, as the file would set it (repeatable), e.g. --set "
+            "medium.density_scale=30 --set 'light.irradiance=[2, 2, 2]'; checked like the "
+            "file's own fields (docs/scenes.md)")
+
+
+def load_scene_overridden(path, assignments=(), width: int | None = None,
+                          height: int | None = None) -> Scene:
+    """``load_scene``, then the command line's overrides (``clvol render``, ``bundle``,
+    ``view``): each ``--set TABLE.FIELD=VALUE`` (VALUE a TOML value: ``30``, ``[2, 2, 2]``,
+    ``"cloud"``, ``{ type = "hg", g = 0.5 }``), then ``--width`` and ``--height``, checked by
+    the file's own rules (``Scene.with_overrides``); messages name the file and the options."""
+    scene = load_scene(path)
+    over = {}
+    for item in assignments or ():
+        key, eq, raw = item.partition("=")
+        key = key.strip()
+        parts = key.split(".")
+        if not eq or len(parts) < 2 or not all(parts):
+            raise SceneError(f"--set {item!r}: must be TABLE.FIELD=VALUE, e.g. "
+                             "medium.density_scale=30 or light.irradiance=[2, 2, 2]")
+        try:
+            over[key] = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            raise SceneError(f"--set {item!r}: {raw.strip()!r} is not a TOML value (a number, "
+                             '[r, g, b], a "string" or a { table })') from None
+    for key, flag, value in (("camera.width", "--width", width),
+                             ("camera.height", "--height", height)):
+        if value is not None:
+            if key in over:
+                raise SceneError(f"{flag} {value} and --set {key}=...: give one of them")
+            over[key] = value
+    if not over:
+        return scene
+    return scene.with_overrides(over, source=f"{path} (with --set/--width/--height)")
+
+
 def scene_from_dict(data: dict, source: str = "<scene>", base_dir: Path | None = None) -> Scene:
     """Validate a parsed scene. ``source`` names the file in messages; relative volume
     paths resolve against ``base_dir`` (default: the current directory)."""

@@ -185,3 +185,32 @@ def test_compare_reads_the_c_demos_pfm(tmp_path, capsys):
     bad.write_bytes((tmp_path / "same.pfm").read_bytes()[:-4])
     code, _, err = run(capsys, "compare", bad, tmp_path / "ref.exr")
     assert code == 2 and "cut.pfm" in err and "truncated" in err
+
+
+def test_set_overrides_scene_fields_as_the_file_would(tmp_path, capsys):
+    """--set TABLE.FIELD=VALUE (a TOML value) replaces a field of the scene file for this run,
+    through the file's own checks: the image takes the new size, a table value (the phase)
+    and an RGB work, the bundle writes the new density scale; a value out of range, a
+    malformed item and a clash with --width are each one line, exit 2."""
+    scene = write_scene(tmp_path / "s.toml", volume={"generator": "sphere", "resolution": 12},
+                        medium={"preset": "milk", "density_scale": 8.0},
+                        light={"direction": [0.3, 1.0, 0.4]},
+                        camera={**CAMERA, "origin": [0.0, 0.2, 2.2], "width": 9, "height": 7})
+    out = tmp_path / "o.exr"
+    code, _, err = run(capsys, "render", scene, "--method", "raymarch", "--ms", "none", "-o",
+                       out, "--set", "camera.width=5", "--set", "camera.height=4",
+                       "--set", 'medium.phase={ type = "hg", g = 0.5 }',
+                       "--set", "light.irradiance=[2.0, 1.0, 0.5]")
+    assert code == 0, err
+    from clvol.image import read_exr
+    assert read_exr(out).rgb.shape == (4, 5, 3)
+    code, _, err = run(capsys, "bundle", scene, tmp_path / "B", "--set", "medium.density_scale=12")
+    assert code == 0, err
+    assert "\nmedium.density_scale = 12.0\n" in (tmp_path / "B" / "manifest.txt").read_text()
+    for argv, fragment in (
+            (["--set", "medium.density_scale=-1"], "[medium.density_scale] = -1: must be >= 0"),
+            (["--set", "medium.albedo"], "must be TABLE.FIELD=VALUE"),
+            (["--set", "light.irradiance=[1, 2"], "is not a TOML value"),
+            (["--set", "camera.width=5", "--width", "6"], "give one of them")):
+        code, _, err = run(capsys, "render", scene, "-o", out, *argv)
+        assert code == 2 and fragment in err and err.count("\n") == 1, err
