@@ -94,6 +94,38 @@ def test_scene_text_parses_or_fails_in_one_line(tmp_path_factory, text):
         _one_line(exc)
 
 
+# --set items: a known field (so the value reaches its check) or any text, = any text or a
+# TOML-looking value
+_SET_KEYS = st.one_of(st.sampled_from(["medium.density_scale", "medium.albedo", "medium.phase",
+                                       "medium.preset", "light.direction", "light.irradiance",
+                                       "camera.fov_y", "camera.width", "volume.generator"]),
+                      st.text(max_size=20))
+_TOML_NUMBERS = st.one_of(st.integers(-10**6, 10**6).map(str),
+                          st.floats(allow_nan=True, allow_infinity=True).map(
+                              lambda x: "nan" if x != x else ("inf" if x > 0 else "-inf")
+                              if abs(x) == float("inf") else repr(x)))
+_SET_VALUES = st.one_of(
+    _TOML_NUMBERS, st.lists(_TOML_NUMBERS, max_size=4).map(lambda v: "[" + ", ".join(v) + "]"),
+    st.sampled_from(["{ type = \"hg\", g = 2 }", "{ type = \"hg\", g = 0.5 }", "\"milk\"",
+                     "\"cloud\"", "true", "[[]]", "{}", "\"\""]),
+    st.text(max_size=30))
+
+
+@FUZZ
+@given(st.lists(st.one_of(st.builds(lambda k, v: f"{k}={v}", _SET_KEYS, _SET_VALUES),
+                          st.text(max_size=40)), max_size=3))
+def test_set_items_apply_or_fail_in_one_line(items):
+    """The command line's --set reader (scenefile.py load_scene_overridden) on any items."""
+    from pathlib import Path
+    from clvol.scene import load_scene_overridden
+    try:
+        load_scene_overridden(Path(__file__).parents[1] / "examples" / "cloud.toml", items)
+        event("applied")
+    except ClvolError as exc:
+        _one_line(exc)
+        event("refused: " + str(exc).split(": ")[1 if "(with" in str(exc) else 0][:20])
+
+
 # ----------------------------------------------------------------- volume readers
 
 def _real_files(folder):
