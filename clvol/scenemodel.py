@@ -184,7 +184,7 @@ class Property:
     block and the kernels a ``-D MEDIUM_SLOT_<NAME>`` (or ``LIGHT_SLOT_<NAME>``) to read it by
     (cl/include/blocks.h).
     ``kind``: "number" (one float) or "rgb" (a number for grey, or 3 numbers); the range
-    ``lo`` .. ``hi`` (None: unbounded; ``*_open``: the bound itself refused)."""
+    ``lo`` .. ``hi`` (None: unbounded; ``*_open``: the bound itself refused, numbers only)."""
     kind: str
     help: str
     lo: float | None = None
@@ -196,6 +196,9 @@ class Property:
     def __post_init__(self):
         if self.kind not in ("number", "rgb"):
             raise TypeError(f"a declared property's kind is 'number' or 'rgb', not {self.kind!r}")
+        if self.kind == "rgb" and (self.lo_open or self.hi_open):
+            raise TypeError("an RGB property's bounds are closed (the file's RGB check has no "
+                            "open bounds)")
 
 
 def declared(default, help: str, kind: str = "number", **limits):

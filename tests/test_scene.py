@@ -699,3 +699,8 @@ def test_a_declared_medium_property_is_read_checked_and_written_from_its_declara
     data["medium"]["gian"] = 1.0
     with pytest.raises(SceneError, match="did you mean gain"):
         scene_from_dict(data)
+    # a declaration the reader could not honour is refused where it is written
+    from clvol.scenemodel import Property
+    for bad in (dict(kind="vector"), dict(kind="rgb", lo=0.0, lo_open=True)):
+        with pytest.raises(TypeError):
+            Property(help="x", **bad)
