@@ -281,25 +281,32 @@ def test_kernels_refuse_to_build_without_a_host_define(stem, defines, name):
         get_runtime().program(stem, defines)
 
 
+def _run_probe(src: str, n: int, *blocks, defines=None) -> np.ndarray:
+    """Build ``src`` (its kernel ``probe(blocks..., __global float *o)``) on the session's
+    device with the include folder and ``defines``, run one work-item, return o[0..n)."""
+    rt = get_runtime()
+    prog = cl.Program(rt.context, src).build(
+        options=["-I", str(include_dir())] + _define_flags(defines or {}), devices=[rt.device])
+    out = np.zeros(n, np.float32)
+    ob = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
+    prog.probe(rt.queue, (1,), None, *blocks, ob)
+    cl.enqueue_copy(rt.queue, out, ob)
+    rt.queue.finish()
+    return out
+
+
 def test_the_kernels_read_each_property_of_the_medium_block_where_the_host_packs_it():
     """cl/include/medium.h's accessors on a block from ``medium_block``: every property comes
     back from its own slot (distinct values everywhere, so that two swapped slots show), the
     albedo's w is 0 and the free slots stay zero."""
     from clvol.kernels.blocks import medium_block
-    rt = get_runtime()
     lobes = [(0.61, 0.52), (-0.23, 0.31), (0.07, 0.17)]
     block = medium_block(medium_of(2.75, (0.91, 0.82, 0.73), lobes))
     src = ('#include "medium.h"\n__kernel void probe(const MediumBlock m, __global float *o) {\n'
            "    o[0] = MEDIUM_DENSITY_SCALE_OF(m);\n    vstore4(MEDIUM_ALBEDO_OF(m), 1, o);\n"
            "    vstore4(MEDIUM_LOBE_G_OF(m), 2, o);\n    vstore4(MEDIUM_LOBE_W_OF(m), 3, o);\n"
            "    vstore4(m.q3, 4, o);\n}\n")
-    prog = cl.Program(rt.context, src).build(options=["-I", str(include_dir())],
-                                             devices=[rt.device])
-    out = np.zeros(20, np.float32)
-    ob = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
-    prog.probe(rt.queue, (1,), None, block, ob)
-    cl.enqueue_copy(rt.queue, out, ob)
-    rt.queue.finish()
+    out = _run_probe(src, 20, block)
     want = np.float32([2.75, 0, 0, 0, 0.91, 0.82, 0.73, 0, 0.61, -0.23, 0.07, 0,
                        0.52, 0.31, 0.17, 0, 0, 0, 0, 0])
     assert out[0] == want[0] and np.array_equal(out[4:], want[4:]), out
@@ -309,18 +316,11 @@ def test_the_kernels_read_the_light_block_where_the_host_packs_it():
     """cl/include/light.h's accessors on a block from ``light_block``: direction and
     irradiance from their own slots (different values), w 0, the free slots zero."""
     from clvol.kernels.blocks import light_block
-    rt = get_runtime()
     block = light_block(light_of((0.48, 0.6, 0.64), (1.5, 0.25, 3.0)))
     src = ('#include "light.h"\n__kernel void probe(const LightBlock l, __global float *o) {\n'
            "    vstore4(LIGHT_DIRECTION_OF(l), 0, o);\n    vstore4(LIGHT_IRRADIANCE_OF(l), 1, o);\n"
            "    vstore4(l.q2, 2, o);\n    vstore4(l.q3, 3, o);\n}\n")
-    prog = cl.Program(rt.context, src).build(options=["-I", str(include_dir())],
-                                             devices=[rt.device])
-    out = np.zeros(16, np.float32)
-    ob = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
-    prog.probe(rt.queue, (1,), None, block, ob)
-    cl.enqueue_copy(rt.queue, out, ob)
-    rt.queue.finish()
+    out = _run_probe(src, 16, block)
     np.testing.assert_array_equal(out, np.float32([0.48, 0.6, 0.64, 0, 1.5, 0.25, 3.0, 0]
                                                   + [0] * 8))
 
@@ -356,7 +356,6 @@ def test_declared_kernel_properties_reach_the_kernel_at_the_slots_the_host_gives
                                     "LIGHT_SLOT_EXTRA_GAIN")} == {
         "MEDIUM_SLOT_EXTRA_GAIN": first, "MEDIUM_SLOT_EXTRA_TINT": first + 1,
         "LIGHT_SLOT_EXTRA_GAIN": first_l}
-    rt = get_runtime()
     src = ('#include "medium.h"\n#include "light.h"\n'
            "__kernel void probe(const MediumBlock m, const LightBlock l, __global float *o) {\n"
            "    o[0] = medium_float(m, MEDIUM_SLOT_EXTRA_GAIN);\n"
@@ -364,13 +363,7 @@ def test_declared_kernel_properties_reach_the_kernel_at_the_slots_the_host_gives
            "    for (int c = 0; c < 3; ++c) o[1 + c] = medium_float(m, MEDIUM_SLOT_EXTRA_TINT + c);\n"
            "    o[4] = MEDIUM_DENSITY_SCALE_OF(m);\n    o[5] = light_float(l, LIGHT_SLOT_EXTRA_GAIN);\n"
            "    o[6] = LIGHT_IRRADIANCE_OF(l).x;\n    o[7] = -1.0f;\n}\n")
-    prog = cl.Program(rt.context, src).build(
-        options=["-I", str(include_dir())] + _define_flags(defines), devices=[rt.device])
-    out = np.zeros(12, np.float32)
-    ob = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, out.nbytes)
-    prog.probe(rt.queue, (1,), None, medium_block(m), light_block(li), ob)
-    cl.enqueue_copy(rt.queue, out, ob)
-    rt.queue.finish()
+    out = _run_probe(src, 12, medium_block(m), light_block(li), defines=defines)
     np.testing.assert_array_equal(out, np.float32([0.37, 0.11, 0.22, 0.33, 2.75, 0.59, 2.0, -1,
                                                    0.11, 0.22, 0.33, 0]))
 

@@ -288,6 +288,17 @@ static void bake(clvol_host *h) {
 
 /* ------------------------------------------------------------------------- the bundle */
 
+/* A kernel argument block as the bundle wrote it (raymarch.<name>, cl/include/blocks.h), of
+ * the 16 floats this libclvol passes (host.<name>_floats). */
+static void read_block(const manifest *m, const char *name, double out[16]) {
+    char key[64];
+    snprintf(key, sizeof key, "host.%s_floats", name);
+    if (mf_int(m, key) != 16)
+        fail(BUNDLE, "%s: %s = %d: this libclvol passes 16 floats", m->where, key, mf_int(m, key));
+    snprintf(key, sizeof key, "raymarch.%s", name);
+    mf_doubles(m, key, out, 16);
+}
+
 static void read_host_constants(clvol_host *h) {
     const manifest *m = &h->mf;
     h->pad = mf_int_in(m, "host.pad", 1, 1024);
@@ -401,16 +412,10 @@ static void open_bundle(clvol_host *h) {
     h->density = keep(read_raw4(h->dir, mf_str(m, "density.file"), count));
     h->density_scale = mf_double(m, "medium.density_scale");
     mf_doubles(m, "medium.albedo", h->albedo, 3);
-    if (mf_int(m, "host.medium_floats") != 16)
-        fail(BUNDLE, "%s: host.medium_floats = %d: this libclvol passes 16 floats", m->where,
-             mf_int(m, "host.medium_floats"));
-    mf_doubles(m, "raymarch.medium", h->medium, 16);
+    read_block(m, "medium", h->medium);
     h->medium_ds_slot = mf_int_in(m, "host.medium_density_scale", 0, 15);
     h->medium_albedo_slot = mf_int_in(m, "host.medium_albedo", 0, 13);
-    if (mf_int(m, "host.light_floats") != 16)
-        fail(BUNDLE, "%s: host.light_floats = %d: this libclvol passes 16 floats", m->where,
-             mf_int(m, "host.light_floats"));
-    mf_doubles(m, "raymarch.light", h->light_block, 16);
+    read_block(m, "light", h->light_block);
     h->light_dir_slot = mf_int_in(m, "host.light_direction", 0, 13);
     h->light_irradiance_slot = mf_int_in(m, "host.light_irradiance", 0, 13);
     h->lit = mf_int(m, "raymarch.lit");
@@ -1145,14 +1150,18 @@ static void view_stage(clvol_host *h) {
 /* The ray marcher's medium argument (cl/include/medium.h): the bundle's block (read at create)
  * with the density scale and albedo this host holds now (clvol_set_medium changes them) in
  * the slots the bundle names. */
+static cl_float16 block_arg(const double v[16]) {
+    cl_float16 out;
+    for (int i = 0; i < 16; ++i) out.s[i] = (float)v[i];
+    return out;
+}
+
 static cl_float16 medium_block(const clvol_host *h) {
     double v[16];
     memcpy(v, h->medium, sizeof v);
     v[h->medium_ds_slot] = h->density_scale;
     for (int c = 0; c < 3; ++c) v[h->medium_albedo_slot + c] = h->albedo[c];
-    cl_float16 out;
-    for (int i = 0; i < 16; ++i) out.s[i] = (float)v[i];
-    return out;
+    return block_arg(v);
 }
 
 /* The ray marcher's light argument (cl/include/light.h): the bundle's block with the
@@ -1164,9 +1173,7 @@ static cl_float16 light_block(const clvol_host *h) {
         v[h->light_dir_slot + c] = h->light_dir[c];
         v[h->light_irradiance_slot + c] = h->irradiance[c];
     }
-    cl_float16 out;
-    for (int i = 0; i < 16; ++i) out.s[i] = (float)v[i];
-    return out;
+    return block_arg(v);
 }
 
 static void march_stage(clvol_host *h) {
