@@ -1146,16 +1146,16 @@ static void view_stage(clvol_host *h) {
     h->counts[CLVOL_STAGE_LATTICE]++;
 }
 
-/* Every frame: the march into h->d_out (total, single, multiple, alpha, depth). */
-/* The ray marcher's medium argument (cl/include/medium.h): the bundle's block (read at create)
- * with the density scale and albedo this host holds now (clvol_set_medium changes them) in
- * the slots the bundle names. */
+/* A block as the kernel argument (cl/include/blocks.h Block16: a float16's layout). */
 static cl_float16 block_arg(const double v[16]) {
     cl_float16 out;
     for (int i = 0; i < 16; ++i) out.s[i] = (float)v[i];
     return out;
 }
 
+/* The ray marcher's medium argument (cl/include/medium.h): the bundle's block (read at create)
+ * with the density scale and albedo this host holds now (clvol_set_medium changes them) in
+ * the slots the bundle names. */
 static cl_float16 medium_block(const clvol_host *h) {
     double v[16];
     memcpy(v, h->medium, sizeof v);
@@ -1176,6 +1176,7 @@ static cl_float16 light_block(const clvol_host *h) {
     return block_arg(v);
 }
 
+/* Every frame: the march into h->d_out (total, single, multiple, alpha, depth). */
 static void march_stage(clvol_host *h) {
     const double *abc = h->octave_abc;
     int gres[3] = {1, 1, 1};
