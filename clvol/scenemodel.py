@@ -73,6 +73,11 @@ class Phase:
         return float(sum(l.weight * l.g for l in self.lobes))
 
     @property
+    def pairs(self) -> tuple[tuple[float, float], ...]:
+        """The lobes as (g, weight) pairs of floats, the form the kernels' wrappers take."""
+        return tuple((float(lo.g), float(lo.weight)) for lo in self.lobes)
+
+    @property
     def is_isotropic(self) -> bool:
         return self.type == "isotropic" or all(l.g == 0.0 for l in self.lobes)
 

@@ -88,8 +88,8 @@ def medium_block(medium) -> np.ndarray:
     b = np.zeros(MEDIUM_FLOATS, np.float32)
     b[SLOT_DENSITY_SCALE] = float(medium.density_scale)
     b[SLOT_ALBEDO:SLOT_ALBEDO + 3] = np.asarray(medium.albedo, np.float64)
-    lobes = [(lo.g, lo.weight) for lo in medium.phase.lobes]
-    b[SLOT_LOBE_G:SLOT_LOBE_G + 4], b[SLOT_LOBE_W:SLOT_LOBE_W + 4] = lobe_vectors(lobes)
+    b[SLOT_LOBE_G:SLOT_LOBE_G + 4], b[SLOT_LOBE_W:SLOT_LOBE_W + 4] = lobe_vectors(
+        medium.phase.pairs)
     return _pack_declared(b, medium)
 
 

@@ -51,7 +51,7 @@ def coarse_level(base_resolution: int) -> int:
 
 
 def _lobes(medium):
-    return tuple((float(l.g), float(l.weight)) for l in medium.phase.lobes)
+    return medium.phase.pairs
 
 
 @lru_cache(maxsize=8)

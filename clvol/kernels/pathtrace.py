@@ -154,7 +154,7 @@ def specialisation(med: PathMedium, specialise: bool = True) -> tuple[dict, list
     general kernel is built (three lobes, RGB, environment and sun code all compiled)."""
     simulated, skipped = [], []
     grey, iso = med.medium.is_grey, med.medium.phase.is_isotropic
-    lobes = [(lo.g, lo.weight) for lo in med.medium.phase.lobes]
+    lobes = list(med.medium.phase.pairs)
     env = med.environment is not None and max(med.environment) > 0
     sun = max(med.light.irradiance) > 0
     single = med.max_order == 1

@@ -186,8 +186,7 @@ def raymarch(density, bbox_min, bbox_max, medium,
         ms_bbox_min, ms_bbox_max = (0, 0, 0), (1, 1, 1)
     else:
         ms, channels, view_k = None, 1, 1
-    lobes = () if medium.phase.is_isotropic else tuple((lo.g, lo.weight)
-                                                       for lo in medium.phase.lobes)
+    lobes = () if medium.phase.is_isotropic else medium.phase.pairs
     defines = raymarch_defines(lobes, lit, source, octaves, channels, skip_empty, view_k,
                                view_block)
     defines.update(input_defines(

@@ -306,7 +306,7 @@ def _sun_and_phase(medium, light, lit, shortcuts, sim, skip) -> tuple:
     if shortcuts and medium.phase.is_isotropic:
         skip.append("phase evaluation (isotropic: constant 1/(4 pi))")
         return ()
-    return tuple((lo.g, lo.weight) for lo in medium.phase.lobes)
+    return medium.phase.pairs
 
 
 def _ms_effects(ms: MsPlan, choice: SourceChoice, sim, skip) -> None:
